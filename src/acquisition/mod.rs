@@ -1,0 +1,490 @@
+//! The acquisition daemon: for every layer signal, for each light in turn: light on, settle,
+//! capture and download, light off, store the original, hand it to processing. Resumes from the
+//! journal after any stop; never waits for processing.
+
+pub mod journal;
+pub mod processing;
+pub mod status;
+pub mod storage;
+
+use crate::camera::mock::{MockCameraBody, MockWorld};
+use crate::camera::{capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy};
+use crate::config::{CameraConfig, Config, TriggerConfig};
+use crate::lights::{LightsError, LightsGuard, MockLightsLog};
+use crate::trigger::{LayerEvent, Trigger, TriggerError};
+use crate::view::{Light, Phase, Shot};
+use chrono::Utc;
+use journal::{Journal, JournalError, Record, Replay};
+use processing::{FrameProcessor, ProcessingQueue};
+use status::{BuildManifest, LastFrame, LiveStatus};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use storage::{Storage, StorageError};
+use tracing::{error, info, warn};
+
+#[derive(Debug, thiserror::Error)]
+pub enum AcquisitionError {
+    #[error(transparent)]
+    Storage(#[from] StorageError),
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    #[error("camera: {0}")]
+    CameraOpen(CameraError),
+    #[error("camera hung ({0}); exiting so that systemd restarts the service")]
+    CameraHung(CameraError),
+    #[error(transparent)]
+    Trigger(#[from] TriggerError),
+    #[error(transparent)]
+    Lights(#[from] LightsError),
+    #[error("{0}")]
+    Runtime(String),
+}
+
+/// What a run did.
+#[derive(Clone, Debug, Default)]
+pub struct RunSummary {
+    pub build_dir: PathBuf,
+    pub stored: u64,
+    pub missing: u64,
+    pub skipped: u64,
+    pub stop_reason: String,
+}
+
+/// How to run: what to do with frames, and the pieces tests replace.
+pub struct RunOptions {
+    pub processor: Arc<dyn FrameProcessor>,
+    /// Send READY and WATCHDOG to systemd.
+    pub notify_systemd: bool,
+    /// When the trigger ends (a mock build), process every frame before returning.
+    pub drain_at_end: bool,
+    /// Replaces the configured trigger (tests).
+    pub trigger: Option<Box<dyn Trigger>>,
+    /// The simulated machine shared by the mock trigger, lights and camera.
+    pub world: MockWorld,
+    /// Filled with the mock lights' log when the lights are mock (tests).
+    pub lights_log: Option<Arc<Mutex<Option<MockLightsLog>>>>,
+}
+
+impl RunOptions {
+    pub fn new(processor: Arc<dyn FrameProcessor>) -> RunOptions {
+        RunOptions {
+            processor,
+            notify_systemd: false,
+            drain_at_end: false,
+            trigger: None,
+            world: MockWorld::new(),
+            lights_log: None,
+        }
+    }
+}
+
+/// The layer currently being captured: which of its lights are done.
+struct OpenEvent {
+    layer: u32,
+    phase: Phase,
+    at: chrono::DateTime<Utc>,
+    done: BTreeSet<Light>,
+}
+
+struct Sequencer {
+    lights_order: Vec<Light>,
+    settle: Duration,
+    storage: Storage,
+    journal: Arc<Mutex<Journal>>,
+    lights: LightsGuard,
+    camera: CameraActor,
+    policy: RetryPolicy,
+    /// Shots done before this start; kept from the replay, not grown while running.
+    before: Replay,
+    open: Option<OpenEvent>,
+    queue: Option<ProcessingQueue>,
+    live: LiveStatus,
+    summary: RunSummary,
+    heartbeat: Arc<AtomicU64>,
+    epoch: Instant,
+}
+
+impl Sequencer {
+    fn beat(&self) {
+        self.heartbeat.store(self.epoch.elapsed().as_millis() as u64, Ordering::SeqCst);
+    }
+
+    fn journal(&self, record: &Record) -> Result<(), AcquisitionError> {
+        let mut journal = self.journal.lock().map_err(|_| AcquisitionError::Runtime("journal lock poisoned".into()))?;
+        journal.append(record)?;
+        Ok(())
+    }
+
+    fn is_done(&self, shot: &Shot) -> bool {
+        self.before.is_done(shot)
+            || self.open.as_ref().is_some_and(|o| o.layer == shot.layer && o.phase == shot.phase && o.done.contains(&shot.light))
+    }
+
+    fn record_missing(&mut self, shot: Shot, reason: String) -> Result<(), AcquisitionError> {
+        error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "frame missing");
+        self.journal(&Record::Missing { layer: shot.layer, phase: shot.phase, light: shot.light, reason, at: Utc::now() })?;
+        self.summary.missing += 1;
+        if let Some(open) = self.open.as_mut() {
+            open.done.insert(shot.light);
+        }
+        Ok(())
+    }
+
+    /// Gives up on the views of an event that a newer signal overtook (e.g. across a restart).
+    fn close_open_event(&mut self, reason: &str) -> Result<(), AcquisitionError> {
+        let Some(open) = self.open.take() else { return Ok(()) };
+        for light in self.lights_order.clone() {
+            let shot = Shot { layer: open.layer, phase: open.phase, light };
+            if !open.done.contains(&light) && !self.before.is_done(&shot) {
+                self.open = Some(OpenEvent { done: open.done.clone(), ..open });
+                self.record_missing(shot, reason.to_string())?;
+                self.open = None;
+            }
+        }
+        Ok(())
+    }
+
+    fn on_event(&mut self, event: LayerEvent) -> Result<(), AcquisitionError> {
+        self.beat();
+        self.journal(&Record::Event { layer: event.layer, phase: event.phase, at: event.at })?;
+        let key = (event.layer, event.phase);
+        if let Some(open) = &self.open {
+            if key > (open.layer, open.phase) {
+                self.close_open_event("not captured: the printer moved on (daemon stopped or busy)")?;
+            }
+        }
+        let shots: Vec<Shot> =
+            self.lights_order.iter().map(|&light| Shot { layer: event.layer, phase: event.phase, light }).collect();
+        if shots.iter().all(|s| self.is_done(s)) {
+            info!(layer = event.layer, phase = %event.phase, "layer signal for frames already stored; skipped");
+            self.summary.skipped += shots.len() as u64;
+            return Ok(());
+        }
+        if self.open.as_ref().map(|o| (o.layer, o.phase)) != Some(key) {
+            self.open = Some(OpenEvent { layer: event.layer, phase: event.phase, at: event.at, done: BTreeSet::new() });
+        }
+        self.live.layer = Some(event.layer);
+        self.live.phase = Some(event.phase);
+        for shot in shots {
+            if self.is_done(&shot) {
+                self.summary.skipped += 1;
+                continue;
+            }
+            self.take(shot)?;
+        }
+        self.open = None;
+        Ok(())
+    }
+
+    fn take(&mut self, shot: Shot) -> Result<(), AcquisitionError> {
+        self.beat();
+        let event_at = self.open.as_ref().map_or_else(Utc::now, |o| o.at);
+        if let Err(e) = self.lights.switch(shot.light, true) {
+            self.lights.all_off_logged();
+            return self.record_missing(shot, format!("the {} light did not switch on: {e}", shot.light));
+        }
+        if !self.settle.is_zero() {
+            std::thread::sleep(self.settle);
+        }
+        let result = capture_with_retries(&self.camera, &self.policy);
+        if let Err(e) = self.lights.switch(shot.light, false) {
+            warn!(light = %shot.light, error = %e, "lights: could not switch off; switching all off");
+            self.lights.all_off_logged();
+        }
+        self.beat();
+        match result {
+            Ok((frame, attempts)) => {
+                let sidecar = self.storage.store_frame(&shot, &frame, event_at, attempts, self.camera.settings())?;
+                self.journal(&Record::Frame {
+                    layer: shot.layer,
+                    phase: shot.phase,
+                    light: shot.light,
+                    file: sidecar.file.clone(),
+                    bytes: sidecar.bytes,
+                    sha256: sidecar.sha256.clone(),
+                    at: sidecar.captured_at,
+                })?;
+                if let Some(open) = self.open.as_mut() {
+                    open.done.insert(shot.light);
+                }
+                if let Some(queue) = &self.queue {
+                    queue.submit(shot, self.storage.root().join(&sidecar.file));
+                    self.live.queue_depth = queue.depth();
+                }
+                self.summary.stored += 1;
+                info!(
+                    layer = shot.layer,
+                    phase = %shot.phase,
+                    light = %shot.light,
+                    capture_ms = format!("{:.1}", frame.capture_ms),
+                    download_ms = format!("{:.1}", frame.download_ms),
+                    bytes = sidecar.bytes,
+                    attempts,
+                    "frame stored"
+                );
+                self.live.last_frames.insert(
+                    shot.view().to_string(),
+                    LastFrame { layer: shot.layer, file: sidecar.file, at: sidecar.captured_at },
+                );
+                self.write_live("running");
+                Ok(())
+            }
+            Err(CaptureFailure::Missing { attempts, last }) => {
+                self.record_missing(shot, format!("camera failed after {attempts} attempts: {last}"))?;
+                self.write_live("running");
+                Ok(())
+            }
+            Err(CaptureFailure::Hung(e)) => {
+                self.lights.all_off_logged();
+                self.record_missing(shot, format!("camera hung: {e}"))?;
+                Err(AcquisitionError::CameraHung(e))
+            }
+        }
+    }
+
+    fn write_live(&mut self, state: &str) {
+        self.live.state = state.to_string();
+        self.live.updated_at = Some(Utc::now());
+        if let Some(queue) = &self.queue {
+            self.live.queue_depth = queue.depth();
+        }
+        if let Err(e) = self.live.write(self.storage.root()) {
+            warn!(error = %e, "status: cannot write status.json");
+        }
+    }
+
+    /// Lights off, processing stopped or drained, the stop journaled.
+    fn finish(mut self, reason: &str, state: &str, drain: bool) -> RunSummary {
+        self.lights.all_off_logged();
+        if let Some(queue) = self.queue.take() {
+            if drain {
+                info!(frames = queue.depth(), "processing the remaining frames");
+                queue.drain();
+            } else {
+                queue.stop();
+            }
+        }
+        if let Err(e) = self.journal(&Record::Stop { reason: reason.to_string(), at: Utc::now() }) {
+            error!(error = %e, "cannot journal the stop");
+        }
+        self.live.queue_depth = 0;
+        self.write_live(state);
+        self.summary.stop_reason = reason.to_string();
+        self.summary
+    }
+}
+
+fn open_trigger(config: &Config, world: &MockWorld) -> Result<Box<dyn Trigger>, TriggerError> {
+    Ok(match &config.trigger {
+        TriggerConfig::Serial(serial) => Box::new(crate::trigger::SerialTrigger::new(serial.clone())?),
+        TriggerConfig::Gpio(gpio) => Box::new(crate::trigger::GpioTrigger::open(gpio.clone())?),
+        TriggerConfig::Mock(mock) => Box::new(crate::trigger::MockTrigger::from_config(mock, Some(world.clone()))?),
+    })
+}
+
+fn open_camera(config: &Config, world: &MockWorld) -> Result<CameraActor, CameraError> {
+    let timeout = Duration::from_secs(config.capture.call_timeout_s);
+    match &config.camera {
+        CameraConfig::Mock(mock) => {
+            let (mock, world) = (mock.clone(), world.clone());
+            CameraActor::spawn(move || Ok(Box::new(MockCameraBody::new(&mock, world)) as Box<dyn crate::camera::Camera>), timeout)
+        }
+        #[cfg(feature = "gphoto")]
+        CameraConfig::Gphoto2(real) => {
+            let real = real.clone();
+            CameraActor::spawn(
+                move || Ok(Box::new(crate::camera::gphoto::GphotoCamera::open(&real)?) as Box<dyn crate::camera::Camera>),
+                timeout,
+            )
+        }
+        #[cfg(not(feature = "gphoto"))]
+        CameraConfig::Gphoto2(_) => Err(CameraError::Failed(
+            "this layerwise was built without the `gphoto` feature; rebuild with it (needs libgphoto2-dev)".into(),
+        )),
+    }
+}
+
+/// Runs the daemon until the trigger ends or SIGTERM/SIGINT arrives.
+pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary, AcquisitionError> {
+    let dir = config.build.output_dir.clone();
+    let storage = Storage::open(&dir, config.storage.fsync)?;
+    let views: Vec<String> = config.views.all().iter().map(|v| v.to_string()).collect();
+    let manifest = BuildManifest::load_or_create(&dir, || BuildManifest {
+        name: config.build.name.clone(),
+        id: config.build_id().to_string(),
+        created_at: Utc::now(),
+        layers_expected: config.build.layers,
+        views,
+        study_instance_uid: status::new_uid(),
+        frame_of_reference_uid: status::new_uid(),
+        software_version: env!("CARGO_PKG_VERSION").to_string(),
+    })?;
+    let (mut journal, mut replay) = Journal::open(&dir.join(status::JOURNAL), config.storage.fsync)?;
+    // Originals that reached the disk but not the journal (a crash in between) are adopted.
+    for adopted in storage.recover(|shot| replay.frames.contains_key(shot))? {
+        warn!(file = %adopted.file, "recovered a frame stored just before a crash");
+        let record = Record::Frame {
+            layer: adopted.layer,
+            phase: adopted.phase,
+            light: adopted.light,
+            file: adopted.file.clone(),
+            bytes: adopted.bytes,
+            sha256: adopted.sha256.clone(),
+            at: adopted.captured_at,
+        };
+        journal.append(&record)?;
+        replay.apply(&record);
+    }
+    journal.append(&Record::Start { at: Utc::now(), pid: std::process::id(), version: env!("CARGO_PKG_VERSION").into() })?;
+    info!(
+        build = %manifest.name,
+        dir = %dir.display(),
+        frames = replay.frames.len(),
+        missing = replay.missing.len(),
+        restarts = replay.starts,
+        last_event = ?replay.last_event,
+        "build opened"
+    );
+
+    let world = options.world.clone();
+    let (lights, lights_log) = crate::lights::open(&config.lights, Some(world.clone()))?;
+    if let (Some(slot), Some(log)) = (&options.lights_log, lights_log) {
+        if let Ok(mut slot) = slot.lock() {
+            *slot = Some(log);
+        }
+    }
+    let mut lights = LightsGuard::new(lights);
+    lights.all_off_logged();
+    let camera = open_camera(config, &world).map_err(AcquisitionError::CameraOpen)?;
+    info!(camera = camera.describe(), "camera open");
+
+    let mut trigger = match options.trigger.take() {
+        Some(t) => t,
+        None => open_trigger(config, &world)?,
+    };
+    trigger.resume_after(replay.last_event);
+
+    let journal = Arc::new(Mutex::new(journal));
+    let backlog: Vec<(Shot, PathBuf)> = replay
+        .unprocessed()
+        .into_iter()
+        .filter_map(|shot| replay.frames.get(&shot).map(|f| (shot, dir.join(&f.file))))
+        .collect();
+    let queue = ProcessingQueue::start(options.processor.clone(), config.storage.queue_capacity, dir.clone(), journal.clone(), backlog);
+
+    let open = replay.last_event.and_then(|(layer, phase)| {
+        let lights: Vec<Light> = config.views.lights.clone();
+        let done: BTreeSet<Light> =
+            lights.iter().copied().filter(|&light| replay.is_done(&Shot { layer, phase, light })).collect();
+        (done.len() < lights.len()).then(|| OpenEvent { layer, phase, at: Utc::now(), done })
+    });
+    let heartbeat = Arc::new(AtomicU64::new(0));
+    let mut sequencer = Sequencer {
+        lights_order: config.views.lights.clone(),
+        settle: Duration::from_millis(config.capture.settle_ms),
+        storage,
+        journal,
+        lights,
+        camera,
+        policy: RetryPolicy::from_config(&config.capture),
+        open,
+        queue: Some(queue),
+        live: LiveStatus { pid: std::process::id(), last_frames: BTreeMap::new(), ..LiveStatus::default() },
+        summary: RunSummary { build_dir: dir.clone(), ..RunSummary::default() },
+        heartbeat: heartbeat.clone(),
+        epoch: Instant::now(),
+        before: replay,
+    };
+    sequencer.write_live("running");
+
+    let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
+    let mut events = crate::trigger::spawn(trigger);
+    let watchdog = watchdog_period(options.notify_systemd);
+    if options.notify_systemd {
+        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Ready]);
+    }
+    let mut tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(5)));
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .map_err(|e| AcquisitionError::Runtime(format!("cannot watch SIGTERM: {e}")))?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
+        .map_err(|e| AcquisitionError::Runtime(format!("cannot watch SIGINT: {e}")))?;
+
+    let mut idle = Some(sequencer);
+    let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> = None;
+    let mut stop: Option<String> = None;
+    let epoch = Instant::now();
+    loop {
+        if stop.is_some() && running.is_none() {
+            break;
+        }
+        tokio::select! {
+            joined = async { running.as_mut().expect("guarded by the select condition").await }, if running.is_some() => {
+                running = None;
+                let (sequencer, result) = joined.map_err(|e| AcquisitionError::Runtime(format!("capture task failed: {e}")))?;
+                if let Err(e) = result {
+                    error!(error = %e, "acquisition stopped by an error");
+                    let reason = e.to_string();
+                    sequencer.finish(&reason, "failed", false);
+                    return Err(e);
+                }
+                idle = Some(sequencer);
+            }
+            event = events.recv(), if running.is_none() && stop.is_none() => match event {
+                None => stop = Some("the trigger ended".to_string()),
+                Some(Err(e)) => {
+                    error!(error = %e, "trigger failed");
+                    if let Some(sequencer) = idle.take() {
+                        sequencer.finish(&e.to_string(), "failed", false);
+                    }
+                    return Err(e.into());
+                }
+                Some(Ok(event)) if !only_phases.contains(&event.phase) => {
+                    info!(layer = event.layer, phase = %event.phase, "signal for a phase not in views.phases; ignored");
+                }
+                Some(Ok(event)) => {
+                    if let Some(mut sequencer) = idle.take() {
+                        running = Some(tokio::task::spawn_blocking(move || {
+                            let result = sequencer.on_event(event);
+                            (sequencer, result)
+                        }));
+                    }
+                }
+            },
+            _ = sigterm.recv() => { info!("SIGTERM: finishing the frame in hand, then stopping"); stop = Some("SIGTERM".into()); }
+            _ = sigint.recv() => { info!("SIGINT: finishing the frame in hand, then stopping"); stop = Some("SIGINT".into()); }
+            _ = tick.tick() => {
+                if let Some(period) = watchdog {
+                    // Ping only while the capture path shows signs of life.
+                    let last = Duration::from_millis(heartbeat.load(Ordering::SeqCst));
+                    if running.is_none() || epoch.elapsed().saturating_sub(last) < period * 2 {
+                        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Watchdog]);
+                    }
+                }
+            }
+        }
+    }
+    if options.notify_systemd {
+        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
+    }
+    let reason = stop.unwrap_or_default();
+    let drain = options.drain_at_end && reason == "the trigger ended";
+    let Some(sequencer) = idle else {
+        return Err(AcquisitionError::Runtime("capture task lost".into()));
+    };
+    let summary = tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
+        .await
+        .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
+    info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
+    Ok(summary)
+}
+
+fn watchdog_period(enabled: bool) -> Option<Duration> {
+    if !enabled {
+        return None;
+    }
+    let mut usec = 0u64;
+    sd_notify::watchdog_enabled(false, &mut usec).then(|| Duration::from_micros(usec / 2))
+}

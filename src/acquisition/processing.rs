@@ -1,0 +1,181 @@
+//! Processing of stored frames (rectification and DICOM) behind a bounded queue of references.
+//! Capture never waits for it: when the queue is full, frames simply wait on disk and the worker
+//! finds them again from the journal once it has caught up.
+
+use super::journal::{Journal, Record};
+use crate::view::Shot;
+use chrono::Utc;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+use tracing::{error, info};
+
+/// Work done on each stored original after capture.
+pub trait FrameProcessor: Send + Sync {
+    /// `original` is the stored file; errors are recorded in the journal and do not stop the build.
+    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), String>;
+}
+
+/// Keeps originals only.
+pub struct KeepOriginals;
+
+impl FrameProcessor for KeepOriginals {
+    fn process(&self, _build_dir: &Path, _shot: Shot, _original: &Path) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+struct Shared {
+    depth: AtomicUsize,
+    overflowed: AtomicBool,
+    stop: AtomicBool,
+}
+
+pub struct ProcessingQueue {
+    sender: Option<SyncSender<(Shot, PathBuf)>>,
+    shared: Arc<Shared>,
+    worker: Option<JoinHandle<()>>,
+}
+
+impl ProcessingQueue {
+    /// Starts the worker with the frames the journal says are not processed yet.
+    pub fn start(
+        processor: Arc<dyn FrameProcessor>,
+        capacity: usize,
+        build_dir: PathBuf,
+        journal: Arc<Mutex<Journal>>,
+        backlog: Vec<(Shot, PathBuf)>,
+    ) -> ProcessingQueue {
+        let (sender, receiver) = std::sync::mpsc::sync_channel(capacity);
+        let shared = Arc::new(Shared {
+            depth: AtomicUsize::new(backlog.len()),
+            overflowed: AtomicBool::new(false),
+            stop: AtomicBool::new(false),
+        });
+        let worker_shared = shared.clone();
+        let worker = std::thread::Builder::new()
+            .name("processing".into())
+            .spawn(move || worker_loop(processor, receiver, worker_shared, build_dir, journal, backlog))
+            .map_err(|e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"))
+            .ok();
+        ProcessingQueue { sender: Some(sender), shared, worker }
+    }
+
+    /// Hands a stored frame over without ever blocking.
+    pub fn submit(&self, shot: Shot, original: PathBuf) {
+        self.shared.depth.fetch_add(1, Ordering::SeqCst);
+        let Some(sender) = &self.sender else { return };
+        match sender.try_send((shot, original)) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
+                self.shared.overflowed.store(true, Ordering::SeqCst);
+            }
+        }
+    }
+
+    /// Frames stored but not processed yet (in the queue or waiting on disk).
+    pub fn depth(&self) -> usize {
+        self.shared.depth.load(Ordering::SeqCst)
+    }
+
+    /// Waits until every submitted frame is processed, then stops the worker.
+    pub fn drain(mut self) {
+        self.sender.take();
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
+
+    /// Stops after the frame in hand; the rest stays on disk for the next start.
+    pub fn stop(mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        self.sender.take();
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
+}
+
+fn worker_loop(
+    processor: Arc<dyn FrameProcessor>,
+    receiver: Receiver<(Shot, PathBuf)>,
+    shared: Arc<Shared>,
+    build_dir: PathBuf,
+    journal: Arc<Mutex<Journal>>,
+    backlog: Vec<(Shot, PathBuf)>,
+) {
+    let run = |shot: Shot, original: &Path| {
+        let record = match processor.process(&build_dir, shot, original) {
+            Ok(()) => Record::Processed { layer: shot.layer, phase: shot.phase, light: shot.light, at: Utc::now() },
+            Err(reason) => {
+                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
+                Record::ProcessingFailed { layer: shot.layer, phase: shot.phase, light: shot.light, reason, at: Utc::now() }
+            }
+        };
+        if let Ok(mut journal) = journal.lock() {
+            if let Err(e) = journal.append(&record) {
+                error!(error = %e, "processing: cannot journal the result");
+            }
+        }
+        let _ = shared.depth.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| Some(d.saturating_sub(1)));
+    };
+    // Shots a catch-up pass processed while they were still queued: skipped when they come out.
+    let mut caught_up = std::collections::BTreeSet::new();
+    if !backlog.is_empty() {
+        info!(frames = backlog.len(), "processing: catching up on frames stored before the restart");
+    }
+    for (shot, original) in backlog {
+        if shared.stop.load(Ordering::SeqCst) {
+            return;
+        }
+        run(shot, &original);
+    }
+    loop {
+        if shared.stop.load(Ordering::SeqCst) {
+            return;
+        }
+        match receiver.recv_timeout(Duration::from_millis(200)) {
+            Ok((shot, original)) => {
+                if !caught_up.remove(&shot) {
+                    run(shot, &original)
+                }
+            }
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => {
+                if !shared.overflowed.load(Ordering::SeqCst) {
+                    return;
+                }
+            }
+        }
+        // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
+        if shared.overflowed.swap(false, Ordering::SeqCst) {
+            while let Ok((shot, original)) = receiver.try_recv() {
+                if !caught_up.remove(&shot) {
+                    run(shot, &original);
+                }
+            }
+            // The channel is drained, so nothing left in the set can still come out of it.
+            caught_up.clear();
+            let path = journal.lock().map(|j| j.path().to_path_buf());
+            if let Ok(path) = path {
+                match Journal::read(&path) {
+                    Ok(replay) => {
+                        for shot in replay.unprocessed() {
+                            if shared.stop.load(Ordering::SeqCst) {
+                                return;
+                            }
+                            if let Some(entry) = replay.frames.get(&shot) {
+                                run(shot, &build_dir.join(&entry.file));
+                                caught_up.insert(shot);
+                            }
+                        }
+                    }
+                    Err(e) => error!(error = %e, "processing: cannot read the journal to catch up"),
+                }
+            }
+        }
+    }
+}

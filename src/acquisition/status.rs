@@ -1,0 +1,238 @@
+//! What the daemon tells operators: `status.json`, rewritten after every frame, and the build
+//! manifest `build.json`, written once when the build starts (its UIDs survive restarts).
+
+use super::journal::Journal;
+use super::storage::{write_atomic, StorageError};
+use crate::view::Phase;
+use chrono::{DateTime, Utc};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+pub const MANIFEST: &str = "build.json";
+pub const STATUS: &str = "status.json";
+pub const JOURNAL: &str = "journal.jsonl";
+
+/// Facts of a build fixed at its start: one study, one frame of reference, one StudyDate/Time.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BuildManifest {
+    pub name: String,
+    pub id: String,
+    pub created_at: DateTime<Utc>,
+    pub layers_expected: Option<u32>,
+    pub views: Vec<String>,
+    pub study_instance_uid: String,
+    pub frame_of_reference_uid: String,
+    pub software_version: String,
+}
+
+/// A DICOM UID under the 2.25 root (ISO/IEC 9834-8): a random 128-bit number in decimal.
+pub fn new_uid() -> String {
+    let mut bytes = [0u8; 16];
+    let random = std::fs::File::open("/dev/urandom").and_then(|mut f| std::io::Read::read_exact(&mut f, &mut bytes));
+    if random.is_err() {
+        // Without /dev/urandom: time and pid still make collisions vanishingly unlikely here.
+        let nanos = Utc::now().timestamp_nanos_opt().unwrap_or_default() as u128;
+        bytes = (nanos ^ ((std::process::id() as u128) << 64)).to_le_bytes();
+    }
+    format!("2.25.{}", u128::from_le_bytes(bytes))
+}
+
+impl BuildManifest {
+    /// Reads the manifest, or creates it for a new build.
+    pub fn load_or_create(dir: &Path, make: impl FnOnce() -> BuildManifest) -> Result<BuildManifest, StorageError> {
+        let path = dir.join(MANIFEST);
+        match std::fs::read(&path) {
+            Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| StorageError {
+                path: path.clone(),
+                source: std::io::Error::new(std::io::ErrorKind::InvalidData, format!("not a build manifest: {e}")),
+            }),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                let manifest = make();
+                let json = serde_json::to_vec_pretty(&manifest).map_err(|e| StorageError { path: path.clone(), source: std::io::Error::other(e) })?;
+                write_atomic(&path, &json, true)?;
+                Ok(manifest)
+            }
+            Err(source) => Err(StorageError { path, source }),
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LastFrame {
+    pub layer: u32,
+    pub file: String,
+    pub at: DateTime<Utc>,
+}
+
+/// The daemon's live state, rewritten atomically after every frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LiveStatus {
+    pub pid: u32,
+    pub state: String,
+    pub updated_at: Option<DateTime<Utc>>,
+    pub layer: Option<u32>,
+    pub phase: Option<Phase>,
+    pub queue_depth: usize,
+    pub last_frames: BTreeMap<String, LastFrame>,
+}
+
+impl LiveStatus {
+    pub fn write(&self, dir: &Path) -> Result<(), StorageError> {
+        let path = dir.join(STATUS);
+        let json = serde_json::to_vec_pretty(self).map_err(|e| StorageError { path: path.clone(), source: std::io::Error::other(e) })?;
+        write_atomic(&path, &json, false)
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StatusError {
+    #[error("{0}: not a layerwise build directory (no {JOURNAL}); pass the build's output_dir")]
+    NotABuild(PathBuf),
+    #[error(transparent)]
+    Journal(#[from] super::journal::JournalError),
+    #[error("{path}: {message}")]
+    Unreadable { path: PathBuf, message: String },
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct StatusReport {
+    pub build_dir: PathBuf,
+    pub name: Option<String>,
+    pub state: String,
+    pub pid: Option<u32>,
+    pub updated_at: Option<DateTime<Utc>>,
+    pub layer: Option<u32>,
+    pub phase: Option<Phase>,
+    pub frames: usize,
+    pub frames_missing: usize,
+    pub missing: Vec<String>,
+    pub waiting_for_processing: usize,
+    pub queue_depth: usize,
+    pub last_frames: BTreeMap<String, LastFrame>,
+    pub bytes_stored: u64,
+    pub layers_seen: usize,
+    pub layers_expected: Option<u32>,
+    pub free_bytes: Option<u64>,
+    pub bytes_needed: Option<u64>,
+    pub warning: Option<String>,
+}
+
+/// Free bytes for an unprivileged writer on the filesystem holding `path`.
+pub fn free_bytes(path: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c_path = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
+    let mut stat: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: c_path is a valid NUL-terminated string and stat a valid out-pointer.
+    let rc = unsafe { libc::statvfs(c_path.as_ptr(), &mut stat) };
+    (rc == 0).then(|| stat.f_bavail as u64 * stat.f_frsize as u64)
+}
+
+/// Builds the report for `layerwise status` from the journal, the manifest and status.json.
+pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusError> {
+    let journal_path = dir.join(JOURNAL);
+    if !journal_path.exists() {
+        return Err(StatusError::NotABuild(dir.to_path_buf()));
+    }
+    let replay = Journal::read(&journal_path)?;
+    let manifest: Option<BuildManifest> = std::fs::read(dir.join(MANIFEST)).ok().and_then(|b| serde_json::from_slice(&b).ok());
+    let live: Option<LiveStatus> = match std::fs::read(dir.join(STATUS)) {
+        Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| StatusError::Unreadable {
+            path: dir.join(STATUS),
+            message: e.to_string(),
+        })?),
+        Err(_) => None,
+    };
+    let live = live.unwrap_or_default();
+    let bytes_stored: u64 = replay.frames.values().map(|f| f.bytes).sum();
+    let layers: std::collections::BTreeSet<u32> = replay.frames.keys().map(|s| s.layer).collect();
+    let layers_expected = manifest.as_ref().and_then(|m| m.layers_expected);
+    let current_layer = replay.last_event.map(|(l, _)| l).or(live.layer);
+    let free = free_bytes(dir);
+    let bytes_needed = match (layers_expected, current_layer, layers.len()) {
+        (Some(expected), Some(current), seen) if seen > 0 => {
+            let per_layer = bytes_stored as f64 / seen as f64;
+            Some((expected.saturating_sub(current) as f64 * per_layer).ceil() as u64)
+        }
+        _ => None,
+    };
+    let warning = match (free, bytes_needed) {
+        (Some(free), Some(needed)) if needed.saturating_add(min_free_bytes) > free => Some(format!(
+            "the rest of the build needs about {:.1} GB but only {:.1} GB are free (keeping {:.1} GB spare): free space before it runs out",
+            needed as f64 / 1e9,
+            free as f64 / 1e9,
+            min_free_bytes as f64 / 1e9
+        )),
+        (Some(free), _) if free < min_free_bytes => Some(format!("only {:.1} GB free", free as f64 / 1e9)),
+        _ => None,
+    };
+    let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
+    let state = match live.state.as_str() {
+        "running" if !alive => "not running (the daemon stopped without a clean shutdown)".to_string(),
+        "" => "unknown".to_string(),
+        s => s.to_string(),
+    };
+    Ok(StatusReport {
+        build_dir: dir.to_path_buf(),
+        name: manifest.map(|m| m.name),
+        state,
+        pid: (live.pid != 0).then_some(live.pid),
+        updated_at: live.updated_at,
+        layer: current_layer,
+        phase: replay.last_event.map(|(_, p)| p).or(live.phase),
+        frames: replay.frames.len(),
+        frames_missing: replay.missing.len(),
+        missing: replay.missing.iter().map(|(shot, reason)| format!("{}: {reason}", shot.stem())).collect(),
+        waiting_for_processing: replay.unprocessed().len(),
+        queue_depth: live.queue_depth,
+        last_frames: live.last_frames,
+        bytes_stored,
+        layers_seen: layers.len(),
+        layers_expected,
+        free_bytes: free,
+        bytes_needed,
+        warning,
+    })
+}
+
+fn gb(bytes: u64) -> String {
+    format!("{:.2} GB", bytes as f64 / 1e9)
+}
+
+impl fmt::Display for StatusReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "build      {} ({})", self.name.as_deref().unwrap_or("?"), self.build_dir.display())?;
+        writeln!(f, "daemon     {}{}", self.state, self.pid.map(|p| format!(", pid {p}")).unwrap_or_default())?;
+        match (self.layer, self.phase) {
+            (Some(l), Some(p)) => writeln!(
+                f,
+                "layer      {l} {p}{}",
+                self.layers_expected.map(|e| format!(" of {e}")).unwrap_or_default()
+            )?,
+            _ => writeln!(f, "layer      none yet")?,
+        }
+        writeln!(f, "frames     {} stored ({}), {} missing", self.frames, gb(self.bytes_stored), self.frames_missing)?;
+        for m in self.missing.iter().take(10) {
+            writeln!(f, "  missing  {m}")?;
+        }
+        if self.missing.len() > 10 {
+            writeln!(f, "  … and {} more", self.missing.len() - 10)?;
+        }
+        writeln!(f, "processing {} waiting (queue depth {})", self.waiting_for_processing, self.queue_depth)?;
+        for (view, last) in &self.last_frames {
+            writeln!(f, "  last {view:<10} layer {:>5}  {}  {}", last.layer, last.at.format("%Y-%m-%d %H:%M:%S"), last.file)?;
+        }
+        if let Some(free) = self.free_bytes {
+            write!(f, "disk       {} free", gb(free))?;
+            if let Some(needed) = self.bytes_needed {
+                write!(f, ", the rest of the build needs about {}", gb(needed))?;
+            }
+            writeln!(f)?;
+        }
+        if let Some(w) = &self.warning {
+            writeln!(f, "WARNING    {w}")?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,149 @@
+//! The mock camera: `mock_camera` renders the plate through a known homography; this adapts it to
+//! [`Camera`]. A [`MockWorld`] is the simulated machine: the mock trigger sets the layer and phase,
+//! the mock lights switch the lamps, and the camera photographs whatever that world looks like.
+
+use super::{Camera, CameraError, Frame};
+use crate::config::MockCameraConfig;
+use crate::view::{Light, Phase};
+use mock_camera::{Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey};
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+#[derive(Clone, Debug, Default)]
+struct WorldState {
+    layer: u32,
+    phase: Option<Phase>,
+    lit: BTreeSet<Light>,
+}
+
+/// Shared state of the simulated machine.
+#[derive(Clone, Debug, Default)]
+pub struct MockWorld {
+    state: Arc<Mutex<WorldState>>,
+}
+
+impl MockWorld {
+    pub fn new() -> MockWorld {
+        MockWorld::default()
+    }
+    pub fn set_layer(&self, layer: u32, phase: Phase) {
+        if let Ok(mut s) = self.state.lock() {
+            s.layer = layer;
+            s.phase = Some(phase);
+        }
+    }
+    pub fn set_light(&self, light: Light, on: bool) {
+        if let Ok(mut s) = self.state.lock() {
+            if on {
+                s.lit.insert(light);
+            } else {
+                s.lit.remove(&light);
+            }
+        }
+    }
+    pub fn all_lights_off(&self) {
+        if let Ok(mut s) = self.state.lock() {
+            s.lit.clear();
+        }
+    }
+    fn snapshot(&self) -> WorldState {
+        self.state.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+}
+
+/// The schedule of faults from the configuration's plain entries.
+pub fn fault_schedule(config: &MockCameraConfig) -> FaultSchedule {
+    let mut schedule = FaultSchedule::new();
+    for f in &config.faults {
+        let fault = match f.fault.as_str() {
+            "busy" => Fault::Busy { times: f.times },
+            "disconnect" => Fault::Disconnect,
+            "slow" => Fault::Slow { millis: f.millis },
+            "hang" => Fault::Hang { millis: f.millis },
+            _ => Fault::Fail,
+        };
+        let key = ShotKey { layer: f.layer, phase: f.phase.to_string(), light: f.light.to_string() };
+        schedule.insert(key, fault);
+    }
+    schedule
+}
+
+pub struct MockCameraBody {
+    body: mock_camera::MockCamera,
+    world: MockWorld,
+    config: MockCameraConfig,
+}
+
+impl MockCameraBody {
+    pub fn new(config: &MockCameraConfig, world: MockWorld) -> MockCameraBody {
+        let mut renderer = Renderer::new(config.width, config.height, Homography::oblique_view(config.width, config.height));
+        renderer.seed = config.seed;
+        let body = mock_camera::MockCamera::new(renderer, fault_schedule(config), config.jpeg_quality);
+        MockCameraBody { body, world, config: config.clone() }
+    }
+
+    /// The ground-truth homography (image px → build mm) the frames are rendered through.
+    pub fn homography(&self) -> Homography {
+        self.body.renderer().homography
+    }
+}
+
+fn map_error(e: MockError) -> CameraError {
+    match e {
+        MockError::Busy => CameraError::Busy("PTP 0x2019 device busy (mock)".into()),
+        MockError::Disconnected => CameraError::Disconnected("mock USB device gone".into()),
+        MockError::Timeout => CameraError::Timeout("mock timeout".into()),
+        MockError::Failed(m) => CameraError::Failed(m),
+    }
+}
+
+impl Camera for MockCameraBody {
+    fn capture(&mut self) -> Result<Frame, CameraError> {
+        let world = self.world.snapshot();
+        let phase = world.phase.unwrap_or(Phase::Pre);
+        // Exactly one lamp on is how the daemon lights a frame; anything else is rendered honestly.
+        let (illumination, light_name) = match world.lit.iter().collect::<Vec<_>>().as_slice() {
+            [] => (Illumination::Dark, "none".to_string()),
+            [one] => (
+                match one {
+                    Light::Front => Illumination::Front,
+                    Light::Side => Illumination::Side,
+                    Light::Top => Illumination::Top,
+                },
+                one.to_string(),
+            ),
+            _ => (Illumination::Top, "several".to_string()),
+        };
+        let fused = mock_camera::demo_parts(world.layer);
+        let scene = Scene { layer: world.layer, fused: &fused, scanned: phase == Phase::Post, illumination };
+        let key = ShotKey { layer: world.layer, phase: phase.to_string(), light: light_name };
+        let started = Instant::now();
+        let data = self.body.capture(&key, &scene).map_err(map_error)?;
+        Ok(Frame {
+            data,
+            extension: "jpg".into(),
+            capture_ms: started.elapsed().as_secs_f64() * 1e3,
+            download_ms: 0.0,
+        })
+    }
+
+    fn reopen(&mut self) -> Result<(), CameraError> {
+        self.body.reconnect().map_err(map_error)
+    }
+
+    fn settings(&self) -> BTreeMap<String, String> {
+        let h = self.homography().m;
+        BTreeMap::from([
+            ("model".to_string(), "mock_camera".to_string()),
+            ("width".to_string(), self.config.width.to_string()),
+            ("height".to_string(), self.config.height.to_string()),
+            ("jpeg_quality".to_string(), self.config.jpeg_quality.to_string()),
+            ("true_homography".to_string(), format!("{h:?}")),
+        ])
+    }
+
+    fn describe(&self) -> String {
+        format!("mock_camera {}x{}", self.config.width, self.config.height)
+    }
+}

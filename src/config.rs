@@ -1,0 +1,633 @@
+//! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
+//! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
+
+use crate::view::{Light, Phase, View};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// A configuration that could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {source}")]
+    Read { file: PathBuf, source: std::io::Error },
+    #[error("{file}: {message}")]
+    Parse { file: PathBuf, message: String },
+    #[error("{file}: key `{key}`: {message}")]
+    Invalid { file: PathBuf, key: String, message: String },
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub build: BuildConfig,
+    pub trigger: TriggerConfig,
+    #[serde(default)]
+    pub lights: LightsConfig,
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub capture: CaptureConfig,
+    #[serde(default)]
+    pub views: ViewsConfig,
+    #[serde(default)]
+    pub rectify: GridConfig,
+    #[serde(default)]
+    pub calibration: CalibrationConfig,
+    #[serde(default)]
+    pub storage: StorageConfig,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BuildConfig {
+    /// Human name of the build; becomes the DICOM PatientName.
+    pub name: String,
+    /// Short id of the build; becomes the DICOM PatientID. Defaults to the name.
+    #[serde(default)]
+    pub id: Option<String>,
+    /// Where originals, the journal and the DICOM series go.
+    pub output_dir: PathBuf,
+    /// Layers the build will have, if known: the status command forecasts disk use from it.
+    #[serde(default)]
+    pub layers: Option<u32>,
+}
+
+/// Where layer signals come from.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+pub enum TriggerConfig {
+    Serial(SerialTriggerConfig),
+    Gpio(GpioTriggerConfig),
+    Mock(MockTriggerConfig),
+}
+
+pub const DEFAULT_LINE_PATTERN: &str = r"^\s*LAYER\s+(?P<layer>\d+)\s+(?P<phase>PRE|POST)\s*$";
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialTriggerConfig {
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Regex with named groups `layer` (decimal) and `phase` (matched against `pre`/`post` tokens).
+    #[serde(default = "default_pattern")]
+    pub pattern: String,
+    /// The text the printer sends for the pre-scan phase (compared case-insensitively).
+    #[serde(default = "default_pre_token")]
+    pub pre: String,
+    #[serde(default = "default_post_token")]
+    pub post: String,
+    /// Backoff between attempts to reopen a vanished port: first and longest wait.
+    #[serde(default = "default_reopen_ms")]
+    pub reopen_backoff_ms: [u64; 2],
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Edge {
+    Rising,
+    Falling,
+    Both,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GpioMode {
+    /// One line pulses before the scan, another after it.
+    PerPhase,
+    /// One line whose pulses alternate pre, post, pre, post …
+    Alternating,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpioTriggerConfig {
+    #[serde(default = "default_gpio_chip")]
+    pub chip: PathBuf,
+    pub mode: GpioMode,
+    /// Line offsets: `pre_line` and `post_line` for per-phase, `line` for alternating.
+    #[serde(default)]
+    pub pre_line: Option<u32>,
+    #[serde(default)]
+    pub post_line: Option<u32>,
+    #[serde(default)]
+    pub line: Option<u32>,
+    #[serde(default = "default_edge")]
+    pub edge: Edge,
+    #[serde(default = "default_debounce")]
+    pub debounce_ms: u64,
+    #[serde(default)]
+    pub active_low: bool,
+    /// The layer number of the first pulse of a new build.
+    #[serde(default = "default_first_layer")]
+    pub first_layer: u32,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MockTriggerConfig {
+    /// A script of lines in the serial protocol (`LAYER 1 PRE`), and `WAIT ms` lines. When absent,
+    /// `layers` layers starting at `first_layer` are generated, pre then post.
+    #[serde(default)]
+    pub script: Option<PathBuf>,
+    #[serde(default = "default_mock_layers")]
+    pub layers: u32,
+    #[serde(default = "default_first_layer")]
+    pub first_layer: u32,
+    /// Pause between events, standing in for recoating and scanning.
+    #[serde(default)]
+    pub interval_ms: u64,
+}
+
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum LightsConfig {
+    #[default]
+    None,
+    SerialRelay(SerialRelayConfig),
+    Gpio(GpioLightsConfig),
+    Mock,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialRelayConfig {
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Command strings per light, e.g. `front_on = "A1\r\n"`; Rust-style escapes \r \n \xNN work.
+    pub commands: BTreeMap<String, String>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpioLightsConfig {
+    #[serde(default = "default_gpio_chip")]
+    pub chip: PathBuf,
+    pub front: u32,
+    pub side: u32,
+    pub top: u32,
+    #[serde(default)]
+    pub active_low: bool,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+pub enum CameraConfig {
+    Gphoto2(Gphoto2Config),
+    Mock(MockCameraConfig),
+}
+
+/// How frames are taken: light settling, camera call bounds and retries.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CaptureConfig {
+    /// Wait after switching a light before the exposure, so the lamp is at full brightness.
+    #[serde(default)]
+    pub settle_ms: u64,
+    /// Longest a single camera call may take; past it the daemon exits for systemd to restart it.
+    #[serde(default = "default_call_timeout")]
+    pub call_timeout_s: u64,
+    /// How often a busy or timed-out capture is tried again before the frame is recorded missing.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    #[serde(default = "default_retry_backoff")]
+    pub retry_backoff_ms: [u64; 2],
+    /// How often to reopen a camera that dropped off USB before giving up on the frame.
+    #[serde(default = "default_reopen_attempts")]
+    pub reopen_attempts: u32,
+}
+
+impl Default for CaptureConfig {
+    fn default() -> Self {
+        CaptureConfig {
+            settle_ms: 0,
+            call_timeout_s: default_call_timeout(),
+            retries: default_retries(),
+            retry_backoff_ms: default_retry_backoff(),
+            reopen_attempts: default_reopen_attempts(),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Gphoto2Config {
+    /// Model as libgphoto2 names it (`gphoto2 --auto-detect`), e.g. "Nikon DSC D810". Empty: autodetect.
+    #[serde(default)]
+    pub model: String,
+    /// Port, e.g. "usb:002,005"; empty: the first port the model is found on.
+    #[serde(default)]
+    pub port: String,
+    /// Camera settings applied at start, by libgphoto2 config name (`gphoto2 --list-config`).
+    #[serde(default = "default_camera_settings")]
+    pub settings: BTreeMap<String, String>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MockCameraConfig {
+    #[serde(default = "default_mock_width")]
+    pub width: u32,
+    #[serde(default = "default_mock_height")]
+    pub height: u32,
+    #[serde(default = "default_jpeg_quality")]
+    pub jpeg_quality: u8,
+    #[serde(default)]
+    pub seed: u64,
+    /// Faults to inject, for tests and demonstrations.
+    #[serde(default)]
+    pub faults: Vec<MockFaultConfig>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MockFaultConfig {
+    pub layer: u32,
+    pub phase: Phase,
+    pub light: Light,
+    /// busy | disconnect | slow | fail | hang
+    pub fault: String,
+    #[serde(default)]
+    pub times: u32,
+    #[serde(default)]
+    pub millis: u64,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewsConfig {
+    /// Phases to capture, in order.
+    #[serde(default = "default_phases")]
+    pub phases: Vec<Phase>,
+    /// Lights to switch in turn, in order, for each phase.
+    #[serde(default = "default_lights")]
+    pub lights: Vec<Light>,
+}
+
+impl Default for ViewsConfig {
+    fn default() -> Self {
+        ViewsConfig { phases: default_phases(), lights: default_lights() }
+    }
+}
+
+impl ViewsConfig {
+    pub fn all(&self) -> Vec<View> {
+        let mut out = Vec::new();
+        for &phase in &self.phases {
+            for &light in &self.lights {
+                out.push(View { phase, light });
+            }
+        }
+        out
+    }
+}
+
+/// The rectified grid of docs/frames.md.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridConfig {
+    pub x_min: f64,
+    pub x_max: f64,
+    pub y_min: f64,
+    pub y_max: f64,
+    pub pixel_mm: f64,
+}
+
+impl Default for GridConfig {
+    fn default() -> Self {
+        GridConfig { x_min: -137.5, x_max: 137.5, y_min: -137.5, y_max: 137.5, pixel_mm: 0.0625 }
+    }
+}
+
+impl GridConfig {
+    pub fn columns(&self) -> usize {
+        ((self.x_max - self.x_min) / self.pixel_mm).round().max(0.0) as usize
+    }
+    pub fn rows(&self) -> usize {
+        ((self.y_max - self.y_min) / self.pixel_mm).round().max(0.0) as usize
+    }
+}
+
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    /// calibration.toml from `layerwise register images`; frames are rectified once it is set.
+    #[serde(default)]
+    pub file: Option<PathBuf>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StorageConfig {
+    /// fsync originals, sidecars and the journal (off only for throwaway demos on slow disks).
+    #[serde(default = "default_true")]
+    pub fsync: bool,
+    /// Frames waiting for processing held as references; beyond it they wait on disk.
+    #[serde(default = "default_queue")]
+    pub queue_capacity: usize,
+    /// Warn when free space falls below this.
+    #[serde(default = "default_min_free_gb")]
+    pub min_free_gb: f64,
+}
+
+impl Default for StorageConfig {
+    fn default() -> Self {
+        StorageConfig {
+            fsync: true,
+            queue_capacity: default_queue(),
+            min_free_gb: default_min_free_gb(),
+        }
+    }
+}
+
+fn default_baud() -> u32 {
+    9600
+}
+fn default_pattern() -> String {
+    DEFAULT_LINE_PATTERN.to_string()
+}
+fn default_pre_token() -> String {
+    "PRE".into()
+}
+fn default_post_token() -> String {
+    "POST".into()
+}
+fn default_reopen_ms() -> [u64; 2] {
+    [250, 5000]
+}
+fn default_gpio_chip() -> PathBuf {
+    PathBuf::from("/dev/gpiochip0")
+}
+fn default_edge() -> Edge {
+    Edge::Rising
+}
+fn default_debounce() -> u64 {
+    20
+}
+fn default_first_layer() -> u32 {
+    1
+}
+fn default_mock_layers() -> u32 {
+    10
+}
+fn default_call_timeout() -> u64 {
+    60
+}
+fn default_retries() -> u32 {
+    8
+}
+fn default_retry_backoff() -> [u64; 2] {
+    [100, 3000]
+}
+fn default_reopen_attempts() -> u32 {
+    5
+}
+fn default_camera_settings() -> BTreeMap<String, String> {
+    BTreeMap::new()
+}
+fn default_mock_width() -> u32 {
+    1472
+}
+fn default_mock_height() -> u32 {
+    982
+}
+fn default_jpeg_quality() -> u8 {
+    90
+}
+fn default_phases() -> Vec<Phase> {
+    Phase::ALL.to_vec()
+}
+fn default_lights() -> Vec<Light> {
+    Light::ALL.to_vec()
+}
+fn default_true() -> bool {
+    true
+}
+fn default_queue() -> usize {
+    64
+}
+fn default_min_free_gb() -> f64 {
+    20.0
+}
+
+impl Config {
+    /// Reads and validates a configuration file.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ConfigError::Read { file: path.to_path_buf(), source })?;
+        Config::parse(&text, path)
+    }
+
+    /// Parses and validates configuration text; `file` names it in errors.
+    pub fn parse(text: &str, file: &Path) -> Result<Config, ConfigError> {
+        let deserializer = toml::Deserializer::new(text);
+        let config: Config = serde_path_to_error::deserialize(deserializer).map_err(|err| {
+            let key = err.path().to_string();
+            let inner = err.into_inner();
+            let message = inner.message().trim().to_string();
+            let place = match inner.span() {
+                Some(span) => {
+                    let (line, column) = line_column(text, span.start);
+                    format!("line {line}, column {column}: ")
+                }
+                None => String::new(),
+            };
+            let key = if key == "." || key.is_empty() { String::new() } else { format!("key `{key}`: ") };
+            ConfigError::Parse { file: file.to_path_buf(), message: format!("{place}{key}{message}") }
+        })?;
+        config.validate(file)?;
+        Ok(config)
+    }
+
+    fn validate(&self, file: &Path) -> Result<(), ConfigError> {
+        let invalid = |key: &str, message: String| ConfigError::Invalid {
+            file: file.to_path_buf(),
+            key: key.to_string(),
+            message,
+        };
+        if self.build.name.trim().is_empty() {
+            return Err(invalid("build.name", "must not be empty".into()));
+        }
+        if self.build.output_dir.as_os_str().is_empty() {
+            return Err(invalid("build.output_dir", "must name a directory".into()));
+        }
+        match &self.trigger {
+            TriggerConfig::Serial(serial) => {
+                let regex = regex::Regex::new(&serial.pattern).map_err(|e| {
+                    invalid("trigger.pattern", format!("is not a valid regular expression: {e}"))
+                })?;
+                for group in ["layer", "phase"] {
+                    if !regex.capture_names().flatten().any(|name| name == group) {
+                        return Err(invalid(
+                            "trigger.pattern",
+                            format!("must have a named group `(?P<{group}>…)`"),
+                        ));
+                    }
+                }
+                if serial.baud == 0 {
+                    return Err(invalid("trigger.baud", "must be a positive baud rate such as 9600".into()));
+                }
+            }
+            TriggerConfig::Gpio(gpio) => match gpio.mode {
+                GpioMode::PerPhase if gpio.pre_line.is_none() || gpio.post_line.is_none() => {
+                    return Err(invalid(
+                        "trigger.pre_line",
+                        "mode \"per-phase\" needs both `pre_line` and `post_line`".into(),
+                    ))
+                }
+                GpioMode::Alternating if gpio.line.is_none() => {
+                    return Err(invalid("trigger.line", "mode \"alternating\" needs `line`".into()))
+                }
+                _ => {}
+            },
+            TriggerConfig::Mock(mock) => {
+                if mock.script.is_none() && mock.layers == 0 {
+                    return Err(invalid("trigger.layers", "must be at least 1 without a script".into()));
+                }
+            }
+        }
+        if let LightsConfig::SerialRelay(relay) = &self.lights {
+            for light in &self.views.lights {
+                for state in ["on", "off"] {
+                    let key = format!("{light}_{state}");
+                    if !relay.commands.contains_key(&key) {
+                        return Err(invalid(
+                            "lights.commands",
+                            format!("missing `{key}`: every light in views.lights needs an on and an off command"),
+                        ));
+                    }
+                }
+            }
+            for key in relay.commands.keys() {
+                let known = key == "all_off"
+                    || Light::ALL.iter().any(|l| *key == format!("{l}_on") || *key == format!("{l}_off"));
+                if !known {
+                    return Err(invalid(
+                        &format!("lights.commands.{key}"),
+                        "unknown command: expected front_on, front_off, side_on, side_off, top_on, top_off or all_off".into(),
+                    ));
+                }
+            }
+        }
+        if let CameraConfig::Mock(mock) = &self.camera {
+            if mock.width < 16 || mock.height < 16 {
+                return Err(invalid("camera.width", "the mock sensor must be at least 16 x 16 pixels".into()));
+            }
+            for (i, fault) in mock.faults.iter().enumerate() {
+                if !["busy", "disconnect", "slow", "fail", "hang"].contains(&fault.fault.as_str()) {
+                    return Err(invalid(
+                        &format!("camera.faults[{i}].fault"),
+                        format!("unknown fault '{}': expected busy, disconnect, slow, fail or hang", fault.fault),
+                    ));
+                }
+            }
+        }
+        if self.capture.call_timeout_s == 0 {
+            return Err(invalid("capture.call_timeout_s", "must be at least 1 second".into()));
+        }
+        if self.views.phases.is_empty() || self.views.lights.is_empty() {
+            return Err(invalid("views", "needs at least one phase and one light".into()));
+        }
+        let g = &self.rectify;
+        if !(g.pixel_mm > 0.0 && g.x_max > g.x_min && g.y_max > g.y_min) {
+            return Err(invalid(
+                "rectify",
+                "needs x_min < x_max, y_min < y_max and pixel_mm > 0".into(),
+            ));
+        }
+        if self.storage.queue_capacity == 0 {
+            return Err(invalid("storage.queue_capacity", "must be at least 1".into()));
+        }
+        Ok(())
+    }
+
+    /// The id stored as PatientID: the configured id, else the name.
+    pub fn build_id(&self) -> &str {
+        self.build.id.as_deref().unwrap_or(&self.build.name)
+    }
+}
+
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
+    (line, column)
+}
+
+/// The demo's configuration, embedded so `layerwise demo` runs with no files around.
+pub const DEMO_CONFIG: &str = include_str!("../config/demo.toml");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Config, ConfigError> {
+        Config::parse(text, Path::new("test.toml"))
+    }
+
+    #[test]
+    fn embedded_examples_are_valid() {
+        parse(DEMO_CONFIG).expect("demo.toml");
+        parse(include_str!("../config/layerwise.toml")).expect("layerwise.toml");
+    }
+
+    #[test]
+    fn unknown_key_names_file_key_and_expected() {
+        let text = DEMO_CONFIG.replace("[camera]", "[camera]\nisoo = 100");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.starts_with("test.toml: line"), "{err}");
+        assert!(err.contains("isoo"), "{err}");
+        assert!(err.contains("expected"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_key() {
+        let text = DEMO_CONFIG.replace("settle_ms = 0", "settle_ms = \"fast\"");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("lights.settle_ms") || err.contains("settle_ms"), "{err}");
+        assert!(err.contains("line"), "{err}");
+    }
+
+    #[test]
+    fn pattern_without_groups_is_refused() {
+        let text = r#"
+[build]
+name = "b"
+output_dir = "/tmp/x"
+[trigger]
+kind = "serial"
+port = "/dev/ttyUSB0"
+pattern = "LAYER (\\d+)"
+[camera]
+kind = "mock"
+"#;
+        let err = parse(text).unwrap_err().to_string();
+        assert!(err.contains("trigger.pattern") && err.contains("layer"), "{err}");
+    }
+
+    #[test]
+    fn relay_without_commands_is_refused() {
+        let text = r#"
+[build]
+name = "b"
+output_dir = "/tmp/x"
+[trigger]
+kind = "mock"
+[lights]
+kind = "serial-relay"
+port = "/dev/ttyUSB1"
+commands = { front_on = "A1", front_off = "A0" }
+[camera]
+kind = "mock"
+"#;
+        let err = parse(text).unwrap_err().to_string();
+        assert!(err.contains("lights.commands") && err.contains("side_on"), "{err}");
+    }
+
+    #[test]
+    fn grid_defaults_to_whole_plate() {
+        let grid = GridConfig::default();
+        assert_eq!((grid.columns(), grid.rows()), (4400, 4400));
+    }
+}

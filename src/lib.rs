@@ -1,0 +1,10 @@
+//! layerwise: layer-wise imaging of laser powder bed fusion builds, registered to the laser scan
+//! vectors and to post-build CT in one frame of reference (docs/frames.md).
+
+pub mod acquisition;
+pub mod camera;
+pub mod config;
+pub mod lights;
+pub mod logging;
+pub mod trigger;
+pub mod view;

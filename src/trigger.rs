@@ -1,0 +1,467 @@
+//! Layer signals from the printer: a serial line, GPIO lines, or a mock. Every trigger runs on
+//! its own thread (reads block) and yields [`LayerEvent`]s.
+
+use crate::camera::mock::MockWorld;
+use crate::config::{Edge, GpioMode, GpioTriggerConfig, MockTriggerConfig, SerialTriggerConfig};
+use crate::view::Phase;
+use chrono::{DateTime, Utc};
+use regex::Regex;
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use tracing::{info, warn};
+
+/// The printer says: layer `layer` has reached `phase`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LayerEvent {
+    pub layer: u32,
+    pub phase: Phase,
+    pub at: DateTime<Utc>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TriggerError {
+    #[error("trigger line pattern: {0}")]
+    Pattern(String),
+    #[error("{path}: {message}")]
+    Script { path: PathBuf, message: String },
+    #[error("GPIO {chip}: {message} (is the chip present, and is the service user in the group that owns it?)")]
+    Gpio { chip: PathBuf, message: String },
+    #[error("trigger channel closed")]
+    Closed,
+}
+
+/// A source of layer signals. `Ok(None)` means the source has ended (a finished mock script);
+/// real printers never end: their triggers wait for the next signal.
+pub trait Trigger: Send {
+    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError>;
+    /// Tells the trigger where the build stands (from the journal, at start), so counters resume.
+    fn resume_after(&mut self, _last: Option<(u32, Phase)>) {}
+}
+
+/// Parses one line of the printer's protocol.
+#[derive(Clone, Debug)]
+pub struct LineProtocol {
+    regex: Regex,
+    pre: String,
+    post: String,
+}
+
+impl LineProtocol {
+    pub fn new(pattern: &str, pre: &str, post: &str) -> Result<LineProtocol, TriggerError> {
+        let regex = Regex::new(pattern).map_err(|e| TriggerError::Pattern(e.to_string()))?;
+        for group in ["layer", "phase"] {
+            if !regex.capture_names().flatten().any(|n| n == group) {
+                return Err(TriggerError::Pattern(format!("no named group `{group}` in {pattern}")));
+            }
+        }
+        Ok(LineProtocol { regex, pre: pre.to_string(), post: post.to_string() })
+    }
+
+    pub fn default_protocol() -> LineProtocol {
+        // The default pattern is a constant known to compile.
+        LineProtocol::new(crate::config::DEFAULT_LINE_PATTERN, "PRE", "POST")
+            .unwrap_or_else(|e| unreachable!("default pattern: {e}"))
+    }
+
+    /// `Some((layer, phase))` for a signal line, `None` for anything else.
+    pub fn parse(&self, line: &str) -> Option<(u32, Phase)> {
+        let caps = self.regex.captures(line)?;
+        let layer = caps.name("layer")?.as_str().parse().ok()?;
+        let token = caps.name("phase")?.as_str();
+        let phase = if token.eq_ignore_ascii_case(&self.pre) {
+            Phase::Pre
+        } else if token.eq_ignore_ascii_case(&self.post) {
+            Phase::Post
+        } else {
+            return None;
+        };
+        Some((layer, phase))
+    }
+}
+
+/// Splits a byte stream into lines, bounding what garbage without line breaks can cost.
+#[derive(Default)]
+struct LineSplitter {
+    buffer: Vec<u8>,
+    overflowed: bool,
+}
+
+const MAX_LINE: usize = 4096;
+
+impl LineSplitter {
+    fn push(&mut self, bytes: &[u8], out: &mut VecDeque<String>) {
+        for &b in bytes {
+            if b == b'\n' || b == b'\r' {
+                if self.overflowed {
+                    warn!(bytes = self.buffer.len(), "trigger: skipped an over-long line");
+                } else if !self.buffer.is_empty() {
+                    out.push_back(String::from_utf8_lossy(&self.buffer).into_owned());
+                }
+                self.buffer.clear();
+                self.overflowed = false;
+            } else if self.buffer.len() < MAX_LINE {
+                self.buffer.push(b);
+            } else {
+                self.overflowed = true;
+            }
+        }
+    }
+}
+
+/// Turns protocol lines into events, warning about lines that are not signals.
+fn events_from_lines(protocol: &LineProtocol, lines: &mut VecDeque<String>, source: &str) -> Option<LayerEvent> {
+    while let Some(line) = lines.pop_front() {
+        match protocol.parse(&line) {
+            Some((layer, phase)) => return Some(LayerEvent { layer, phase, at: Utc::now() }),
+            None => {
+                let shown: String = line.chars().take(120).collect();
+                warn!(source, line = %shown.escape_debug(), "trigger: line does not match the protocol, skipped");
+            }
+        }
+    }
+    None
+}
+
+/// The printer's serial line. A vanished port is reopened with backoff; nothing is fatal.
+pub struct SerialTrigger {
+    config: SerialTriggerConfig,
+    protocol: LineProtocol,
+    port: Option<Box<dyn serialport::SerialPort>>,
+    splitter: LineSplitter,
+    lines: VecDeque<String>,
+    backoff: Duration,
+}
+
+impl SerialTrigger {
+    pub fn new(config: SerialTriggerConfig) -> Result<SerialTrigger, TriggerError> {
+        let protocol = LineProtocol::new(&config.pattern, &config.pre, &config.post)?;
+        let backoff = Duration::from_millis(config.reopen_backoff_ms[0]);
+        Ok(SerialTrigger { config, protocol, port: None, splitter: LineSplitter::default(), lines: VecDeque::new(), backoff })
+    }
+
+    fn ensure_open(&mut self) {
+        while self.port.is_none() {
+            match serialport::new(&self.config.port, self.config.baud).timeout(Duration::from_millis(500)).open() {
+                Ok(port) => {
+                    info!(port = %self.config.port, baud = self.config.baud, "trigger: serial port open");
+                    self.port = Some(port);
+                    self.backoff = Duration::from_millis(self.config.reopen_backoff_ms[0]);
+                }
+                Err(e) => {
+                    warn!(port = %self.config.port, error = %e, retry_in_ms = self.backoff.as_millis() as u64,
+                        "trigger: cannot open the serial port; check the cable and that the service user is in the dialout group");
+                    std::thread::sleep(self.backoff);
+                    let max = Duration::from_millis(self.config.reopen_backoff_ms[1]);
+                    self.backoff = (self.backoff * 2).min(max);
+                }
+            }
+        }
+    }
+}
+
+impl Trigger for SerialTrigger {
+    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+        let mut chunk = [0u8; 512];
+        loop {
+            if let Some(event) = events_from_lines(&self.protocol, &mut self.lines, &self.config.port) {
+                return Ok(Some(event));
+            }
+            self.ensure_open();
+            let Some(port) = self.port.as_mut() else { continue };
+            match port.read(&mut chunk) {
+                Ok(0) => {
+                    warn!(port = %self.config.port, "trigger: serial port closed; reopening");
+                    self.port = None;
+                }
+                Ok(n) => self.splitter.push(&chunk[..n], &mut self.lines),
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut || e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    warn!(port = %self.config.port, error = %e, "trigger: serial port vanished; reopening");
+                    self.port = None;
+                    std::thread::sleep(self.backoff);
+                }
+            }
+        }
+    }
+}
+
+/// Layer counting from GPIO pulses, separate from the hardware so it can be tested.
+#[derive(Clone, Debug)]
+pub struct PulseCounter {
+    mode: GpioMode,
+    first_layer: u32,
+    last: Option<(u32, Phase)>,
+}
+
+/// What a pulse was: on the pre line, the post line, or the single alternating line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pulse {
+    PreLine,
+    PostLine,
+    Line,
+}
+
+impl PulseCounter {
+    pub fn new(mode: GpioMode, first_layer: u32) -> PulseCounter {
+        PulseCounter { mode, first_layer, last: None }
+    }
+    pub fn resume_after(&mut self, last: Option<(u32, Phase)>) {
+        self.last = last;
+    }
+    pub fn on_pulse(&mut self, pulse: Pulse) -> Option<(u32, Phase)> {
+        let next_layer = self.last.map_or(self.first_layer, |(layer, _)| layer + 1);
+        let current_layer = self.last.map_or(self.first_layer, |(layer, _)| layer);
+        let event = match (self.mode, pulse) {
+            (GpioMode::PerPhase, Pulse::PreLine) => (next_layer, Phase::Pre),
+            (GpioMode::PerPhase, Pulse::PostLine) => match self.last {
+                // Post of the layer whose pre we saw; a post with no pre starts a new layer.
+                Some((layer, Phase::Pre)) => (layer, Phase::Post),
+                _ => (next_layer, Phase::Post),
+            },
+            (GpioMode::Alternating, Pulse::Line) => match self.last {
+                Some((layer, Phase::Pre)) => (layer, Phase::Post),
+                Some(_) => (next_layer, Phase::Pre),
+                None => (current_layer, Phase::Pre),
+            },
+            _ => return None,
+        };
+        self.last = Some(event);
+        Some(event)
+    }
+}
+
+/// GPIO lines through the Linux character device.
+pub struct GpioTrigger {
+    config: GpioTriggerConfig,
+    request: gpiocdev::Request,
+    counter: PulseCounter,
+}
+
+impl GpioTrigger {
+    pub fn open(config: GpioTriggerConfig) -> Result<GpioTrigger, TriggerError> {
+        let offsets: Vec<u32> = match config.mode {
+            GpioMode::PerPhase => config.pre_line.into_iter().chain(config.post_line).collect(),
+            GpioMode::Alternating => config.line.into_iter().collect(),
+        };
+        let edge = match config.edge {
+            Edge::Rising => gpiocdev::line::EdgeDetection::RisingEdge,
+            Edge::Falling => gpiocdev::line::EdgeDetection::FallingEdge,
+            Edge::Both => gpiocdev::line::EdgeDetection::BothEdges,
+        };
+        let mut builder = gpiocdev::Request::builder();
+        builder
+            .on_chip(&config.chip)
+            .with_consumer("layerwise-trigger")
+            .with_lines(&offsets)
+            .as_input()
+            .with_edge_detection(edge)
+            .with_debounce_period(Duration::from_millis(config.debounce_ms));
+        if config.active_low {
+            builder.as_active_low();
+        }
+        let request = builder
+            .request()
+            .map_err(|e| TriggerError::Gpio { chip: config.chip.clone(), message: e.to_string() })?;
+        let counter = PulseCounter::new(config.mode, config.first_layer);
+        Ok(GpioTrigger { config, request, counter })
+    }
+}
+
+impl Trigger for GpioTrigger {
+    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+        loop {
+            let edge = self
+                .request
+                .read_edge_event()
+                .map_err(|e| TriggerError::Gpio { chip: self.config.chip.clone(), message: e.to_string() })?;
+            let pulse = match self.config.mode {
+                GpioMode::Alternating => Pulse::Line,
+                GpioMode::PerPhase if Some(edge.offset) == self.config.pre_line => Pulse::PreLine,
+                GpioMode::PerPhase => Pulse::PostLine,
+            };
+            if let Some((layer, phase)) = self.counter.on_pulse(pulse) {
+                return Ok(Some(LayerEvent { layer, phase, at: Utc::now() }));
+            }
+        }
+    }
+
+    fn resume_after(&mut self, last: Option<(u32, Phase)>) {
+        self.counter.resume_after(last);
+    }
+}
+
+/// One step of a mock script.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScriptStep {
+    Signal(u32, Phase),
+    Wait(Duration),
+}
+
+/// Events from a script, a generated sequence or an in-process channel; it also plays the
+/// printer for the mock camera, telling the simulated world which layer is on the plate.
+pub struct MockTrigger {
+    steps: VecDeque<ScriptStep>,
+    interval: Duration,
+    channel: Option<crossbeam_channel::Receiver<LayerEvent>>,
+    world: Option<MockWorld>,
+}
+
+impl MockTrigger {
+    pub fn from_config(config: &MockTriggerConfig, world: Option<MockWorld>) -> Result<MockTrigger, TriggerError> {
+        let steps = match &config.script {
+            Some(path) => parse_script(path)?,
+            None => (config.first_layer..config.first_layer.saturating_add(config.layers))
+                .flat_map(|layer| [ScriptStep::Signal(layer, Phase::Pre), ScriptStep::Signal(layer, Phase::Post)])
+                .collect(),
+        };
+        Ok(MockTrigger { steps, interval: Duration::from_millis(config.interval_ms), channel: None, world })
+    }
+
+    /// Events sent by the test itself.
+    pub fn from_channel(receiver: crossbeam_channel::Receiver<LayerEvent>, world: Option<MockWorld>) -> MockTrigger {
+        MockTrigger { steps: VecDeque::new(), interval: Duration::ZERO, channel: Some(receiver), world }
+    }
+}
+
+fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| TriggerError::Script { path: path.to_path_buf(), message: format!("cannot read: {e}") })?;
+    let protocol = LineProtocol::default_protocol();
+    let mut steps = VecDeque::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if let Some(ms) = line.strip_prefix("WAIT ") {
+            let ms: u64 = ms.trim().parse().map_err(|_| TriggerError::Script {
+                path: path.to_path_buf(),
+                message: format!("line {}: expected `WAIT <milliseconds>`, found {line:?}", n + 1),
+            })?;
+            steps.push_back(ScriptStep::Wait(Duration::from_millis(ms)));
+        } else if let Some((layer, phase)) = protocol.parse(line) {
+            steps.push_back(ScriptStep::Signal(layer, phase));
+        } else {
+            return Err(TriggerError::Script {
+                path: path.to_path_buf(),
+                message: format!("line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}", n + 1),
+            });
+        }
+    }
+    Ok(steps)
+}
+
+impl Trigger for MockTrigger {
+    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+        let event = if let Some(rx) = &self.channel {
+            rx.recv().ok()
+        } else {
+            loop {
+                match self.steps.pop_front() {
+                    None => break None,
+                    Some(ScriptStep::Wait(d)) => std::thread::sleep(d),
+                    Some(ScriptStep::Signal(layer, phase)) => {
+                        std::thread::sleep(self.interval);
+                        break Some(LayerEvent { layer, phase, at: Utc::now() });
+                    }
+                }
+            }
+        };
+        if let (Some(world), Some(event)) = (&self.world, &event) {
+            world.set_layer(event.layer, event.phase);
+        }
+        Ok(event)
+    }
+}
+
+/// Runs a trigger on its own thread, forwarding events into a channel. The thread ends when the
+/// trigger ends, fails, or the receiver is dropped.
+pub fn spawn(mut trigger: Box<dyn Trigger>) -> tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>> {
+    let (tx, rx) = tokio::sync::mpsc::channel(64);
+    let spawned = std::thread::Builder::new().name("trigger".into()).spawn(move || loop {
+        match trigger.next_event() {
+            Ok(Some(event)) => {
+                if tx.blocking_send(Ok(event)).is_err() {
+                    return;
+                }
+            }
+            Ok(None) => return,
+            Err(e) => {
+                let _ = tx.blocking_send(Err(e));
+                return;
+            }
+        }
+    });
+    if let Err(e) = spawned {
+        warn!(error = %e, "trigger: cannot start its thread");
+    }
+    rx
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_protocol_parses_signals_and_rejects_garbage() {
+        let p = LineProtocol::default_protocol();
+        assert_eq!(p.parse("LAYER 42 PRE"), Some((42, Phase::Pre)));
+        assert_eq!(p.parse("  LAYER 7 POST "), Some((7, Phase::Post)));
+        assert_eq!(p.parse("LAYER x PRE"), None);
+        assert_eq!(p.parse("LAYER 99999999999999 PRE"), None);
+        assert_eq!(p.parse("\u{fffd}\u{fffd}LAYER"), None);
+    }
+
+    #[test]
+    fn custom_protocol_tokens() {
+        let p = LineProtocol::new(r"^L(?P<layer>\d+):(?P<phase>\w+)$", "recoated", "exposed").unwrap();
+        assert_eq!(p.parse("L3:recoated"), Some((3, Phase::Pre)));
+        assert_eq!(p.parse("L3:EXPOSED"), Some((3, Phase::Post)));
+        assert_eq!(p.parse("L3:other"), None);
+        assert!(LineProtocol::new(r"(?P<layer>\d+)", "a", "b").is_err());
+    }
+
+    #[test]
+    fn splitter_bounds_garbage() {
+        let mut s = LineSplitter::default();
+        let mut out = VecDeque::new();
+        s.push(&vec![b'x'; 10_000], &mut out);
+        s.push(b"\nLAYER 1 PRE\r\n", &mut out);
+        assert_eq!(out, VecDeque::from(vec!["LAYER 1 PRE".to_string()]));
+    }
+
+    #[test]
+    fn per_phase_counter_resumes() {
+        let mut c = PulseCounter::new(GpioMode::PerPhase, 1);
+        assert_eq!(c.on_pulse(Pulse::PreLine), Some((1, Phase::Pre)));
+        assert_eq!(c.on_pulse(Pulse::PostLine), Some((1, Phase::Post)));
+        assert_eq!(c.on_pulse(Pulse::PreLine), Some((2, Phase::Pre)));
+        let mut resumed = PulseCounter::new(GpioMode::PerPhase, 1);
+        resumed.resume_after(Some((2, Phase::Pre)));
+        assert_eq!(resumed.on_pulse(Pulse::PostLine), Some((2, Phase::Post)));
+        assert_eq!(resumed.on_pulse(Pulse::PreLine), Some((3, Phase::Pre)));
+    }
+
+    #[test]
+    fn alternating_counter_resumes() {
+        let mut c = PulseCounter::new(GpioMode::Alternating, 5);
+        assert_eq!(c.on_pulse(Pulse::Line), Some((5, Phase::Pre)));
+        assert_eq!(c.on_pulse(Pulse::Line), Some((5, Phase::Post)));
+        assert_eq!(c.on_pulse(Pulse::Line), Some((6, Phase::Pre)));
+        let mut resumed = PulseCounter::new(GpioMode::Alternating, 1);
+        resumed.resume_after(Some((6, Phase::Post)));
+        assert_eq!(resumed.on_pulse(Pulse::Line), Some((7, Phase::Pre)));
+    }
+
+    #[test]
+    fn script_errors_name_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("script.txt");
+        std::fs::write(&path, "LAYER 1 PRE\nWAIT 5\nbogus\n").unwrap();
+        let err = parse_script(&path).unwrap_err().to_string();
+        assert!(err.contains("script.txt") && err.contains("line 3"), "{err}");
+    }
+}
