@@ -10,11 +10,18 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("{file}: cannot read: {source}")]
-    Read { file: PathBuf, source: std::io::Error },
+    Read {
+        file: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{file}: {message}")]
     Parse { file: PathBuf, message: String },
     #[error("{file}: key `{key}`: {message}")]
-    Invalid { file: PathBuf, key: String, message: String },
+    Invalid {
+        file: PathBuf,
+        key: String,
+        message: String,
+    },
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -267,7 +274,10 @@ pub struct ViewsConfig {
 
 impl Default for ViewsConfig {
     fn default() -> Self {
-        ViewsConfig { phases: default_phases(), lights: default_lights() }
+        ViewsConfig {
+            phases: default_phases(),
+            lights: default_lights(),
+        }
     }
 }
 
@@ -296,7 +306,13 @@ pub struct GridConfig {
 
 impl Default for GridConfig {
     fn default() -> Self {
-        GridConfig { x_min: -137.5, x_max: 137.5, y_min: -137.5, y_max: 137.5, pixel_mm: 0.0625 }
+        GridConfig {
+            x_min: -137.5,
+            x_max: 137.5,
+            y_min: -137.5,
+            y_max: 137.5,
+            pixel_mm: 0.0625,
+        }
     }
 }
 
@@ -414,8 +430,10 @@ fn default_min_free_gb() -> f64 {
 impl Config {
     /// Reads and validates a configuration file.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| ConfigError::Read { file: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            file: path.to_path_buf(),
+            source,
+        })?;
         Config::parse(&text, path)
     }
 
@@ -433,8 +451,15 @@ impl Config {
                 }
                 None => String::new(),
             };
-            let key = if key == "." || key.is_empty() { String::new() } else { format!("key `{key}`: ") };
-            ConfigError::Parse { file: file.to_path_buf(), message: format!("{place}{key}{message}") }
+            let key = if key == "." || key.is_empty() {
+                String::new()
+            } else {
+                format!("key `{key}`: ")
+            };
+            ConfigError::Parse {
+                file: file.to_path_buf(),
+                message: format!("{place}{key}{message}"),
+            }
         })?;
         config.validate(file)?;
         Ok(config)
@@ -455,7 +480,10 @@ impl Config {
         match &self.trigger {
             TriggerConfig::Serial(serial) => {
                 let regex = regex::Regex::new(&serial.pattern).map_err(|e| {
-                    invalid("trigger.pattern", format!("is not a valid regular expression: {e}"))
+                    invalid(
+                        "trigger.pattern",
+                        format!("is not a valid regular expression: {e}"),
+                    )
                 })?;
                 for group in ["layer", "phase"] {
                     if !regex.capture_names().flatten().any(|name| name == group) {
@@ -466,7 +494,10 @@ impl Config {
                     }
                 }
                 if serial.baud == 0 {
-                    return Err(invalid("trigger.baud", "must be a positive baud rate such as 9600".into()));
+                    return Err(invalid(
+                        "trigger.baud",
+                        "must be a positive baud rate such as 9600".into(),
+                    ));
                 }
             }
             TriggerConfig::Gpio(gpio) => match gpio.mode {
@@ -477,13 +508,19 @@ impl Config {
                     ))
                 }
                 GpioMode::Alternating if gpio.line.is_none() => {
-                    return Err(invalid("trigger.line", "mode \"alternating\" needs `line`".into()))
+                    return Err(invalid(
+                        "trigger.line",
+                        "mode \"alternating\" needs `line`".into(),
+                    ))
                 }
                 _ => {}
             },
             TriggerConfig::Mock(mock) => {
                 if mock.script.is_none() && mock.layers == 0 {
-                    return Err(invalid("trigger.layers", "must be at least 1 without a script".into()));
+                    return Err(invalid(
+                        "trigger.layers",
+                        "must be at least 1 without a script".into(),
+                    ));
                 }
             }
         }
@@ -501,7 +538,9 @@ impl Config {
             }
             for key in relay.commands.keys() {
                 let known = key == "all_off"
-                    || Light::ALL.iter().any(|l| *key == format!("{l}_on") || *key == format!("{l}_off"));
+                    || Light::ALL
+                        .iter()
+                        .any(|l| *key == format!("{l}_on") || *key == format!("{l}_off"));
                 if !known {
                     return Err(invalid(
                         &format!("lights.commands.{key}"),
@@ -512,22 +551,34 @@ impl Config {
         }
         if let CameraConfig::Mock(mock) = &self.camera {
             if mock.width < 16 || mock.height < 16 {
-                return Err(invalid("camera.width", "the mock sensor must be at least 16 x 16 pixels".into()));
+                return Err(invalid(
+                    "camera.width",
+                    "the mock sensor must be at least 16 x 16 pixels".into(),
+                ));
             }
             for (i, fault) in mock.faults.iter().enumerate() {
                 if !["busy", "disconnect", "slow", "fail", "hang"].contains(&fault.fault.as_str()) {
                     return Err(invalid(
                         &format!("camera.faults[{i}].fault"),
-                        format!("unknown fault '{}': expected busy, disconnect, slow, fail or hang", fault.fault),
+                        format!(
+                            "unknown fault '{}': expected busy, disconnect, slow, fail or hang",
+                            fault.fault
+                        ),
                     ));
                 }
             }
         }
         if self.capture.call_timeout_s == 0 {
-            return Err(invalid("capture.call_timeout_s", "must be at least 1 second".into()));
+            return Err(invalid(
+                "capture.call_timeout_s",
+                "must be at least 1 second".into(),
+            ));
         }
         if self.views.phases.is_empty() || self.views.lights.is_empty() {
-            return Err(invalid("views", "needs at least one phase and one light".into()));
+            return Err(invalid(
+                "views",
+                "needs at least one phase and one light".into(),
+            ));
         }
         let g = &self.rectify;
         if !(g.pixel_mm > 0.0 && g.x_max > g.x_min && g.y_max > g.y_min) {
@@ -537,7 +588,10 @@ impl Config {
             ));
         }
         if self.storage.queue_capacity == 0 {
-            return Err(invalid("storage.queue_capacity", "must be at least 1".into()));
+            return Err(invalid(
+                "storage.queue_capacity",
+                "must be at least 1".into(),
+            ));
         }
         Ok(())
     }
@@ -551,7 +605,10 @@ impl Config {
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
     let line = before.matches('\n').count() + 1;
-    let column = before.rfind('\n').map_or(before.len(), |nl| before.len() - nl - 1) + 1;
+    let column = before
+        .rfind('\n')
+        .map_or(before.len(), |nl| before.len() - nl - 1)
+        + 1;
     (line, column)
 }
 
@@ -585,7 +642,10 @@ mod tests {
     fn wrong_type_names_key() {
         let text = DEMO_CONFIG.replace("settle_ms = 0", "settle_ms = \"fast\"");
         let err = parse(&text).unwrap_err().to_string();
-        assert!(err.contains("lights.settle_ms") || err.contains("settle_ms"), "{err}");
+        assert!(
+            err.contains("lights.settle_ms") || err.contains("settle_ms"),
+            "{err}"
+        );
         assert!(err.contains("line"), "{err}");
     }
 
@@ -603,7 +663,10 @@ pattern = "LAYER (\\d+)"
 kind = "mock"
 "#;
         let err = parse(text).unwrap_err().to_string();
-        assert!(err.contains("trigger.pattern") && err.contains("layer"), "{err}");
+        assert!(
+            err.contains("trigger.pattern") && err.contains("layer"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -622,7 +685,10 @@ commands = { front_on = "A1", front_off = "A0" }
 kind = "mock"
 "#;
         let err = parse(text).unwrap_err().to_string();
-        assert!(err.contains("lights.commands") && err.contains("side_on"), "{err}");
+        assert!(
+            err.contains("lights.commands") && err.contains("side_on"),
+            "{err}"
+        );
     }
 
     #[test]

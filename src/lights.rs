@@ -53,7 +53,10 @@ impl Drop for LightsGuard {
     }
 }
 
-pub fn open(config: &LightsConfig, world: Option<MockWorld>) -> Result<(Box<dyn Lights>, Option<MockLightsLog>), LightsError> {
+pub fn open(
+    config: &LightsConfig,
+    world: Option<MockWorld>,
+) -> Result<(Box<dyn Lights>, Option<MockLightsLog>), LightsError> {
     Ok(match config {
         LightsConfig::None => (Box::new(NoLights), None),
         LightsConfig::SerialRelay(relay) => (Box::new(SerialRelayLights::open(relay)?), None),
@@ -79,7 +82,10 @@ impl Lights for NoLights {
 
 /// Decodes `\r`, `\n`, `\t`, `\\` and `\xNN` in a relay command string.
 pub fn decode_command(key: &str, text: &str) -> Result<Vec<u8>, LightsError> {
-    let bad = |message: String| LightsError::Command { key: key.to_string(), message };
+    let bad = |message: String| LightsError::Command {
+        key: key.to_string(),
+        message,
+    };
     let mut out = Vec::new();
     let mut chars = text.chars();
     while let Some(c) = chars.next() {
@@ -95,10 +101,16 @@ pub fn decode_command(key: &str, text: &str) -> Result<Vec<u8>, LightsError> {
             Some('\\') => out.push(b'\\'),
             Some('x') => {
                 let hex: String = chars.by_ref().take(2).collect();
-                let byte = u8::from_str_radix(&hex, 16).map_err(|_| bad(format!("`\\x{hex}` is not two hex digits")))?;
+                let byte = u8::from_str_radix(&hex, 16)
+                    .map_err(|_| bad(format!("`\\x{hex}` is not two hex digits")))?;
                 out.push(byte);
             }
-            other => return Err(bad(format!("unknown escape `\\{}`", other.map(String::from).unwrap_or_default()))),
+            other => {
+                return Err(bad(format!(
+                    "unknown escape `\\{}`",
+                    other.map(String::from).unwrap_or_default()
+                )))
+            }
         }
     }
     Ok(out)
@@ -119,18 +131,31 @@ impl SerialRelayLights {
         let port = serialport::new(&config.port, config.baud)
             .timeout(Duration::from_secs(2))
             .open()
-            .map_err(|e| LightsError::Serial { port: config.port.clone(), message: e.to_string() })?;
-        Ok(SerialRelayLights { port_name: config.port.clone(), port, commands })
+            .map_err(|e| LightsError::Serial {
+                port: config.port.clone(),
+                message: e.to_string(),
+            })?;
+        Ok(SerialRelayLights {
+            port_name: config.port.clone(),
+            port,
+            commands,
+        })
     }
 
     fn send(&mut self, key: &str) -> Result<(), LightsError> {
         let Some(bytes) = self.commands.get(key) else {
-            return Err(LightsError::Command { key: key.into(), message: "not configured".into() });
+            return Err(LightsError::Command {
+                key: key.into(),
+                message: "not configured".into(),
+            });
         };
         self.port
             .write_all(bytes)
             .and_then(|_| self.port.flush())
-            .map_err(|e| LightsError::Serial { port: self.port_name.clone(), message: e.to_string() })
+            .map_err(|e| LightsError::Serial {
+                port: self.port_name.clone(),
+                message: e.to_string(),
+            })
     }
 }
 
@@ -164,7 +189,11 @@ pub struct GpioLights {
 impl GpioLights {
     pub fn open(config: &GpioLightsConfig) -> Result<GpioLights, LightsError> {
         let chip = config.chip.display().to_string();
-        let lines = [(Light::Front, config.front), (Light::Side, config.side), (Light::Top, config.top)];
+        let lines = [
+            (Light::Front, config.front),
+            (Light::Side, config.side),
+            (Light::Top, config.top),
+        ];
         let offsets: Vec<u32> = lines.iter().map(|(_, o)| *o).collect();
         let mut builder = gpiocdev::Request::builder();
         builder
@@ -175,8 +204,15 @@ impl GpioLights {
         if config.active_low {
             builder.as_active_low();
         }
-        let request = builder.request().map_err(|e| LightsError::Gpio { chip: chip.clone(), message: e.to_string() })?;
-        Ok(GpioLights { chip, request, lines })
+        let request = builder.request().map_err(|e| LightsError::Gpio {
+            chip: chip.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(GpioLights {
+            chip,
+            request,
+            lines,
+        })
     }
 }
 
@@ -185,10 +221,17 @@ impl Lights for GpioLights {
         let Some(&(_, offset)) = self.lines.iter().find(|(l, _)| *l == light) else {
             return Ok(());
         };
-        let value = if on { gpiocdev::line::Value::Active } else { gpiocdev::line::Value::Inactive };
+        let value = if on {
+            gpiocdev::line::Value::Active
+        } else {
+            gpiocdev::line::Value::Inactive
+        };
         self.request
             .set_value(offset, value)
-            .map_err(|e| LightsError::Gpio { chip: self.chip.clone(), message: e.to_string() })
+            .map_err(|e| LightsError::Gpio {
+                chip: self.chip.clone(),
+                message: e.to_string(),
+            })
     }
     fn all_off(&mut self) -> Result<(), LightsError> {
         for light in Light::ALL {
@@ -246,7 +289,10 @@ pub struct MockLights {
 
 impl MockLights {
     pub fn new(world: Option<MockWorld>) -> MockLights {
-        MockLights { log: MockLightsLog::default(), world }
+        MockLights {
+            log: MockLightsLog::default(),
+            world,
+        }
     }
     pub fn log(&self) -> MockLightsLog {
         self.log.clone()
@@ -293,6 +339,12 @@ mod tests {
             assert_eq!(log.lit(), vec![Light::Top]);
         }
         assert!(log.lit().is_empty());
-        assert_eq!(log.history().last(), Some(&LightSwitch { light: None, on: false }));
+        assert_eq!(
+            log.history().last(),
+            Some(&LightSwitch {
+                light: None,
+                on: false
+            })
+        );
     }
 }

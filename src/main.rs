@@ -8,7 +8,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 #[derive(Parser)]
-#[command(name = "layerwise", version, about = "Layer-wise imaging of powder bed fusion builds, registered to the laser vectors and CT")]
+#[command(
+    name = "layerwise",
+    version,
+    about = "Layer-wise imaging of powder bed fusion builds, registered to the laser vectors and CT"
+)]
 struct Cli {
     /// More log detail.
     #[arg(short, long, global = true)]
@@ -56,7 +60,11 @@ fn main() {
 }
 
 fn runtime() -> Result<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("cannot start the async runtime")
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
 }
 
 fn dispatch(command: Command) -> Result<()> {
@@ -67,7 +75,10 @@ fn dispatch(command: Command) -> Result<()> {
             options.notify_systemd = true;
             options.drain_at_end = true;
             let summary = runtime()?.block_on(acquisition::run(&config, options))?;
-            println!("stopped ({}): {} frames stored, {} missing", summary.stop_reason, summary.stored, summary.missing);
+            println!(
+                "stopped ({}): {} frames stored, {} missing",
+                summary.stop_reason, summary.stored, summary.missing
+            );
         }
         Command::CheckConfig { file } => {
             let config = Config::load(&file)?;
@@ -78,7 +89,11 @@ fn dispatch(command: Command) -> Result<()> {
                 config.build.output_dir.display()
             );
         }
-        Command::Status { build, json, min_free_gb } => {
+        Command::Status {
+            build,
+            json,
+            min_free_gb,
+        } => {
             let report = status::report(&build, (min_free_gb * 1e9) as u64)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);

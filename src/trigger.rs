@@ -1,7 +1,6 @@
 //! Layer signals from the printer: a serial line, GPIO lines, or a mock. Every trigger runs on
 //! its own thread (reads block) and yields [`LayerEvent`]s.
 
-use crate::camera::mock::MockWorld;
 use crate::config::{Edge, GpioMode, GpioTriggerConfig, MockTriggerConfig, SerialTriggerConfig};
 use crate::view::Phase;
 use chrono::{DateTime, Utc};
@@ -54,10 +53,16 @@ impl LineProtocol {
         let regex = Regex::new(pattern).map_err(|e| TriggerError::Pattern(e.to_string()))?;
         for group in ["layer", "phase"] {
             if !regex.capture_names().flatten().any(|n| n == group) {
-                return Err(TriggerError::Pattern(format!("no named group `{group}` in {pattern}")));
+                return Err(TriggerError::Pattern(format!(
+                    "no named group `{group}` in {pattern}"
+                )));
             }
         }
-        Ok(LineProtocol { regex, pre: pre.to_string(), post: post.to_string() })
+        Ok(LineProtocol {
+            regex,
+            pre: pre.to_string(),
+            post: post.to_string(),
+        })
     }
 
     pub fn default_protocol() -> LineProtocol {
@@ -96,7 +101,10 @@ impl LineSplitter {
         for &b in bytes {
             if b == b'\n' || b == b'\r' {
                 if self.overflowed {
-                    warn!(bytes = self.buffer.len(), "trigger: skipped an over-long line");
+                    warn!(
+                        bytes = self.buffer.len(),
+                        "trigger: skipped an over-long line"
+                    );
                 } else if !self.buffer.is_empty() {
                     out.push_back(String::from_utf8_lossy(&self.buffer).into_owned());
                 }
@@ -112,10 +120,20 @@ impl LineSplitter {
 }
 
 /// Turns protocol lines into events, warning about lines that are not signals.
-fn events_from_lines(protocol: &LineProtocol, lines: &mut VecDeque<String>, source: &str) -> Option<LayerEvent> {
+fn events_from_lines(
+    protocol: &LineProtocol,
+    lines: &mut VecDeque<String>,
+    source: &str,
+) -> Option<LayerEvent> {
     while let Some(line) = lines.pop_front() {
         match protocol.parse(&line) {
-            Some((layer, phase)) => return Some(LayerEvent { layer, phase, at: Utc::now() }),
+            Some((layer, phase)) => {
+                return Some(LayerEvent {
+                    layer,
+                    phase,
+                    at: Utc::now(),
+                })
+            }
             None => {
                 let shown: String = line.chars().take(120).collect();
                 warn!(source, line = %shown.escape_debug(), "trigger: line does not match the protocol, skipped");
@@ -139,12 +157,22 @@ impl SerialTrigger {
     pub fn new(config: SerialTriggerConfig) -> Result<SerialTrigger, TriggerError> {
         let protocol = LineProtocol::new(&config.pattern, &config.pre, &config.post)?;
         let backoff = Duration::from_millis(config.reopen_backoff_ms[0]);
-        Ok(SerialTrigger { config, protocol, port: None, splitter: LineSplitter::default(), lines: VecDeque::new(), backoff })
+        Ok(SerialTrigger {
+            config,
+            protocol,
+            port: None,
+            splitter: LineSplitter::default(),
+            lines: VecDeque::new(),
+            backoff,
+        })
     }
 
     fn ensure_open(&mut self) {
         while self.port.is_none() {
-            match serialport::new(&self.config.port, self.config.baud).timeout(Duration::from_millis(500)).open() {
+            match serialport::new(&self.config.port, self.config.baud)
+                .timeout(Duration::from_millis(500))
+                .open()
+            {
                 Ok(port) => {
                     info!(port = %self.config.port, baud = self.config.baud, "trigger: serial port open");
                     self.port = Some(port);
@@ -166,18 +194,24 @@ impl Trigger for SerialTrigger {
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
         let mut chunk = [0u8; 512];
         loop {
-            if let Some(event) = events_from_lines(&self.protocol, &mut self.lines, &self.config.port) {
+            if let Some(event) =
+                events_from_lines(&self.protocol, &mut self.lines, &self.config.port)
+            {
                 return Ok(Some(event));
             }
             self.ensure_open();
-            let Some(port) = self.port.as_mut() else { continue };
+            let Some(port) = self.port.as_mut() else {
+                continue;
+            };
             match port.read(&mut chunk) {
                 Ok(0) => {
                     warn!(port = %self.config.port, "trigger: serial port closed; reopening");
                     self.port = None;
                 }
                 Ok(n) => self.splitter.push(&chunk[..n], &mut self.lines),
-                Err(e) if e.kind() == std::io::ErrorKind::TimedOut || e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e)
+                    if e.kind() == std::io::ErrorKind::TimedOut
+                        || e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => {
                     warn!(port = %self.config.port, error = %e, "trigger: serial port vanished; reopening");
                     self.port = None;
@@ -206,7 +240,11 @@ pub enum Pulse {
 
 impl PulseCounter {
     pub fn new(mode: GpioMode, first_layer: u32) -> PulseCounter {
-        PulseCounter { mode, first_layer, last: None }
+        PulseCounter {
+            mode,
+            first_layer,
+            last: None,
+        }
     }
     pub fn resume_after(&mut self, last: Option<(u32, Phase)>) {
         self.last = last;
@@ -243,7 +281,11 @@ pub struct GpioTrigger {
 impl GpioTrigger {
     pub fn open(config: GpioTriggerConfig) -> Result<GpioTrigger, TriggerError> {
         let offsets: Vec<u32> = match config.mode {
-            GpioMode::PerPhase => config.pre_line.into_iter().chain(config.post_line).collect(),
+            GpioMode::PerPhase => config
+                .pre_line
+                .into_iter()
+                .chain(config.post_line)
+                .collect(),
             GpioMode::Alternating => config.line.into_iter().collect(),
         };
         let edge = match config.edge {
@@ -262,11 +304,16 @@ impl GpioTrigger {
         if config.active_low {
             builder.as_active_low();
         }
-        let request = builder
-            .request()
-            .map_err(|e| TriggerError::Gpio { chip: config.chip.clone(), message: e.to_string() })?;
+        let request = builder.request().map_err(|e| TriggerError::Gpio {
+            chip: config.chip.clone(),
+            message: e.to_string(),
+        })?;
         let counter = PulseCounter::new(config.mode, config.first_layer);
-        Ok(GpioTrigger { config, request, counter })
+        Ok(GpioTrigger {
+            config,
+            request,
+            counter,
+        })
     }
 }
 
@@ -276,14 +323,21 @@ impl Trigger for GpioTrigger {
             let edge = self
                 .request
                 .read_edge_event()
-                .map_err(|e| TriggerError::Gpio { chip: self.config.chip.clone(), message: e.to_string() })?;
+                .map_err(|e| TriggerError::Gpio {
+                    chip: self.config.chip.clone(),
+                    message: e.to_string(),
+                })?;
             let pulse = match self.config.mode {
                 GpioMode::Alternating => Pulse::Line,
                 GpioMode::PerPhase if Some(edge.offset) == self.config.pre_line => Pulse::PreLine,
                 GpioMode::PerPhase => Pulse::PostLine,
             };
             if let Some((layer, phase)) = self.counter.on_pulse(pulse) {
-                return Ok(Some(LayerEvent { layer, phase, at: Utc::now() }));
+                return Ok(Some(LayerEvent {
+                    layer,
+                    phase,
+                    at: Utc::now(),
+                }));
             }
         }
     }
@@ -300,35 +354,48 @@ pub enum ScriptStep {
     Wait(Duration),
 }
 
-/// Events from a script, a generated sequence or an in-process channel; it also plays the
-/// printer for the mock camera, telling the simulated world which layer is on the plate.
+/// Events from a script, a generated sequence or an in-process channel.
 pub struct MockTrigger {
     steps: VecDeque<ScriptStep>,
     interval: Duration,
     channel: Option<crossbeam_channel::Receiver<LayerEvent>>,
-    world: Option<MockWorld>,
 }
 
 impl MockTrigger {
-    pub fn from_config(config: &MockTriggerConfig, world: Option<MockWorld>) -> Result<MockTrigger, TriggerError> {
+    pub fn from_config(config: &MockTriggerConfig) -> Result<MockTrigger, TriggerError> {
         let steps = match &config.script {
             Some(path) => parse_script(path)?,
             None => (config.first_layer..config.first_layer.saturating_add(config.layers))
-                .flat_map(|layer| [ScriptStep::Signal(layer, Phase::Pre), ScriptStep::Signal(layer, Phase::Post)])
+                .flat_map(|layer| {
+                    [
+                        ScriptStep::Signal(layer, Phase::Pre),
+                        ScriptStep::Signal(layer, Phase::Post),
+                    ]
+                })
                 .collect(),
         };
-        Ok(MockTrigger { steps, interval: Duration::from_millis(config.interval_ms), channel: None, world })
+        Ok(MockTrigger {
+            steps,
+            interval: Duration::from_millis(config.interval_ms),
+            channel: None,
+        })
     }
 
     /// Events sent by the test itself.
-    pub fn from_channel(receiver: crossbeam_channel::Receiver<LayerEvent>, world: Option<MockWorld>) -> MockTrigger {
-        MockTrigger { steps: VecDeque::new(), interval: Duration::ZERO, channel: Some(receiver), world }
+    pub fn from_channel(receiver: crossbeam_channel::Receiver<LayerEvent>) -> MockTrigger {
+        MockTrigger {
+            steps: VecDeque::new(),
+            interval: Duration::ZERO,
+            channel: Some(receiver),
+        }
     }
 }
 
 fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| TriggerError::Script { path: path.to_path_buf(), message: format!("cannot read: {e}") })?;
+    let text = std::fs::read_to_string(path).map_err(|e| TriggerError::Script {
+        path: path.to_path_buf(),
+        message: format!("cannot read: {e}"),
+    })?;
     let protocol = LineProtocol::default_protocol();
     let mut steps = VecDeque::new();
     for (n, line) in text.lines().enumerate() {
@@ -339,7 +406,10 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
         if let Some(ms) = line.strip_prefix("WAIT ") {
             let ms: u64 = ms.trim().parse().map_err(|_| TriggerError::Script {
                 path: path.to_path_buf(),
-                message: format!("line {}: expected `WAIT <milliseconds>`, found {line:?}", n + 1),
+                message: format!(
+                    "line {}: expected `WAIT <milliseconds>`, found {line:?}",
+                    n + 1
+                ),
             })?;
             steps.push_back(ScriptStep::Wait(Duration::from_millis(ms)));
         } else if let Some((layer, phase)) = protocol.parse(line) {
@@ -347,7 +417,10 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
         } else {
             return Err(TriggerError::Script {
                 path: path.to_path_buf(),
-                message: format!("line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}", n + 1),
+                message: format!(
+                    "line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}",
+                    n + 1
+                ),
             });
         }
     }
@@ -356,45 +429,48 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
 
 impl Trigger for MockTrigger {
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
-        let event = if let Some(rx) = &self.channel {
-            rx.recv().ok()
-        } else {
-            loop {
-                match self.steps.pop_front() {
-                    None => break None,
-                    Some(ScriptStep::Wait(d)) => std::thread::sleep(d),
-                    Some(ScriptStep::Signal(layer, phase)) => {
-                        std::thread::sleep(self.interval);
-                        break Some(LayerEvent { layer, phase, at: Utc::now() });
-                    }
+        if let Some(rx) = &self.channel {
+            return Ok(rx.recv().ok());
+        }
+        loop {
+            match self.steps.pop_front() {
+                None => return Ok(None),
+                Some(ScriptStep::Wait(d)) => std::thread::sleep(d),
+                Some(ScriptStep::Signal(layer, phase)) => {
+                    std::thread::sleep(self.interval);
+                    return Ok(Some(LayerEvent {
+                        layer,
+                        phase,
+                        at: Utc::now(),
+                    }));
                 }
             }
-        };
-        if let (Some(world), Some(event)) = (&self.world, &event) {
-            world.set_layer(event.layer, event.phase);
         }
-        Ok(event)
     }
 }
 
 /// Runs a trigger on its own thread, forwarding events into a channel. The thread ends when the
 /// trigger ends, fails, or the receiver is dropped.
-pub fn spawn(mut trigger: Box<dyn Trigger>) -> tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>> {
+pub fn spawn(
+    mut trigger: Box<dyn Trigger>,
+) -> tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>> {
     let (tx, rx) = tokio::sync::mpsc::channel(64);
-    let spawned = std::thread::Builder::new().name("trigger".into()).spawn(move || loop {
-        match trigger.next_event() {
-            Ok(Some(event)) => {
-                if tx.blocking_send(Ok(event)).is_err() {
+    let spawned = std::thread::Builder::new()
+        .name("trigger".into())
+        .spawn(move || loop {
+            match trigger.next_event() {
+                Ok(Some(event)) => {
+                    if tx.blocking_send(Ok(event)).is_err() {
+                        return;
+                    }
+                }
+                Ok(None) => return,
+                Err(e) => {
+                    let _ = tx.blocking_send(Err(e));
                     return;
                 }
             }
-            Ok(None) => return,
-            Err(e) => {
-                let _ = tx.blocking_send(Err(e));
-                return;
-            }
-        }
-    });
+        });
     if let Err(e) = spawned {
         warn!(error = %e, "trigger: cannot start its thread");
     }
@@ -417,7 +493,8 @@ mod tests {
 
     #[test]
     fn custom_protocol_tokens() {
-        let p = LineProtocol::new(r"^L(?P<layer>\d+):(?P<phase>\w+)$", "recoated", "exposed").unwrap();
+        let p =
+            LineProtocol::new(r"^L(?P<layer>\d+):(?P<phase>\w+)$", "recoated", "exposed").unwrap();
         assert_eq!(p.parse("L3:recoated"), Some((3, Phase::Pre)));
         assert_eq!(p.parse("L3:EXPOSED"), Some((3, Phase::Post)));
         assert_eq!(p.parse("L3:other"), None);
@@ -462,6 +539,9 @@ mod tests {
         let path = dir.path().join("script.txt");
         std::fs::write(&path, "LAYER 1 PRE\nWAIT 5\nbogus\n").unwrap();
         let err = parse_script(&path).unwrap_err().to_string();
-        assert!(err.contains("script.txt") && err.contains("line 3"), "{err}");
+        assert!(
+            err.contains("script.txt") && err.contains("line 3"),
+            "{err}"
+        );
     }
 }

@@ -103,7 +103,10 @@ pub struct Shot {
 
 impl Shot {
     pub fn view(&self) -> View {
-        View { phase: self.phase, light: self.light }
+        View {
+            phase: self.phase,
+            light: self.light,
+        }
     }
     /// File stem of the original on disk: `L{layer:05}_{phase}_{light}` (docs/frames.md).
     pub fn stem(&self) -> String {
@@ -116,7 +119,11 @@ impl Shot {
         let layer = parts.next()?.parse().ok()?;
         let phase = parts.next()?.parse().ok()?;
         let light = parts.next()?.parse().ok()?;
-        Some(Shot { layer, phase, light })
+        Some(Shot {
+            layer,
+            phase,
+            light,
+        })
     }
 }
 
@@ -132,7 +139,11 @@ mod tests {
 
     #[test]
     fn stem_round_trip() {
-        let shot = Shot { layer: 42, phase: Phase::Post, light: Light::Top };
+        let shot = Shot {
+            layer: 42,
+            phase: Phase::Post,
+            light: Light::Top,
+        };
         assert_eq!(shot.stem(), "L00042_post_top");
         assert_eq!(Shot::from_stem("L00042_post_top"), Some(shot));
         assert_eq!(Shot::from_stem("L00042_post"), None);

@@ -53,6 +53,10 @@ pub struct RunSummary {
     pub stop_reason: String,
 }
 
+/// Opens a camera on the camera thread.
+pub type CameraFactory =
+    Box<dyn FnOnce() -> Result<Box<dyn crate::camera::Camera>, CameraError> + Send>;
+
 /// How to run: what to do with frames, and the pieces tests replace.
 pub struct RunOptions {
     pub processor: Arc<dyn FrameProcessor>,
@@ -62,6 +66,8 @@ pub struct RunOptions {
     pub drain_at_end: bool,
     /// Replaces the configured trigger (tests).
     pub trigger: Option<Box<dyn Trigger>>,
+    /// Replaces the configured camera (tests, benchmarks).
+    pub camera: Option<CameraFactory>,
     /// The simulated machine shared by the mock trigger, lights and camera.
     pub world: MockWorld,
     /// Filled with the mock lights' log when the lights are mock (tests).
@@ -75,6 +81,7 @@ impl RunOptions {
             notify_systemd: false,
             drain_at_end: false,
             trigger: None,
+            camera: None,
             world: MockWorld::new(),
             lights_log: None,
         }
@@ -105,27 +112,41 @@ struct Sequencer {
     summary: RunSummary,
     heartbeat: Arc<AtomicU64>,
     epoch: Instant,
+    /// The simulated plate, when the camera is the mock: it shows the layer being handled.
+    world: MockWorld,
 }
 
 impl Sequencer {
     fn beat(&self) {
-        self.heartbeat.store(self.epoch.elapsed().as_millis() as u64, Ordering::SeqCst);
+        self.heartbeat
+            .store(self.epoch.elapsed().as_millis() as u64, Ordering::SeqCst);
     }
 
     fn journal(&self, record: &Record) -> Result<(), AcquisitionError> {
-        let mut journal = self.journal.lock().map_err(|_| AcquisitionError::Runtime("journal lock poisoned".into()))?;
+        let mut journal = self
+            .journal
+            .lock()
+            .map_err(|_| AcquisitionError::Runtime("journal lock poisoned".into()))?;
         journal.append(record)?;
         Ok(())
     }
 
     fn is_done(&self, shot: &Shot) -> bool {
         self.before.is_done(shot)
-            || self.open.as_ref().is_some_and(|o| o.layer == shot.layer && o.phase == shot.phase && o.done.contains(&shot.light))
+            || self.open.as_ref().is_some_and(|o| {
+                o.layer == shot.layer && o.phase == shot.phase && o.done.contains(&shot.light)
+            })
     }
 
     fn record_missing(&mut self, shot: Shot, reason: String) -> Result<(), AcquisitionError> {
         error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "frame missing");
-        self.journal(&Record::Missing { layer: shot.layer, phase: shot.phase, light: shot.light, reason, at: Utc::now() })?;
+        self.journal(&Record::Missing {
+            layer: shot.layer,
+            phase: shot.phase,
+            light: shot.light,
+            reason,
+            at: Utc::now(),
+        })?;
         self.summary.missing += 1;
         if let Some(open) = self.open.as_mut() {
             open.done.insert(shot.light);
@@ -135,11 +156,20 @@ impl Sequencer {
 
     /// Gives up on the views of an event that a newer signal overtook (e.g. across a restart).
     fn close_open_event(&mut self, reason: &str) -> Result<(), AcquisitionError> {
-        let Some(open) = self.open.take() else { return Ok(()) };
+        let Some(open) = self.open.take() else {
+            return Ok(());
+        };
         for light in self.lights_order.clone() {
-            let shot = Shot { layer: open.layer, phase: open.phase, light };
+            let shot = Shot {
+                layer: open.layer,
+                phase: open.phase,
+                light,
+            };
             if !open.done.contains(&light) && !self.before.is_done(&shot) {
-                self.open = Some(OpenEvent { done: open.done.clone(), ..open });
+                self.open = Some(OpenEvent {
+                    done: open.done.clone(),
+                    ..open
+                });
                 self.record_missing(shot, reason.to_string())?;
                 self.open = None;
             }
@@ -149,25 +179,44 @@ impl Sequencer {
 
     fn on_event(&mut self, event: LayerEvent) -> Result<(), AcquisitionError> {
         self.beat();
-        self.journal(&Record::Event { layer: event.layer, phase: event.phase, at: event.at })?;
+        self.journal(&Record::Event {
+            layer: event.layer,
+            phase: event.phase,
+            at: event.at,
+        })?;
         let key = (event.layer, event.phase);
         if let Some(open) = &self.open {
             if key > (open.layer, open.phase) {
-                self.close_open_event("not captured: the printer moved on (daemon stopped or busy)")?;
+                self.close_open_event(
+                    "not captured: the printer moved on (daemon stopped or busy)",
+                )?;
             }
         }
-        let shots: Vec<Shot> =
-            self.lights_order.iter().map(|&light| Shot { layer: event.layer, phase: event.phase, light }).collect();
+        let shots: Vec<Shot> = self
+            .lights_order
+            .iter()
+            .map(|&light| Shot {
+                layer: event.layer,
+                phase: event.phase,
+                light,
+            })
+            .collect();
         if shots.iter().all(|s| self.is_done(s)) {
             info!(layer = event.layer, phase = %event.phase, "layer signal for frames already stored; skipped");
             self.summary.skipped += shots.len() as u64;
             return Ok(());
         }
         if self.open.as_ref().map(|o| (o.layer, o.phase)) != Some(key) {
-            self.open = Some(OpenEvent { layer: event.layer, phase: event.phase, at: event.at, done: BTreeSet::new() });
+            self.open = Some(OpenEvent {
+                layer: event.layer,
+                phase: event.phase,
+                at: event.at,
+                done: BTreeSet::new(),
+            });
         }
         self.live.layer = Some(event.layer);
         self.live.phase = Some(event.phase);
+        self.world.set_layer(event.layer, event.phase);
         for shot in shots {
             if self.is_done(&shot) {
                 self.summary.skipped += 1;
@@ -184,7 +233,10 @@ impl Sequencer {
         let event_at = self.open.as_ref().map_or_else(Utc::now, |o| o.at);
         if let Err(e) = self.lights.switch(shot.light, true) {
             self.lights.all_off_logged();
-            return self.record_missing(shot, format!("the {} light did not switch on: {e}", shot.light));
+            return self.record_missing(
+                shot,
+                format!("the {} light did not switch on: {e}", shot.light),
+            );
         }
         if !self.settle.is_zero() {
             std::thread::sleep(self.settle);
@@ -197,7 +249,13 @@ impl Sequencer {
         self.beat();
         match result {
             Ok((frame, attempts)) => {
-                let sidecar = self.storage.store_frame(&shot, &frame, event_at, attempts, self.camera.settings())?;
+                let sidecar = self.storage.store_frame(
+                    &shot,
+                    &frame,
+                    event_at,
+                    attempts,
+                    self.camera.settings(),
+                )?;
                 self.journal(&Record::Frame {
                     layer: shot.layer,
                     phase: shot.phase,
@@ -227,13 +285,20 @@ impl Sequencer {
                 );
                 self.live.last_frames.insert(
                     shot.view().to_string(),
-                    LastFrame { layer: shot.layer, file: sidecar.file, at: sidecar.captured_at },
+                    LastFrame {
+                        layer: shot.layer,
+                        file: sidecar.file,
+                        at: sidecar.captured_at,
+                    },
                 );
                 self.write_live("running");
                 Ok(())
             }
             Err(CaptureFailure::Missing { attempts, last }) => {
-                self.record_missing(shot, format!("camera failed after {attempts} attempts: {last}"))?;
+                self.record_missing(
+                    shot,
+                    format!("camera failed after {attempts} attempts: {last}"),
+                )?;
                 self.write_live("running");
                 Ok(())
             }
@@ -267,7 +332,10 @@ impl Sequencer {
                 queue.stop();
             }
         }
-        if let Err(e) = self.journal(&Record::Stop { reason: reason.to_string(), at: Utc::now() }) {
+        if let Err(e) = self.journal(&Record::Stop {
+            reason: reason.to_string(),
+            at: Utc::now(),
+        }) {
             error!(error = %e, "cannot journal the stop");
         }
         self.live.queue_depth = 0;
@@ -277,16 +345,25 @@ impl Sequencer {
     }
 }
 
-fn open_trigger(config: &Config, world: &MockWorld) -> Result<Box<dyn Trigger>, TriggerError> {
+fn open_trigger(config: &Config) -> Result<Box<dyn Trigger>, TriggerError> {
     Ok(match &config.trigger {
-        TriggerConfig::Serial(serial) => Box::new(crate::trigger::SerialTrigger::new(serial.clone())?),
+        TriggerConfig::Serial(serial) => {
+            Box::new(crate::trigger::SerialTrigger::new(serial.clone())?)
+        }
         TriggerConfig::Gpio(gpio) => Box::new(crate::trigger::GpioTrigger::open(gpio.clone())?),
-        TriggerConfig::Mock(mock) => Box::new(crate::trigger::MockTrigger::from_config(mock, Some(world.clone()))?),
+        TriggerConfig::Mock(mock) => Box::new(crate::trigger::MockTrigger::from_config(mock)?),
     })
 }
 
-fn open_camera(config: &Config, world: &MockWorld) -> Result<CameraActor, CameraError> {
+fn open_camera(
+    config: &Config,
+    world: &MockWorld,
+    factory: Option<CameraFactory>,
+) -> Result<CameraActor, CameraError> {
     let timeout = Duration::from_secs(config.capture.call_timeout_s);
+    if let Some(factory) = factory {
+        return CameraActor::spawn(factory, timeout);
+    }
     match &config.camera {
         CameraConfig::Mock(mock) => {
             let (mock, world) = (mock.clone(), world.clone());
@@ -322,7 +399,8 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         frame_of_reference_uid: status::new_uid(),
         software_version: env!("CARGO_PKG_VERSION").to_string(),
     })?;
-    let (mut journal, mut replay) = Journal::open(&dir.join(status::JOURNAL), config.storage.fsync)?;
+    let (mut journal, mut replay) =
+        Journal::open(&dir.join(status::JOURNAL), config.storage.fsync)?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
     for adopted in storage.recover(|shot| replay.frames.contains_key(shot))? {
         warn!(file = %adopted.file, "recovered a frame stored just before a crash");
@@ -338,7 +416,11 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         journal.append(&record)?;
         replay.apply(&record);
     }
-    journal.append(&Record::Start { at: Utc::now(), pid: std::process::id(), version: env!("CARGO_PKG_VERSION").into() })?;
+    journal.append(&Record::Start {
+        at: Utc::now(),
+        pid: std::process::id(),
+        version: env!("CARGO_PKG_VERSION").into(),
+    })?;
     info!(
         build = %manifest.name,
         dir = %dir.display(),
@@ -358,12 +440,13 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
     }
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
-    let camera = open_camera(config, &world).map_err(AcquisitionError::CameraOpen)?;
+    let camera =
+        open_camera(config, &world, options.camera.take()).map_err(AcquisitionError::CameraOpen)?;
     info!(camera = camera.describe(), "camera open");
 
     let mut trigger = match options.trigger.take() {
         Some(t) => t,
-        None => open_trigger(config, &world)?,
+        None => open_trigger(config)?,
     };
     trigger.resume_after(replay.last_event);
 
@@ -373,13 +456,33 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         .into_iter()
         .filter_map(|shot| replay.frames.get(&shot).map(|f| (shot, dir.join(&f.file))))
         .collect();
-    let queue = ProcessingQueue::start(options.processor.clone(), config.storage.queue_capacity, dir.clone(), journal.clone(), backlog);
+    let queue = ProcessingQueue::start(
+        options.processor.clone(),
+        config.storage.queue_capacity,
+        dir.clone(),
+        journal.clone(),
+        backlog,
+    );
 
     let open = replay.last_event.and_then(|(layer, phase)| {
         let lights: Vec<Light> = config.views.lights.clone();
-        let done: BTreeSet<Light> =
-            lights.iter().copied().filter(|&light| replay.is_done(&Shot { layer, phase, light })).collect();
-        (done.len() < lights.len()).then(|| OpenEvent { layer, phase, at: Utc::now(), done })
+        let done: BTreeSet<Light> = lights
+            .iter()
+            .copied()
+            .filter(|&light| {
+                replay.is_done(&Shot {
+                    layer,
+                    phase,
+                    light,
+                })
+            })
+            .collect();
+        (done.len() < lights.len()).then(|| OpenEvent {
+            layer,
+            phase,
+            at: Utc::now(),
+            done,
+        })
     });
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut sequencer = Sequencer {
@@ -392,10 +495,18 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         policy: RetryPolicy::from_config(&config.capture),
         open,
         queue: Some(queue),
-        live: LiveStatus { pid: std::process::id(), last_frames: BTreeMap::new(), ..LiveStatus::default() },
-        summary: RunSummary { build_dir: dir.clone(), ..RunSummary::default() },
+        live: LiveStatus {
+            pid: std::process::id(),
+            last_frames: BTreeMap::new(),
+            ..LiveStatus::default()
+        },
+        summary: RunSummary {
+            build_dir: dir.clone(),
+            ..RunSummary::default()
+        },
         heartbeat: heartbeat.clone(),
         epoch: Instant::now(),
+        world: world.clone(),
         before: replay,
     };
     sequencer.write_live("running");
@@ -413,7 +524,8 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         .map_err(|e| AcquisitionError::Runtime(format!("cannot watch SIGINT: {e}")))?;
 
     let mut idle = Some(sequencer);
-    let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> = None;
+    let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> =
+        None;
     let mut stop: Option<String> = None;
     let epoch = Instant::now();
     loop {

@@ -58,10 +58,25 @@ impl ProcessingQueue {
         let worker_shared = shared.clone();
         let worker = std::thread::Builder::new()
             .name("processing".into())
-            .spawn(move || worker_loop(processor, receiver, worker_shared, build_dir, journal, backlog))
-            .map_err(|e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"))
+            .spawn(move || {
+                worker_loop(
+                    processor,
+                    receiver,
+                    worker_shared,
+                    build_dir,
+                    journal,
+                    backlog,
+                )
+            })
+            .map_err(
+                |e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"),
+            )
             .ok();
-        ProcessingQueue { sender: Some(sender), shared, worker }
+        ProcessingQueue {
+            sender: Some(sender),
+            shared,
+            worker,
+        }
     }
 
     /// Hands a stored frame over without ever blocking.
@@ -109,10 +124,21 @@ fn worker_loop(
 ) {
     let run = |shot: Shot, original: &Path| {
         let record = match processor.process(&build_dir, shot, original) {
-            Ok(()) => Record::Processed { layer: shot.layer, phase: shot.phase, light: shot.light, at: Utc::now() },
+            Ok(()) => Record::Processed {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                at: Utc::now(),
+            },
             Err(reason) => {
                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
-                Record::ProcessingFailed { layer: shot.layer, phase: shot.phase, light: shot.light, reason, at: Utc::now() }
+                Record::ProcessingFailed {
+                    layer: shot.layer,
+                    phase: shot.phase,
+                    light: shot.light,
+                    reason,
+                    at: Utc::now(),
+                }
             }
         };
         if let Ok(mut journal) = journal.lock() {
@@ -120,12 +146,19 @@ fn worker_loop(
                 error!(error = %e, "processing: cannot journal the result");
             }
         }
-        let _ = shared.depth.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| Some(d.saturating_sub(1)));
+        let _ = shared
+            .depth
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
+                Some(d.saturating_sub(1))
+            });
     };
     // Shots a catch-up pass processed while they were still queued: skipped when they come out.
     let mut caught_up = std::collections::BTreeSet::new();
     if !backlog.is_empty() {
-        info!(frames = backlog.len(), "processing: catching up on frames stored before the restart");
+        info!(
+            frames = backlog.len(),
+            "processing: catching up on frames stored before the restart"
+        );
     }
     for (shot, original) in backlog {
         if shared.stop.load(Ordering::SeqCst) {

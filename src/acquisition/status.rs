@@ -30,7 +30,8 @@ pub struct BuildManifest {
 /// A DICOM UID under the 2.25 root (ISO/IEC 9834-8): a random 128-bit number in decimal.
 pub fn new_uid() -> String {
     let mut bytes = [0u8; 16];
-    let random = std::fs::File::open("/dev/urandom").and_then(|mut f| std::io::Read::read_exact(&mut f, &mut bytes));
+    let random = std::fs::File::open("/dev/urandom")
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut bytes));
     if random.is_err() {
         // Without /dev/urandom: time and pid still make collisions vanishingly unlikely here.
         let nanos = Utc::now().timestamp_nanos_opt().unwrap_or_default() as u128;
@@ -41,16 +42,25 @@ pub fn new_uid() -> String {
 
 impl BuildManifest {
     /// Reads the manifest, or creates it for a new build.
-    pub fn load_or_create(dir: &Path, make: impl FnOnce() -> BuildManifest) -> Result<BuildManifest, StorageError> {
+    pub fn load_or_create(
+        dir: &Path,
+        make: impl FnOnce() -> BuildManifest,
+    ) -> Result<BuildManifest, StorageError> {
         let path = dir.join(MANIFEST);
         match std::fs::read(&path) {
             Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| StorageError {
                 path: path.clone(),
-                source: std::io::Error::new(std::io::ErrorKind::InvalidData, format!("not a build manifest: {e}")),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!("not a build manifest: {e}"),
+                ),
             }),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 let manifest = make();
-                let json = serde_json::to_vec_pretty(&manifest).map_err(|e| StorageError { path: path.clone(), source: std::io::Error::other(e) })?;
+                let json = serde_json::to_vec_pretty(&manifest).map_err(|e| StorageError {
+                    path: path.clone(),
+                    source: std::io::Error::other(e),
+                })?;
                 write_atomic(&path, &json, true)?;
                 Ok(manifest)
             }
@@ -81,7 +91,10 @@ pub struct LiveStatus {
 impl LiveStatus {
     pub fn write(&self, dir: &Path) -> Result<(), StorageError> {
         let path = dir.join(STATUS);
-        let json = serde_json::to_vec_pretty(self).map_err(|e| StorageError { path: path.clone(), source: std::io::Error::other(e) })?;
+        let json = serde_json::to_vec_pretty(self).map_err(|e| StorageError {
+            path: path.clone(),
+            source: std::io::Error::other(e),
+        })?;
         write_atomic(&path, &json, false)
     }
 }
@@ -136,12 +149,16 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         return Err(StatusError::NotABuild(dir.to_path_buf()));
     }
     let replay = Journal::read(&journal_path)?;
-    let manifest: Option<BuildManifest> = std::fs::read(dir.join(MANIFEST)).ok().and_then(|b| serde_json::from_slice(&b).ok());
+    let manifest: Option<BuildManifest> = std::fs::read(dir.join(MANIFEST))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok());
     let live: Option<LiveStatus> = match std::fs::read(dir.join(STATUS)) {
-        Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| StatusError::Unreadable {
-            path: dir.join(STATUS),
-            message: e.to_string(),
-        })?),
+        Ok(bytes) => Some(
+            serde_json::from_slice(&bytes).map_err(|e| StatusError::Unreadable {
+                path: dir.join(STATUS),
+                message: e.to_string(),
+            })?,
+        ),
         Err(_) => None,
     };
     let live = live.unwrap_or_default();
@@ -169,7 +186,9 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
     };
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
     let state = match live.state.as_str() {
-        "running" if !alive => "not running (the daemon stopped without a clean shutdown)".to_string(),
+        "running" if !alive => {
+            "not running (the daemon stopped without a clean shutdown)".to_string()
+        }
         "" => "unknown".to_string(),
         s => s.to_string(),
     };
@@ -183,7 +202,11 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         phase: replay.last_event.map(|(_, p)| p).or(live.phase),
         frames: replay.frames.len(),
         frames_missing: replay.missing.len(),
-        missing: replay.missing.iter().map(|(shot, reason)| format!("{}: {reason}", shot.stem())).collect(),
+        missing: replay
+            .missing
+            .iter()
+            .map(|(shot, reason)| format!("{}: {reason}", shot.stem()))
+            .collect(),
         waiting_for_processing: replay.unprocessed().len(),
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
@@ -202,26 +225,54 @@ fn gb(bytes: u64) -> String {
 
 impl fmt::Display for StatusReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "build      {} ({})", self.name.as_deref().unwrap_or("?"), self.build_dir.display())?;
-        writeln!(f, "daemon     {}{}", self.state, self.pid.map(|p| format!(", pid {p}")).unwrap_or_default())?;
+        writeln!(
+            f,
+            "build      {} ({})",
+            self.name.as_deref().unwrap_or("?"),
+            self.build_dir.display()
+        )?;
+        writeln!(
+            f,
+            "daemon     {}{}",
+            self.state,
+            self.pid.map(|p| format!(", pid {p}")).unwrap_or_default()
+        )?;
         match (self.layer, self.phase) {
             (Some(l), Some(p)) => writeln!(
                 f,
                 "layer      {l} {p}{}",
-                self.layers_expected.map(|e| format!(" of {e}")).unwrap_or_default()
+                self.layers_expected
+                    .map(|e| format!(" of {e}"))
+                    .unwrap_or_default()
             )?,
             _ => writeln!(f, "layer      none yet")?,
         }
-        writeln!(f, "frames     {} stored ({}), {} missing", self.frames, gb(self.bytes_stored), self.frames_missing)?;
+        writeln!(
+            f,
+            "frames     {} stored ({}), {} missing",
+            self.frames,
+            gb(self.bytes_stored),
+            self.frames_missing
+        )?;
         for m in self.missing.iter().take(10) {
             writeln!(f, "  missing  {m}")?;
         }
         if self.missing.len() > 10 {
             writeln!(f, "  … and {} more", self.missing.len() - 10)?;
         }
-        writeln!(f, "processing {} waiting (queue depth {})", self.waiting_for_processing, self.queue_depth)?;
+        writeln!(
+            f,
+            "processing {} waiting (queue depth {})",
+            self.waiting_for_processing, self.queue_depth
+        )?;
         for (view, last) in &self.last_frames {
-            writeln!(f, "  last {view:<10} layer {:>5}  {}  {}", last.layer, last.at.format("%Y-%m-%d %H:%M:%S"), last.file)?;
+            writeln!(
+                f,
+                "  last {view:<10} layer {:>5}  {}  {}",
+                last.layer,
+                last.at.format("%Y-%m-%d %H:%M:%S"),
+                last.file
+            )?;
         }
         if let Some(free) = self.free_bytes {
             write!(f, "disk       {} free", gb(free))?;

@@ -54,8 +54,15 @@ pub fn sha256_hex(data: &[u8]) -> String {
 impl Storage {
     pub fn open(root: &Path, fsync: bool) -> Result<Storage, StorageError> {
         let raw = root.join("raw");
-        std::fs::create_dir_all(&raw).map_err(|source| StorageError { path: raw.clone(), source })?;
-        Ok(Storage { root: root.to_path_buf(), raw, fsync })
+        std::fs::create_dir_all(&raw).map_err(|source| StorageError {
+            path: raw.clone(),
+            source,
+        })?;
+        Ok(Storage {
+            root: root.to_path_buf(),
+            raw,
+            fsync,
+        })
     }
 
     pub fn root(&self) -> &Path {
@@ -99,14 +106,20 @@ impl Storage {
 
     fn write_sidecar(&self, shot: &Shot, sidecar: &Sidecar) -> Result<(), StorageError> {
         let path = self.raw.join(format!("{}.json", shot.stem()));
-        let json = serde_json::to_vec_pretty(sidecar).map_err(|e| StorageError { path: path.clone(), source: std::io::Error::other(e) })?;
+        let json = serde_json::to_vec_pretty(sidecar).map_err(|e| StorageError {
+            path: path.clone(),
+            source: std::io::Error::other(e),
+        })?;
         self.write_atomic(&path, &json)
     }
 
     /// After a crash: removes temporary files and returns the originals on disk whose shots the
     /// journal does not know (`known`), with sidecars (rebuilt from the file if missing).
     pub fn recover(&self, known: impl Fn(&Shot) -> bool) -> Result<Vec<Sidecar>, StorageError> {
-        let io = |source| StorageError { path: self.raw.clone(), source };
+        let io = |source| StorageError {
+            path: self.raw.clone(),
+            source,
+        };
         let mut found = Vec::new();
         for entry in std::fs::read_dir(&self.raw).map_err(io)? {
             let entry = entry.map_err(io)?;
@@ -116,20 +129,33 @@ impl Storage {
                 continue;
             }
             let path = entry.path();
-            let (Some(stem), Some(ext)) = (path.file_stem(), path.extension()) else { continue };
+            let (Some(stem), Some(ext)) = (path.file_stem(), path.extension()) else {
+                continue;
+            };
             let ext = ext.to_string_lossy().into_owned();
-            let Some(shot) = Shot::from_stem(&stem.to_string_lossy()) else { continue };
+            let Some(shot) = Shot::from_stem(&stem.to_string_lossy()) else {
+                continue;
+            };
             if ext == "json" || known(&shot) {
                 continue;
             }
-            let data = std::fs::read(&path).map_err(|source| StorageError { path: path.clone(), source })?;
+            let data = std::fs::read(&path).map_err(|source| StorageError {
+                path: path.clone(),
+                source,
+            })?;
             let sidecar_path = self.raw.join(format!("{}.json", shot.stem()));
             let sha = sha256_hex(&data);
-            let existing: Option<Sidecar> = std::fs::read(&sidecar_path).ok().and_then(|b| serde_json::from_slice(&b).ok());
+            let existing: Option<Sidecar> = std::fs::read(&sidecar_path)
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok());
             let sidecar = match existing {
                 Some(s) if s.sha256 == sha => s,
                 _ => {
-                    let modified = entry.metadata().and_then(|m| m.modified()).map(DateTime::<Utc>::from).unwrap_or_else(|_| Utc::now());
+                    let modified = entry
+                        .metadata()
+                        .and_then(|m| m.modified())
+                        .map(DateTime::<Utc>::from)
+                        .unwrap_or_else(|_| Utc::now());
                     let s = Sidecar {
                         layer: shot.layer,
                         phase: shot.phase,
@@ -142,7 +168,10 @@ impl Storage {
                         capture_ms: 0.0,
                         download_ms: 0.0,
                         attempts: 0,
-                        camera: BTreeMap::from([("recovered".to_string(), "sidecar rebuilt after a crash".to_string())]),
+                        camera: BTreeMap::from([(
+                            "recovered".to_string(),
+                            "sidecar rebuilt after a crash".to_string(),
+                        )]),
                     };
                     self.write_sidecar(&shot, &s)?;
                     s
@@ -156,9 +185,15 @@ impl Storage {
 }
 
 pub fn write_atomic(path: &Path, data: &[u8], fsync: bool) -> Result<(), StorageError> {
-    let err = |source| StorageError { path: path.to_path_buf(), source };
+    let err = |source| StorageError {
+        path: path.to_path_buf(),
+        source,
+    };
     let dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp"));
     {
         let mut file = File::create(&tmp).map_err(err)?;
@@ -183,13 +218,20 @@ mod tests {
     fn recover_adopts_orphans_and_drops_temps() {
         let dir = tempfile::tempdir().unwrap();
         let storage = Storage::open(dir.path(), true).unwrap();
-        let shot = Shot { layer: 3, phase: Phase::Pre, light: Light::Side };
+        let shot = Shot {
+            layer: 3,
+            phase: Phase::Pre,
+            light: Light::Side,
+        };
         // An original renamed into place just before a crash: no sidecar, no journal record.
         std::fs::write(dir.path().join("raw/L00003_pre_side.jpg"), b"jpegbytes").unwrap();
         std::fs::write(dir.path().join("raw/.L00004_pre_front.jpg.tmp"), b"half").unwrap();
         let found = storage.recover(|_| false).unwrap();
         assert_eq!(found.len(), 1);
-        assert_eq!((found[0].layer, found[0].sha256.clone()), (shot.layer, sha256_hex(b"jpegbytes")));
+        assert_eq!(
+            (found[0].layer, found[0].sha256.clone()),
+            (shot.layer, sha256_hex(b"jpegbytes"))
+        );
         assert!(dir.path().join("raw/L00003_pre_side.json").exists());
         assert!(!dir.path().join("raw/.L00004_pre_front.jpg.tmp").exists());
         assert!(storage.recover(|s| *s == shot).unwrap().is_empty());

@@ -58,7 +58,10 @@ pub enum WidgetKind {
 
 /// Parses the configured text for a widget kind, naming the key on error.
 pub fn parse_setting(key: &str, kind: WidgetKind, text: &str) -> Result<SettingValue, CameraError> {
-    let bad = |message: String| CameraError::Setting { key: key.to_string(), message };
+    let bad = |message: String| CameraError::Setting {
+        key: key.to_string(),
+        message,
+    };
     match kind {
         WidgetKind::Text => Ok(SettingValue::Text(text.to_string())),
         WidgetKind::Choice => Ok(SettingValue::Choice(text.to_string())),
@@ -72,7 +75,9 @@ pub fn parse_setting(key: &str, kind: WidgetKind, text: &str) -> Result<SettingV
             "0" | "off" | "false" | "no" => Ok(SettingValue::Toggle(false)),
             _ => Err(bad(format!("expected on/off, found {text:?}"))),
         },
-        WidgetKind::Other => Err(bad("this setting cannot be written (a group, button or date)".into())),
+        WidgetKind::Other => Err(bad(
+            "this setting cannot be written (a group, button or date)".into(),
+        )),
     }
 }
 
@@ -87,13 +92,21 @@ impl GphotoCamera {
     pub fn open(config: &Gphoto2Config) -> Result<GphotoCamera, CameraError> {
         let context = gphoto2::Context::new().map_err(map)?;
         let (camera, description) = Self::connect(&context, config)?;
-        let camera = GphotoCamera { config: config.clone(), context, camera, description };
+        let camera = GphotoCamera {
+            config: config.clone(),
+            context,
+            camera,
+            description,
+        };
         camera.apply_settings()?;
         info!(camera = %camera.description, "camera: open, settings applied");
         Ok(camera)
     }
 
-    fn connect(context: &gphoto2::Context, config: &Gphoto2Config) -> Result<(gphoto2::Camera, String), CameraError> {
+    fn connect(
+        context: &gphoto2::Context,
+        config: &Gphoto2Config,
+    ) -> Result<(gphoto2::Camera, String), CameraError> {
         if config.model.is_empty() && config.port.is_empty() {
             let camera = context.autodetect_camera().wait().map_err(map)?;
             let description = camera.abilities().model().to_string();
@@ -114,15 +127,24 @@ impl GphotoCamera {
                 ))
             })?;
         let camera = context.get_camera(descriptor).wait().map_err(map)?;
-        Ok((camera, format!("{} on {}", descriptor.model, descriptor.port)))
+        Ok((
+            camera,
+            format!("{} on {}", descriptor.model, descriptor.port),
+        ))
     }
 
     fn apply_settings(&self) -> Result<(), CameraError> {
         for (key, text) in &self.config.settings {
-            let widget = self.camera.config_key::<Widget>(key).wait().map_err(|e| CameraError::Setting {
-                key: key.clone(),
-                message: format!("{e}; `gphoto2 --list-config` lists the names this body knows"),
-            })?;
+            let widget =
+                self.camera
+                    .config_key::<Widget>(key)
+                    .wait()
+                    .map_err(|e| CameraError::Setting {
+                        key: key.clone(),
+                        message: format!(
+                            "{e}; `gphoto2 --list-config` lists the names this body knows"
+                        ),
+                    })?;
             let kind = match &widget {
                 Widget::Text(_) => WidgetKind::Text,
                 Widget::Radio(_) => WidgetKind::Choice,
@@ -130,18 +152,31 @@ impl GphotoCamera {
                 Widget::Toggle(_) => WidgetKind::Toggle,
                 _ => WidgetKind::Other,
             };
-            let setting_error = |e: gphoto2::Error| CameraError::Setting { key: key.clone(), message: e.to_string() };
+            let setting_error = |e: gphoto2::Error| CameraError::Setting {
+                key: key.clone(),
+                message: e.to_string(),
+            };
             match (&widget, parse_setting(key, kind, text)?) {
-                (Widget::Text(w), SettingValue::Text(v)) => w.set_value(&v).map_err(setting_error)?,
-                (Widget::Radio(w), SettingValue::Choice(v)) => w.set_choice(&v).map_err(|e| CameraError::Setting {
-                    key: key.clone(),
-                    message: format!("{e}; choices: {}", w.choices_iter().collect::<Vec<_>>().join(", ")),
-                })?,
+                (Widget::Text(w), SettingValue::Text(v)) => {
+                    w.set_value(&v).map_err(setting_error)?
+                }
+                (Widget::Radio(w), SettingValue::Choice(v)) => {
+                    w.set_choice(&v).map_err(|e| CameraError::Setting {
+                        key: key.clone(),
+                        message: format!(
+                            "{e}; choices: {}",
+                            w.choices_iter().collect::<Vec<_>>().join(", ")
+                        ),
+                    })?
+                }
                 (Widget::Range(w), SettingValue::Range(v)) => w.set_value(v),
                 (Widget::Toggle(w), SettingValue::Toggle(v)) => w.set_toggled(v),
                 _ => continue,
             }
-            self.camera.set_config(&widget).wait().map_err(setting_error)?;
+            self.camera
+                .set_config(&widget)
+                .wait()
+                .map_err(setting_error)?;
         }
         Ok(())
     }
@@ -153,7 +188,12 @@ impl Camera for GphotoCamera {
         let path = self.camera.capture_image().wait().map_err(map)?;
         let captured = Instant::now();
         let (folder, name) = (path.folder().to_string(), path.name().to_string());
-        let file = self.camera.fs().download(&folder, &name).wait().map_err(map)?;
+        let file = self
+            .camera
+            .fs()
+            .download(&folder, &name)
+            .wait()
+            .map_err(map)?;
         let data = file.get_data(&self.context).wait().map_err(map)?.into_vec();
         let downloaded = Instant::now();
         // Frees the camera's RAM buffer; a failure here does not lose the frame we hold.
@@ -164,7 +204,11 @@ impl Camera for GphotoCamera {
             .unwrap_or_else(|| "jpg".into());
         Ok(Frame {
             data,
-            extension: if extension == "jpeg" { "jpg".into() } else { extension },
+            extension: if extension == "jpeg" {
+                "jpg".into()
+            } else {
+                extension
+            },
             capture_ms: (captured - started).as_secs_f64() * 1e3,
             download_ms: (downloaded - captured).as_secs_f64() * 1e3,
         })
@@ -194,20 +238,49 @@ mod tests {
 
     #[test]
     fn errors_map_to_retry_classes() {
-        assert!(matches!(classify(ErrorKind::CameraBusy, "Device Busy"), CameraError::Busy(_)));
-        assert!(matches!(classify(ErrorKind::Other, "PTP I/O Error 0xa201"), CameraError::Busy(_)));
-        assert!(matches!(classify(ErrorKind::Timeout, "timeout"), CameraError::Timeout(_)));
-        assert!(matches!(classify(ErrorKind::IoUsbFind, "Could not find USB device"), CameraError::Disconnected(_)));
-        assert!(matches!(classify(ErrorKind::ModelNotFound, "x"), CameraError::Disconnected(_)));
-        assert!(matches!(classify(ErrorKind::CorruptedData, "bad"), CameraError::Failed(_)));
+        assert!(matches!(
+            classify(ErrorKind::CameraBusy, "Device Busy"),
+            CameraError::Busy(_)
+        ));
+        assert!(matches!(
+            classify(ErrorKind::Other, "PTP I/O Error 0xa201"),
+            CameraError::Busy(_)
+        ));
+        assert!(matches!(
+            classify(ErrorKind::Timeout, "timeout"),
+            CameraError::Timeout(_)
+        ));
+        assert!(matches!(
+            classify(ErrorKind::IoUsbFind, "Could not find USB device"),
+            CameraError::Disconnected(_)
+        ));
+        assert!(matches!(
+            classify(ErrorKind::ModelNotFound, "x"),
+            CameraError::Disconnected(_)
+        ));
+        assert!(matches!(
+            classify(ErrorKind::CorruptedData, "bad"),
+            CameraError::Failed(_)
+        ));
     }
 
     #[test]
     fn settings_parse_by_widget_kind() {
-        assert_eq!(parse_setting("iso", WidgetKind::Choice, "200").unwrap(), SettingValue::Choice("200".into()));
-        assert_eq!(parse_setting("zoom", WidgetKind::Range, " 2.5 ").unwrap(), SettingValue::Range(2.5));
-        assert_eq!(parse_setting("viewfinder", WidgetKind::Toggle, "Off").unwrap(), SettingValue::Toggle(false));
-        let err = parse_setting("viewfinder", WidgetKind::Toggle, "maybe").unwrap_err().to_string();
+        assert_eq!(
+            parse_setting("iso", WidgetKind::Choice, "200").unwrap(),
+            SettingValue::Choice("200".into())
+        );
+        assert_eq!(
+            parse_setting("zoom", WidgetKind::Range, " 2.5 ").unwrap(),
+            SettingValue::Range(2.5)
+        );
+        assert_eq!(
+            parse_setting("viewfinder", WidgetKind::Toggle, "Off").unwrap(),
+            SettingValue::Toggle(false)
+        );
+        let err = parse_setting("viewfinder", WidgetKind::Toggle, "maybe")
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("viewfinder") && err.contains("maybe"), "{err}");
         assert!(parse_setting("zoom", WidgetKind::Range, "x").is_err());
         assert!(parse_setting("main", WidgetKind::Other, "x").is_err());

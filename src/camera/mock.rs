@@ -5,7 +5,9 @@
 use super::{Camera, CameraError, Frame};
 use crate::config::MockCameraConfig;
 use crate::view::{Light, Phase};
-use mock_camera::{Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey};
+use mock_camera::{
+    Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey,
+};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -63,7 +65,11 @@ pub fn fault_schedule(config: &MockCameraConfig) -> FaultSchedule {
             "hang" => Fault::Hang { millis: f.millis },
             _ => Fault::Fail,
         };
-        let key = ShotKey { layer: f.layer, phase: f.phase.to_string(), light: f.light.to_string() };
+        let key = ShotKey {
+            layer: f.layer,
+            phase: f.phase.to_string(),
+            light: f.light.to_string(),
+        };
         schedule.insert(key, fault);
     }
     schedule
@@ -77,10 +83,19 @@ pub struct MockCameraBody {
 
 impl MockCameraBody {
     pub fn new(config: &MockCameraConfig, world: MockWorld) -> MockCameraBody {
-        let mut renderer = Renderer::new(config.width, config.height, Homography::oblique_view(config.width, config.height));
+        let mut renderer = Renderer::new(
+            config.width,
+            config.height,
+            Homography::oblique_view(config.width, config.height),
+        );
         renderer.seed = config.seed;
-        let body = mock_camera::MockCamera::new(renderer, fault_schedule(config), config.jpeg_quality);
-        MockCameraBody { body, world, config: config.clone() }
+        let body =
+            mock_camera::MockCamera::new(renderer, fault_schedule(config), config.jpeg_quality);
+        MockCameraBody {
+            body,
+            world,
+            config: config.clone(),
+        }
     }
 
     /// The ground-truth homography (image px → build mm) the frames are rendered through.
@@ -116,8 +131,17 @@ impl Camera for MockCameraBody {
             _ => (Illumination::Top, "several".to_string()),
         };
         let fused = mock_camera::demo_parts(world.layer);
-        let scene = Scene { layer: world.layer, fused: &fused, scanned: phase == Phase::Post, illumination };
-        let key = ShotKey { layer: world.layer, phase: phase.to_string(), light: light_name };
+        let scene = Scene {
+            layer: world.layer,
+            fused: &fused,
+            scanned: phase == Phase::Post,
+            illumination,
+        };
+        let key = ShotKey {
+            layer: world.layer,
+            phase: phase.to_string(),
+            light: light_name,
+        };
         let started = Instant::now();
         let data = self.body.capture(&key, &scene).map_err(map_error)?;
         Ok(Frame {
@@ -138,7 +162,10 @@ impl Camera for MockCameraBody {
             ("model".to_string(), "mock_camera".to_string()),
             ("width".to_string(), self.config.width.to_string()),
             ("height".to_string(), self.config.height.to_string()),
-            ("jpeg_quality".to_string(), self.config.jpeg_quality.to_string()),
+            (
+                "jpeg_quality".to_string(),
+                self.config.jpeg_quality.to_string(),
+            ),
             ("true_homography".to_string(), format!("{h:?}")),
         ])
     }

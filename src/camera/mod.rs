@@ -102,22 +102,36 @@ impl CameraActor {
             .map_err(|e| CameraError::Failed(format!("cannot start the camera thread: {e}")))?;
         let (description, settings) = match opened_rx.recv_timeout(timeout) {
             Ok(result) => result?,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => return Err(CameraError::Hung(timeout)),
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
+                return Err(CameraError::Hung(timeout))
+            }
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => {
-                return Err(CameraError::Failed("the camera thread ended while opening".into()))
+                return Err(CameraError::Failed(
+                    "the camera thread ended while opening".into(),
+                ))
             }
         };
-        Ok(CameraActor { commands, timeout, description, settings })
+        Ok(CameraActor {
+            commands,
+            timeout,
+            description,
+            settings,
+        })
     }
 
-    fn call<T>(&self, make: impl FnOnce(crossbeam_channel::Sender<Result<T, CameraError>>) -> Command) -> Result<T, CameraError> {
+    fn call<T>(
+        &self,
+        make: impl FnOnce(crossbeam_channel::Sender<Result<T, CameraError>>) -> Command,
+    ) -> Result<T, CameraError> {
         let (tx, rx) = crossbeam_channel::bounded(1);
         self.commands
             .send_timeout(make(tx), self.timeout)
             .map_err(|_| CameraError::Hung(self.timeout))?;
         match rx.recv_timeout(self.timeout) {
             Ok(result) => result,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => Err(CameraError::Hung(self.timeout)),
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
+                Err(CameraError::Hung(self.timeout))
+            }
             Err(crossbeam_channel::RecvTimeoutError::Disconnected) => {
                 Err(CameraError::Failed("the camera thread ended".into()))
             }
@@ -170,7 +184,10 @@ pub enum CaptureFailure {
 
 /// Captures one frame, retrying busy answers and timeouts with exponential backoff and reopening
 /// a camera that dropped off USB. Returns the frame and the number of attempts it took.
-pub fn capture_with_retries(actor: &CameraActor, policy: &RetryPolicy) -> Result<(Frame, u32), CaptureFailure> {
+pub fn capture_with_retries(
+    actor: &CameraActor,
+    policy: &RetryPolicy,
+) -> Result<(Frame, u32), CaptureFailure> {
     let mut backoff = policy.backoff[0];
     let mut attempts = 0;
     loop {
@@ -181,7 +198,10 @@ pub fn capture_with_retries(actor: &CameraActor, policy: &RetryPolicy) -> Result
             Err(e) => e,
         };
         if attempts > policy.retries {
-            return Err(CaptureFailure::Missing { attempts, last: error });
+            return Err(CaptureFailure::Missing {
+                attempts,
+                last: error,
+            });
         }
         warn!(attempt = attempts, error = %error, retry_in_ms = backoff.as_millis() as u64, "camera: capture failed, retrying");
         if let CameraError::Disconnected(_) = error {
@@ -196,7 +216,11 @@ pub fn capture_with_retries(actor: &CameraActor, policy: &RetryPolicy) -> Result
     }
 }
 
-fn reopen(actor: &CameraActor, policy: &RetryPolicy, backoff: &mut Duration) -> Result<(), CameraError> {
+fn reopen(
+    actor: &CameraActor,
+    policy: &RetryPolicy,
+    backoff: &mut Duration,
+) -> Result<(), CameraError> {
     let mut last = CameraError::Disconnected("not reopened".into());
     for attempt in 1..=policy.reopen_attempts.max(1) {
         std::thread::sleep(*backoff);
@@ -204,7 +228,12 @@ fn reopen(actor: &CameraActor, policy: &RetryPolicy, backoff: &mut Duration) -> 
         let started = Instant::now();
         match actor.reopen() {
             Ok(()) => {
-                info!(attempt, ms = started.elapsed().as_millis() as u64, camera = actor.describe(), "camera: reopened");
+                info!(
+                    attempt,
+                    ms = started.elapsed().as_millis() as u64,
+                    camera = actor.describe(),
+                    "camera: reopened"
+                );
                 return Ok(());
             }
             Err(e @ CameraError::Hung(_)) => return Err(e),
@@ -237,7 +266,12 @@ mod tests {
             if !self.answers.is_empty() {
                 self.answers.remove(0)?;
             }
-            Ok(Frame { data: vec![1, 2, 3], extension: "jpg".into(), capture_ms: 0.0, download_ms: 0.0 })
+            Ok(Frame {
+                data: vec![1, 2, 3],
+                extension: "jpg".into(),
+                capture_ms: 0.0,
+                download_ms: 0.0,
+            })
         }
         fn reopen(&mut self) -> Result<(), CameraError> {
             Ok(())
@@ -250,28 +284,52 @@ mod tests {
         }
     }
 
-    fn actor(answers: Vec<Result<(), CameraError>>, sleep: Duration, timeout: Duration) -> (CameraActor, Arc<AtomicU32>) {
+    fn actor(
+        answers: Vec<Result<(), CameraError>>,
+        sleep: Duration,
+        timeout: Duration,
+    ) -> (CameraActor, Arc<AtomicU32>) {
         let calls = Arc::new(AtomicU32::new(0));
         let c = calls.clone();
-        let actor = CameraActor::spawn(move || Ok(Box::new(Scripted { answers, calls: c, sleep }) as Box<dyn Camera>), timeout).unwrap();
+        let actor = CameraActor::spawn(
+            move || {
+                Ok(Box::new(Scripted {
+                    answers,
+                    calls: c,
+                    sleep,
+                }) as Box<dyn Camera>)
+            },
+            timeout,
+        )
+        .unwrap();
         (actor, calls)
     }
 
     fn policy(retries: u32) -> RetryPolicy {
-        RetryPolicy { retries, backoff: [Duration::from_millis(1), Duration::from_millis(4)], reopen_attempts: 2 }
+        RetryPolicy {
+            retries,
+            backoff: [Duration::from_millis(1), Duration::from_millis(4)],
+            reopen_attempts: 2,
+        }
     }
 
     #[test]
     fn busy_is_retried() {
         let busy = || Err(CameraError::Busy("0x2019".into()));
-        let (actor, calls) = actor(vec![busy(), busy(), busy()], Duration::ZERO, Duration::from_secs(5));
+        let (actor, calls) = actor(
+            vec![busy(), busy(), busy()],
+            Duration::ZERO,
+            Duration::from_secs(5),
+        );
         let (_, attempts) = capture_with_retries(&actor, &policy(5)).unwrap();
         assert_eq!((attempts, calls.load(Ordering::SeqCst)), (4, 4));
     }
 
     #[test]
     fn retries_run_out_into_missing() {
-        let answers = (0..10).map(|_| Err(CameraError::Failed("x".into()))).collect();
+        let answers = (0..10)
+            .map(|_| Err(CameraError::Failed("x".into())))
+            .collect();
         let (actor, _) = actor(answers, Duration::ZERO, Duration::from_secs(5));
         match capture_with_retries(&actor, &policy(2)) {
             Err(CaptureFailure::Missing { attempts: 3, .. }) => {}
@@ -281,18 +339,28 @@ mod tests {
 
     #[test]
     fn a_hanging_call_is_reported_hung() {
-        let (actor, _) = actor(vec![], Duration::from_millis(500), Duration::from_millis(50));
+        let (actor, _) = actor(
+            vec![],
+            Duration::from_millis(500),
+            Duration::from_millis(50),
+        );
         let started = Instant::now();
         match capture_with_retries(&actor, &policy(5)) {
             Err(CaptureFailure::Hung(CameraError::Hung(_))) => {}
             other => panic!("{other:?}"),
         }
-        assert!(started.elapsed() < Duration::from_millis(400), "the caller must not wait for the hung call");
+        assert!(
+            started.elapsed() < Duration::from_millis(400),
+            "the caller must not wait for the hung call"
+        );
     }
 
     #[test]
     fn open_failure_is_returned() {
-        let result = CameraActor::spawn(|| Err(CameraError::Disconnected("no camera on usb:".into())), Duration::from_secs(1));
+        let result = CameraActor::spawn(
+            || Err(CameraError::Disconnected("no camera on usb:".into())),
+            Duration::from_secs(1),
+        );
         assert!(matches!(result, Err(CameraError::Disconnected(_))));
     }
 }

@@ -1,0 +1,261 @@
+//! The `layerwise` binary as operators and systemd use it.
+
+mod common;
+
+use common::*;
+use layerwise::config::TriggerConfig;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+#[test]
+fn check_config_accepts_the_examples() {
+    for file in ["config/layerwise.toml", "config/demo.toml"] {
+        let out = layerwise().args(["check-config", file]).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{file}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(String::from_utf8_lossy(&out.stdout).contains("valid"));
+    }
+}
+
+#[test]
+fn check_config_names_file_key_and_expectation() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "typo.toml",
+            "[camera]",
+            "[camera]\nshutter = \"1/4\"",
+            &["typo.toml", "line", "shutter", "expected one of"][..],
+        ),
+        (
+            "type.toml",
+            "settle_ms = 0",
+            "settle_ms = -3",
+            &["type.toml", "capture.settle_ms", "u64"][..],
+        ),
+        (
+            "kind.toml",
+            "kind = \"mock\"\nlayers",
+            "kind = \"usb\"\nlayers",
+            &["kind.toml", "trigger.kind", "serial", "gpio", "mock"][..],
+        ),
+        (
+            "grid.toml",
+            "pixel_mm = 0.25",
+            "pixel_mm = 0.0",
+            &["grid.toml", "rectify", "pixel_mm > 0"][..],
+        ),
+    ];
+    for (name, from, to, expect) in cases {
+        let text = layerwise::config::DEMO_CONFIG.replacen(from, to, 1);
+        assert_ne!(
+            text,
+            layerwise::config::DEMO_CONFIG,
+            "{name}: the edit must apply"
+        );
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let out = layerwise().arg("check-config").arg(&path).output().unwrap();
+        assert_eq!(out.status.code(), Some(1), "{name} must be refused");
+        let err = String::from_utf8_lossy(&out.stderr);
+        for word in expect {
+            assert!(err.contains(word), "{name}: {word:?} not in {err}");
+        }
+    }
+    let out = layerwise()
+        .args(["check-config", "/nonexistent/layerwise.toml"])
+        .output()
+        .unwrap();
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("/nonexistent/layerwise.toml: cannot read")
+    );
+}
+
+fn wait_for_originals(dir: &std::path::Path, at_least: usize, timeout: Duration) {
+    let deadline = Instant::now() + timeout;
+    while originals(dir).len() < at_least {
+        assert!(
+            Instant::now() < deadline,
+            "only {} frames after {timeout:?}",
+            originals(dir).len()
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn kill_9_mid_build_then_restart_keeps_every_frame_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = demo_config(&build, 8);
+    config.storage.fsync = true;
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 60;
+    }
+    let config_path = dir.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+
+    for kill_at in [10, 29] {
+        let mut child = layerwise()
+            .arg("run")
+            .arg("--config")
+            .arg(&config_path)
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        wait_for_originals(&build, kill_at, Duration::from_secs(60));
+        child.kill().unwrap(); // SIGKILL
+        child.wait().unwrap();
+    }
+    let out = layerwise()
+        .arg("run")
+        .arg("--config")
+        .arg(&config_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    assert_eq!(originals(&build), expected_originals(8));
+    let records = frame_records(&build);
+    assert_eq!(records.len(), 48);
+    assert!(
+        records.values().all(|&n| n == 1),
+        "duplicated frames: {records:?}"
+    );
+    assert!(temporaries(&build).is_empty());
+    assert_sidecars_match(&build);
+    let replay = replay(&build);
+    assert_eq!(replay.last_event, Some((8, layerwise::view::Phase::Post)));
+    assert!(replay.missing.is_empty(), "{:?}", replay.missing);
+    assert_eq!(replay.starts, 3);
+
+    let status = layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    assert!(status.status.success());
+    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!(status["frames"], 48);
+    assert_eq!(status["frames_missing"], 0);
+    assert_eq!(status["layer"], 8);
+    assert_eq!(status["state"], "stopped");
+    assert_eq!(status["waiting_for_processing"], 0);
+}
+
+#[test]
+fn sigterm_stores_the_frame_in_hand_and_stops_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = demo_config(&build, 50);
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 30;
+    }
+    let config_path = dir.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let child = layerwise()
+        .arg("run")
+        .arg("--config")
+        .arg(&config_path)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_originals(&build, 8, Duration::from_secs(60));
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(temporaries(&build).is_empty());
+    let stored = originals(&build).len();
+    assert!(stored < 300, "stopped early");
+    assert_eq!(
+        frame_records(&build).len(),
+        stored,
+        "every stored frame is journaled"
+    );
+    let status = layerwise()
+        .args(["status", "--build"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&status.stdout);
+    assert!(text.contains("daemon     stopped"), "{text}");
+    assert!(
+        text.contains(&format!("frames     {stored} stored")),
+        "{text}"
+    );
+}
+
+#[test]
+fn status_of_a_directory_that_is_not_a_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = layerwise()
+        .args(["status", "--build"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a layerwise build directory"));
+}
+
+#[test]
+fn status_warns_when_the_disk_will_not_last() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 2);
+    runtime()
+        .block_on(layerwise::acquisition::run(
+            &config,
+            layerwise::acquisition::RunOptions::new(std::sync::Arc::new(
+                layerwise::acquisition::processing::KeepOriginals,
+            )),
+        ))
+        .unwrap();
+    // Pretend the build has a million layers still to come.
+    let manifest_path = dir.path().join("build.json");
+    let mut manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&manifest_path).unwrap()).unwrap();
+    manifest["layers_expected"] = serde_json::json!(100_000_000u64);
+    std::fs::write(&manifest_path, serde_json::to_vec(&manifest).unwrap()).unwrap();
+    let out = layerwise()
+        .args(["status", "--build"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("WARNING") && text.contains("needs about"),
+        "{text}"
+    );
+}
+
+#[test]
+fn demo_runs_on_the_embedded_config() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("demo");
+    let out = layerwise()
+        .args(["demo", "--layers", "2", "--out"])
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(originals(&out_dir), expected_originals(2));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("12 frames stored"));
+}

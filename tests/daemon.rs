@@ -1,0 +1,267 @@
+//! The acquisition daemon driven in-process with the mock trigger, lights and camera.
+
+mod common;
+
+use common::*;
+use layerwise::acquisition::processing::{FrameProcessor, KeepOriginals};
+use layerwise::acquisition::{run, AcquisitionError, RunOptions};
+use layerwise::lights::{LightSwitch, MockLightsLog};
+use layerwise::view::{Light, Phase, Shot};
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+fn options_with_log() -> (RunOptions, Arc<Mutex<Option<MockLightsLog>>>) {
+    let mut options = RunOptions::new(Arc::new(KeepOriginals));
+    options.drain_at_end = true;
+    let slot = Arc::new(Mutex::new(None));
+    options.lights_log = Some(slot.clone());
+    (options, slot)
+}
+
+fn log_of(slot: &Arc<Mutex<Option<MockLightsLog>>>) -> MockLightsLog {
+    slot.lock()
+        .unwrap()
+        .clone()
+        .expect("mock lights were opened")
+}
+
+fn mean_brightness(path: &Path) -> f64 {
+    let img = image::open(path).expect("decodes").to_luma8();
+    img.pixels().map(|p| p.0[0] as f64).sum::<f64>() / (img.width() * img.height()) as f64
+}
+
+#[test]
+fn a_clean_build_stores_every_view_lit_and_turns_lights_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 3);
+    let (options, slot) = options_with_log();
+    let summary = runtime().block_on(run(&config, options)).unwrap();
+    assert_eq!((summary.stored, summary.missing), (18, 0));
+    assert_eq!(originals(dir.path()), expected_originals(3));
+    assert!(frame_records(dir.path()).values().all(|&n| n == 1));
+    assert_sidecars_match(dir.path());
+    // Each frame was taken with exactly its light on: never dark, never two lamps.
+    let log = log_of(&slot);
+    assert!(log.lit().is_empty(), "lights left on: {:?}", log.lit());
+    let switches: Vec<LightSwitch> = log
+        .history()
+        .into_iter()
+        .filter(|s| s.light.is_some())
+        .collect();
+    assert_eq!(switches.len(), 36, "on and off for each of 18 frames");
+    for pair in switches.chunks(2) {
+        assert_eq!(
+            (pair[0].on, pair[1].on, pair[0].light),
+            (true, false, pair[1].light)
+        );
+    }
+    for file in originals(dir.path()) {
+        assert!(
+            mean_brightness(&dir.path().join(&file)) > 40.0,
+            "{file} looks unlit"
+        );
+    }
+    let replay = replay(dir.path());
+    assert_eq!(replay.processed.len(), 18, "every frame processed");
+}
+
+#[test]
+fn busy_disconnect_and_a_dead_frame_are_survived() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 4);
+    add_fault(&mut config, "busy", 2, "post", "top", 3, 0);
+    add_fault(&mut config, "disconnect", 3, "pre", "front", 0, 0);
+    add_fault(&mut config, "fail", 3, "post", "side", 0, 0);
+    let (options, slot) = options_with_log();
+    let summary = runtime().block_on(run(&config, options)).unwrap();
+    assert_eq!((summary.stored, summary.missing), (23, 1));
+
+    let sidecar = |stem: &str| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.path().join(format!("raw/{stem}.json"))).unwrap())
+            .unwrap()
+    };
+    assert_eq!(
+        sidecar("L00002_post_top")["attempts"],
+        4,
+        "three busy answers, then the frame"
+    );
+    assert_eq!(
+        sidecar("L00003_pre_front")["attempts"],
+        2,
+        "disconnected, reopened, then the frame"
+    );
+    let replay = replay(dir.path());
+    let dead = Shot {
+        layer: 3,
+        phase: Phase::Post,
+        light: Light::Side,
+    };
+    assert!(
+        replay
+            .missing
+            .get(&dead)
+            .is_some_and(|r| r.contains("attempts")),
+        "{:?}",
+        replay.missing
+    );
+    // The build went on after the dead frame.
+    assert!(replay.frames.contains_key(&Shot {
+        layer: 3,
+        phase: Phase::Post,
+        light: Light::Top
+    }));
+    assert!(replay.frames.contains_key(&Shot {
+        layer: 4,
+        phase: Phase::Post,
+        light: Light::Top
+    }));
+    assert!(!dir.path().join("raw/L00003_post_side.jpg").exists());
+    assert!(log_of(&slot).lit().is_empty());
+    let status: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("status.json")).unwrap()).unwrap();
+    assert_eq!(status["state"], "stopped");
+}
+
+#[test]
+fn a_hung_camera_stops_the_daemon_with_lights_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 3);
+    config.capture.call_timeout_s = 1;
+    add_fault(&mut config, "hang", 2, "pre", "side", 0, 4000);
+    let (options, slot) = options_with_log();
+    let started = Instant::now();
+    let result = runtime().block_on(run(&config, options));
+    assert!(
+        matches!(result, Err(AcquisitionError::CameraHung(_))),
+        "{result:?}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(4),
+        "the daemon must not wait for the hung call"
+    );
+    let log = log_of(&slot);
+    assert!(log.lit().is_empty(), "lights left on after the hang");
+    assert_eq!(
+        log.history().last(),
+        Some(&LightSwitch {
+            light: None,
+            on: false
+        })
+    );
+    let replay = replay(dir.path());
+    assert_eq!(
+        replay.frames.len(),
+        7,
+        "layer 1 and layer 2 pre front were stored"
+    );
+    assert!(replay.missing.values().any(|r| r.contains("hung")));
+    let status: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("status.json")).unwrap()).unwrap();
+    assert_eq!(status["state"], "failed");
+}
+
+#[test]
+fn a_restart_resumes_without_duplicates() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = demo_config(dir.path(), 2);
+    runtime()
+        .block_on(run(&first, RunOptions::new(Arc::new(KeepOriginals))))
+        .unwrap();
+    // The same build, restarted: the trigger replays layers 1-2 (already stored) then goes on.
+    let second = demo_config(dir.path(), 4);
+    let summary = runtime()
+        .block_on(run(&second, RunOptions::new(Arc::new(KeepOriginals))))
+        .unwrap();
+    assert_eq!((summary.stored, summary.skipped), (12, 12));
+    assert_eq!(originals(dir.path()), expected_originals(4));
+    assert!(frame_records(dir.path()).values().all(|&n| n == 1));
+}
+
+/// Blocks every frame until released: stands in for rectification that cannot keep up.
+struct GatedProcessor {
+    open: Arc<(Mutex<bool>, std::sync::Condvar)>,
+    processed: AtomicUsize,
+}
+
+impl FrameProcessor for GatedProcessor {
+    fn process(&self, _dir: &Path, _shot: Shot, original: &Path) -> Result<(), String> {
+        let (lock, cvar) = &*self.open;
+        let mut open = lock.lock().map_err(|e| e.to_string())?;
+        while !*open {
+            open = cvar.wait(open).map_err(|e| e.to_string())?;
+        }
+        std::fs::metadata(original).map_err(|e| e.to_string())?;
+        self.processed.fetch_add(1, Ordering::SeqCst);
+        Ok(())
+    }
+}
+
+#[test]
+fn capture_never_waits_for_processing() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 4);
+    config.storage.queue_capacity = 2;
+    let gate = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
+    let processor = Arc::new(GatedProcessor {
+        open: gate.clone(),
+        processed: AtomicUsize::new(0),
+    });
+    let mut options = RunOptions::new(processor.clone());
+    options.drain_at_end = true;
+    let build = dir.path().to_path_buf();
+    let daemon = std::thread::spawn(move || runtime().block_on(run(&config, options)));
+    // All 24 frames reach the disk while processing is stuck on the first one.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while originals(&build).len() < 24 {
+        assert!(
+            Instant::now() < deadline,
+            "capture was blocked by processing"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(processor.processed.load(Ordering::SeqCst), 0);
+    {
+        let (lock, cvar) = &*gate;
+        *lock.lock().unwrap() = true;
+        cvar.notify_all();
+    }
+    let summary = daemon.join().unwrap().unwrap();
+    assert_eq!(summary.stored, 24);
+    assert_eq!(
+        processor.processed.load(Ordering::SeqCst),
+        24,
+        "every frame processed exactly once"
+    );
+    let processed_records = records(&build)
+        .into_iter()
+        .filter(|r| matches!(r, layerwise::acquisition::journal::Record::Processed { .. }))
+        .count();
+    assert_eq!(processed_records, 24);
+}
+
+#[test]
+fn bad_trigger_script_fails_with_its_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 1);
+    let script = dir.path().join("printer.txt");
+    std::fs::write(&script, "LAYER 1 PRE\nLAYER one POST\n").unwrap();
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script);
+    }
+    let (options, slot) = options_with_log();
+    let err = runtime()
+        .block_on(run(&config, options))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("printer.txt") && err.contains("line 2"),
+        "{err}"
+    );
+    // Nothing was left lit by the failed start.
+    let log = slot.lock().unwrap().clone();
+    if let Some(log) = log {
+        assert!(log.lit().is_empty());
+    }
+}

@@ -1,0 +1,160 @@
+//! The serial trigger through a real pseudo-terminal pair made by socat: the "printer" writes to
+//! one end, the trigger (and the daemon) read the other.
+
+mod common;
+
+use common::*;
+use layerwise::config::{SerialTriggerConfig, TriggerConfig};
+use layerwise::trigger::{SerialTrigger, Trigger};
+use layerwise::view::Phase;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// A pty pair: `printer` and `daemon` are symlinks to the two slave ends.
+struct PtyPair {
+    socat: Child,
+    printer: PathBuf,
+    daemon: PathBuf,
+}
+
+impl PtyPair {
+    fn start(dir: &Path) -> PtyPair {
+        let printer = dir.join("printer");
+        let daemon = dir.join("daemon");
+        let socat = Command::new("socat")
+            .arg(format!("pty,raw,echo=0,link={}", printer.display()))
+            .arg(format!("pty,raw,echo=0,link={}", daemon.display()))
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("socat is needed for this test: the README's test command installs it (apt-get install socat)");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !(printer.exists() && daemon.exists()) {
+            assert!(Instant::now() < deadline, "socat made no pty pair");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        PtyPair {
+            socat,
+            printer,
+            daemon,
+        }
+    }
+
+    fn send(&self, bytes: &[u8]) {
+        let mut port = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&self.printer)
+            .expect("printer end");
+        port.write_all(bytes).expect("write to the printer end");
+        port.flush().unwrap();
+    }
+
+    fn stop(mut self) {
+        let _ = self.socat.kill();
+        let _ = self.socat.wait();
+        let _ = std::fs::remove_file(&self.printer);
+        let _ = std::fs::remove_file(&self.daemon);
+    }
+}
+
+fn serial_config(port: &Path) -> SerialTriggerConfig {
+    SerialTriggerConfig {
+        port: port.display().to_string(),
+        baud: 115200,
+        pattern: layerwise::config::DEFAULT_LINE_PATTERN.to_string(),
+        pre: "PRE".into(),
+        post: "POST".into(),
+        reopen_backoff_ms: [20, 200],
+    }
+}
+
+#[test]
+fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let pair = PtyPair::start(dir.path());
+    let trigger = SerialTrigger::new(serial_config(&pair.daemon)).unwrap();
+    let mut events = layerwise::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>);
+    let next = |events: &mut tokio::sync::mpsc::Receiver<_>| -> (u32, Phase) {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        loop {
+            match events.try_recv() {
+                Ok(Ok(e @ layerwise::trigger::LayerEvent { .. })) => return (e.layer, e.phase),
+                Ok(Err(e)) => panic!("trigger error: {e}"),
+                Err(_) => {
+                    assert!(Instant::now() < deadline, "no event");
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+            }
+        }
+    };
+    std::thread::sleep(Duration::from_millis(200)); // the trigger opens its end
+    pair.send(b"LAYER 1 PRE\n\xff\xfe garbage \x00\x01\nLAYER x POST\n");
+    pair.send(&[b'z'; 9000]); // no line break for a long time
+    pair.send(b"\r\nLAYER 1 POST\r\n");
+    assert_eq!(next(&mut events), (1, Phase::Pre));
+    assert_eq!(next(&mut events), (1, Phase::Post));
+
+    // The USB-serial adapter is unplugged, then plugged back in.
+    let printer_path = pair.printer.clone();
+    pair.stop();
+    std::thread::sleep(Duration::from_millis(300));
+    let pair = PtyPair::start(dir.path());
+    assert_eq!(pair.printer, printer_path);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let event = loop {
+        pair.send(b"LAYER 2 PRE\n");
+        std::thread::sleep(Duration::from_millis(100));
+        if let Ok(Ok(e)) = events.try_recv() {
+            break (e.layer, e.phase);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the trigger did not reopen the port"
+        );
+    };
+    assert_eq!(event, (2, Phase::Pre));
+    pair.stop();
+}
+
+#[test]
+fn the_daemon_captures_on_serial_signals() {
+    let dir = tempfile::tempdir().unwrap();
+    let pair = PtyPair::start(dir.path());
+    let build = dir.path().join("build");
+    let mut config = demo_config(&build, 2);
+    config.trigger = TriggerConfig::Serial(serial_config(&pair.daemon));
+    let config_path = dir.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let child = layerwise()
+        .arg("run")
+        .arg("--config")
+        .arg(&config_path)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    for line in ["LAYER 1 PRE\n", "hello printer\n", "LAYER 1 POST\n"] {
+        pair.send(line.as_bytes());
+        std::thread::sleep(Duration::from_millis(150));
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while originals(&build).len() < 6 {
+        assert!(Instant::now() < deadline, "frames: {:?}", originals(&build));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        log.contains("does not match the protocol") && log.contains("hello printer"),
+        "{log}"
+    );
+    assert_eq!(originals(&build), expected_originals(1));
+    pair.stop();
+}

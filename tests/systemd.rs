@@ -1,0 +1,41 @@
+//! The shipped unit passes `systemd-analyze verify` (with ExecStart pointing at this build).
+
+#[test]
+fn unit_passes_systemd_analyze_verify() {
+    let unit = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/systemd/layerwise.service"
+    ))
+    .unwrap();
+    for required in [
+        "Type=notify",
+        "WatchdogSec=",
+        "Restart=on-failure",
+        "User=layerwise",
+        "NoNewPrivileges=yes",
+        "ProtectSystem=strict",
+    ] {
+        assert!(unit.contains(required), "the unit lacks {required}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("layerwise.service");
+    std::fs::write(
+        &path,
+        unit.replace("/usr/local/bin/layerwise", env!("CARGO_BIN_EXE_layerwise")),
+    )
+    .unwrap();
+    let out = std::process::Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&path)
+        .output()
+        .expect("systemd-analyze is needed: the README's test command installs systemd");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "systemd-analyze verify failed: {stderr}"
+    );
+    assert!(
+        !stderr.contains("layerwise.service"),
+        "warnings about the unit: {stderr}"
+    );
+}
