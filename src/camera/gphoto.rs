@@ -161,13 +161,18 @@ impl GphotoCamera {
                     w.set_value(&v).map_err(setting_error)?
                 }
                 (Widget::Radio(w), SettingValue::Choice(v)) => {
-                    w.set_choice(&v).map_err(|e| CameraError::Setting {
-                        key: key.clone(),
-                        message: format!(
-                            "{e}; choices: {}",
-                            w.choices_iter().collect::<Vec<_>>().join(", ")
-                        ),
-                    })?
+                    // libgphoto2 stores any string in a radio widget; a typo must not pass silently.
+                    let choices: Vec<String> = w.choices_iter().collect();
+                    if !choices.contains(&v) {
+                        return Err(CameraError::Setting {
+                            key: key.clone(),
+                            message: format!(
+                                "{v:?} is not one of the camera's choices: {}",
+                                choices.join(", ")
+                            ),
+                        });
+                    }
+                    w.set_choice(&v).map_err(setting_error)?
                 }
                 (Widget::Range(w), SettingValue::Range(v)) => w.set_value(v),
                 (Widget::Toggle(w), SettingValue::Toggle(v)) => w.set_toggled(v),
