@@ -158,3 +158,44 @@ fn the_daemon_captures_on_serial_signals() {
     assert_eq!(originals(&build), expected_originals(1));
     pair.stop();
 }
+
+#[test]
+fn relay_lights_send_their_command_strings_and_all_off() {
+    use layerwise::config::SerialRelayConfig;
+    use layerwise::lights::{Lights, LightsGuard, SerialRelayLights};
+    use layerwise::view::Light;
+    use std::io::Read;
+    let dir = tempfile::tempdir().unwrap();
+    let pair = PtyPair::start(dir.path());
+    let commands = [
+        ("front_on", r"A1\r\n"),
+        ("front_off", r"A0\r\n"),
+        ("all_off", r"\x1bX\r\n"),
+    ]
+    .iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    let config = SerialRelayConfig {
+        port: pair.daemon.display().to_string(),
+        baud: 9600,
+        commands,
+    };
+    let mut board = std::fs::File::open(&pair.printer).unwrap();
+    {
+        let mut lights = LightsGuard::new(
+            Box::new(SerialRelayLights::open(&config).unwrap()) as Box<dyn Lights>
+        );
+        lights.switch(Light::Front, true).unwrap();
+        lights.switch(Light::Front, false).unwrap();
+        assert!(lights
+            .switch(Light::Top, true)
+            .unwrap_err()
+            .to_string()
+            .contains("top_on"));
+    } // dropped: all off
+    let expected = b"A1\r\nA0\r\n\x1bX\r\n";
+    let mut got = vec![0u8; expected.len()];
+    board.read_exact(&mut got).unwrap();
+    assert_eq!(got, expected);
+    pair.stop();
+}

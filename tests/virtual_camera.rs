@@ -18,7 +18,11 @@ fn vcam_libdir() -> PathBuf {
          (it bundles libgphoto2 with the vusb virtual camera) and sets it",
     );
     let dir = PathBuf::from(dir);
-    assert!(dir.join("vusb").is_dir(), "{} has no vusb/ folder", dir.display());
+    assert!(
+        dir.join("vusb").is_dir(),
+        "{} has no vusb/ folder",
+        dir.display()
+    );
     dir
 }
 
@@ -44,7 +48,10 @@ fn gphoto_config(build: &Path, layers: u32, settings: &[(&str, &str)], model: &s
     config.camera = CameraConfig::Gphoto2(Gphoto2Config {
         model: model.to_string(),
         port: String::new(),
-        settings: settings.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect::<BTreeMap<_, _>>(),
+        settings: settings
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect::<BTreeMap<_, _>>(),
     });
     config.capture.call_timeout_s = 30;
     config
@@ -53,11 +60,17 @@ fn gphoto_config(build: &Path, layers: u32, settings: &[(&str, &str)], model: &s
 /// JPEGs the virtual camera serves, rendered by the mock camera.
 fn camera_frames(dir: &Path) -> Vec<String> {
     std::fs::create_dir_all(dir).unwrap();
-    let renderer = mock_camera::Renderer::new(320, 214, mock_camera::Homography::oblique_view(320, 214));
+    let renderer =
+        mock_camera::Renderer::new(320, 214, mock_camera::Homography::oblique_view(320, 214));
     let mut hashes = Vec::new();
     for layer in 1..=3 {
         let parts = mock_camera::demo_parts(layer);
-        let scene = mock_camera::Scene { layer, fused: &parts, scanned: true, illumination: mock_camera::Illumination::Top };
+        let scene = mock_camera::Scene {
+            layer,
+            fused: &parts,
+            scanned: true,
+            illumination: mock_camera::Illumination::Top,
+        };
         let jpeg = renderer.render_jpeg(&scene, 90);
         hashes.push(layerwise::acquisition::storage::sha256_hex(&jpeg));
         std::fs::write(dir.join(format!("frame{layer}.jpg")), jpeg).unwrap();
@@ -70,18 +83,39 @@ fn captures_and_downloads_through_real_libgphoto2() {
     let dir = tempfile::tempdir().unwrap();
     let served = camera_frames(&dir.path().join("vcam"));
     let build = dir.path().join("build");
-    let config = gphoto_config(&build, 2, &[("capturetarget", "Internal RAM"), ("f-number", "f/2.8")], "");
+    let config = gphoto_config(
+        &build,
+        2,
+        &[("capturetarget", "Internal RAM"), ("f-number", "f/2.8")],
+        "",
+    );
     let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert_eq!(originals(&build), expected_originals(2));
     assert_sidecars_match(&build);
     for file in originals(&build) {
-        let sha = layerwise::acquisition::storage::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
-        assert!(served.contains(&sha), "{file} is not a frame the camera holds");
-        let sidecar: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(build.join(file.replace(".jpg", ".json"))).unwrap()).unwrap();
+        let sha =
+            layerwise::acquisition::storage::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
+        assert!(
+            served.contains(&sha),
+            "{file} is not a frame the camera holds"
+        );
+        let sidecar: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(build.join(file.replace(".jpg", ".json"))).unwrap(),
+        )
+        .unwrap();
         assert_eq!(sidecar["camera"]["capturetarget"], "Internal RAM");
-        assert!(sidecar["camera"]["model"].as_str().unwrap_or("").contains("Nikon"), "{sidecar}");
+        assert!(
+            sidecar["camera"]["model"]
+                .as_str()
+                .unwrap_or("")
+                .contains("Nikon"),
+            "{sidecar}"
+        );
     }
 }
 
@@ -93,7 +127,10 @@ fn an_unknown_setting_is_named() {
     let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("isospeed") && err.contains("--list-config"), "{err}");
+    assert!(
+        err.contains("isospeed") && err.contains("--list-config"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -104,7 +141,10 @@ fn a_bad_choice_lists_the_choices() {
     let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("f-number") && err.contains("choices") && err.contains("f/2.8"), "{err}");
+    assert!(
+        err.contains("f-number") && err.contains("choices") && err.contains("f/2.8"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -115,5 +155,8 @@ fn a_missing_model_says_what_libgphoto2_sees() {
     let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("Nikon DSC D810") && err.contains("libgphoto2 sees") && err.contains("D750"), "{err}");
+    assert!(
+        err.contains("Nikon DSC D810") && err.contains("libgphoto2 sees") && err.contains("D750"),
+        "{err}"
+    );
 }

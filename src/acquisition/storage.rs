@@ -98,9 +98,17 @@ impl Storage {
             attempts,
             camera: camera.clone(),
         };
-        // The original first: a crash between the two leaves an original whose sidecar is rebuilt.
-        self.write_atomic(&self.raw.join(&name), &frame.data)?;
-        self.write_sidecar(shot, &sidecar)?;
+        let sidecar_path = self.raw.join(format!("{}.json", shot.stem()));
+        let json = serde_json::to_vec_pretty(&sidecar).map_err(|e| StorageError {
+            path: sidecar_path.clone(),
+            source: std::io::Error::other(e),
+        })?;
+        // The original is renamed first: a crash between the two renames leaves an original
+        // whose sidecar `recover` rebuilds.
+        write_atomic_all(
+            &[(&self.raw.join(&name), &frame.data), (&sidecar_path, &json)],
+            self.fsync,
+        )?;
         Ok(sidecar)
     }
 
@@ -185,26 +193,51 @@ impl Storage {
 }
 
 pub fn write_atomic(path: &Path, data: &[u8], fsync: bool) -> Result<(), StorageError> {
-    let err = |source| StorageError {
-        path: path.to_path_buf(),
-        source,
-    };
-    let dir = path.parent().unwrap_or_else(|| Path::new("."));
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp"));
-    {
+    write_atomic_all(&[(path, data)], fsync)
+}
+
+/// Writes files of one directory atomically, renaming them in the order given, with a single
+/// fsync of the directory for all the renames (it is the slowest part of the capture path).
+fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), StorageError> {
+    let mut renames = Vec::with_capacity(files.len());
+    for (path, data) in files {
+        let err = |source| StorageError {
+            path: path.to_path_buf(),
+            source,
+        };
+        let dir = path.parent().unwrap_or_else(|| Path::new("."));
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let tmp = dir.join(format!(".{name}.tmp"));
         let mut file = File::create(&tmp).map_err(err)?;
         file.write_all(data).map_err(err)?;
         if fsync {
-            file.sync_all().map_err(err)?;
+            file.sync_data().map_err(err)?;
         }
+        renames.push((tmp, *path));
     }
-    std::fs::rename(&tmp, path).map_err(err)?;
+    for (tmp, path) in &renames {
+        std::fs::rename(tmp, path).map_err(|source| StorageError {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    }
     if fsync {
-        File::open(dir).and_then(|d| d.sync_all()).map_err(err)?;
+        let mut dirs: Vec<&Path> = renames
+            .iter()
+            .map(|(_, p)| p.parent().unwrap_or_else(|| Path::new(".")))
+            .collect();
+        dirs.dedup();
+        for dir in dirs {
+            File::open(dir)
+                .and_then(|d| d.sync_all())
+                .map_err(|source| StorageError {
+                    path: dir.to_path_buf(),
+                    source,
+                })?;
+        }
     }
     Ok(())
 }
