@@ -7,4 +7,5 @@ pub mod config;
 pub mod lights;
 pub mod logging;
 pub mod trigger;
+pub mod vectors;
 pub mod view;

@@ -41,12 +41,28 @@ enum Command {
         #[arg(long, default_value_t = 20.0)]
         min_free_gb: f64,
     },
+    /// Laser scan vector files (CLI, ASCII or binary).
+    Vectors {
+        #[command(subcommand)]
+        command: VectorsCommand,
+    },
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo {
         #[arg(long, default_value_t = 20)]
         layers: u32,
         #[arg(long, default_value = "demo-build")]
         out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum VectorsCommand {
+    /// Format, units, layers, z range, parts and counts of a CLI file.
+    Info {
+        file: PathBuf,
+        /// One JSON object for scripts.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -102,6 +118,16 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Vectors {
+            command: VectorsCommand::Info { file, json },
+        } => {
+            let info = layerwise::vectors::info(&file)?;
+            if json {
+                println!("{}", info.to_json());
+            } else {
+                print!("{info}");
+            }
+        }
     }
     Ok(())
 }

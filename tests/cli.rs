@@ -259,3 +259,77 @@ fn demo_runs_on_the_embedded_config() {
     assert_eq!(originals(&out_dir), expected_originals(2));
     assert!(String::from_utf8_lossy(&out.stdout).contains("12 frames stored"));
 }
+
+#[test]
+fn vectors_info_json_agrees_with_each_real_file_header() {
+    let dir = std::env::var_os("LAYERWISE_SHARED_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli")
+        });
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).expect("shared/data/cli beside the checkout") {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "cli") {
+            continue;
+        }
+        seen += 1;
+        let out = layerwise()
+            .args(["vectors", "info", "--json"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}: {}",
+            path.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        for key in [
+            "format",
+            "units",
+            "layers",
+            "z_min",
+            "z_max",
+            "polylines",
+            "points",
+            "hatches",
+            "parts",
+        ] {
+            assert!(info.get(key).is_some(), "{}: no `{key}`", path.display());
+        }
+        assert_eq!(
+            info["layers"],
+            info["declared_layers"],
+            "{}",
+            path.display()
+        );
+        let declared = info["declared_dimension_mm"].as_array().unwrap();
+        let bbox = info["parts"][0]["bbox"].as_array().unwrap();
+        let unit = info["units"].as_f64().unwrap();
+        for (i, d) in [0usize, 1, 3, 4].iter().enumerate() {
+            let (got, want) = (bbox[i].as_f64().unwrap(), declared[*d].as_f64().unwrap());
+            assert!(
+                (got - want).abs() <= unit + 1e-9,
+                "{}: bbox {got} vs $$DIMENSION {want}",
+                path.display()
+            );
+        }
+    }
+    assert_eq!(seen, 4, "the four real CLI files");
+    let dir = tempfile::tempdir().unwrap();
+    let broken = dir.path().join("broken.cli");
+    std::fs::write(&broken, "$$HEADERSTART\n$$ASCII\n$$UNITS/1\n$$HEADEREND\n$$GEOMETRYSTART\n$$LAYER/0.1\n$$POLYLINE/1,1,3,0,0,x,1\n").unwrap();
+    let out = layerwise()
+        .args(["vectors", "info"])
+        .arg(&broken)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("broken.cli") && err.contains("line 7"),
+        "{err}"
+    );
+}
