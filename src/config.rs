@@ -57,6 +57,12 @@ pub struct BuildConfig {
     /// Layers the build will have, if known: the status command forecasts disk use from it.
     #[serde(default)]
     pub layers: Option<u32>,
+    /// The build's laser scan vector file (CLI): layer k's z is the z of its k-th layer.
+    #[serde(default)]
+    pub vectors: Option<PathBuf>,
+    /// Without a vector file, layer k sits at z = k x this.
+    #[serde(default = "default_layer_thickness")]
+    pub layer_thickness_mm: f64,
 }
 
 /// Where layer signals come from.
@@ -345,6 +351,9 @@ pub struct StorageConfig {
     /// Warn when free space falls below this.
     #[serde(default = "default_min_free_gb")]
     pub min_free_gb: f64,
+    /// Transfer syntax of the live DICOM series: none, deflate, or jpeg-ls (lossless).
+    #[serde(default = "default_dicom_compression")]
+    pub dicom: crate::dicom::Compression,
 }
 
 impl Default for StorageConfig {
@@ -353,6 +362,7 @@ impl Default for StorageConfig {
             fsync: true,
             queue_capacity: default_queue(),
             min_free_gb: default_min_free_gb(),
+            dicom: default_dicom_compression(),
         }
     }
 }
@@ -426,6 +436,12 @@ fn default_queue() -> usize {
 fn default_min_free_gb() -> f64 {
     20.0
 }
+fn default_layer_thickness() -> f64 {
+    0.03
+}
+fn default_dicom_compression() -> crate::dicom::Compression {
+    crate::dicom::Compression::Deflate
+}
 
 impl Config {
     /// Reads and validates a configuration file.
@@ -473,6 +489,12 @@ impl Config {
         };
         if self.build.name.trim().is_empty() {
             return Err(invalid("build.name", "must not be empty".into()));
+        }
+        if !(self.build.layer_thickness_mm > 0.0 && self.build.layer_thickness_mm.is_finite()) {
+            return Err(invalid(
+                "build.layer_thickness_mm",
+                "must be a positive number of mm".into(),
+            ));
         }
         if self.build.output_dir.as_os_str().is_empty() {
             return Err(invalid("build.output_dir", "must name a directory".into()));

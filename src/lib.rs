@@ -4,6 +4,7 @@
 pub mod acquisition;
 pub mod camera;
 pub mod config;
+pub mod dicom;
 pub mod lights;
 pub mod logging;
 pub mod trigger;

@@ -46,6 +46,11 @@ enum Command {
         #[command(subcommand)]
         command: VectorsCommand,
     },
+    /// DICOM series of a build.
+    Dicom {
+        #[command(subcommand)]
+        command: DicomCommand,
+    },
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo {
         #[arg(long, default_value_t = 20)]
@@ -61,6 +66,16 @@ enum VectorsCommand {
     Info {
         file: PathBuf,
         /// One JSON object for scripts.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Subcommand)]
+enum DicomCommand {
+    /// Series, slices, z range and geometry of the DICOM files below DIR.
+    Info {
+        dir: PathBuf,
         #[arg(long)]
         json: bool,
     },
@@ -118,6 +133,21 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Dicom {
+            command: DicomCommand::Info { dir, json },
+        } => {
+            let series = layerwise::dicom::series_info(&dir)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&series)?);
+            } else {
+                if series.is_empty() {
+                    println!("no DICOM files below {}", dir.display());
+                }
+                for s in &series {
+                    print!("{s}");
+                }
+            }
+        }
         Command::Vectors {
             command: VectorsCommand::Info { file, json },
         } => {

@@ -1,0 +1,644 @@
+//! DICOM series of a build, written with dicom-rs: every modality as the CT Image IOD (the paper's
+//! choice: it carries the Image Plane module), in the build frame of docs/frames.md. One study and
+//! one frame of reference per build; one series per view; one file per layer.
+
+use crate::acquisition::status::BuildManifest;
+use crate::acquisition::storage::write_atomic;
+use dicom_core::value::{PrimitiveValue, C};
+use dicom_core::{DataElement, Tag, VR};
+use dicom_dictionary_std::tags;
+use dicom_object::{FileMetaTableBuilder, InMemDicomObject, OpenFileOptions};
+use dicom_pixeldata::Transcode;
+use dicom_transfer_syntax_registry::TransferSyntaxIndex;
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// CT Image Storage.
+pub const CT_IMAGE_STORAGE: &str = "1.2.840.10008.5.1.4.1.1.2";
+/// Our implementation class UID (2.25 root, fixed for layerwise).
+pub const IMPLEMENTATION_CLASS_UID: &str = "2.25.302378146212377404151786716384913425853";
+const EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1";
+const DEFLATED_EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1.99";
+const JPEG_LS_LOSSLESS: &str = "1.2.840.10008.1.2.4.80";
+
+#[derive(Debug, thiserror::Error)]
+pub enum DicomError {
+    #[error("{path}: {message}")]
+    Write { path: PathBuf, message: String },
+    #[error("{path}: not a readable DICOM file ({message}); if it was cut short by a crash, delete it and re-run")]
+    Read { path: PathBuf, message: String },
+    #[error("{path}: {message}")]
+    Geometry { path: PathBuf, message: String },
+    #[error("this layerwise was built without JPEG-LS; rebuild with `--features jpegls` (needs cmake and g++) or choose deflate")]
+    NoJpegLs,
+}
+
+/// How pixel data is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Compression {
+    /// Explicit VR little endian: every viewer reads it.
+    None,
+    /// Deflated explicit VR little endian: the whole data set zlib-compressed.
+    Deflate,
+    /// JPEG-LS lossless (bit-exact), needs the `jpegls` feature.
+    JpegLs,
+}
+
+/// The study a build is: fixed when the build starts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Study {
+    pub study_instance_uid: String,
+    pub frame_of_reference_uid: String,
+    /// YYYYMMDD and HHMMSS of the build's start: one StudyDate/StudyTime for the whole build.
+    pub date: String,
+    pub time: String,
+    pub patient_name: String,
+    pub patient_id: String,
+    pub study_id: String,
+    pub description: String,
+}
+
+impl Study {
+    pub fn of_build(manifest: &BuildManifest) -> Study {
+        let start = manifest.created_at;
+        // StudyID is a short string (SH, 16 chars): the build id, cut to fit.
+        let study_id: String = manifest.id.chars().take(16).collect();
+        Study {
+            study_instance_uid: manifest.study_instance_uid.clone(),
+            frame_of_reference_uid: manifest.frame_of_reference_uid.clone(),
+            date: start.format("%Y%m%d").to_string(),
+            time: start.format("%H%M%S").to_string(),
+            patient_name: person_name(&manifest.name),
+            patient_id: manifest.id.chars().take(64).collect(),
+            study_id: if study_id.is_empty() {
+                "1".into()
+            } else {
+                study_id
+            },
+            description: format!("layerwise build {}", manifest.name),
+        }
+    }
+}
+
+/// The build's name as a DICOM person name: the family-name component, explicitly delimited
+/// (a bare single component is the retired PN form validators warn about).
+fn person_name(name: &str) -> String {
+    let clean: String = name
+        .chars()
+        .map(|c| {
+            if matches!(c, '^' | '=' | '\\') {
+                '_'
+            } else {
+                c
+            }
+        })
+        .take(60)
+        .collect();
+    format!("{clean}^")
+}
+
+/// One series: a view of the build, the rasterized vectors, or the CT.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Series {
+    pub series_instance_uid: String,
+    pub number: u32,
+    pub description: String,
+}
+
+impl Series {
+    /// A series whose UID is derived from the study's and its name, so that every process writing
+    /// it (the daemon before and after a restart, the exporter) agrees without shared state.
+    pub fn named(study: &Study, number: u32, name: &str) -> Series {
+        Series {
+            series_instance_uid: derived_uid(&study.study_instance_uid, name),
+            number,
+            description: name.to_string(),
+        }
+    }
+}
+
+/// A UID under 2.25 from a name-based hash (like a version-5 UUID): stable for the same inputs.
+pub fn derived_uid(parent: &str, name: &str) -> String {
+    let digest = Sha256::digest(format!("{parent}/{name}").as_bytes());
+    let mut bytes = [0u8; 16];
+    bytes.copy_from_slice(&digest[..16]);
+    // Set the UUID version (5) and variant bits so the number is a well-formed UUID.
+    bytes[6] = (bytes[6] & 0x0f) | 0x50;
+    bytes[8] = (bytes[8] & 0x3f) | 0x80;
+    format!("2.25.{}", u128::from_be_bytes(bytes))
+}
+
+/// Where one slice sits in the build frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plane {
+    /// Build coordinates of the center of the top-left pixel (ImagePositionPatient).
+    pub origin: [f64; 3],
+    pub pixel_mm: f64,
+    pub rows: usize,
+    pub columns: usize,
+    pub thickness_mm: f64,
+}
+
+/// One slice: the layer it shows and its pixels (16-bit, MONOCHROME2 as the CT IOD requires).
+pub struct Slice<'a> {
+    pub layer: u32,
+    pub plane: Plane,
+    pub pixels: &'a [u16],
+    /// When the frame was taken (AcquisitionDate/Time, ContentDate/Time).
+    pub acquired: Option<chrono::DateTime<chrono::Utc>>,
+    /// Window for viewers: center and width.
+    pub window: (f64, f64),
+    /// How the pixels were made (DerivationDescription).
+    pub derivation: &'a str,
+}
+
+fn put(obj: &mut InMemDicomObject, tag: Tag, vr: VR, value: impl Into<PrimitiveValue>) {
+    obj.put(DataElement::new(tag, vr, value.into()));
+}
+
+fn put_empty(obj: &mut InMemDicomObject, tag: Tag, vr: VR) {
+    obj.put(DataElement::new(tag, vr, PrimitiveValue::Empty));
+}
+
+fn ds(values: &[f64]) -> String {
+    // DS is at most 16 characters per value.
+    values
+        .iter()
+        .map(|v| format_ds(*v))
+        .collect::<Vec<_>>()
+        .join("\\")
+}
+
+fn format_ds(v: f64) -> String {
+    let v = if v == 0.0 { 0.0 } else { v }; // no "-0"
+    for precision in (0..=10).rev() {
+        let s = format!("{v:.precision$}");
+        let s = if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        };
+        if s.len() <= 16 {
+            return s;
+        }
+    }
+    format!("{v:.6e}")
+}
+
+/// Builds the CT Image data set of one slice.
+fn slice_object(
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    sop_instance_uid: &str,
+) -> InMemDicomObject {
+    let mut o = InMemDicomObject::new_empty();
+    let (acq_date, acq_time) = match slice.acquired {
+        Some(t) => (
+            t.format("%Y%m%d").to_string(),
+            t.format("%H%M%S%.6f").to_string(),
+        ),
+        None => (study.date.clone(), study.time.clone()),
+    };
+    // SOP Common
+    put(&mut o, tags::SPECIFIC_CHARACTER_SET, VR::CS, "ISO_IR 192");
+    put(&mut o, tags::SOP_CLASS_UID, VR::UI, CT_IMAGE_STORAGE);
+    put(&mut o, tags::SOP_INSTANCE_UID, VR::UI, sop_instance_uid);
+    // Patient: the build stands in for the patient.
+    put(
+        &mut o,
+        tags::PATIENT_NAME,
+        VR::PN,
+        study.patient_name.as_str(),
+    );
+    put(&mut o, tags::PATIENT_ID, VR::LO, study.patient_id.as_str());
+    put_empty(&mut o, tags::PATIENT_BIRTH_DATE, VR::DA);
+    put_empty(&mut o, tags::PATIENT_SEX, VR::CS);
+    // General Study
+    put(
+        &mut o,
+        tags::STUDY_INSTANCE_UID,
+        VR::UI,
+        study.study_instance_uid.as_str(),
+    );
+    put(&mut o, tags::STUDY_DATE, VR::DA, study.date.as_str());
+    put(&mut o, tags::STUDY_TIME, VR::TM, study.time.as_str());
+    put_empty(&mut o, tags::REFERRING_PHYSICIAN_NAME, VR::PN);
+    put(&mut o, tags::STUDY_ID, VR::SH, study.study_id.as_str());
+    put_empty(&mut o, tags::ACCESSION_NUMBER, VR::SH);
+    put(
+        &mut o,
+        tags::STUDY_DESCRIPTION,
+        VR::LO,
+        study.description.as_str(),
+    );
+    // General Series
+    put(&mut o, tags::MODALITY, VR::CS, "CT");
+    put(
+        &mut o,
+        tags::SERIES_INSTANCE_UID,
+        VR::UI,
+        series.series_instance_uid.as_str(),
+    );
+    put(
+        &mut o,
+        tags::SERIES_NUMBER,
+        VR::IS,
+        series.number.to_string(),
+    );
+    put(
+        &mut o,
+        tags::SERIES_DESCRIPTION,
+        VR::LO,
+        series.description.as_str(),
+    );
+    put_empty(&mut o, tags::PATIENT_POSITION, VR::CS);
+    // Frame of Reference
+    put(
+        &mut o,
+        tags::FRAME_OF_REFERENCE_UID,
+        VR::UI,
+        study.frame_of_reference_uid.as_str(),
+    );
+    put_empty(&mut o, tags::POSITION_REFERENCE_INDICATOR, VR::LO);
+    // General Equipment
+    put(&mut o, tags::MANUFACTURER, VR::LO, "layerwise");
+    put(
+        &mut o,
+        tags::SOFTWARE_VERSIONS,
+        VR::LO,
+        env!("CARGO_PKG_VERSION"),
+    );
+    // General Image
+    put(
+        &mut o,
+        tags::INSTANCE_NUMBER,
+        VR::IS,
+        slice.layer.to_string(),
+    );
+    // DERIVED: the pixels are resampled (rectified, rasterized). dciodvfy also requires HU of
+    // ORIGINAL images, and these are not Hounsfield units (RescaleType US).
+    put(&mut o, tags::IMAGE_TYPE, VR::CS, "DERIVED\\PRIMARY\\AXIAL");
+    put(
+        &mut o,
+        tags::DERIVATION_DESCRIPTION,
+        VR::ST,
+        slice.derivation,
+    );
+    put(&mut o, tags::CONTENT_DATE, VR::DA, acq_date.as_str());
+    put(&mut o, tags::CONTENT_TIME, VR::TM, acq_time.as_str());
+    put(&mut o, tags::ACQUISITION_DATE, VR::DA, acq_date.as_str());
+    put(&mut o, tags::ACQUISITION_TIME, VR::TM, acq_time.as_str());
+    put(&mut o, tags::ACQUISITION_NUMBER, VR::IS, "1");
+    put(&mut o, tags::IMAGE_LATERALITY, VR::CS, "U");
+    put(&mut o, tags::BURNED_IN_ANNOTATION, VR::CS, "NO");
+    // Image Plane (docs/frames.md): rows run toward −y, columns toward +x.
+    let p = slice.plane;
+    put(
+        &mut o,
+        tags::PIXEL_SPACING,
+        VR::DS,
+        ds(&[p.pixel_mm, p.pixel_mm]),
+    );
+    put(
+        &mut o,
+        tags::IMAGE_ORIENTATION_PATIENT,
+        VR::DS,
+        ds(&[1.0, 0.0, 0.0, 0.0, -1.0, 0.0]),
+    );
+    put(&mut o, tags::IMAGE_POSITION_PATIENT, VR::DS, ds(&p.origin));
+    put(&mut o, tags::SLICE_THICKNESS, VR::DS, ds(&[p.thickness_mm]));
+    put(&mut o, tags::SLICE_LOCATION, VR::DS, ds(&[p.origin[2]]));
+    // Image Pixel + CT Image
+    put(
+        &mut o,
+        tags::SAMPLES_PER_PIXEL,
+        VR::US,
+        PrimitiveValue::from(1u16),
+    );
+    put(
+        &mut o,
+        tags::PHOTOMETRIC_INTERPRETATION,
+        VR::CS,
+        "MONOCHROME2",
+    );
+    put(
+        &mut o,
+        tags::ROWS,
+        VR::US,
+        PrimitiveValue::from(p.rows as u16),
+    );
+    put(
+        &mut o,
+        tags::COLUMNS,
+        VR::US,
+        PrimitiveValue::from(p.columns as u16),
+    );
+    put(
+        &mut o,
+        tags::BITS_ALLOCATED,
+        VR::US,
+        PrimitiveValue::from(16u16),
+    );
+    put(
+        &mut o,
+        tags::BITS_STORED,
+        VR::US,
+        PrimitiveValue::from(16u16),
+    );
+    put(&mut o, tags::HIGH_BIT, VR::US, PrimitiveValue::from(15u16));
+    put(
+        &mut o,
+        tags::PIXEL_REPRESENTATION,
+        VR::US,
+        PrimitiveValue::from(0u16),
+    );
+    put(&mut o, tags::RESCALE_INTERCEPT, VR::DS, "0");
+    put(&mut o, tags::RESCALE_SLOPE, VR::DS, "1");
+    put(&mut o, tags::RESCALE_TYPE, VR::LO, "US");
+    put_empty(&mut o, tags::KVP, VR::DS);
+    put(&mut o, tags::WINDOW_CENTER, VR::DS, ds(&[slice.window.0]));
+    put(&mut o, tags::WINDOW_WIDTH, VR::DS, ds(&[slice.window.1]));
+    o.put(DataElement::new(
+        tags::PIXEL_DATA,
+        VR::OW,
+        PrimitiveValue::U16(C::from_vec(slice.pixels.to_vec())),
+    ));
+    o
+}
+
+/// The SOP instance UID of a layer of a series: stable, so rewriting a layer replaces it.
+pub fn instance_uid(series: &Series, layer: u32) -> String {
+    derived_uid(&series.series_instance_uid, &format!("L{layer}"))
+}
+
+/// Encodes one slice as a DICOM file in memory.
+pub fn encode_slice(
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    compression: Compression,
+) -> Result<Vec<u8>, String> {
+    let p = slice.plane;
+    if p.rows == 0 || p.columns == 0 || p.rows > u16::MAX as usize || p.columns > u16::MAX as usize
+    {
+        return Err(format!(
+            "{} x {} pixels cannot be a DICOM image (1 to 65535 each way)",
+            p.rows, p.columns
+        ));
+    }
+    if slice.pixels.len() != p.rows * p.columns {
+        return Err(format!(
+            "{} pixels for a {} x {} image",
+            slice.pixels.len(),
+            p.rows,
+            p.columns
+        ));
+    }
+    let sop_instance_uid = instance_uid(series, slice.layer);
+    let object = slice_object(study, series, slice, &sop_instance_uid);
+    let meta = FileMetaTableBuilder::new()
+        .media_storage_sop_class_uid(CT_IMAGE_STORAGE)
+        .media_storage_sop_instance_uid(sop_instance_uid.as_str())
+        .transfer_syntax(EXPLICIT_VR_LE)
+        .implementation_class_uid(IMPLEMENTATION_CLASS_UID)
+        .implementation_version_name(concat!("LAYERWISE_", env!("CARGO_PKG_VERSION")));
+    let mut file = object.with_meta(meta).map_err(|e| e.to_string())?;
+    match compression {
+        Compression::None => {}
+        Compression::Deflate => {
+            file.meta_mut().set_transfer_syntax(
+                &dicom_transfer_syntax_registry::entries::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN,
+            );
+            debug_assert_eq!(
+                DEFLATED_EXPLICIT_VR_LE,
+                dicom_transfer_syntax_registry::entries::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN.uid()
+            );
+        }
+        Compression::JpegLs => {
+            if cfg!(not(feature = "jpegls")) {
+                return Err(DicomError::NoJpegLs.to_string());
+            }
+            let ts = dicom_transfer_syntax_registry::TransferSyntaxRegistry
+                .get(JPEG_LS_LOSSLESS)
+                .ok_or_else(|| DicomError::NoJpegLs.to_string())?;
+            file.transcode(ts)
+                .map_err(|e| format!("JPEG-LS encoding: {e}"))?;
+            // The encoder adds attributes the (single-frame) CT Image IOD does not have.
+            file.remove_element(tags::NUMBER_OF_FRAMES);
+            file.remove_element(Tag(0x7FE0, 0x0003));
+        }
+    }
+    let mut bytes = Vec::new();
+    file.write_all(&mut bytes).map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
+/// Writes one slice atomically to `path`.
+pub fn write_slice(
+    path: &Path,
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    compression: Compression,
+) -> Result<(), DicomError> {
+    let err = |message: String| DicomError::Write {
+        path: path.to_path_buf(),
+        message,
+    };
+    let bytes = encode_slice(study, series, slice, compression).map_err(err)?;
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
+    }
+    write_atomic(path, &bytes, true).map_err(|e| err(e.source.to_string()))
+}
+
+/// What `layerwise dicom info` reports of one series.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SeriesSummary {
+    pub series_instance_uid: String,
+    pub number: String,
+    pub description: String,
+    pub study_instance_uid: String,
+    pub frame_of_reference_uid: String,
+    pub files: Vec<PathBuf>,
+    pub slices: usize,
+    pub rows: u32,
+    pub columns: u32,
+    pub pixel_spacing_mm: [f64; 2],
+    pub orientation: [f64; 6],
+    pub first_position: [f64; 3],
+    pub z_min: f64,
+    pub z_max: f64,
+    pub transfer_syntax: String,
+    pub instance_numbers: (i64, i64),
+}
+
+fn text(obj: &InMemDicomObject, tag: Tag) -> Option<String> {
+    obj.element(tag)
+        .ok()?
+        .to_str()
+        .ok()
+        .map(|s| s.trim().trim_end_matches('\0').to_string())
+}
+
+fn floats(obj: &InMemDicomObject, tag: Tag) -> Vec<f64> {
+    text(obj, tag)
+        .map(|s| {
+            s.split('\\')
+                .filter_map(|v| v.trim().parse().ok())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Reads the headers (not the pixels) of every `.dcm` below `dir` and groups them by series.
+pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
+    let mut files = Vec::new();
+    collect_dcm(dir, &mut files).map_err(|e| DicomError::Read {
+        path: dir.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    files.sort();
+    let mut series: BTreeMap<String, SeriesSummary> = BTreeMap::new();
+    for path in files {
+        let obj = OpenFileOptions::new()
+            .read_until(tags::PIXEL_DATA)
+            .open_file(&path)
+            .map_err(|e| DicomError::Read {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+        let uid = text(&obj, tags::SERIES_INSTANCE_UID).unwrap_or_default();
+        let position = floats(&obj, tags::IMAGE_POSITION_PATIENT);
+        let [x, y, z] =
+            <[f64; 3]>::try_from(position.as_slice()).map_err(|_| DicomError::Geometry {
+                path: path.clone(),
+                message: "no ImagePositionPatient with 3 values".into(),
+            })?;
+        let instance: i64 = text(&obj, tags::INSTANCE_NUMBER)
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(0);
+        let entry = series.entry(uid.clone()).or_insert_with(|| SeriesSummary {
+            series_instance_uid: uid,
+            number: text(&obj, tags::SERIES_NUMBER).unwrap_or_default(),
+            description: text(&obj, tags::SERIES_DESCRIPTION).unwrap_or_default(),
+            study_instance_uid: text(&obj, tags::STUDY_INSTANCE_UID).unwrap_or_default(),
+            frame_of_reference_uid: text(&obj, tags::FRAME_OF_REFERENCE_UID).unwrap_or_default(),
+            files: Vec::new(),
+            slices: 0,
+            rows: obj
+                .element(tags::ROWS)
+                .ok()
+                .and_then(|e| e.to_int::<u32>().ok())
+                .unwrap_or(0),
+            columns: obj
+                .element(tags::COLUMNS)
+                .ok()
+                .and_then(|e| e.to_int::<u32>().ok())
+                .unwrap_or(0),
+            pixel_spacing_mm: <[f64; 2]>::try_from(floats(&obj, tags::PIXEL_SPACING).as_slice())
+                .unwrap_or([0.0; 2]),
+            orientation: <[f64; 6]>::try_from(
+                floats(&obj, tags::IMAGE_ORIENTATION_PATIENT).as_slice(),
+            )
+            .unwrap_or([0.0; 6]),
+            first_position: [x, y, z],
+            z_min: z,
+            z_max: z,
+            transfer_syntax: obj
+                .meta()
+                .transfer_syntax()
+                .trim_end_matches('\0')
+                .to_string(),
+            instance_numbers: (instance, instance),
+        });
+        entry.files.push(path);
+        entry.slices += 1;
+        entry.z_min = entry.z_min.min(z);
+        entry.z_max = entry.z_max.max(z);
+        entry.instance_numbers = (
+            entry.instance_numbers.0.min(instance),
+            entry.instance_numbers.1.max(instance),
+        );
+    }
+    let mut out: Vec<SeriesSummary> = series.into_values().collect();
+    out.sort_by(|a, b| {
+        a.number
+            .parse::<i64>()
+            .unwrap_or(0)
+            .cmp(&b.number.parse::<i64>().unwrap_or(0))
+    });
+    Ok(out)
+}
+
+fn collect_dcm(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            collect_dcm(&path, out)?;
+        } else if path.extension().is_some_and(|e| e == "dcm") {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+impl std::fmt::Display for SeriesSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "series {} {:<12} {} slices, {} x {} px at {} x {} mm, z {} … {} mm, instances {} … {}",
+            self.number,
+            self.description,
+            self.slices,
+            self.columns,
+            self.rows,
+            self.pixel_spacing_mm[0],
+            self.pixel_spacing_mm[1],
+            self.z_min,
+            self.z_max,
+            self.instance_numbers.0,
+            self.instance_numbers.1
+        )?;
+        writeln!(
+            f,
+            "  first pixel at ({}, {}, {}) mm, orientation {:?}, transfer syntax {}",
+            self.first_position[0],
+            self.first_position[1],
+            self.first_position[2],
+            self.orientation,
+            self.transfer_syntax
+        )?;
+        writeln!(
+            f,
+            "  study {}  frame of reference {}",
+            self.study_instance_uid, self.frame_of_reference_uid
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn derived_uids_are_stable_valid_and_distinct() {
+        let a = derived_uid("2.25.1", "post_top");
+        assert_eq!(a, derived_uid("2.25.1", "post_top"));
+        assert_ne!(a, derived_uid("2.25.1", "pre_top"));
+        assert!(a.len() <= 64 && a.starts_with("2.25.") && !a[5..].starts_with('0'));
+        assert!(a[5..].chars().all(|c| c.is_ascii_digit()));
+    }
+
+    #[test]
+    fn decimal_strings_fit_sixteen_characters() {
+        assert_eq!(format_ds(0.0625), "0.0625");
+        assert_eq!(format_ds(-137.46875), "-137.46875");
+        assert_eq!(format_ds(-0.0), "0");
+        assert!(format_ds(1.0 / 3.0).len() <= 16);
+        assert!(format_ds(-123456.123456789).len() <= 16);
+    }
+}
