@@ -66,7 +66,7 @@ fn mock_frame(width: u32, height: u32) -> Vec<u8> {
 }
 
 fn build(config: &Config, frame: Vec<u8>) {
-    let mut options = RunOptions::new(Arc::new(KeepOriginals));
+    let mut options = RunOptions::new();
     options.camera = Some(Box::new(move || {
         Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>)
     }));

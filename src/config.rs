@@ -36,8 +36,9 @@ pub struct Config {
     pub capture: CaptureConfig,
     #[serde(default)]
     pub views: ViewsConfig,
+    /// The rectified grid of docs/frames.md.
     #[serde(default)]
-    pub rectify: GridConfig,
+    pub rectify: crate::rectify::Grid,
     #[serde(default)]
     pub calibration: CalibrationConfig,
     #[serde(default)]
@@ -299,38 +300,6 @@ impl ViewsConfig {
     }
 }
 
-/// The rectified grid of docs/frames.md.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GridConfig {
-    pub x_min: f64,
-    pub x_max: f64,
-    pub y_min: f64,
-    pub y_max: f64,
-    pub pixel_mm: f64,
-}
-
-impl Default for GridConfig {
-    fn default() -> Self {
-        GridConfig {
-            x_min: -137.5,
-            x_max: 137.5,
-            y_min: -137.5,
-            y_max: 137.5,
-            pixel_mm: 0.0625,
-        }
-    }
-}
-
-impl GridConfig {
-    pub fn columns(&self) -> usize {
-        ((self.x_max - self.x_min) / self.pixel_mm).round().max(0.0) as usize
-    }
-    pub fn rows(&self) -> usize {
-        ((self.y_max - self.y_min) / self.pixel_mm).round().max(0.0) as usize
-    }
-}
-
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationConfig {
@@ -455,28 +424,7 @@ impl Config {
 
     /// Parses and validates configuration text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Config, ConfigError> {
-        let deserializer = toml::Deserializer::new(text);
-        let config: Config = serde_path_to_error::deserialize(deserializer).map_err(|err| {
-            let key = err.path().to_string();
-            let inner = err.into_inner();
-            let message = inner.message().trim().to_string();
-            let place = match inner.span() {
-                Some(span) => {
-                    let (line, column) = line_column(text, span.start);
-                    format!("line {line}, column {column}: ")
-                }
-                None => String::new(),
-            };
-            let key = if key == "." || key.is_empty() {
-                String::new()
-            } else {
-                format!("key `{key}`: ")
-            };
-            ConfigError::Parse {
-                file: file.to_path_buf(),
-                message: format!("{place}{key}{message}"),
-            }
-        })?;
+        let config: Config = parse_toml(text, file)?;
         config.validate(file)?;
         Ok(config)
     }
@@ -624,6 +572,35 @@ impl Config {
     }
 }
 
+/// Deserializes TOML, naming the file, the line and column, the key and what was expected.
+pub fn parse_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    file: &Path,
+) -> Result<T, ConfigError> {
+    let deserializer = toml::Deserializer::new(text);
+    serde_path_to_error::deserialize(deserializer).map_err(|err| {
+        let key = err.path().to_string();
+        let inner = err.into_inner();
+        let message = inner.message().trim().to_string();
+        let place = match inner.span() {
+            Some(span) => {
+                let (line, column) = line_column(text, span.start);
+                format!("line {line}, column {column}: ")
+            }
+            None => String::new(),
+        };
+        let key = if key == "." || key.is_empty() {
+            String::new()
+        } else {
+            format!("key `{key}`: ")
+        };
+        ConfigError::Parse {
+            file: file.to_path_buf(),
+            message: format!("{place}{key}{message}"),
+        }
+    })
+}
+
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
     let line = before.matches('\n').count() + 1;
@@ -715,7 +692,7 @@ kind = "mock"
 
     #[test]
     fn grid_defaults_to_whole_plate() {
-        let grid = GridConfig::default();
+        let grid = crate::rectify::Grid::default();
         assert_eq!((grid.columns(), grid.rows()), (4400, 4400));
     }
 }

@@ -2,10 +2,9 @@
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use layerwise::acquisition::{self, processing::KeepOriginals, status, RunOptions};
+use layerwise::acquisition::{self, status, RunOptions};
 use layerwise::config::{Config, TriggerConfig, DEMO_CONFIG};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 #[derive(Parser)]
 #[command(
@@ -82,6 +81,11 @@ enum DicomCommand {
 }
 
 fn main() {
+    // Like other command-line tools: `layerwise dicom info DIR | head` ends quietly.
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     layerwise::logging::init(cli.verbose);
     if let Err(e) = dispatch(cli.command) {
@@ -102,7 +106,7 @@ fn dispatch(command: Command) -> Result<()> {
     match command {
         Command::Run { config } => {
             let config = Config::load(&config)?;
-            let mut options = RunOptions::new(Arc::new(KeepOriginals));
+            let mut options = RunOptions::new();
             options.notify_systemd = true;
             options.drain_at_end = true;
             let summary = runtime()?.block_on(acquisition::run(&config, options))?;
@@ -169,8 +173,29 @@ fn demo(layers: u32, out: &Path) -> Result<()> {
     if let TriggerConfig::Mock(mock) = &mut config.trigger {
         mock.layers = layers;
     }
+    // The simulated camera's true homography stands in for a calibration, so the demo writes
+    // rectified DICOM series like a calibrated machine does.
+    if let layerwise::config::CameraConfig::Mock(mock) = &config.camera {
+        std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+        let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
+        let mut fit = toml::Table::new();
+        fit.insert(
+            "source".into(),
+            "ground truth of the simulated camera (mock_camera::Homography::oblique_view)".into(),
+        );
+        let calibration = layerwise::rectify::Calibration {
+            homography: truth.m,
+            distortion: None,
+            grid: Some(config.rectify),
+            fit: Some(fit),
+        };
+        let path = out.join("calibration.toml");
+        std::fs::write(&path, calibration.to_toml())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        config.calibration.file = Some(path);
+    }
     let started = std::time::Instant::now();
-    let mut options = RunOptions::new(Arc::new(KeepOriginals));
+    let mut options = RunOptions::new();
     options.drain_at_end = true;
     let summary = runtime()?.block_on(acquisition::run(&config, options))?;
     println!(

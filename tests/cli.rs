@@ -219,9 +219,7 @@ fn status_warns_when_the_disk_will_not_last() {
     runtime()
         .block_on(layerwise::acquisition::run(
             &config,
-            layerwise::acquisition::RunOptions::new(std::sync::Arc::new(
-                layerwise::acquisition::processing::KeepOriginals,
-            )),
+            layerwise::acquisition::RunOptions::new(),
         ))
         .unwrap();
     // Pretend the build has a million layers still to come.

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 fn options_with_log() -> (RunOptions, Arc<Mutex<Option<MockLightsLog>>>) {
-    let mut options = RunOptions::new(Arc::new(KeepOriginals));
+    let mut options = RunOptions::new();
     options.drain_at_end = true;
     let slot = Arc::new(Mutex::new(None));
     options.lights_log = Some(slot.clone());
@@ -166,14 +166,10 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
 fn a_restart_resumes_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
     let first = demo_config(dir.path(), 2);
-    runtime()
-        .block_on(run(&first, RunOptions::new(Arc::new(KeepOriginals))))
-        .unwrap();
+    runtime().block_on(run(&first, RunOptions::new())).unwrap();
     // The same build, restarted: the trigger replays layers 1-2 (already stored) then goes on.
     let second = demo_config(dir.path(), 4);
-    let summary = runtime()
-        .block_on(run(&second, RunOptions::new(Arc::new(KeepOriginals))))
-        .unwrap();
+    let summary = runtime().block_on(run(&second, RunOptions::new())).unwrap();
     assert_eq!((summary.stored, summary.skipped), (12, 12));
     assert_eq!(originals(dir.path()), expected_originals(4));
     assert!(frame_records(dir.path()).values().all(|&n| n == 1));
@@ -208,7 +204,8 @@ fn capture_never_waits_for_processing() {
         open: gate.clone(),
         processed: AtomicUsize::new(0),
     });
-    let mut options = RunOptions::new(processor.clone());
+    let mut options = RunOptions::new();
+    options.processor = Some(processor.clone());
     options.drain_at_end = true;
     let build = dir.path().to_path_buf();
     let daemon = std::thread::spawn(move || runtime().block_on(run(&config, options)));

@@ -5,8 +5,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # System packages: libgphoto2 for the real camera backend (bindgen needs libclang), socat for the
-# serial-trigger pty tests, systemd for `systemd-analyze verify`, python3-venv for the test venv.
-packages=(libgphoto2-dev libclang-dev pkg-config socat systemd python3-venv)
+# serial-trigger pty tests, systemd for `systemd-analyze verify`, dicom3tools and dcmtk to validate
+# the DICOM we write, cmake and g++ to build CharLS (JPEG-LS), python3-venv for the test venv.
+packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -19,12 +20,13 @@ if ((${#missing[@]})); then
   "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 
-# A Python venv with the PyPI gphoto2 wheel: it bundles libgphoto2 with the vusb virtual PTP camera,
-# which tests/virtual_camera.rs drives through our real libgphoto2 backend.
+# A Python venv with: the PyPI gphoto2 wheel (it bundles libgphoto2 with the vusb virtual PTP
+# camera, which tests/virtual_camera.rs drives through our real libgphoto2 backend); pydicom (with
+# a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back.
 venv=target/test-venv
-if ! "$venv/bin/python" -c "import gphoto2" 2>/dev/null; then
+if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg" 2>/dev/null; then
   python3 -m venv "$venv"
-  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3"
+  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3" pydicom SimpleITK numpy pylibjpeg pylibjpeg-libjpeg
 fi
 LAYERWISE_VCAM_LIBDIR="$("$venv/bin/python" -c 'import gphoto2, os; print(os.path.join(os.path.dirname(gphoto2.__file__), "libgphoto2"))')"
 export LAYERWISE_VCAM_LIBDIR

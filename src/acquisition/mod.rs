@@ -4,6 +4,7 @@
 
 pub mod journal;
 pub mod processing;
+pub mod series;
 pub mod status;
 pub mod storage;
 
@@ -59,7 +60,9 @@ pub type CameraFactory =
 
 /// How to run: what to do with frames, and the pieces tests replace.
 pub struct RunOptions {
-    pub processor: Arc<dyn FrameProcessor>,
+    /// What to do with stored frames; by default the live DICOM series when a calibration is
+    /// configured, else keep the originals only.
+    pub processor: Option<Arc<dyn FrameProcessor>>,
     /// Send READY and WATCHDOG to systemd.
     pub notify_systemd: bool,
     /// When the trigger ends (a mock build), process every frame before returning.
@@ -74,10 +77,16 @@ pub struct RunOptions {
     pub lights_log: Option<Arc<Mutex<Option<MockLightsLog>>>>,
 }
 
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions::new()
+    }
+}
+
 impl RunOptions {
-    pub fn new(processor: Arc<dyn FrameProcessor>) -> RunOptions {
+    pub fn new() -> RunOptions {
         RunOptions {
-            processor,
+            processor: None,
             notify_systemd: false,
             drain_at_end: false,
             trigger: None,
@@ -456,8 +465,12 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         .into_iter()
         .filter_map(|shot| replay.frames.get(&shot).map(|f| (shot, dir.join(&f.file))))
         .collect();
+    let processor = match options.processor.take() {
+        Some(p) => p,
+        None => default_processor(config, &manifest)?,
+    };
     let queue = ProcessingQueue::start(
-        options.processor.clone(),
+        processor,
         config.storage.queue_capacity,
         dir.clone(),
         journal.clone(),
@@ -591,6 +604,30 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
     info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
     Ok(summary)
+}
+
+/// The live DICOM series when a calibration is configured; else the originals are only kept.
+fn default_processor(
+    config: &Config,
+    manifest: &BuildManifest,
+) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
+    let Some(path) = &config.calibration.file else {
+        warn!("no calibration.file: frames are kept but not rectified; run `layerwise register images` and set it");
+        return Ok(Arc::new(processing::KeepOriginals));
+    };
+    let calibration = crate::rectify::Calibration::load(path)
+        .map_err(|e| AcquisitionError::Runtime(e.to_string()))?;
+    let heights = series::LayerHeights::from_config(config).map_err(AcquisitionError::Runtime)?;
+    let live = series::LiveSeries::new(
+        manifest,
+        &config.views.all(),
+        &calibration,
+        config.rectify,
+        heights,
+        config.storage.dicom,
+    )
+    .map_err(AcquisitionError::Runtime)?;
+    Ok(Arc::new(live))
 }
 
 fn watchdog_period(enabled: bool) -> Option<Duration> {

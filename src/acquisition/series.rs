@@ -1,0 +1,178 @@
+//! The live DICOM series: each stored original is decoded, reduced to luma (the CT Image IOD is
+//! MONOCHROME2; colour stays in the original), rectified onto the build grid through the
+//! calibration and written as the slice of its layer in its view's series.
+
+use super::processing::FrameProcessor;
+use super::status::BuildManifest;
+use crate::config::Config;
+use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
+use crate::rectify::{self, Calibration, Grid, Interpolation, Rectifier};
+use crate::vectors::LayerIndex;
+use crate::view::{Shot, View};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Where layer k sits in z: the k-th layer of the vector file, or k x the layer thickness.
+#[derive(Clone, Debug)]
+pub struct LayerHeights {
+    z_mm: Option<Vec<f64>>,
+    thickness_mm: f64,
+}
+
+impl LayerHeights {
+    pub fn from_config(config: &Config) -> Result<LayerHeights, String> {
+        let thickness_mm = config.build.layer_thickness_mm;
+        let z_mm = match &config.build.vectors {
+            Some(path) => {
+                let index = LayerIndex::build(path).map_err(|e| e.to_string())?;
+                Some((0..index.len()).filter_map(|k| index.z_mm(k)).collect())
+            }
+            None => None,
+        };
+        Ok(LayerHeights { z_mm, thickness_mm })
+    }
+
+    pub fn uniform(thickness_mm: f64) -> LayerHeights {
+        LayerHeights {
+            z_mm: None,
+            thickness_mm,
+        }
+    }
+
+    /// z of layer `layer` (1-based, as the printer counts).
+    pub fn z(&self, layer: u32) -> f64 {
+        match &self.z_mm {
+            Some(z) if layer >= 1 && (layer as usize) <= z.len() => z[layer as usize - 1],
+            _ => layer as f64 * self.thickness_mm,
+        }
+    }
+
+    /// Thickness of layer `layer`: its z minus the one below.
+    pub fn thickness(&self, layer: u32) -> f64 {
+        match &self.z_mm {
+            Some(z) if layer >= 2 && (layer as usize) <= z.len() => {
+                let t = z[layer as usize - 1] - z[layer as usize - 2];
+                if t > 0.0 {
+                    t
+                } else {
+                    self.thickness_mm
+                }
+            }
+            _ => self.thickness_mm,
+        }
+    }
+}
+
+/// One series per view, all in the build's study.
+pub struct LiveSeries {
+    study: Study,
+    series: BTreeMap<View, Series>,
+    rectifier: Rectifier,
+    heights: LayerHeights,
+    compression: Compression,
+}
+
+/// The series folder of a view: `dicom/<phase>_<light>/`.
+pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
+    build_dir.join("dicom").join(view.to_string())
+}
+
+impl LiveSeries {
+    pub fn new(
+        manifest: &BuildManifest,
+        views: &[View],
+        calibration: &Calibration,
+        grid: Grid,
+        heights: LayerHeights,
+        compression: Compression,
+    ) -> Result<LiveSeries, String> {
+        let study = Study::of_build(manifest);
+        let series = views
+            .iter()
+            .enumerate()
+            .map(|(i, view)| {
+                (
+                    *view,
+                    Series::named(&study, i as u32 + 1, &view.to_string()),
+                )
+            })
+            .collect();
+        let rectifier = Rectifier::new(
+            calibration.homography,
+            grid,
+            calibration.distortion,
+            Interpolation::Bilinear,
+            0,
+        )
+        .map_err(|e| format!("calibration: {e}"))?;
+        Ok(LiveSeries {
+            study,
+            series,
+            rectifier,
+            heights,
+            compression,
+        })
+    }
+
+    /// The rectified luma of an original, as the slice will hold it.
+    pub fn rectified_luma(&self, original: &[u8]) -> Result<image::GrayImage, String> {
+        let decoded = rectify::decode_jpeg(original).map_err(|e| e.to_string())?;
+        let gray = match decoded {
+            image::DynamicImage::ImageLuma8(g) => g,
+            image::DynamicImage::ImageRgb8(rgb) => rectify::luma(&rgb),
+            other => rectify::luma(&other.to_rgb8()),
+        };
+        Ok(self.rectifier.rectify_gray8(&gray))
+    }
+
+    pub fn write(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        original: &[u8],
+        acquired: Option<chrono::DateTime<chrono::Utc>>,
+    ) -> Result<PathBuf, String> {
+        let series = self
+            .series
+            .get(&shot.view())
+            .ok_or_else(|| format!("view {} is not configured", shot.view()))?;
+        let rectified = self.rectified_luma(original)?;
+        let pixels: Vec<u16> = rectified.as_raw().iter().map(|&v| v as u16).collect();
+        let grid = self.rectifier.grid();
+        let plane = Plane {
+            origin: [
+                grid.x_min + grid.pixel_mm / 2.0,
+                grid.y_max - grid.pixel_mm / 2.0,
+                self.heights.z(shot.layer),
+            ],
+            pixel_mm: grid.pixel_mm,
+            rows: grid.rows(),
+            columns: grid.columns(),
+            thickness_mm: self.heights.thickness(shot.layer),
+        };
+        let slice = Slice {
+            layer: shot.layer,
+            plane,
+            pixels: &pixels,
+            acquired,
+            window: (128.0, 256.0),
+            derivation: "camera frame luma (BT.601), rectified to the build plane through the calibration homography",
+        };
+        let path = series_dir(build_dir, shot.view()).join(format!("L{:05}.dcm", shot.layer));
+        dicom::write_slice(&path, &self.study, series, &slice, self.compression)
+            .map_err(|e| e.to_string())?;
+        Ok(path)
+    }
+}
+
+impl FrameProcessor for LiveSeries {
+    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), String> {
+        let bytes = std::fs::read(original).map_err(|e| format!("{}: {e}", original.display()))?;
+        let sidecar = original.with_extension("json");
+        let acquired = std::fs::read(&sidecar)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<super::storage::Sidecar>(&b).ok())
+            .map(|s| s.captured_at);
+        self.write(build_dir, shot, &bytes, acquired).map(|_| ())
+    }
+}

@@ -1,0 +1,151 @@
+//! The calibration file: what `layerwise register images` writes and the rectifier reads.
+//! `homography` maps image (u, v, 1) to build (x, y, 1) in mm, H[2][2] = 1 (docs/frames.md); with
+//! a `[distortion]` table it maps undistorted pixels.
+
+use super::{Grid, RadialDistortion};
+use crate::config::{parse_toml, ConfigError};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DistortionTable {
+    /// Only "radial" (k1, k2 about a center, in normalized coordinates).
+    pub model: String,
+    pub center: [f64; 2],
+    pub focal_px: f64,
+    pub k1: f64,
+    pub k2: f64,
+}
+
+/// The calibration file as stored.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationFile {
+    pub homography: [[f64; 3]; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<Grid>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion: Option<DistortionTable>,
+    /// How it was obtained: images, layers, residuals (free-form, for people).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit: Option<toml::Table>,
+}
+
+/// A usable calibration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Calibration {
+    pub homography: [[f64; 3]; 3],
+    pub distortion: Option<RadialDistortion>,
+    pub grid: Option<Grid>,
+    pub fit: Option<toml::Table>,
+}
+
+impl Calibration {
+    pub fn load(path: &Path) -> Result<Calibration, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            file: path.to_path_buf(),
+            source,
+        })?;
+        Calibration::parse(&text, path)
+    }
+
+    pub fn parse(text: &str, file: &Path) -> Result<Calibration, ConfigError> {
+        let stored: CalibrationFile = parse_toml(text, file)?;
+        let invalid = |key: &str, message: &str| ConfigError::Invalid {
+            file: file.to_path_buf(),
+            key: key.to_string(),
+            message: message.to_string(),
+        };
+        let h = stored.homography;
+        if h.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(invalid("homography", "has a non-finite entry"));
+        }
+        if (h[2][2] - 1.0).abs() > 1e-9 {
+            return Err(invalid(
+                "homography",
+                "must have H[2][2] = 1.0 (docs/frames.md)",
+            ));
+        }
+        let distortion = match stored.distortion {
+            None => None,
+            Some(d) if d.model == "radial" => {
+                if d.focal_px.is_nan() || d.focal_px <= 0.0 {
+                    return Err(invalid("distortion.focal_px", "must be positive"));
+                }
+                Some(RadialDistortion {
+                    center: d.center,
+                    focal_px: d.focal_px,
+                    k1: d.k1,
+                    k2: d.k2,
+                })
+            }
+            Some(d) => {
+                return Err(invalid(
+                    "distortion.model",
+                    &format!("unknown model {:?}: expected \"radial\"", d.model),
+                ))
+            }
+        };
+        Ok(Calibration {
+            homography: h,
+            distortion,
+            grid: stored.grid,
+            fit: stored.fit,
+        })
+    }
+
+    pub fn to_toml(&self) -> String {
+        let stored = CalibrationFile {
+            homography: self.homography,
+            grid: self.grid,
+            distortion: self.distortion.map(|d| DistortionTable {
+                model: "radial".into(),
+                center: d.center,
+                focal_px: d.focal_px,
+                k1: d.k1,
+                k2: d.k2,
+            }),
+            fit: self.fit.clone(),
+        };
+        toml::to_string(&stored).unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_contract_checks() {
+        let cal = Calibration {
+            homography: [[0.1, 0.0, -100.0], [0.0, -0.1, 80.0], [1e-6, 2e-5, 1.0]],
+            distortion: Some(RadialDistortion {
+                center: [3680.0, 2456.0],
+                focal_px: 9200.0,
+                k1: -0.02,
+                k2: 0.001,
+            }),
+            grid: Some(Grid::plate()),
+            fit: None,
+        };
+        let text = cal.to_toml();
+        assert!(text.contains("homography = [[0.1, 0.0, -100.0]"), "{text}");
+        assert_eq!(Calibration::parse(&text, Path::new("c.toml")).unwrap(), cal);
+        let bad = text.replace("1e-6, 2e-5, 1.0]", "1e-6, 2e-5, 2.0]");
+        let err = Calibration::parse(&bad, Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("c.toml") && err.contains("homography") && err.contains("H[2][2]"),
+            "{err}"
+        );
+        let err = Calibration::parse("homography = [[1, 0, 0], [0, 1, 0]]\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("c.toml") && err.contains("homography"),
+            "{err}"
+        );
+    }
+}

@@ -1,0 +1,142 @@
+//! Radial (Brown, k1/k2) lens distortion.
+
+use super::RectifyError;
+
+/// Radial lens distortion about `center`.
+///
+/// For an undistorted pixel (u, v): `n = ((u − cu)/focal_px, (v − cv)/focal_px)`,
+/// `r² = |n|²`; the camera records it at
+/// `(cu, cv) + focal_px·n·(1 + k1·r² + k2·r⁴)`.
+/// The homography maps undistorted pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RadialDistortion {
+    pub center: [f64; 2],
+    pub focal_px: f64,
+    pub k1: f64,
+    pub k2: f64,
+}
+
+impl RadialDistortion {
+    /// Undistorted pixel → where the camera records it.
+    ///
+    /// Plain evaluation of the model, also beyond the radius where the
+    /// polynomial stops being monotonic (see [`RadialDistortion::max_r2`]).
+    pub fn distort(&self, u: f64, v: f64) -> (f64, f64) {
+        let [cu, cv] = self.center;
+        let (du, dv) = (u - cu, v - cv);
+        let r2 = (du * du + dv * dv) / (self.focal_px * self.focal_px);
+        let k = 1.0 + r2 * (self.k1 + r2 * self.k2);
+        (cu + du * k, cv + dv * k)
+    }
+
+    /// Recorded (distorted) pixel → undistorted pixel, to ~1e-9 px.
+    ///
+    /// Solves the radial equation `r·(1 + k1·r² + k2·r⁴) = r_d` by safeguarded
+    /// Newton iteration on the branch where the model is monotonic. Returns
+    /// `(NaN, NaN)` for a recorded point the model cannot produce (beyond the
+    /// fold of a strongly barrel-distorting polynomial) or for invalid
+    /// parameters.
+    pub fn undistort(&self, u: f64, v: f64) -> (f64, f64) {
+        let [cu, cv] = self.center;
+        let f = self.focal_px;
+        let (dx, dy) = ((u - cu) / f, (v - cv) / f);
+        let rd = (dx * dx + dy * dy).sqrt();
+        if !rd.is_finite() || !(f > 0.0) {
+            return (f64::NAN, f64::NAN);
+        }
+        if rd == 0.0 {
+            return (u, v);
+        }
+        let g = |r: f64| {
+            let r2 = r * r;
+            r * (1.0 + r2 * (self.k1 + r2 * self.k2))
+        };
+        let dg = |r: f64| {
+            let r2 = r * r;
+            1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
+        };
+        // Bracket [lo, hi] with g(lo) <= rd <= g(hi) on the monotonic branch.
+        let (lo, mut hi) = (0.0_f64, self.max_r2().sqrt());
+        if hi.is_finite() {
+            if g(hi) < rd {
+                return (f64::NAN, f64::NAN);
+            }
+        } else {
+            // g is increasing and unbounded here: grow until it passes rd.
+            hi = rd.max(1.0);
+            while g(hi) < rd {
+                hi *= 2.0;
+                if !hi.is_finite() {
+                    return (f64::NAN, f64::NAN);
+                }
+            }
+        }
+        let mut lo = lo;
+        let mut r = rd.clamp(lo, hi);
+        for _ in 0..100 {
+            let e = g(r) - rd;
+            if e > 0.0 {
+                hi = r;
+            } else {
+                lo = r;
+            }
+            let d = dg(r);
+            let mut next = r - e / d;
+            // Fall back to bisection when Newton leaves the bracket.
+            if !(next > lo && next < hi) || !d.is_finite() || d <= 0.0 {
+                next = 0.5 * (lo + hi);
+            }
+            let step = (next - r).abs();
+            r = next;
+            if step <= 1e-15 * (1.0 + r) || hi - lo <= 1e-15 * (1.0 + r) {
+                break;
+            }
+        }
+        let s = r / rd;
+        (cu + (u - cu) * s, cv + (v - cv) * s)
+    }
+
+    /// Largest normalised r² (= |n|²) up to which the model is monotonic,
+    /// i.e. `d/dr [r·(1 + k1·r² + k2·r⁴)] > 0`; `f64::INFINITY` if always.
+    ///
+    /// Beyond it the polynomial folds back (points far outside the image would
+    /// land inside it), so the rectifier treats such points as outside.
+    pub fn max_r2(&self) -> f64 {
+        // Smallest positive root t of 1 + 3·k1·t + 5·k2·t² = 0 (t = r²).
+        let (a, b) = (5.0 * self.k2, 3.0 * self.k1);
+        if a == 0.0 {
+            return if b < 0.0 { -1.0 / b } else { f64::INFINITY };
+        }
+        let disc = b * b - 4.0 * a;
+        if disc < 0.0 {
+            return f64::INFINITY;
+        }
+        let sq = disc.sqrt();
+        [(-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)]
+            .into_iter()
+            .filter(|t| *t > 0.0)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    pub(crate) fn validate(&self) -> Result<(), RectifyError> {
+        let all = [
+            self.center[0],
+            self.center[1],
+            self.focal_px,
+            self.k1,
+            self.k2,
+        ];
+        if all.iter().any(|v| !v.is_finite()) {
+            return Err(RectifyError::InvalidDistortion(format!(
+                "non-finite value in {self:?}"
+            )));
+        }
+        if self.focal_px <= 0.0 {
+            return Err(RectifyError::InvalidDistortion(format!(
+                "focal_px must be > 0, got {}",
+                self.focal_px
+            )));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,175 @@
+//! Camera frame → top-down build-plate view.
+//!
+//! Conventions (docs/frames.md):
+//! - image pixel frame (u, v) = (column, row), pixel centers at integers,
+//!   (0, 0) the center of the top-left pixel;
+//! - the homography H (H[2][2] = 1) maps undistorted image (u, v, 1) to build
+//!   (x, y, 1) in mm, up to scale;
+//! - [`Grid`] pixel (r, c) has its center at
+//!   (x_min + (c + ½)·pixel_mm, y_max − (r + ½)·pixel_mm);
+//! - optional [`RadialDistortion`] maps undistorted pixels to where the camera
+//!   records them.
+//!
+//! Rectifying walks grid pixel → build point → H⁻¹ → (distortion) → sample.
+//! See `warp.rs` for the exact border rule and the fixed-point bilinear.
+
+pub mod calibration;
+mod decode;
+mod distortion;
+mod grid;
+mod homography;
+#[cfg(target_arch = "x86_64")]
+mod simd;
+#[cfg(test)]
+mod tests;
+mod warp;
+
+use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
+
+pub use calibration::Calibration;
+pub use decode::{decode_jpeg, luma};
+pub use distortion::RadialDistortion;
+pub use grid::Grid;
+pub use homography::homography_from_points;
+pub use warp::Rectifier;
+
+/// 16-bit single-channel image.
+pub type Gray16Image = ImageBuffer<Luma<u16>, Vec<u16>>;
+/// 16-bit RGB image.
+pub type Rgb16Image = ImageBuffer<Rgb<u16>, Vec<u16>>;
+
+/// Resampling kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interpolation {
+    /// 2x2 bilinear, exact fixed point with 11-bit position fractions.
+    Bilinear,
+    /// 4x4 Keys cubic convolution with A = −0.75 (OpenCV's INTER_CUBIC),
+    /// rounded and clamped to the sample range.
+    Bicubic,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RectifyError {
+    #[error("homography has a non-finite entry")]
+    NonFiniteHomography,
+    #[error("homography has H[2][2] = 0, so it cannot be normalised to H[2][2] = 1")]
+    ZeroH22,
+    #[error(
+        "homography is singular or nearly so (|det| / product of row norms = {0:e}, needs > 1e-12)"
+    )]
+    SingularHomography(f64),
+    #[error("invalid grid: {0}")]
+    InvalidGrid(String),
+    #[error("invalid lens distortion: {0}")]
+    InvalidDistortion(String),
+    #[error("point correspondences are degenerate (three collinear or repeated points)")]
+    DegenerateCorrespondences,
+    #[error("JPEG decoding failed: {0}")]
+    Jpeg(String),
+}
+
+impl Rectifier {
+    /// Rectifies an 8-bit grey frame.
+    pub fn rectify_gray8(&self, src: &GrayImage) -> GrayImage {
+        let mut dst = self.blank();
+        self.rectify_gray8_into(src, &mut dst);
+        dst
+    }
+
+    /// Rectifies an 8-bit RGB frame.
+    pub fn rectify_rgb8(&self, src: &RgbImage) -> RgbImage {
+        let mut dst = self.blank();
+        self.rectify_rgb8_into(src, &mut dst);
+        dst
+    }
+
+    /// Rectifies a 16-bit grey frame.
+    pub fn rectify_gray16(&self, src: &Gray16Image) -> Gray16Image {
+        let mut dst = self.blank();
+        self.rectify_gray16_into(src, &mut dst);
+        dst
+    }
+
+    /// Rectifies a 16-bit RGB frame.
+    pub fn rectify_rgb16(&self, src: &Rgb16Image) -> Rgb16Image {
+        let mut dst = self.blank();
+        self.rectify_rgb16_into(src, &mut dst);
+        dst
+    }
+
+    /// As [`Rectifier::rectify_gray8`], writing into `dst` (reallocated only
+    /// if its size is not the grid's). Reusing `dst` across frames saves the
+    /// page faults of a fresh multi-megabyte buffer per frame.
+    pub fn rectify_gray8_into(&self, src: &GrayImage, dst: &mut GrayImage) {
+        #[cfg(target_arch = "x86_64")]
+        let fast = Some(simd::row_gray8 as warp::RowFn<u8>);
+        #[cfg(not(target_arch = "x86_64"))]
+        let fast = None;
+        self.fit(dst);
+        let row_fn = self.row_fn::<u8, 1>(fast);
+        self.run_into::<u8, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_rgb8`], writing into `dst`.
+    pub fn rectify_rgb8_into(&self, src: &RgbImage, dst: &mut RgbImage) {
+        #[cfg(target_arch = "x86_64")]
+        let fast = Some(simd::row_rgb8 as warp::RowFn<u8>);
+        #[cfg(not(target_arch = "x86_64"))]
+        let fast = None;
+        self.fit(dst);
+        let row_fn = self.row_fn::<u8, 3>(fast);
+        self.run_into::<u8, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_gray16`], writing into `dst`.
+    pub fn rectify_gray16_into(&self, src: &Gray16Image, dst: &mut Gray16Image) {
+        self.fit(dst);
+        let row_fn = self.row_fn::<u16, 1>(None);
+        self.run_into::<u16, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_rgb16`], writing into `dst`.
+    pub fn rectify_rgb16_into(&self, src: &Rgb16Image, dst: &mut Rgb16Image) {
+        self.fit(dst);
+        let row_fn = self.row_fn::<u16, 3>(None);
+        self.run_into::<u16, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// Rectifies any image: L8/Rgb8/L16/Rgb16 directly; other formats are
+    /// first converted to the nearest of those (alpha dropped, LA8 → L8,
+    /// RGBA8 → RGB8, LA16 → L16, RGBA16 and float RGB(A) → RGB16).
+    pub fn rectify_dynamic(&self, src: &DynamicImage) -> DynamicImage {
+        match src {
+            DynamicImage::ImageLuma8(i) => DynamicImage::ImageLuma8(self.rectify_gray8(i)),
+            DynamicImage::ImageRgb8(i) => DynamicImage::ImageRgb8(self.rectify_rgb8(i)),
+            DynamicImage::ImageLuma16(i) => DynamicImage::ImageLuma16(self.rectify_gray16(i)),
+            DynamicImage::ImageRgb16(i) => DynamicImage::ImageRgb16(self.rectify_rgb16(i)),
+            DynamicImage::ImageLumaA8(_) => {
+                DynamicImage::ImageLuma8(self.rectify_gray8(&src.to_luma8()))
+            }
+            DynamicImage::ImageRgba8(_) => {
+                DynamicImage::ImageRgb8(self.rectify_rgb8(&src.to_rgb8()))
+            }
+            DynamicImage::ImageLumaA16(_) => {
+                DynamicImage::ImageLuma16(self.rectify_gray16(&src.to_luma16()))
+            }
+            _ => DynamicImage::ImageRgb16(self.rectify_rgb16(&src.to_rgb16())),
+        }
+    }
+
+    /// A zeroed output image of the grid's size. The zeroed allocation is
+    /// mapped lazily by the OS, so its pages are first touched by the worker
+    /// threads that fill them, not by a serial memset.
+    fn blank<P: image::Pixel>(&self) -> ImageBuffer<P, Vec<P::Subpixel>> {
+        let g = self.grid();
+        ImageBuffer::new(g.columns() as u32, g.rows() as u32)
+    }
+
+    /// Makes `dst` the grid's size (keeping its buffer when it already is).
+    fn fit<P: image::Pixel>(&self, dst: &mut ImageBuffer<P, Vec<P::Subpixel>>) {
+        let g = self.grid();
+        if dst.dimensions() != (g.columns() as u32, g.rows() as u32) {
+            *dst = self.blank();
+        }
+    }
+}

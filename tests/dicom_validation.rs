@@ -1,0 +1,318 @@
+//! The live DICOM series, checked by tools no one here wrote: dicom3tools (dciodvfy, dcentvfy),
+//! dcmtk (dcmftest, dcmdump, dcmconv, dcmj2pnm), pydicom and SimpleITK (tests/dicom_check.py in
+//! the venv that tests/run.sh makes). The README's test command installs all of them.
+
+mod common;
+
+use common::*;
+use layerwise::acquisition::series::{series_dir, LayerHeights, LiveSeries};
+use layerwise::acquisition::{run, RunOptions};
+use layerwise::config::{CameraConfig, Config};
+use layerwise::dicom::Compression;
+use layerwise::rectify::{Calibration, Grid};
+use layerwise::view::{Light, Phase, Shot, View};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn tool(name: &str) -> Command {
+    let probe = Command::new("sh")
+        .arg("-c")
+        .arg(format!("command -v {name}"))
+        .output()
+        .unwrap();
+    assert!(
+        probe.status.success(),
+        "{name} is needed: the README's test command installs dicom3tools and dcmtk"
+    );
+    Command::new(name)
+}
+
+fn python() -> PathBuf {
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv/bin/python");
+    let python = std::env::var_os("LAYERWISE_TEST_PYTHON")
+        .map(PathBuf::from)
+        .unwrap_or(venv);
+    assert!(
+        python.exists(),
+        "{}: run `bash tests/run.sh`, which makes the venv with pydicom and SimpleITK",
+        python.display()
+    );
+    python
+}
+
+/// A calibrated mock build: the mock camera's true homography as the calibration.
+fn calibrated_config(dir: &Path, layers: u32, compression: Compression) -> Config {
+    let mut config = demo_config(dir, layers);
+    config.rectify = Grid {
+        x_min: -137.5,
+        x_max: 137.5,
+        y_min: -137.5,
+        y_max: 137.5,
+        pixel_mm: 0.5,
+    };
+    config.storage.dicom = compression;
+    let CameraConfig::Mock(mock) = &config.camera else {
+        unreachable!("demo camera is the mock")
+    };
+    let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
+    let calibration = Calibration {
+        homography: truth.m,
+        distortion: None,
+        grid: Some(config.rectify),
+        fit: None,
+    };
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("calibration.toml");
+    std::fs::write(&path, calibration.to_toml()).unwrap();
+    config.calibration.file = Some(path);
+    config
+}
+
+/// Runs to the end of the mock trigger and processes every frame before returning.
+fn drained() -> RunOptions {
+    let mut options = RunOptions::new();
+    options.drain_at_end = true;
+    options
+}
+
+fn all_dcm(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for view in std::fs::read_dir(dir.join("dicom")).unwrap() {
+        for f in std::fs::read_dir(view.unwrap().path()).unwrap() {
+            out.push(f.unwrap().path());
+        }
+    }
+    out.sort();
+    out
+}
+
+fn dciodvfy_errors(file: &Path) -> Vec<String> {
+    let out = tool("dciodvfy").arg("-new").arg(file).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout);
+    text.lines()
+        .filter(|l| l.starts_with("Error"))
+        .map(String::from)
+        .collect()
+}
+
+/// Writes what dicom_check.py compares against: the grid contract and rectified pixels.
+fn write_expectations(build: &Path, config: &Config, layers: u32, expected: &Path) {
+    std::fs::create_dir_all(expected).unwrap();
+    let manifest: layerwise::acquisition::status::BuildManifest =
+        serde_json::from_slice(&std::fs::read(build.join("build.json")).unwrap()).unwrap();
+    let calibration = Calibration::load(config.calibration.file.as_ref().unwrap()).unwrap();
+    let heights = LayerHeights::uniform(config.build.layer_thickness_mm);
+    let live = LiveSeries::new(
+        &manifest,
+        &config.views.all(),
+        &calibration,
+        config.rectify,
+        heights.clone(),
+        Compression::None,
+    )
+    .unwrap();
+    let g = config.rectify;
+    for view in config.views.all() {
+        let z: serde_json::Map<String, serde_json::Value> = (1..=layers)
+            .map(|k| (k.to_string(), serde_json::json!(heights.z(k))))
+            .collect();
+        let spec = serde_json::json!({"x_min": g.x_min, "y_max": g.y_max, "pixel_mm": g.pixel_mm,
+            "rows": g.rows(), "columns": g.columns(), "z": z, "thickness": config.build.layer_thickness_mm});
+        std::fs::write(expected.join(format!("{view}.json")), spec.to_string()).unwrap();
+        for layer in [1, layers] {
+            let shot = Shot {
+                layer,
+                phase: view.phase,
+                light: view.light,
+            };
+            let original = std::fs::read(build.join(format!("raw/{}.jpg", shot.stem()))).unwrap();
+            let luma = live.rectified_luma(&original).unwrap();
+            let raw: Vec<u8> = luma
+                .as_raw()
+                .iter()
+                .flat_map(|&v| (v as u16).to_le_bytes())
+                .collect();
+            std::fs::write(expected.join(format!("{view}_L{layer:05}.u16")), raw).unwrap();
+        }
+    }
+}
+
+#[test]
+fn live_series_pass_dicom3tools_dcmtk_pydicom_and_simpleitk_and_survive_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let config = calibrated_config(&build, 2, Compression::None);
+    runtime().block_on(run(&config, drained())).unwrap();
+    // Restart: the series continue with the same UIDs and no duplicate instance.
+    let config = calibrated_config(&build, 4, Compression::None);
+    runtime().block_on(run(&config, drained())).unwrap();
+
+    let files = all_dcm(&build);
+    assert_eq!(files.len(), 24, "6 views x 4 layers");
+    for file in &files {
+        let errors = dciodvfy_errors(file);
+        assert!(errors.is_empty(), "{}: {errors:?}", file.display());
+        let ok = tool("dcmftest").arg(file).output().unwrap();
+        assert!(
+            String::from_utf8_lossy(&ok.stdout).starts_with("yes"),
+            "dcmftest: {}",
+            file.display()
+        );
+        let dump = tool("dcmdump").arg(file).output().unwrap();
+        assert!(dump.status.success(), "dcmdump: {}", file.display());
+    }
+    // One study: dcentvfy checks patient, study, series and frame of reference consistency and
+    // finds duplicate SOP instances.
+    let ent = tool("dcentvfy").args(&files).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&ent.stderr).to_string() + &String::from_utf8_lossy(&ent.stdout);
+    assert!(
+        !text.lines().any(|l| l.starts_with("Error")),
+        "dcentvfy: {text}"
+    );
+
+    let expected = dir.path().join("expected");
+    write_expectations(&build, &config, 4, &expected);
+    let out = Command::new(python())
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/dicom_check.py"))
+        .arg(build.join("dicom"))
+        .arg(&expected)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // Look at it the way a person would: dcmj2pnm renders a post-scan slice with its window;
+    // fused metal (speckle) sits where the demo parts are, powder elsewhere.
+    let png = dir.path().join("slice.png");
+    let slice = series_dir(
+        &build,
+        View {
+            phase: Phase::Post,
+            light: Light::Top,
+        },
+    )
+    .join("L00004.dcm");
+    let render = tool("dcmj2pnm")
+        .args(["+Wi", "1", "+on"])
+        .arg(&slice)
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        render.status.success(),
+        "{}",
+        String::from_utf8_lossy(&render.stderr)
+    );
+    let img = image::open(&png).unwrap().to_luma8();
+    let grid = config.rectify;
+    let patch_std = |x: f64, y: f64| {
+        let (r, c) = (
+            (grid.y_max - y) / grid.pixel_mm,
+            (x - grid.x_min) / grid.pixel_mm,
+        );
+        let vals: Vec<f64> = (-3..=3)
+            .flat_map(|dr| (-3..=3).map(move |dc| (r as i64 + dr, c as i64 + dc)))
+            .map(|(r, c)| img.get_pixel(c as u32, r as u32).0[0] as f64)
+            .collect();
+        let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+        (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / vals.len() as f64).sqrt()
+    };
+    let box_center = patch_std(50.0, 50.0); // the 20 x 12 mm box of mock_camera::demo_parts
+    let powder = patch_std(0.0, 0.0);
+    assert!(
+        box_center > 3.0 * powder,
+        "box std {box_center} vs powder {powder}: the part is not where the vectors put it"
+    );
+}
+
+#[test]
+fn compressed_series_decode_to_the_same_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut variants = vec![Compression::Deflate];
+    if cfg!(feature = "jpegls") {
+        variants.push(Compression::JpegLs);
+    }
+    let plain_build = dir.path().join("none");
+    let plain = calibrated_config(&plain_build, 1, Compression::None);
+    runtime().block_on(run(&plain, drained())).unwrap();
+    let reference = plain_build.join("dicom/post_top/L00001.dcm");
+    let pixels_of = |file: &Path| {
+        let out = Command::new(python())
+            .args(["-c", "import sys, pydicom, hashlib; print(hashlib.sha256(pydicom.dcmread(sys.argv[1]).pixel_array.tobytes()).hexdigest())"])
+            .arg(file)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    };
+    let want = pixels_of(&reference);
+    for compression in variants {
+        let build = dir.path().join(format!("{compression:?}"));
+        // The same originals: copy them, so only the encoding differs.
+        let config = calibrated_config(&build, 1, compression);
+        runtime().block_on(run(&config, drained())).unwrap();
+        let file = build.join("dicom/post_top/L00001.dcm");
+        let original_a = std::fs::read(plain_build.join("raw/L00001_post_top.jpg")).unwrap();
+        let original_b = std::fs::read(build.join("raw/L00001_post_top.jpg")).unwrap();
+        assert_eq!(original_a, original_b, "the mock camera is deterministic");
+        assert_eq!(pixels_of(&file), want, "{compression:?} is not lossless");
+        // dciodvfy cannot read deflated data sets; dcmtk converts back to explicit VR LE first.
+        let checked = if compression == Compression::Deflate {
+            let back = dir.path().join("back.dcm");
+            let conv = tool("dcmconv")
+                .arg("+te")
+                .arg(&file)
+                .arg(&back)
+                .output()
+                .unwrap();
+            assert!(
+                conv.status.success(),
+                "dcmconv: {}",
+                String::from_utf8_lossy(&conv.stderr)
+            );
+            back
+        } else {
+            file.clone()
+        };
+        let errors = dciodvfy_errors(&checked);
+        assert!(errors.is_empty(), "{compression:?}: {errors:?}");
+        assert!(
+            std::fs::metadata(&file).unwrap().len() < std::fs::metadata(&reference).unwrap().len(),
+            "{compression:?} saves nothing"
+        );
+    }
+}
+
+#[test]
+fn a_truncated_file_is_named_by_dicom_info() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let config = calibrated_config(&build, 1, Compression::None);
+    runtime().block_on(run(&config, drained())).unwrap();
+    let file = build.join("dicom/pre_front/L00001.dcm");
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..300]).unwrap();
+    let out = layerwise()
+        .args(["dicom", "info"])
+        .arg(build.join("dicom"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("pre_front/L00001.dcm") && err.contains("not a readable DICOM file"),
+        "{err}"
+    );
+    // The other series are untouched.
+    assert_eq!(all_dcm(&build).len(), 6);
+}
