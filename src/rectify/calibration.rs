@@ -132,7 +132,8 @@ mod tests {
         let text = cal.to_toml();
         assert!(text.contains("homography = [[0.1, 0.0, -100.0]"), "{text}");
         assert_eq!(Calibration::parse(&text, Path::new("c.toml")).unwrap(), cal);
-        let bad = text.replace("1e-6, 2e-5, 1.0]", "1e-6, 2e-5, 2.0]");
+        let bad = text.replacen("1.0]]", "2.0]]", 1);
+        assert_ne!(bad, text, "the edit must apply");
         let err = Calibration::parse(&bad, Path::new("c.toml"))
             .unwrap_err()
             .to_string();
