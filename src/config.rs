@@ -306,6 +306,18 @@ pub struct CalibrationConfig {
     /// calibration.toml from `layerwise register images`; frames are rectified once it is set.
     #[serde(default)]
     pub file: Option<PathBuf>,
+    /// bilinear (default) or bicubic.
+    #[serde(default)]
+    pub interpolation: crate::rectify::Interpolation,
+    /// Grey level of grid pixels that fall outside the camera frame.
+    #[serde(default)]
+    pub fill: u16,
+    /// Rectify only around this part of the vector file (build.vectors), plus `crop_margin_mm`:
+    /// series stay small when one part matters.
+    #[serde(default)]
+    pub crop_part: Option<i64>,
+    #[serde(default = "default_crop_margin")]
+    pub crop_margin_mm: f64,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -404,6 +416,9 @@ fn default_queue() -> usize {
 }
 fn default_min_free_gb() -> f64 {
     20.0
+}
+fn default_crop_margin() -> f64 {
+    5.0
 }
 fn default_layer_thickness() -> f64 {
     0.03
@@ -555,6 +570,12 @@ impl Config {
             return Err(invalid(
                 "rectify",
                 "needs x_min < x_max, y_min < y_max and pixel_mm > 0".into(),
+            ));
+        }
+        if self.calibration.crop_part.is_some() && self.build.vectors.is_none() {
+            return Err(invalid(
+                "calibration.crop_part",
+                "needs build.vectors: the part's outline comes from the vector file".into(),
             ));
         }
         if self.storage.queue_capacity == 0 {

@@ -45,6 +45,21 @@ enum Command {
         #[command(subcommand)]
         command: VectorsCommand,
     },
+    /// Rectify one camera frame to the top-down build grid through a calibration.
+    Rectify {
+        #[arg(long)]
+        calibration: PathBuf,
+        #[arg(long)]
+        image: PathBuf,
+        /// OUT.png keeps colour; OUT.dcm holds luma as a CT Image slice.
+        #[arg(long)]
+        out: PathBuf,
+        /// The layer (DICOM InstanceNumber; z = layer x layer thickness).
+        #[arg(long, default_value_t = 1)]
+        layer: u32,
+        #[arg(long, default_value_t = 0.03)]
+        layer_thickness_mm: f64,
+    },
     /// DICOM series of a build.
     Dicom {
         #[command(subcommand)]
@@ -137,6 +152,31 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Rectify {
+            calibration,
+            image,
+            out,
+            layer,
+            layer_thickness_mm,
+        } => {
+            let started = std::time::Instant::now();
+            let grid = layerwise::rectify::rectify_file(
+                &calibration,
+                &image,
+                &out,
+                layer,
+                layer_thickness_mm,
+            )?;
+            println!(
+                "{} -> {} ({} x {} px at {} mm) in {:.0} ms",
+                image.display(),
+                out.display(),
+                grid.columns(),
+                grid.rows(),
+                grid.pixel_mm,
+                started.elapsed().as_secs_f64() * 1e3
+            );
+        }
         Command::Dicom {
             command: DicomCommand::Info { dir, json },
         } => {

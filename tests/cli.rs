@@ -331,3 +331,78 @@ fn vectors_info_json_agrees_with_each_real_file_header() {
         "{err}"
     );
 }
+
+#[test]
+fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (320, 214);
+    let truth = mock_camera::Homography::oblique_view(w, h);
+    let renderer = mock_camera::Renderer::new(w, h, truth);
+    let parts = mock_camera::demo_parts(1);
+    let scene = mock_camera::Scene {
+        layer: 1,
+        fused: &parts,
+        scanned: true,
+        illumination: mock_camera::Illumination::Top,
+    };
+    let frame = dir.path().join("frame.jpg");
+    std::fs::write(&frame, renderer.render_jpeg(&scene, 95)).unwrap();
+    let grid = layerwise::rectify::Grid {
+        x_min: -137.5,
+        x_max: 137.5,
+        y_min: -137.5,
+        y_max: 137.5,
+        pixel_mm: 0.5,
+    };
+    let calibration = layerwise::rectify::Calibration {
+        homography: truth.m,
+        distortion: None,
+        grid: Some(grid),
+        fit: None,
+    };
+    let cal = dir.path().join("calibration.toml");
+    std::fs::write(&cal, calibration.to_toml()).unwrap();
+    for out in ["top.png", "top.dcm"] {
+        let out = dir.path().join(out);
+        let run = layerwise()
+            .arg("rectify")
+            .arg("--calibration")
+            .arg(&cal)
+            .arg("--image")
+            .arg(&frame)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        assert!(std::fs::metadata(&out).unwrap().len() > 1000);
+    }
+    let png = image::open(dir.path().join("top.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (550, 550));
+    let info = layerwise()
+        .args(["dicom", "info", "--json"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let series: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(series[0]["rows"], 550);
+    assert_eq!(series[0]["first_position"][0], -137.25);
+    let bad = dir.path().join("bad.jpg");
+    std::fs::write(&bad, b"\xff\xd8not a jpeg at all").unwrap();
+    let run = layerwise()
+        .arg("rectify")
+        .arg("--calibration")
+        .arg(&cal)
+        .arg("--image")
+        .arg(&bad)
+        .arg("--out")
+        .arg(dir.path().join("x.png"))
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("bad.jpg"));
+}

@@ -3,7 +3,7 @@
 mod common;
 
 use common::*;
-use layerwise::acquisition::processing::{FrameProcessor, KeepOriginals};
+use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::acquisition::{run, AcquisitionError, RunOptions};
 use layerwise::lights::{LightSwitch, MockLightsLog};
 use layerwise::view::{Light, Phase, Shot};

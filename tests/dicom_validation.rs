@@ -5,7 +5,7 @@
 mod common;
 
 use common::*;
-use layerwise::acquisition::series::{series_dir, LayerHeights, LiveSeries};
+use layerwise::acquisition::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::acquisition::{run, RunOptions};
 use layerwise::config::{CameraConfig, Config};
 use layerwise::dicom::Compression;
@@ -103,15 +103,8 @@ fn write_expectations(build: &Path, config: &Config, layers: u32, expected: &Pat
         serde_json::from_slice(&std::fs::read(build.join("build.json")).unwrap()).unwrap();
     let calibration = Calibration::load(config.calibration.file.as_ref().unwrap()).unwrap();
     let heights = LayerHeights::uniform(config.build.layer_thickness_mm);
-    let live = LiveSeries::new(
-        &manifest,
-        &config.views.all(),
-        &calibration,
-        config.rectify,
-        heights.clone(),
-        Compression::None,
-    )
-    .unwrap();
+    let settings = SeriesSettings::from_config(config).unwrap();
+    let live = LiveSeries::new(&manifest, &config.views.all(), &calibration, settings).unwrap();
     let g = config.rectify;
     for view in config.views.all() {
         let z: serde_json::Map<String, serde_json::Value> = (1..=layers)

@@ -617,16 +617,10 @@ fn default_processor(
     };
     let calibration = crate::rectify::Calibration::load(path)
         .map_err(|e| AcquisitionError::Runtime(e.to_string()))?;
-    let heights = series::LayerHeights::from_config(config).map_err(AcquisitionError::Runtime)?;
-    let live = series::LiveSeries::new(
-        manifest,
-        &config.views.all(),
-        &calibration,
-        config.rectify,
-        heights,
-        config.storage.dicom,
-    )
-    .map_err(AcquisitionError::Runtime)?;
+    let settings =
+        series::SeriesSettings::from_config(config).map_err(AcquisitionError::Runtime)?;
+    let live = series::LiveSeries::new(manifest, &config.views.all(), &calibration, settings)
+        .map_err(AcquisitionError::Runtime)?;
     Ok(Arc::new(live))
 }
 

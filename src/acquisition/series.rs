@@ -63,6 +63,50 @@ impl LayerHeights {
     }
 }
 
+/// How the live series are made.
+#[derive(Clone, Debug)]
+pub struct SeriesSettings {
+    pub grid: Grid,
+    pub heights: LayerHeights,
+    pub compression: Compression,
+    pub interpolation: Interpolation,
+    pub fill: u16,
+}
+
+impl SeriesSettings {
+    /// From the daemon's configuration: the grid (cropped around `calibration.crop_part` when
+    /// set), layer heights, transfer syntax and interpolation.
+    pub fn from_config(config: &Config) -> Result<SeriesSettings, String> {
+        let grid = match (config.calibration.crop_part, &config.build.vectors) {
+            (Some(part), Some(vectors)) => {
+                let info = crate::vectors::info(vectors).map_err(|e| e.to_string())?;
+                let bbox = info
+                    .parts
+                    .iter()
+                    .find(|p| p.id == part)
+                    .and_then(|p| p.bbox)
+                    .ok_or_else(|| {
+                        format!(
+                            "calibration.crop_part: {} has no part {part} with geometry",
+                            vectors.display()
+                        )
+                    })?;
+                config
+                    .rectify
+                    .around(bbox, config.calibration.crop_margin_mm)
+            }
+            _ => config.rectify,
+        };
+        Ok(SeriesSettings {
+            grid,
+            heights: LayerHeights::from_config(config)?,
+            compression: config.storage.dicom,
+            interpolation: config.calibration.interpolation,
+            fill: config.calibration.fill,
+        })
+    }
+}
+
 /// One series per view, all in the build's study.
 pub struct LiveSeries {
     study: Study,
@@ -82,10 +126,15 @@ impl LiveSeries {
         manifest: &BuildManifest,
         views: &[View],
         calibration: &Calibration,
-        grid: Grid,
-        heights: LayerHeights,
-        compression: Compression,
+        settings: SeriesSettings,
     ) -> Result<LiveSeries, String> {
+        let SeriesSettings {
+            grid,
+            heights,
+            compression,
+            interpolation,
+            fill,
+        } = settings;
         let study = Study::of_build(manifest);
         let series = views
             .iter()
@@ -101,8 +150,8 @@ impl LiveSeries {
             calibration.homography,
             grid,
             calibration.distortion,
-            Interpolation::Bilinear,
-            0,
+            interpolation,
+            fill,
         )
         .map_err(|e| format!("calibration: {e}"))?;
         Ok(LiveSeries {

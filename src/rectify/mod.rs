@@ -14,8 +14,10 @@
 //! See `warp.rs` for the exact border rule and the fixed-point bilinear.
 
 pub mod calibration;
+mod crop;
 mod decode;
 mod distortion;
+mod file;
 mod grid;
 mod homography;
 #[cfg(target_arch = "x86_64")]
@@ -29,6 +31,7 @@ use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 pub use calibration::Calibration;
 pub use decode::{decode_jpeg, luma};
 pub use distortion::RadialDistortion;
+pub use file::{rectify_file, RectifyFileError};
 pub use grid::Grid;
 pub use homography::homography_from_points;
 pub use warp::Rectifier;
@@ -39,8 +42,10 @@ pub type Gray16Image = ImageBuffer<Luma<u16>, Vec<u16>>;
 pub type Rgb16Image = ImageBuffer<Rgb<u16>, Vec<u16>>;
 
 /// Resampling kernel.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Interpolation {
+    #[default]
     /// 2x2 bilinear, exact fixed point with 11-bit position fractions.
     Bilinear,
     /// 4x4 Keys cubic convolution with A = −0.75 (OpenCV's INTER_CUBIC),

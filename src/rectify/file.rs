@@ -1,0 +1,113 @@
+//! `layerwise rectify`: one frame through a calibration, to a PNG (colour kept) or to a DICOM
+//! slice (luma, as the live series hold it).
+
+use super::{decode_jpeg, luma, Calibration, Grid, Interpolation, Rectifier};
+use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RectifyFileError {
+    #[error(transparent)]
+    Calibration(#[from] crate::config::ConfigError),
+    #[error("{path}: {message}")]
+    Image { path: String, message: String },
+    #[error("{0}")]
+    Rectify(#[from] super::RectifyError),
+    #[error(transparent)]
+    Dicom(#[from] dicom::DicomError),
+    #[error("{path}: the output must end in .png or .dcm")]
+    OutputKind { path: String },
+}
+
+/// Rectifies `image` through `calibration` onto its grid (or the whole plate) and writes `out`.
+pub fn rectify_file(
+    calibration: &Path,
+    image: &Path,
+    out: &Path,
+    layer: u32,
+    layer_thickness_mm: f64,
+) -> Result<Grid, RectifyFileError> {
+    let calibration = Calibration::load(calibration)?;
+    let grid = calibration.grid.unwrap_or_default();
+    let rectifier = Rectifier::new(
+        calibration.homography,
+        grid,
+        calibration.distortion,
+        Interpolation::Bilinear,
+        0,
+    )?;
+    let bad_image = |message: String| RectifyFileError::Image {
+        path: image.display().to_string(),
+        message,
+    };
+    let bytes = std::fs::read(image).map_err(|e| bad_image(e.to_string()))?;
+    let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
+    let decoded = if is_jpeg {
+        decode_jpeg(&bytes).map_err(|e| bad_image(e.to_string()))?
+    } else {
+        image::load_from_memory(&bytes).map_err(|e| bad_image(e.to_string()))?
+    };
+    match out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("png") => {
+            rectifier
+                .rectify_dynamic(&decoded)
+                .save(out)
+                .map_err(|e| RectifyFileError::Image {
+                    path: out.display().to_string(),
+                    message: e.to_string(),
+                })?;
+        }
+        Some("dcm") => {
+            let gray = match decoded {
+                image::DynamicImage::ImageLuma8(g) => g,
+                other => luma(&other.to_rgb8()),
+            };
+            let rectified = rectifier.rectify_gray8(&gray);
+            let pixels: Vec<u16> = rectified.as_raw().iter().map(|&v| v as u16).collect();
+            let now = chrono::Utc::now();
+            let study_uid = crate::acquisition::status::new_uid();
+            let study = Study {
+                frame_of_reference_uid: dicom::derived_uid(&study_uid, "frame-of-reference"),
+                study_instance_uid: study_uid,
+                date: now.format("%Y%m%d").to_string(),
+                time: now.format("%H%M%S").to_string(),
+                patient_name: "layerwise^".into(),
+                patient_id: "rectify".into(),
+                study_id: "1".into(),
+                description: format!("layerwise rectify {}", image.display()),
+            };
+            let series = Series::named(&study, 1, "rectified");
+            let plane = Plane {
+                origin: [
+                    grid.x_min + grid.pixel_mm / 2.0,
+                    grid.y_max - grid.pixel_mm / 2.0,
+                    layer as f64 * layer_thickness_mm,
+                ],
+                pixel_mm: grid.pixel_mm,
+                rows: grid.rows(),
+                columns: grid.columns(),
+                thickness_mm: layer_thickness_mm,
+            };
+            let slice = Slice {
+                layer,
+                plane,
+                pixels: &pixels,
+                acquired: None,
+                window: (128.0, 256.0),
+                derivation: "camera frame luma (BT.601), rectified to the build plane through the calibration homography",
+            };
+            dicom::write_slice(out, &study, &series, &slice, Compression::None)?;
+        }
+        _ => {
+            return Err(RectifyFileError::OutputKind {
+                path: out.display().to_string(),
+            })
+        }
+    }
+    Ok(grid)
+}
