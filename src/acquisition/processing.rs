@@ -5,6 +5,7 @@
 use super::journal::{Journal, Record};
 use crate::view::Shot;
 use chrono::Utc;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
@@ -171,10 +172,20 @@ fn worker_loop(
             return;
         }
         match receiver.recv_timeout(Duration::from_millis(200)) {
-            Ok((shot, original)) => {
-                if !caught_up.remove(&shot) {
-                    run(shot, &original)
+            Ok(first) => {
+                // One frame per core at a time: decoding a frame is single-threaded, so a second
+                // frame keeps the other core busy.
+                let mut batch = vec![first];
+                while batch.len() < rayon::current_num_threads().max(1) {
+                    match receiver.try_recv() {
+                        Ok(item) => batch.push(item),
+                        Err(_) => break,
+                    }
                 }
+                batch.retain(|(shot, _)| !caught_up.remove(shot));
+                batch
+                    .par_iter()
+                    .for_each(|(shot, original)| run(*shot, original));
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {

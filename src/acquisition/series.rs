@@ -165,11 +165,12 @@ impl LiveSeries {
 
     /// The rectified luma of an original, as the slice will hold it.
     pub fn rectified_luma(&self, original: &[u8]) -> Result<image::GrayImage, String> {
-        let decoded = rectify::decode_jpeg(original).map_err(|e| e.to_string())?;
-        let gray = match decoded {
-            image::DynamicImage::ImageLuma8(g) => g,
-            image::DynamicImage::ImageRgb8(rgb) => rectify::luma(&rgb),
-            other => rectify::luma(&other.to_rgb8()),
+        let gray = if original.starts_with(&[0xFF, 0xD8]) {
+            rectify::decode_jpeg_luma(original).map_err(|e| e.to_string())?
+        } else {
+            image::load_from_memory(original)
+                .map_err(|e| e.to_string())?
+                .to_luma8()
         };
         Ok(self.rectifier.rectify_gray8(&gray))
     }

@@ -20,6 +20,7 @@ mod distortion;
 mod file;
 mod grid;
 mod homography;
+mod luma_decode;
 #[cfg(target_arch = "x86_64")]
 mod simd;
 #[cfg(test)]
@@ -34,6 +35,7 @@ pub use distortion::RadialDistortion;
 pub use file::{rectify_file, RectifyFileError};
 pub use grid::Grid;
 pub use homography::homography_from_points;
+pub use luma_decode::decode_jpeg_luma;
 pub use warp::Rectifier;
 
 /// 16-bit single-channel image.

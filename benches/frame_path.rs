@@ -1,0 +1,145 @@
+//! The whole per-frame processing path on D810-size frames (7360 x 4912 JPEG) onto the full
+//! 4400 x 4400 plate grid: decode, luma, rectify, DICOM encode and atomic write, for each transfer
+//! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
+//! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
+
+use layerwise::acquisition::processing::FrameProcessor;
+use layerwise::acquisition::series::{LayerHeights, LiveSeries, SeriesSettings};
+use layerwise::acquisition::status::BuildManifest;
+use layerwise::dicom::Compression;
+use layerwise::rectify::{Calibration, Grid, Interpolation};
+use layerwise::view::{Light, Phase, Shot, View};
+use rayon::prelude::*;
+use std::time::Instant;
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let (w, h) = if full { (7360, 4912) } else { (736, 491) };
+    let truth = mock_camera::Homography::oblique_view(w, h);
+    let renderer = mock_camera::Renderer::new(w, h, truth);
+    let parts = mock_camera::demo_parts(1);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let views: Vec<View> = Phase::ALL
+        .iter()
+        .flat_map(|&phase| Light::ALL.iter().map(move |&light| View { phase, light }))
+        .collect();
+    let mut originals = Vec::new();
+    std::fs::create_dir_all(dir.path().join("raw")).expect("raw");
+    for view in &views {
+        let illumination = match view.light {
+            Light::Front => mock_camera::Illumination::Front,
+            Light::Side => mock_camera::Illumination::Side,
+            Light::Top => mock_camera::Illumination::Top,
+        };
+        let scene = mock_camera::Scene {
+            layer: 1,
+            fused: &parts,
+            scanned: view.phase == Phase::Post,
+            illumination,
+        };
+        let shot = Shot {
+            layer: 1,
+            phase: view.phase,
+            light: view.light,
+        };
+        let path = dir.path().join(format!("raw/{}.jpg", shot.stem()));
+        std::fs::write(&path, renderer.render_jpeg(&scene, 95)).expect("frame");
+        originals.push((shot, path));
+    }
+    let jpeg_mb = std::fs::metadata(&originals[0].1)
+        .map(|m| m.len())
+        .unwrap_or(0) as f64
+        / 1e6;
+    let manifest = BuildManifest {
+        name: "bench".into(),
+        id: "bench".into(),
+        created_at: chrono::Utc::now(),
+        layers_expected: None,
+        views: views.iter().map(|v| v.to_string()).collect(),
+        study_instance_uid: "2.25.1".into(),
+        frame_of_reference_uid: "2.25.2".into(),
+        software_version: "bench".into(),
+    };
+    let grid = if full {
+        Grid::plate()
+    } else {
+        Grid {
+            pixel_mm: 0.625,
+            ..Grid::plate()
+        }
+    };
+    let calibration = Calibration {
+        homography: truth.m,
+        distortion: None,
+        grid: Some(grid),
+        fit: None,
+    };
+    let mut compressions = vec![Compression::None, Compression::Deflate];
+    if cfg!(feature = "jpegls") {
+        compressions.push(Compression::JpegLs);
+    }
+    println!(
+        "frames {w}x{h} JPEG ({jpeg_mb:.1} MB each) -> grid {}x{} at {} mm",
+        grid.columns(),
+        grid.rows(),
+        grid.pixel_mm
+    );
+    // The parts of the path on their own, for one frame.
+    let bytes = std::fs::read(&originals[5].1).expect("frame");
+    let t = Instant::now();
+    let decoded = layerwise::rectify::decode_jpeg(&bytes).expect("decode");
+    let decode_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let _ = layerwise::rectify::luma(&decoded.to_rgb8());
+    let luma_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let gray = layerwise::rectify::decode_jpeg_luma(&bytes).expect("decode");
+    let luma_decode_ms = t.elapsed().as_secs_f64() * 1e3;
+    let rectifier =
+        layerwise::rectify::Rectifier::new(truth.m, grid, None, Interpolation::Bilinear, 0)
+            .expect("rectifier");
+    let t = Instant::now();
+    let _ = rectifier.rectify_gray8(&gray);
+    let rectify_ms = t.elapsed().as_secs_f64() * 1e3;
+    println!("one frame: colour decode {decode_ms:.0} ms + luma {luma_ms:.0} ms, or luma-only decode {luma_decode_ms:.0} ms (used); rectify {rectify_ms:.0} ms");
+    for compression in compressions {
+        let settings = SeriesSettings {
+            grid,
+            heights: LayerHeights::uniform(0.03),
+            compression,
+            interpolation: Interpolation::Bilinear,
+            fill: 0,
+        };
+        let live = LiveSeries::new(&manifest, &views, &calibration, settings).expect("series");
+        let mut layer_totals = Vec::new();
+        let mut per_frame = Vec::new();
+        for _ in 0..if full { 3 } else { 1 } {
+            for (shot, path) in &originals {
+                let t = Instant::now();
+                live.process(dir.path(), *shot, path).expect("process");
+                per_frame.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            // As the processing worker does it: one frame per core at a time.
+            let layer = Instant::now();
+            originals
+                .par_iter()
+                .for_each(|(shot, path)| live.process(dir.path(), *shot, path).expect("process"));
+            layer_totals.push(layer.elapsed().as_secs_f64());
+        }
+        let size = std::fs::metadata(dir.path().join("dicom/post_top/L00001.dcm"))
+            .map(|m| m.len())
+            .unwrap_or(0);
+        println!(
+            "{compression:?}: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s (target < 2 s); {:.1} MB per slice, {:.0} MB per layer",
+            median(per_frame),
+            median(layer_totals),
+            size as f64 / 1e6,
+            6.0 * size as f64 / 1e6
+        );
+    }
+}
