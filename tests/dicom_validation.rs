@@ -309,3 +309,86 @@ fn a_truncated_file_is_named_by_dicom_info() {
     // The other series are untouched.
     assert_eq!(all_dcm(&build).len(), 6);
 }
+
+/// A vector file with the demo box (20 x 12 mm at (50, 50)) as part 7 over `layers` layers of
+/// 0.04 mm starting at z = 0.04.
+fn box_vectors(path: &Path, layers: usize) {
+    use layerwise::vectors::{Direction, Format, Header, Layer, Polyline, VectorFile};
+    let mut header = Header::new(Format::Ascii, 0.001);
+    header.labels.push((7, "box".into()));
+    let mut file = VectorFile {
+        header,
+        layers: Vec::new(),
+    };
+    for k in 0..layers {
+        let mut layer = Layer::new(k, 0.04 * (k + 1) as f64);
+        layer.polylines.push(Polyline {
+            part: 7,
+            direction: Direction::CounterClockwise,
+            points: vec![
+                [40.0, 44.0],
+                [60.0, 44.0],
+                [60.0, 56.0],
+                [40.0, 56.0],
+                [40.0, 44.0],
+            ],
+        });
+        file.layers.push(layer);
+    }
+    let mut out = std::fs::File::create(path).unwrap();
+    layerwise::vectors::write_ascii(&file, &mut out).unwrap();
+}
+
+#[test]
+fn a_part_crop_and_vector_layer_heights_shape_the_series() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = calibrated_config(&build, 3, Compression::None);
+    let vectors = dir.path().join("build.cli");
+    box_vectors(&vectors, 3);
+    config.build.vectors = Some(vectors);
+    config.calibration.crop_part = Some(7);
+    config.calibration.crop_margin_mm = 5.0;
+    runtime().block_on(run(&config, drained())).unwrap();
+    let out = layerwise()
+        .args(["dicom", "info", "--json"])
+        .arg(build.join("dicom/post_top"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let series: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // 30 x 22 mm at 0.5 mm around the box, on the plate's pixel lattice.
+    assert_eq!(
+        (series[0]["columns"].as_u64(), series[0]["rows"].as_u64()),
+        (Some(60), Some(44))
+    );
+    let origin = &series[0]["first_position"];
+    assert_eq!(
+        (origin[0].as_f64(), origin[1].as_f64()),
+        (Some(35.25), Some(60.75))
+    );
+    assert!((series[0]["z_min"].as_f64().unwrap() - 0.04).abs() < 1e-9);
+    assert!((series[0]["z_max"].as_f64().unwrap() - 0.12).abs() < 1e-9);
+    for file in all_dcm(&build) {
+        assert!(dciodvfy_errors(&file).is_empty(), "{}", file.display());
+    }
+    // The crop shows the box: its center is fused metal, its margin powder.
+    let dump = Command::new(python())
+        .args(["-c", "import sys, pydicom; a = pydicom.dcmread(sys.argv[1]).pixel_array.astype(float); print(a[17:27, 25:35].std(), a[0:6, 0:6].std())"])
+        .arg(build.join("dicom/post_top/L00003.dcm"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&dump.stdout);
+    let stds: Vec<f64> = text
+        .split_whitespace()
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    assert!(
+        stds.len() == 2 && stds[0] > 3.0 * stds[1],
+        "box vs margin std: {text}"
+    );
+}
