@@ -7,6 +7,7 @@ pub mod config;
 pub mod dicom;
 pub mod lights;
 pub mod logging;
+pub mod optics;
 pub mod rectify;
 pub mod trigger;
 pub mod vectors;

@@ -60,6 +60,31 @@ enum Command {
         #[arg(long, default_value_t = 0.03)]
         layer_thickness_mm: f64,
     },
+    /// Plan the camera: magnification, resolution, depth of field (paper eq. 1-4) and the
+    /// Scheimpflug lens tilt that puts the plane of focus on the plate.
+    Optics {
+        #[arg(long, default_value_t = 45.0)]
+        focal_mm: f64,
+        #[arg(long, default_value_t = 32.0)]
+        f_number: f64,
+        #[arg(long, default_value_t = 4.88)]
+        pixel_um: f64,
+        #[arg(long, default_value = "7360x4912")]
+        sensor: String,
+        /// Object distance from the lens to the plate's center, along the optical axis.
+        #[arg(long)]
+        distance_mm: f64,
+        /// Optical axis off the plate normal.
+        #[arg(long, default_value_t = 30.0)]
+        angle_deg: f64,
+        #[arg(long, default_value_t = 275.0)]
+        plate_mm: f64,
+        #[arg(long)]
+        json: bool,
+        /// Draw the paper's Fig. 3 and 4 (without and with tilt).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+    },
     /// DICOM series of a build.
     Dicom {
         #[command(subcommand)]
@@ -152,6 +177,38 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Optics {
+            focal_mm,
+            f_number,
+            pixel_um,
+            sensor,
+            distance_mm,
+            angle_deg,
+            plate_mm,
+            json,
+            plot,
+        } => {
+            use layerwise::optics;
+            let input = optics::OpticsInput {
+                focal_mm,
+                f_number,
+                pixel_um,
+                sensor_px: optics::parse_sensor(&sensor)?,
+                distance_mm,
+                angle_deg,
+                plate_mm,
+            };
+            let report = optics::plan(&input)?;
+            if let Some(path) = plot {
+                std::fs::write(&path, optics::plot_svg(&input, &report))
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!("{}", report.to_string().trim_end());
+            }
+        }
         Command::Rectify {
             calibration,
             image,

@@ -406,3 +406,78 @@ fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("bad.jpg"));
 }
+
+#[test]
+fn optics_json_keys_and_values_for_the_paper_setup() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("dof.svg");
+    let out = layerwise()
+        .args([
+            "optics",
+            "--focal-mm",
+            "45",
+            "--f-number",
+            "32",
+            "--pixel-um",
+            "4.88",
+            "--sensor",
+            "7360x4912",
+        ])
+        .args([
+            "--distance-mm",
+            "500",
+            "--angle-deg",
+            "30",
+            "--plate-mm",
+            "275",
+            "--json",
+            "--plot",
+        ])
+        .arg(&svg)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // By hand from eq. 1-4: M = 45/455; d/M; H = (45/32)·45/0.00488 + 45; near/far from eq. 3, 4.
+    let m = 45.0 / 455.0;
+    let h = (45.0 / 32.0) * 45.0 / 0.00488 + 45.0;
+    let near = 500.0 * (h - 45.0) / (h + 500.0 - 90.0);
+    let far = 500.0 * (h - 45.0) / (h - 500.0);
+    let close = |key: &str, want: f64| {
+        let got = r[key].as_f64().unwrap_or(f64::NAN);
+        assert!(
+            (got - want).abs() <= 1e-6 * want.abs().max(1.0),
+            "{key}: {got} vs {want}"
+        );
+    };
+    close("magnification", m);
+    close("resolution_center_um", 4.88 / m);
+    close("hyperfocal_mm", h);
+    close("near_mm", near);
+    close("far_mm", far);
+    assert_eq!(r["plate_in_focus_without_tilt"], false);
+    // Scheimpflug: tan α = M tan 30°.
+    close(
+        "scheimpflug_tilt_deg",
+        (m * 30f64.to_radians().tan()).atan().to_degrees(),
+    );
+    let text = std::fs::read_to_string(&svg).unwrap();
+    assert!(text.starts_with("<svg") && text.contains("Scheimpflug"));
+    // Beyond the hyperfocal distance the far limit is infinite: null.
+    let out = layerwise()
+        .args(["optics", "--distance-mm", "20000", "--json"])
+        .output()
+        .unwrap();
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(r["far_mm"].is_null());
+    let out = layerwise()
+        .args(["optics", "--distance-mm", "30"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("focal length"));
+}

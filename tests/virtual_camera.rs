@@ -13,11 +13,21 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 fn vcam_libdir() -> PathBuf {
-    let dir = std::env::var_os("LAYERWISE_VCAM_LIBDIR").expect(
-        "LAYERWISE_VCAM_LIBDIR is not set: run `bash tests/run.sh`, which installs the PyPI gphoto2 wheel \
-         (it bundles libgphoto2 with the vusb virtual camera) and sets it",
+    // tests/run.sh exports it; otherwise look in the venv it makes.
+    let dir = std::env::var_os("LAYERWISE_VCAM_LIBDIR")
+        .map(PathBuf::from)
+        .or_else(|| {
+            let lib = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv/lib");
+            std::fs::read_dir(lib)
+                .ok()?
+                .filter_map(|e| e.ok())
+                .map(|e| e.path().join("site-packages/gphoto2/libgphoto2"))
+                .find(|p| p.is_dir())
+        });
+    let dir = dir.expect(
+        "no libgphoto2 with the vusb virtual camera: run `bash tests/run.sh`, which installs the PyPI gphoto2 wheel \
+         in target/test-venv (or set LAYERWISE_VCAM_LIBDIR to its gphoto2/libgphoto2 folder)",
     );
-    let dir = PathBuf::from(dir);
     assert!(
         dir.join("vusb").is_dir(),
         "{} has no vusb/ folder",

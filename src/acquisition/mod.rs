@@ -408,6 +408,7 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         frame_of_reference_uid: status::new_uid(),
         software_version: env!("CARGO_PKG_VERSION").to_string(),
     })?;
+    snapshot_configuration(config, &storage)?;
     let (mut journal, mut replay) =
         Journal::open(&dir.join(status::JOURNAL), config.storage.fsync)?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
@@ -604,6 +605,27 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
     info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
     Ok(summary)
+}
+
+/// Leaves the configuration in force (`config.toml`) and a copy of the calibration
+/// (`calibration.toml`) in the build directory, so export and locate know how the build was made.
+fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), AcquisitionError> {
+    let dir = storage.root();
+    let text = toml::to_string(config)
+        .map_err(|e| AcquisitionError::Runtime(format!("cannot record the configuration: {e}")))?;
+    storage.write_atomic(&dir.join(status::CONFIG_SNAPSHOT), text.as_bytes())?;
+    if let Some(calibration) = &config.calibration.file {
+        let target = dir.join(status::CALIBRATION_COPY);
+        let same = std::fs::canonicalize(calibration).ok() == std::fs::canonicalize(&target).ok();
+        if !same {
+            let bytes = std::fs::read(calibration).map_err(|source| StorageError {
+                path: calibration.clone(),
+                source,
+            })?;
+            storage.write_atomic(&target, &bytes)?;
+        }
+    }
+    Ok(())
 }
 
 /// The live DICOM series when a calibration is configured; else the originals are only kept.

@@ -13,6 +13,10 @@ use std::path::{Path, PathBuf};
 pub const MANIFEST: &str = "build.json";
 pub const STATUS: &str = "status.json";
 pub const JOURNAL: &str = "journal.jsonl";
+/// The configuration the daemon last ran with.
+pub const CONFIG_SNAPSHOT: &str = "config.toml";
+/// The calibration the daemon last ran with.
+pub const CALIBRATION_COPY: &str = "calibration.toml";
 
 /// Facts of a build fixed at its start: one study, one frame of reference, one StudyDate/Time.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
