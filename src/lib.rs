@@ -5,6 +5,7 @@ pub mod acquisition;
 pub mod camera;
 pub mod config;
 pub mod dicom;
+pub mod export;
 pub mod lights;
 pub mod logging;
 pub mod optics;

@@ -85,6 +85,24 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Where a build point is: its layer, its pixel in each rectified view and in each original frame.
+    Locate {
+        #[arg(long)]
+        build: PathBuf,
+        /// x,y,z in build mm.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            required = true
+        )]
+        point: Vec<f64>,
+        #[arg(long)]
+        json: bool,
+        /// Draw the point in each view, side by side.
+        #[arg(long)]
+        mark: Option<PathBuf>,
+    },
     /// DICOM series of a build.
     Dicom {
         #[command(subcommand)]
@@ -177,6 +195,26 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Locate {
+            build,
+            point,
+            json,
+            mark,
+        } => {
+            let point: [f64; 3] = point
+                .try_into()
+                .map_err(|_| anyhow::anyhow!("--point takes x,y,z in mm"))?;
+            let record = layerwise::export::BuildRecord::open(&build)?;
+            let location = layerwise::export::locate(&record, point)?;
+            if let Some(out) = mark {
+                layerwise::export::mark(&record, &location, &out)?;
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&location)?);
+            } else {
+                print!("{location}");
+            }
+        }
         Command::Optics {
             focal_mm,
             f_number,

@@ -481,3 +481,73 @@ fn optics_json_keys_and_values_for_the_paper_setup() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("focal length"));
 }
+
+#[test]
+fn locate_finds_a_point_in_every_view_and_marks_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("demo");
+    let out = layerwise()
+        .args(["demo", "--layers", "2", "--out"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The cylinder's center of mock_camera::demo_parts, in layer 2 (z in (0.03, 0.06]).
+    let mark = dir.path().join("mark.png");
+    let out = layerwise()
+        .args(["locate", "--json", "--point", "-60,40,0.05", "--build"])
+        .arg(&build)
+        .arg("--mark")
+        .arg(&mark)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let loc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(loc["layer"], 2);
+    let views = loc["views"].as_array().unwrap();
+    assert_eq!(views.len(), 6);
+    // The demo grid is the plate at 0.25 mm: row = (137.5 − 40)/0.25 − 0.5, column = (−60 + 137.5)/0.25 − 0.5.
+    let truth = mock_camera::Homography::oblique_view(1472, 982)
+        .inverse()
+        .unwrap();
+    let (u, v) = truth.apply(-60.0, 40.0).unwrap();
+    for view in views {
+        assert_eq!(view["rectified_pixel"], serde_json::json!([389.5, 309.5]));
+        let [iu, iv] = [
+            view["image_pixel"][0].as_f64().unwrap(),
+            view["image_pixel"][1].as_f64().unwrap(),
+        ];
+        assert!(
+            (iu - u).abs() < 1e-6 && (iv - v).abs() < 1e-6,
+            "{iu},{iv} vs {u},{v}"
+        );
+        assert!(view["dicom"].as_str().unwrap().ends_with("L00002.dcm"));
+        assert!(view["original"].as_str().unwrap().ends_with(".jpg"));
+    }
+    let sheet = image::open(&mark).unwrap().to_rgb8();
+    assert_eq!(sheet.height(), 161);
+    assert!(
+        sheet.pixels().any(|p| p.0 == [0, 255, 0]),
+        "no marker drawn"
+    );
+    let bad = layerwise()
+        .args(["locate", "--point", "1,2", "--build"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    let not_build = layerwise()
+        .args(["locate", "--point", "1,2,3", "--build"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&not_build.stderr).contains("not a layerwise build directory"));
+}

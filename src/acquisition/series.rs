@@ -47,6 +47,25 @@ impl LayerHeights {
         }
     }
 
+    /// The layer whose slab (z of the layer below, z of the layer] holds `z`.
+    pub fn layer_at(&self, z: f64) -> Option<u32> {
+        match &self.z_mm {
+            Some(zs) => {
+                let k = zs.partition_point(|&top| top < z - 1e-9);
+                let bottom = if k == 0 {
+                    zs.first().map(|z1| z1 - self.thickness_mm)?
+                } else {
+                    zs[k - 1]
+                };
+                (k < zs.len() && z > bottom - 1e-9).then_some(k as u32 + 1)
+            }
+            None => {
+                let k = (z / self.thickness_mm - 1e-9).ceil();
+                (k >= 1.0 && k <= u32::MAX as f64).then_some(k as u32)
+            }
+        }
+    }
+
     /// Thickness of layer `layer`: its z minus the one below.
     pub fn thickness(&self, layer: u32) -> f64 {
         match &self.z_mm {
