@@ -277,3 +277,241 @@ fn crop_with_marker(img: &image::GrayImage, row: f64, col: f64, half: i64) -> im
     }
     tile
 }
+
+/// What `layerwise export` writes.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum ExportFormat {
+    Dicom,
+    Nrrd,
+}
+
+#[derive(Clone, Debug)]
+pub struct ExportRequest {
+    pub build: PathBuf,
+    pub out: PathBuf,
+    /// Crop every series to this part's bounding box (from the build's vector file) plus a margin.
+    pub part: Option<i64>,
+    pub margin_mm: f64,
+    pub format: ExportFormat,
+    pub progress: bool,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ExportSummary {
+    pub out: PathBuf,
+    pub grid: [f64; 5],
+    pub rows: usize,
+    pub columns: usize,
+    /// Series name and slice count.
+    pub series: Vec<(String, usize)>,
+    pub written: usize,
+    pub unchanged: usize,
+}
+
+/// The originals of a build, per view, in layer order.
+fn originals_by_view(
+    dir: &Path,
+) -> Result<std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>, ExportError> {
+    let raw = dir.join("raw");
+    let entries = std::fs::read_dir(&raw).map_err(|e| ExportError::Io {
+        path: raw.clone(),
+        message: e.to_string(),
+    })?;
+    let mut out: std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>> = Default::default();
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let (Some(stem), Some(ext)) = (path.file_stem(), path.extension()) else {
+            continue;
+        };
+        if ext == "json" || stem.to_string_lossy().starts_with('.') {
+            continue;
+        }
+        if let Some(shot) = Shot::from_stem(&stem.to_string_lossy()) {
+            out.entry(shot.view()).or_default().push((shot, path));
+        }
+    }
+    for shots in out.values_mut() {
+        shots.sort();
+    }
+    Ok(out)
+}
+
+/// Exports the build's image views (and, as they become available, the rasterized vectors and the
+/// registered CT) as series of one study on one grid. Re-running rewrites nothing that is already
+/// there: series and instance UIDs are derived, so the files would be identical.
+pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
+    let record = BuildRecord::open(&request.build)?;
+    let calibration = record.calibration.clone().ok_or_else(|| {
+        ExportError::Invalid(format!(
+            "{}: no calibration.toml: the views cannot be rectified",
+            request.build.display()
+        ))
+    })?;
+    let manifest: status::BuildManifest = std::fs::read(request.build.join(status::MANIFEST))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok())
+        .ok_or(ExportError::NotABuild(
+            request.build.clone(),
+            status::MANIFEST,
+        ))?;
+    let mut settings = SeriesSettings::from_config(&record.config).map_err(ExportError::Invalid)?;
+    let label = match request.part {
+        Some(part) => {
+            let vectors = record.config.build.vectors.as_ref().ok_or_else(|| {
+                ExportError::Invalid(
+                    "--part needs the build's vector file (build.vectors in its configuration)"
+                        .into(),
+                )
+            })?;
+            let info =
+                crate::vectors::info(vectors).map_err(|e| ExportError::Invalid(e.to_string()))?;
+            let bbox = info
+                .parts
+                .iter()
+                .find(|p| p.id == part)
+                .and_then(|p| p.bbox)
+                .ok_or_else(|| {
+                    ExportError::Invalid(format!(
+                        "{}: no part {part} with geometry",
+                        vectors.display()
+                    ))
+                })?;
+            settings.grid = record.config.rectify.around(bbox, request.margin_mm);
+            format!("part {part}")
+        }
+        None => "export".to_string(),
+    };
+    settings.compression = crate::dicom::Compression::Deflate;
+    let grid = settings.grid;
+    let heights = settings.heights.clone();
+    let views = record.config.views.all();
+    let live =
+        crate::acquisition::series::LiveSeries::new(&manifest, &views, &calibration, settings)
+            .map_err(ExportError::Invalid)?
+            .relabelled(&request.out, &label, 10);
+    let originals = originals_by_view(&request.build)?;
+    let total: usize = originals.values().map(Vec::len).sum();
+    let bar = if request.progress {
+        indicatif::ProgressBar::new(total as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{msg:>12} [{bar:40}] {pos}/{len} frames, {eta} left",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let mut summary = ExportSummary {
+        out: request.out.clone(),
+        grid: [
+            grid.x_min,
+            grid.x_max,
+            grid.y_min,
+            grid.y_max,
+            grid.pixel_mm,
+        ],
+        rows: grid.rows(),
+        columns: grid.columns(),
+        series: Vec::new(),
+        written: 0,
+        unchanged: 0,
+    };
+    for view in &views {
+        let shots = originals.get(view).map(Vec::as_slice).unwrap_or_default();
+        bar.set_message(view.to_string());
+        let mut volume: Vec<u16> = Vec::new();
+        let mut zs = Vec::new();
+        for (shot, path) in shots {
+            let bytes = std::fs::read(path).map_err(|e| ExportError::Io {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            match request.format {
+                ExportFormat::Dicom => {
+                    let target = live.slice_path(&request.build, *shot);
+                    if target.exists() {
+                        summary.unchanged += 1;
+                    } else {
+                        let acquired = std::fs::read(path.with_extension("json"))
+                            .ok()
+                            .and_then(|b| {
+                                serde_json::from_slice::<crate::acquisition::storage::Sidecar>(&b)
+                                    .ok()
+                            })
+                            .map(|s| s.captured_at);
+                        live.write(&request.build, *shot, &bytes, acquired)
+                            .map_err(|message| ExportError::Io {
+                                path: path.clone(),
+                                message,
+                            })?;
+                        summary.written += 1;
+                    }
+                }
+                ExportFormat::Nrrd => {
+                    let luma = live
+                        .rectified_luma(&bytes)
+                        .map_err(|message| ExportError::Io {
+                            path: path.clone(),
+                            message,
+                        })?;
+                    volume.extend(luma.as_raw().iter().map(|&v| v as u16));
+                    zs.push(heights.z(shot.layer));
+                }
+            }
+            bar.inc(1);
+        }
+        let name = if label == "export" {
+            view.to_string()
+        } else {
+            format!("{view}_{}", label.replace(' ', "_"))
+        };
+        if request.format == ExportFormat::Nrrd && !zs.is_empty() {
+            let path = request.out.join(format!("{name}.nrrd"));
+            write_nrrd_u16(&path, &volume, grid, &zs)?;
+            summary.written += 1;
+        }
+        summary.series.push((name, shots.len()));
+    }
+    bar.finish_and_clear();
+    Ok(summary)
+}
+
+/// A 3D NRRD (raw, little endian) in the build frame: for 3D Slicer or napari without DICOM.
+/// Slices must be equally spaced in z (layers of one thickness).
+fn write_nrrd_u16(path: &Path, volume: &[u16], grid: Grid, zs: &[f64]) -> Result<(), ExportError> {
+    let dz = if zs.len() > 1 {
+        (zs[zs.len() - 1] - zs[0]) / (zs.len() - 1) as f64
+    } else {
+        1.0
+    };
+    let p = grid.pixel_mm;
+    let header = format!(
+        "NRRD0004\n# layerwise: build frame of docs/frames.md, mm\ntype: uint16\ndimension: 3\nspace dimension: 3\nsizes: {} {} {}\nspace directions: ({p},0,0) (0,{},0) (0,0,{dz})\nkinds: domain domain domain\nendian: little\nencoding: raw\nspace origin: ({},{},{})\nspace units: \"mm\" \"mm\" \"mm\"\n\n",
+        grid.columns(),
+        grid.rows(),
+        zs.len(),
+        -p,
+        grid.x_min + p / 2.0,
+        grid.y_max - p / 2.0,
+        zs[0]
+    );
+    let mut bytes = header.into_bytes();
+    bytes.reserve(volume.len() * 2);
+    for v in volume {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| ExportError::Io {
+            path: dir.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    }
+    crate::acquisition::storage::write_atomic(path, &bytes, true).map_err(|e| ExportError::Io {
+        path: path.to_path_buf(),
+        message: e.source.to_string(),
+    })
+}

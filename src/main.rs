@@ -85,6 +85,20 @@ enum Command {
         #[arg(long)]
         plot: Option<PathBuf>,
     },
+    /// Export a build as series of one study on one grid (DICOM, or NRRD for 3D Slicer / napari).
+    Export {
+        #[arg(long)]
+        build: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Crop every series to this part (needs the build's vector file) plus --margin-mm.
+        #[arg(long)]
+        part: Option<i64>,
+        #[arg(long, default_value_t = 5.0)]
+        margin_mm: f64,
+        #[arg(long, value_enum, default_value = "dicom")]
+        format: layerwise::export::ExportFormat,
+    },
     /// Where a build point is: its layer, its pixel in each rectified view and in each original frame.
     Locate {
         #[arg(long)]
@@ -195,6 +209,35 @@ fn dispatch(command: Command) -> Result<()> {
             }
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
+        Command::Export {
+            build,
+            out,
+            part,
+            margin_mm,
+            format,
+        } => {
+            let request = layerwise::export::ExportRequest {
+                build,
+                out,
+                part,
+                margin_mm,
+                format,
+                progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            };
+            let summary = layerwise::export::export(&request)?;
+            for (name, slices) in &summary.series {
+                println!("{name:<24} {slices} slices");
+            }
+            println!(
+                "{} x {} px at {} mm; {} written, {} already there, in {}",
+                summary.columns,
+                summary.rows,
+                summary.grid[4],
+                summary.written,
+                summary.unchanged,
+                summary.out.display()
+            );
+        }
         Command::Locate {
             build,
             point,

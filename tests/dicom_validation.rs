@@ -392,3 +392,86 @@ fn a_part_crop_and_vector_layer_heights_shape_the_series() {
         "box vs margin std: {text}"
     );
 }
+
+#[test]
+fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = calibrated_config(&build, 2, Compression::None);
+    let vectors = dir.path().join("build.cli");
+    box_vectors(&vectors, 2);
+    config.build.vectors = Some(vectors);
+    runtime().block_on(run(&config, drained())).unwrap();
+    let out = dir.path().join("export");
+    let export = |extra: &[&str]| {
+        let o = layerwise()
+            .args(["export", "--build"])
+            .arg(&build)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    assert!(export(&[]).contains("12 written, 0 already there"));
+    assert!(
+        export(&[]).contains("0 written, 12 already there"),
+        "re-running is idempotent"
+    );
+    assert!(export(&["--part", "7", "--margin-mm", "5"]).contains("60 x 44 px"));
+    let mut files: Vec<PathBuf> = Vec::new();
+    for series in std::fs::read_dir(&out).unwrap() {
+        for f in std::fs::read_dir(series.unwrap().path()).unwrap() {
+            files.push(f.unwrap().path());
+        }
+    }
+    assert_eq!(files.len(), 24);
+    // Exports are deflated: dicom3tools read the explicit VR copies dcmtk converts them to.
+    let plain = dir.path().join("plain");
+    std::fs::create_dir_all(&plain).unwrap();
+    let mut converted = Vec::new();
+    for (i, file) in files.iter().enumerate() {
+        let back = plain.join(format!("{i}.dcm"));
+        let conv = tool("dcmconv")
+            .arg("+te")
+            .arg(file)
+            .arg(&back)
+            .output()
+            .unwrap();
+        assert!(conv.status.success());
+        assert!(dciodvfy_errors(&back).is_empty(), "{}", file.display());
+        converted.push(back);
+    }
+    // The live series and both exports: one study, one frame of reference, no duplicate instance.
+    let mut study = converted;
+    study.extend(all_dcm(&build));
+    let ent = tool("dcentvfy").args(&study).output().unwrap();
+    let text =
+        String::from_utf8_lossy(&ent.stderr).to_string() + &String::from_utf8_lossy(&ent.stdout);
+    assert!(
+        !text.lines().any(|l| l.starts_with("Error")),
+        "dcentvfy: {text}"
+    );
+
+    let nrrd = dir.path().join("nrrd");
+    let o = layerwise()
+        .args(["export", "--format", "nrrd", "--build"])
+        .arg(&build)
+        .arg("--out")
+        .arg(&nrrd)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let check = Command::new(python())
+        .args(["-c", "import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 1)))"])
+        .arg(nrrd.join("post_top.nrrd"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        text.contains("(550, 550, 2)") && text.contains("(-137.25, 137.25, 0.08"),
+        "{text}"
+    );
+}

@@ -130,6 +130,8 @@ impl SeriesSettings {
 pub struct LiveSeries {
     study: Study,
     series: BTreeMap<View, Series>,
+    /// Where the series folders go instead of `<build_dir>/dicom` (the exporter's).
+    root: Option<PathBuf>,
     rectifier: Rectifier,
     heights: LayerHeights,
     compression: Compression,
@@ -174,6 +176,7 @@ impl LiveSeries {
         )
         .map_err(|e| format!("calibration: {e}"))?;
         Ok(LiveSeries {
+            root: None,
             study,
             series,
             rectifier,
@@ -192,6 +195,42 @@ impl LiveSeries {
                 .to_luma8()
         };
         Ok(self.rectifier.rectify_gray8(&gray))
+    }
+
+    /// The same series under other names (`{view} {label}`, numbered from `first_number`) in
+    /// folders below `root`: how the exporter writes its copies (e.g. cropped to a part).
+    pub fn relabelled(mut self, root: &Path, label: &str, first_number: u32) -> LiveSeries {
+        for (i, (view, series)) in self.series.iter_mut().enumerate() {
+            let name = if label.is_empty() {
+                view.to_string()
+            } else {
+                format!("{view} {label}")
+            };
+            *series = Series::named(&self.study, first_number + i as u32, &name);
+        }
+        self.root = Some(root.to_path_buf());
+        self
+    }
+
+    /// Where the slice of `shot` is written.
+    pub fn slice_path(&self, build_dir: &Path, shot: Shot) -> PathBuf {
+        let dir = match &self.root {
+            Some(root) => root.join(self.series.get(&shot.view()).map_or_else(
+                || shot.view().to_string(),
+                |s| s.description.replace(' ', "_"),
+            )),
+            None => series_dir(build_dir, shot.view()),
+        };
+        dir.join(format!("L{:05}.dcm", shot.layer))
+    }
+
+    /// The grid the slices are on.
+    pub fn grid(&self) -> Grid {
+        self.rectifier.grid()
+    }
+
+    pub fn study(&self) -> &Study {
+        &self.study
     }
 
     pub fn write(
@@ -227,7 +266,7 @@ impl LiveSeries {
             window: (128.0, 256.0),
             derivation: "camera frame luma (BT.601), rectified to the build plane through the calibration homography",
         };
-        let path = series_dir(build_dir, shot.view()).join(format!("L{:05}.dcm", shot.layer));
+        let path = self.slice_path(build_dir, shot);
         dicom::write_slice(&path, &self.study, series, &slice, self.compression)
             .map_err(|e| e.to_string())?;
         Ok(path)
