@@ -7,7 +7,6 @@
 //!    overrides): it must stay flat.
 
 use layerwise::acquisition::journal::Record;
-use layerwise::acquisition::processing::KeepOriginals;
 use layerwise::acquisition::{run, RunOptions};
 use layerwise::camera::{Camera, CameraError, Frame};
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};

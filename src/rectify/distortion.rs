@@ -41,7 +41,8 @@ impl RadialDistortion {
         let f = self.focal_px;
         let (dx, dy) = ((u - cu) / f, (v - cv) / f);
         let rd = (dx * dx + dy * dy).sqrt();
-        if !rd.is_finite() || !(f > 0.0) {
+        // f ≤ 0 or NaN parameters give a non-finite rd or f.
+        if !rd.is_finite() || f.is_nan() || f <= 0.0 {
             return (f64::NAN, f64::NAN);
         }
         if rd == 0.0 {
@@ -56,7 +57,7 @@ impl RadialDistortion {
             1.0 + r2 * (3.0 * self.k1 + 5.0 * self.k2 * r2)
         };
         // Bracket [lo, hi] with g(lo) <= rd <= g(hi) on the monotonic branch.
-        let (lo, mut hi) = (0.0_f64, self.max_r2().sqrt());
+        let (mut lo, mut hi) = (0.0_f64, self.max_r2().sqrt());
         if hi.is_finite() {
             if g(hi) < rd {
                 return (f64::NAN, f64::NAN);
@@ -71,7 +72,6 @@ impl RadialDistortion {
                 }
             }
         }
-        let mut lo = lo;
         let mut r = rd.clamp(lo, hi);
         for _ in 0..100 {
             let e = g(r) - rd;
@@ -83,7 +83,8 @@ impl RadialDistortion {
             let d = dg(r);
             let mut next = r - e / d;
             // Fall back to bisection when Newton leaves the bracket.
-            if !(next > lo && next < hi) || !d.is_finite() || d <= 0.0 {
+            let in_bracket = next > lo && next < hi && d.is_finite() && d > 0.0;
+            if !in_bracket {
                 next = 0.5 * (lo + hi);
             }
             let step = (next - r).abs();

@@ -45,7 +45,7 @@ pub(crate) fn inverse(h: &Mat3) -> (Mat3, f64) {
     (inv, measure)
 }
 
-/// Homography (H[2][2] = 1) mapping each `image[i]` (u, v) to `build[i]` (x, y),
+/// Homography (`H[2][2]` = 1) mapping each `image[i]` (u, v) to `build[i]` (x, y),
 /// by the direct linear transform on Hartley-normalised points.
 ///
 /// Errors if three of the points are collinear (no unique solution).
@@ -105,15 +105,16 @@ fn normaliser(p: &[[f64; 2]; 4]) -> Result<Mat3, RectifyError> {
 fn solve8(mut a: [[f64; 9]; 8]) -> Option<[f64; 8]> {
     for col in 0..8 {
         let piv = (col..8).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if !(a[piv][col].abs() > 1e-12) {
+        if a[piv][col].abs().is_nan() || a[piv][col].abs() <= 1e-12 {
             return None;
         }
         a.swap(col, piv);
-        for r in 0..8 {
+        let pivot_row = a[col];
+        for (r, row) in a.iter_mut().enumerate() {
             if r != col {
-                let f = a[r][col] / a[col][col];
-                for k in col..9 {
-                    a[r][k] -= f * a[col][k];
+                let f = row[col] / pivot_row[col];
+                for (v, p) in row.iter_mut().zip(pivot_row).skip(col) {
+                    *v -= f * p;
                 }
             }
         }

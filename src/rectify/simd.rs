@@ -155,6 +155,12 @@ fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
             if _mm256_movemask_epi8(fits) == -1 {
                 let at = by as usize * stride + bx as usize;
                 let w = &data[at..at + 2 * stride + 16];
+                // The row after next is needed by the next grid rows; fetch
+                // it now, as curved (distorted) source paths defeat the
+                // hardware prefetcher.
+                if let Some(ahead) = data.get(at + 3 * stride) {
+                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
+                }
                 // SAFETY: each 16-byte window lies inside `w` (bounds-checked).
                 let (r0, r1, r2) = unsafe {
                     (
@@ -277,6 +283,10 @@ fn rgb8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
         );
         // SAFETY: `offs` is 8 i32; unaligned store.
         unsafe { _mm256_storeu_si256(offs.as_mut_ptr().cast(), off) };
+        // Fetch the row after next early (see gray8_run).
+        if let Some(ahead) = data.get(offs[4] as usize + 3 * stride) {
+            _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
+        }
         let wx = _mm256_or_si256(_mm256_sub_epi32(one, fx), _mm256_slli_epi32::<16>(fx));
         let mut res = [_mm256_setzero_si256(); 4];
         for (k, r) in res.iter_mut().enumerate() {
