@@ -133,6 +133,22 @@ enum Command {
 
 #[derive(Subcommand)]
 enum VectorsCommand {
+    /// Rasterize one layer onto the build grid (docs/frames.md): the fused-area mask, the
+    /// anti-aliased coverage, the RGB picture (contours blue, hatches red) or the exemplar.
+    Raster {
+        file: PathBuf,
+        /// Layer index in the file, from 0.
+        #[arg(long)]
+        layer: usize,
+        /// mask | coverage | rgb | exemplar
+        #[arg(long, default_value = "mask")]
+        kind: String,
+        #[arg(long)]
+        out: PathBuf,
+        /// Only this part, on a grid around it (2 mm margin, 62.5 µm).
+        #[arg(long)]
+        part: Option<i64>,
+    },
     /// Format, units, layers, z range, parts and counts of a CLI file.
     Info {
         file: PathBuf,
@@ -329,6 +345,41 @@ fn dispatch(command: Command) -> Result<()> {
                     print!("{s}");
                 }
             }
+        }
+        Command::Vectors {
+            command:
+                VectorsCommand::Raster {
+                    file,
+                    layer,
+                    kind,
+                    out,
+                    part,
+                },
+        } => {
+            use layerwise::raster;
+            let kind: raster::RasterKind = kind.parse()?;
+            let vectors = layerwise::vectors::read(&file)?;
+            if layer >= vectors.layers.len() {
+                anyhow::bail!(
+                    "{}: no layer {layer}: the file has layers 0 to {}",
+                    file.display(),
+                    vectors.layers.len().saturating_sub(1)
+                );
+            }
+            let grid = raster::default_grid(&vectors, part)?;
+            raster::render_to_png(&vectors, layer, kind, &grid, part, &out)?;
+            println!(
+                "{} layer {layer} -> {} ({} x {} px at {} mm, x {} … {}, y {} … {})",
+                file.display(),
+                out.display(),
+                grid.columns(),
+                grid.rows(),
+                grid.pixel_mm,
+                grid.x_min,
+                grid.x_max,
+                grid.y_min,
+                grid.y_max
+            );
         }
         Command::Vectors {
             command: VectorsCommand::Info { file, json },

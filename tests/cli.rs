@@ -551,3 +551,49 @@ fn locate_finds_a_point_in_every_view_and_marks_it() {
         .unwrap();
     assert!(String::from_utf8_lossy(&not_build.stderr).contains("not a layerwise build directory"));
 }
+
+#[test]
+fn vectors_raster_writes_each_kind_and_names_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/cli/frustrum_ASCII.cli");
+    for (kind, channels) in [("mask", 1u8), ("rgb", 3), ("exemplar", 1)] {
+        let out = dir.path().join(format!("{kind}.png"));
+        let run = layerwise()
+            .args(["vectors", "raster"])
+            .arg(&file)
+            .args(["--layer", "10", "--kind", kind, "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            run.status.success(),
+            "{kind}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let img = image::open(&out).unwrap();
+        assert_eq!(img.color().channel_count(), channels, "{kind}");
+        // The frustum's layer 10 is about 20 x 20 mm: on the 62.5 µm grid with a 2 mm margin.
+        assert!(
+            img.width() > 300 && img.width() < 420,
+            "{kind}: {}",
+            img.width()
+        );
+    }
+    let rgb = image::open(dir.path().join("rgb.png")).unwrap().to_rgb8();
+    assert!(rgb.pixels().any(|p| p.0 == [0, 0, 255]), "contours in blue");
+    assert!(rgb.pixels().any(|p| p.0 == [255, 0, 0]), "hatches in red");
+    let mask = image::open(dir.path().join("mask.png")).unwrap().to_luma8();
+    assert!(
+        mask.pixels().filter(|p| p.0[0] == 255).count() > 10_000,
+        "the layer is filled"
+    );
+    let run = layerwise()
+        .args(["vectors", "raster"])
+        .arg(&file)
+        .args(["--layer", "100", "--out"])
+        .arg(dir.path().join("x.png"))
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&run.stderr).contains("no layer 100"));
+}

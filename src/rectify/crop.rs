@@ -8,8 +8,11 @@ impl Grid {
     /// pixel is exactly a pixel of the full view.
     pub fn around(&self, bbox: [f64; 4], margin_mm: f64) -> Grid {
         let p = self.pixel_mm;
-        let snap_down = |v: f64, origin: f64| origin + ((v - origin) / p).floor() * p;
-        let snap_up = |v: f64, origin: f64| origin + ((v - origin) / p).ceil() * p;
+        // The tolerance keeps an edge already on the lattice from moving a whole pixel because of
+        // rounding in the division.
+        let eps = 1e-9;
+        let snap_down = |v: f64, origin: f64| origin + ((v - origin) / p + eps).floor() * p;
+        let snap_up = |v: f64, origin: f64| origin + ((v - origin) / p - eps).ceil() * p;
         let x_min = snap_down(bbox[0] - margin_mm, self.x_min).max(self.x_min);
         let x_max = snap_up(bbox[2] + margin_mm, self.x_min).min(self.x_max);
         let y_min = snap_down(bbox[1] - margin_mm, self.y_max).max(self.y_min);
