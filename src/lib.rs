@@ -11,6 +11,7 @@ pub mod logging;
 pub mod optics;
 pub mod raster;
 pub mod rectify;
+pub mod registration;
 pub mod trigger;
 pub mod tsdf;
 pub mod vectors;

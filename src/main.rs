@@ -1,9 +1,12 @@
 //! The `layerwise` command: parses arguments and calls the library.
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{Parser, Subcommand, ValueEnum};
 use layerwise::acquisition::{self, status, RunOptions};
 use layerwise::config::{Config, TriggerConfig, DEMO_CONFIG};
+use layerwise::registration::{
+    register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
+};
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
@@ -122,12 +125,63 @@ enum Command {
         #[command(subcommand)]
         command: DicomCommand,
     },
+    /// Registration of build images (and, later, CT) to the laser vectors.
+    Register {
+        #[command(subcommand)]
+        command: RegisterCommand,
+    },
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo {
         #[arg(long, default_value_t = 20)]
         layers: u32,
         #[arg(long, default_value = "demo-build")]
         out: PathBuf,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Lens {
+    /// A homography only.
+    None,
+    /// Radial k1, k2 about the image center, fitted with the homography.
+    Radial,
+}
+
+#[derive(Subcommand)]
+enum RegisterCommand {
+    /// Refine the camera → build-plate homography against the laser vectors (paper §3.1) and
+    /// write the calibration the daemon reads.
+    Images {
+        /// The laser scan vector file (CLI).
+        #[arg(long)]
+        vectors: PathBuf,
+        /// Layer shown by the image (0-based index in the file); one for all images or one per
+        /// --image, in order.
+        #[arg(long, required = true)]
+        layer: Vec<usize>,
+        /// Post-scan frame(s) from the camera pose to calibrate; several are fitted jointly.
+        #[arg(long, required = true)]
+        image: Vec<PathBuf>,
+        /// Start points: lines `u v x y` (image px, build mm), at least 4.
+        #[arg(long)]
+        init: PathBuf,
+        /// Where to write calibration.toml.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also draw the contours through the start (red) and result (blue) on the first image.
+        #[arg(long)]
+        overlay: Option<PathBuf>,
+        #[arg(long, value_enum, default_value = "none")]
+        distortion: Lens,
+        /// Focal length in pixels for --distortion radial (default 1.25 x image width).
+        #[arg(long)]
+        focal_px: Option<f64>,
+        /// Pyramid levels (default from the exemplar size).
+        #[arg(long)]
+        levels: Option<usize>,
+        /// Std filter window of the exemplar, pixels (odd).
+        #[arg(long, default_value_t = 11)]
+        std_window: usize,
     },
 }
 
@@ -223,6 +277,74 @@ fn dispatch(command: Command) -> Result<()> {
             } else {
                 print!("{report}");
             }
+        }
+        Command::Register {
+            command:
+                RegisterCommand::Images {
+                    vectors,
+                    layer,
+                    image,
+                    init,
+                    out,
+                    overlay,
+                    distortion,
+                    focal_px,
+                    levels,
+                    std_window,
+                },
+        } => {
+            let layers = match (layer.len(), image.len()) {
+                (1, n) => vec![layer[0]; n],
+                (a, b) if a == b => layer,
+                (a, b) => anyhow::bail!("{a} --layer for {b} --image: give one, or one per image"),
+            };
+            let mut options = RegistrationOptions {
+                std_window,
+                ..RegistrationOptions::default()
+            };
+            options.lm.levels = levels;
+            let request = ImageRegistration {
+                vectors,
+                images: image
+                    .into_iter()
+                    .zip(layers)
+                    .map(|(path, layer)| RegistrationImage { path, layer })
+                    .collect(),
+                init_points: init,
+                out: Some(out.clone()),
+                overlay,
+                distortion: match distortion {
+                    Lens::None => DistortionChoice::None,
+                    Lens::Radial => DistortionChoice::Radial { focal_px },
+                },
+                options,
+            };
+            let report = register_images(&request)?;
+            for l in &report.levels {
+                println!(
+                    "level {} ({}x{}): {} iterations, cost {:.4e} -> {:.4e}, last step {:.1e} px, {}",
+                    l.level,
+                    l.width,
+                    l.height,
+                    l.iterations,
+                    l.initial_cost,
+                    l.final_cost,
+                    l.last_step_px,
+                    l.termination.name()
+                );
+            }
+            for i in &report.images {
+                println!(
+                    "{} (layer {}): correlation {:.4} (start {:.4})",
+                    i.name, i.layer, i.fit.correlation, i.fit.initial_correlation
+                );
+            }
+            let h = report.calibration.homography;
+            println!("homography = {h:?}");
+            if let Some(d) = report.calibration.distortion {
+                println!("distortion: k1 = {:.6}, k2 = {:.6}", d.k1, d.k2);
+            }
+            println!("wrote {} in {:.2} s", out.display(), report.seconds);
         }
         Command::Demo { layers, out } => demo(layers, &out)?,
         Command::Export {

@@ -461,7 +461,7 @@ fn exemplar_is_high_inside_and_zero_far_outside() {
     assert!(ex.get(r.round() as usize, c.round() as usize).unwrap() as f64 > inside);
 }
 
-/// Brute-force local sample standard deviation with the window clipped to the image.
+/// Brute-force local (population) standard deviation with the window clipped to the image.
 fn std_brute(data: &[f32], w: usize, h: usize, window: usize) -> Vec<f64> {
     let half = window / 2;
     let mut out = vec![0.0; w * h];
@@ -476,11 +476,7 @@ fn std_brute(data: &[f32], w: usize, h: usize, window: usize) -> Vec<f64> {
             let n = vals.len() as f64;
             let mean = vals.iter().sum::<f64>() / n;
             let ss: f64 = vals.iter().map(|v| (v - mean).powi(2)).sum();
-            out[r * w + c] = if n > 1.0 {
-                (ss / (n - 1.0)).sqrt()
-            } else {
-                0.0
-            };
+            out[r * w + c] = if n > 1.0 { (ss / n).sqrt() } else { 0.0 };
         }
     }
     out

@@ -68,7 +68,8 @@ fn scale_to(max: f32, top: f32) -> f32 {
 /// Local standard deviation over a `window` x `window` neighbourhood (odd window), the same
 /// filter for build images and for the exemplar so that both dilate the part alike.
 ///
-/// The sample standard deviation (divisor n − 1, as MATLAB's `stdfilt`; 0 when n = 1).
+/// The population standard deviation (divisor n; 0 when n = 1), as the registration filters the
+/// build images, so exemplar and frames are the same filter.
 /// At the borders the window is clipped to the image and n is the number of pixels actually
 /// covered. Box sums of I and I² come from running sums in f64 (columns slid down, then a row
 /// slid across), so the cost per pixel does not depend on the window; values are taken
@@ -162,8 +163,10 @@ fn band_std(
                 cl += 1;
             }
             let n = rows_in * (ch - cl) as f64;
+            // Population standard deviation (divide by n), as the registration's per-pixel
+            // footprint filter of the build images computes it: exemplar and frames must match.
             *o = if n > 1.0 {
-                ((b - a * a / n) / (n - 1.0)).max(0.0).sqrt() as f32
+                ((b - a * a / n) / n).max(0.0).sqrt() as f32
             } else {
                 0.0
             };
