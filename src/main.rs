@@ -149,6 +149,49 @@ enum Lens {
 
 #[derive(Subcommand)]
 enum RegisterCommand {
+    /// Register a post-build CT volume to the laser vectors (paper §3.2) and write ct.toml
+    /// (CT physical mm → build mm) with the Table 2 error figures.
+    Ct {
+        #[arg(long)]
+        vectors: PathBuf,
+        /// A DICOM series folder, a phoenix .pcr/.vol, a VGStudio .vgi, a raw volume (with --size,
+        /// --dtype, --voxel-mm) or a TIFF stack folder (with --voxel-mm).
+        #[arg(long)]
+        ct: PathBuf,
+        #[arg(long)]
+        part: Option<i64>,
+        /// Start from ≥ 3 point pairs `cx cy cz bx by bz`; default: centroids with R = I.
+        #[arg(long)]
+        init: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        /// The CT surface points coloured by signed distance (blue subtractive, red additive).
+        #[arg(long)]
+        surface_ply: Option<PathBuf>,
+        /// The CT resampled onto the build grid as a DICOM series.
+        #[arg(long)]
+        resample_dicom: Option<PathBuf>,
+        /// The build whose study the resampled series joins.
+        #[arg(long)]
+        build: Option<PathBuf>,
+        #[arg(long)]
+        voxel_mm: Option<f64>,
+        /// Raw volumes: X,Y,Z voxels.
+        #[arg(long)]
+        size: Option<String>,
+        /// Raw volumes: u8, u16 or f32.
+        #[arg(long)]
+        dtype: Option<String>,
+        /// A fixed threshold (physical units); default Otsu.
+        #[arg(long)]
+        threshold: Option<f64>,
+        /// Huber loss with this k (mm), against CT reflections.
+        #[arg(long)]
+        huber_mm: Option<f64>,
+        /// Voxel size of the vectors' signed distance volume.
+        #[arg(long, default_value_t = 0.05)]
+        tsdf_voxel_mm: f64,
+    },
     /// Refine the camera → build-plate homography against the laser vectors (paper §3.1) and
     /// write the calibration the daemon reads.
     Images {
@@ -277,6 +320,69 @@ fn dispatch(command: Command) -> Result<()> {
             } else {
                 print!("{report}");
             }
+        }
+        Command::Register {
+            command:
+                RegisterCommand::Ct {
+                    vectors,
+                    ct,
+                    part,
+                    init,
+                    out,
+                    surface_ply,
+                    resample_dicom,
+                    build,
+                    voxel_mm,
+                    size,
+                    dtype,
+                    threshold,
+                    huber_mm,
+                    tsdf_voxel_mm,
+                },
+        } => {
+            use layerwise::registration::ct;
+            let source = match (size, dtype) {
+                (Some(size), Some(dtype)) => {
+                    let voxel =
+                        voxel_mm.ok_or_else(|| anyhow::anyhow!("a raw volume needs --voxel-mm"))?;
+                    ct::volume::VolumeSource::Raw(
+                        ct.clone(),
+                        ct::volume::RawSpec::from_args(&size, voxel, &dtype)?,
+                    )
+                }
+                (None, None) => ct::volume::VolumeSource::detect(&ct, voxel_mm)?,
+                _ => anyhow::bail!("--size and --dtype go together (a raw volume)"),
+            };
+            let volume = ct::volume::read_volume(&source)?;
+            let mut params = ct::CtParams::default();
+            if let Some(v) = threshold {
+                params.threshold = ct::surface::Threshold::Value(v);
+            }
+            params.huber_k_mm = huber_mm;
+            let init = match init {
+                Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(&points)?),
+                None => ct::InitialTransform::Centroid,
+            };
+            let request = ct::vectors_field::CtRequest {
+                vectors,
+                part,
+                init,
+                out: out.clone(),
+                surface_ply,
+                resample_dicom,
+                build,
+                tsdf_voxel_mm,
+                params,
+            };
+            let started = std::time::Instant::now();
+            let result =
+                ct::vectors_field::register_ct(&request, &volume).map_err(anyhow::Error::msg)?;
+            print!("{}", result.to_toml_string());
+            println!(
+                "wrote {} in {:.1} s",
+                out.display(),
+                started.elapsed().as_secs_f64()
+            );
         }
         Command::Register {
             command:

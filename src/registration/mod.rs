@@ -21,6 +21,7 @@
 // 8x8/10x10 normal matrices and power tables read like the formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+pub mod ct;
 pub mod exemplar;
 pub mod filter;
 pub mod homography;

@@ -1,0 +1,629 @@
+//! A synthetic CT of the paper's "parameter cylinder" (a vertical cylinder with a spiral
+//! staircase and one large fin, §4), with known ground truth, and test distance fields.
+//!
+//! The part is a union of exact primitive SDFs (a finite cylinder and boxes rotated about z).
+//! The min of exact SDFs is exact outside the union and a lower bound of |d| inside, with an
+//! exact zero level: good enough for a test field, and conservative for the renderer's
+//! empty-block skipping.
+
+use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+use rayon::prelude::*;
+
+use super::align::to_array;
+use super::surface::PartShape;
+use super::volume::{Volume, VoxelData};
+use super::{DistanceField, PointPair};
+
+/// A box rotated by `angle` about the vertical through the origin of its part.
+#[derive(Debug, Clone, Copy)]
+pub struct ZBox {
+    /// Centre in the part frame before the rotation.
+    pub center: [f64; 3],
+    pub half: [f64; 3],
+    /// Rotation about z, radians.
+    pub angle: f64,
+}
+
+impl ZBox {
+    fn sdf(&self, p: [f64; 3]) -> f64 {
+        // Rotate p by −angle into the box's frame.
+        let (s, c) = self.angle.sin_cos();
+        let x = c * p[0] + s * p[1] - self.center[0];
+        let y = -s * p[0] + c * p[1] - self.center[1];
+        let z = p[2] - self.center[2];
+        let q = [
+            x.abs() - self.half[0],
+            y.abs() - self.half[1],
+            z.abs() - self.half[2],
+        ];
+        let outside =
+            (q[0].max(0.0).powi(2) + q[1].max(0.0).powi(2) + q[2].max(0.0).powi(2)).sqrt();
+        outside + q[0].max(q[1]).max(q[2]).min(0.0)
+    }
+
+    /// A point given in the box's frame (before rotation), in the part frame.
+    fn point(&self, local: [f64; 3]) -> [f64; 3] {
+        let (s, c) = self.angle.sin_cos();
+        [
+            c * local[0] - s * local[1],
+            s * local[0] + c * local[1],
+            local[2],
+        ]
+    }
+}
+
+/// The parameter cylinder in build mm: its cylinder axis at `origin` (x, y), bottom at z = 0.
+#[derive(Debug, Clone)]
+pub struct Part {
+    pub origin: [f64; 3],
+    pub radius: f64,
+    pub height: f64,
+    pub steps: Vec<ZBox>,
+    pub fin: ZBox,
+}
+
+impl Part {
+    /// r = 5 mm, h = 10 mm, 12 steps every 30° rising 0.8 mm each, one 6.5 mm fin; all sizes
+    /// times `scale`.
+    pub fn parameter_cylinder(origin: [f64; 3], scale: f64) -> Self {
+        let s = scale;
+        let steps = (0..12)
+            .map(|k| ZBox {
+                center: [6.25 * s, 0.0, (0.8 * (k + 1) as f64 - 0.25) * s],
+                half: [1.75 * s, 0.75 * s, 0.25 * s],
+                angle: (30.0 * k as f64).to_radians(),
+            })
+            .collect();
+        let fin = ZBox {
+            center: [7.75 * s, 0.0, 4.5 * s],
+            half: [3.25 * s, 0.4 * s, 4.5 * s],
+            angle: 195f64.to_radians(),
+        };
+        Self {
+            origin,
+            radius: 5.0 * s,
+            height: 10.0 * s,
+            steps,
+            fin,
+        }
+    }
+
+    /// Signed distance of the nominal part (negative inside), mm.
+    pub fn sdf(&self, p: [f64; 3]) -> f64 {
+        let q = [
+            p[0] - self.origin[0],
+            p[1] - self.origin[1],
+            p[2] - self.origin[2],
+        ];
+        let hz = 0.5 * self.height;
+        let d = [
+            (q[0] * q[0] + q[1] * q[1]).sqrt() - self.radius,
+            (q[2] - hz).abs() - hz,
+        ];
+        let cyl = d[0].max(d[1]).min(0.0) + (d[0].max(0.0).powi(2) + d[1].max(0.0).powi(2)).sqrt();
+        let mut m = cyl.min(self.fin.sdf(q));
+        for s in &self.steps {
+            m = m.min(s.sdf(q));
+        }
+        m
+    }
+
+    /// Axis-aligned bounds of the nominal part (build mm).
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let r = (self.fin.center[0] + self.fin.half[0]).max(self.radius) + 0.01;
+        (
+            [self.origin[0] - r, self.origin[1] - r, self.origin[2]],
+            [
+                self.origin[0] + r,
+                self.origin[1] + r,
+                self.origin[2] + self.height,
+            ],
+        )
+    }
+
+    /// Points a user would click for the 3-point start: the fin's outer top edge, the cylinder's
+    /// top centre, the first step's outer top edge, the seventh step's outer top edge.
+    pub fn landmarks(&self) -> [[f64; 3]; 4] {
+        let o = self.origin;
+        let add = |p: [f64; 3]| [p[0] + o[0], p[1] + o[1], p[2] + o[2]];
+        let edge = |b: &ZBox| b.point([b.center[0] + b.half[0], 0.0, b.center[2] + b.half[2]]);
+        [
+            add(edge(&self.fin)),
+            add([0.0, 0.0, self.height]),
+            add(edge(&self.steps[0])),
+            add(edge(&self.steps[6])),
+        ]
+    }
+}
+
+/// Material as scanned: the nominal part without its bottom `cut` slab (lost when removed from
+/// the plate), minus internal voids, plus optional reflection blobs.
+#[derive(Debug, Clone)]
+pub struct AsBuilt {
+    pub part: Part,
+    pub cut_mm: f64,
+    /// (centre build mm, radius mm) spheres of missing material.
+    pub voids: Vec<([f64; 3], f64)>,
+    /// (centre build mm, radius mm) spheres of spurious material (CT reflections).
+    pub blobs: Vec<([f64; 3], f64)>,
+}
+
+fn sphere(p: [f64; 3], c: [f64; 3], r: f64) -> f64 {
+    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt() - r
+}
+
+impl AsBuilt {
+    pub fn sdf(&self, p: [f64; 3]) -> f64 {
+        let mut d = self.part.sdf(p);
+        for (c, r) in &self.blobs {
+            d = d.min(sphere(p, *c, *r));
+        }
+        d = d.max(self.part.origin[2] + self.cut_mm - p[2]);
+        for (c, r) in &self.voids {
+            d = d.max(-sphere(p, *c, *r));
+        }
+        d
+    }
+}
+
+/// How to scan the synthetic part.
+#[derive(Debug, Clone)]
+pub struct SynthSpec {
+    pub voxel_mm: f64,
+    /// The true CT → build rotation: `angle_deg` about `axis` (the translation follows from
+    /// placing the part at `margin_mm` from the CT origin; see [`SynthCt::ct_to_build`]).
+    pub axis: [f64; 3],
+    pub angle_deg: f64,
+    /// Margin around the part in the CT volume, mm.
+    pub margin_mm: f64,
+    /// Material lost at the bottom, mm.
+    pub cut_mm: f64,
+    /// Sub-samples per axis for partial-volume voxels.
+    pub supersample: usize,
+    /// Gaussian blur σ in voxels (the scanner's point spread).
+    pub blur_voxels: f64,
+    /// Noise σ as a fraction of the material-background contrast.
+    pub noise: f64,
+    pub voids: bool,
+    pub reflections: bool,
+    pub seed: u64,
+}
+
+impl Default for SynthSpec {
+    fn default() -> Self {
+        Self {
+            voxel_mm: 0.05,
+            axis: [1.0, 2.0, 3.0],
+            angle_deg: 25.0,
+            margin_mm: 1.5,
+            cut_mm: 0.25,
+            supersample: 4,
+            blur_voxels: 0.7,
+            noise: 0.05,
+            voids: true,
+            reflections: false,
+            seed: 1,
+        }
+    }
+}
+
+/// A rendered synthetic CT and its ground truth.
+#[derive(Debug, Clone)]
+pub struct SynthCt {
+    pub volume: Volume,
+    /// The true transform, CT physical mm → build mm.
+    pub ct_to_build: [[f64; 4]; 4],
+    pub as_built: AsBuilt,
+}
+
+const BACKGROUND: f64 = 4000.0;
+const MATERIAL: f64 = 36000.0;
+
+/// Render the part into a u16 CT volume (physical = index × voxel size, like a raw `.vol`).
+pub fn render(part: &Part, spec: &SynthSpec) -> SynthCt {
+    let axis = Unit::new_normalize(Vector3::from(spec.axis));
+    let rot = Rotation3::from_axis_angle(&axis, spec.angle_deg.to_radians());
+    let r_true: Matrix3<f64> = *rot.matrix();
+    let o = part.origin;
+    let voids = if spec.voids {
+        let s = part.radius / 5.0;
+        vec![
+            ([o[0] + 1.5 * s, o[1], o[2] + 3.0 * s], 0.3 * s),
+            ([o[0] - 2.0 * s, o[1] + 1.0 * s, o[2] + 5.5 * s], 0.2 * s),
+            ([o[0], o[1] - 2.5 * s, o[2] + 7.5 * s], 0.25 * s),
+            ([o[0] + 0.5 * s, o[1] + 2.0 * s, o[2] + 2.0 * s], 0.15 * s),
+        ]
+    } else {
+        Vec::new()
+    };
+    let blobs = if spec.reflections {
+        // Where the fin meets the cylinder, as in the paper's figures 11-12.
+        let f = &part.fin;
+        let corner = |dz: f64, side: f64| {
+            let p = f.point([part.radius, side * (f.half[1] + 0.05), dz]);
+            [p[0] + o[0], p[1] + o[1], p[2] + o[2]]
+        };
+        vec![(corner(6.0, 1.0), 0.35), (corner(3.0, -1.0), 0.3)]
+    } else {
+        Vec::new()
+    };
+    let as_built = AsBuilt {
+        part: part.clone(),
+        cut_mm: spec.cut_mm,
+        voids,
+        blobs,
+    };
+
+    // CT = R_trueᵀ (build − t): place the rotated part's box at `margin` from the CT origin.
+    let (lo, hi) = part.bounds();
+    let a = r_true.transpose();
+    let mut cmin = Vector3::repeat(f64::INFINITY);
+    let mut cmax = Vector3::repeat(f64::NEG_INFINITY);
+    for k in 0..8 {
+        let c = Vector3::new(
+            if k & 1 == 0 { lo[0] } else { hi[0] },
+            if k & 2 == 0 { lo[1] } else { hi[1] },
+            if k & 4 == 0 { lo[2] } else { hi[2] },
+        );
+        let p = a * c;
+        cmin = cmin.inf(&p);
+        cmax = cmax.sup(&p);
+    }
+    let margin = Vector3::repeat(spec.margin_mm);
+    let t_true = r_true * (cmin - margin);
+    let size = cmax - cmin + 2.0 * margin;
+    let h = spec.voxel_mm;
+    let dims = [
+        (size.x / h).ceil() as usize + 1,
+        (size.y / h).ceil() as usize + 1,
+        (size.z / h).ceil() as usize + 1,
+    ];
+    let to_build = |i: f64, j: f64, k: f64| {
+        let p = r_true * Vector3::new(i * h, j * h, k * h) + t_true;
+        [p.x, p.y, p.z]
+    };
+
+    // Partial-volume coverage; 4³ blocks far from the surface are filled without sampling.
+    let [nx, ny, nz] = dims;
+    let plane = nx * ny;
+    let mut cover = vec![0f32; nx * ny * nz];
+    let b = 4usize;
+    let half_diag_vox = 0.5 * 3f64.sqrt();
+    let ss = spec.supersample.max(1);
+    cover
+        .par_chunks_mut(plane * b)
+        .enumerate()
+        .for_each(|(bz, slab)| {
+            let z0 = bz * b;
+            let zs = slab.len() / plane;
+            for by in (0..ny).step_by(b) {
+                for bx in (0..nx).step_by(b) {
+                    let c = to_build(bx as f64 + 1.5, by as f64 + 1.5, z0 as f64 + 1.5);
+                    let d = as_built.sdf(c);
+                    let far = d.abs() > (b as f64 * half_diag_vox + 0.5) * h;
+                    for dz in 0..zs.min(b) {
+                        for y in by..(by + b).min(ny) {
+                            for x in bx..(bx + b).min(nx) {
+                                let v = if far {
+                                    if d < 0.0 {
+                                        1.0
+                                    } else {
+                                        0.0
+                                    }
+                                } else {
+                                    coverage(&as_built, &to_build, [x, y, z0 + dz], ss, h)
+                                };
+                                slab[x + nx * y + plane * dz] = v;
+                            }
+                        }
+                    }
+                }
+            }
+        });
+    let blurred = gaussian_blur(cover, dims, spec.blur_voxels);
+    let contrast = MATERIAL - BACKGROUND;
+    let sigma = spec.noise * contrast;
+    let seed = spec.seed;
+    let data: Vec<u16> = blurred
+        .par_iter()
+        .enumerate()
+        .map(|(i, &c)| {
+            let v = BACKGROUND + c as f64 * contrast + sigma * normal(seed, i as u64);
+            v.round().clamp(0.0, 65535.0) as u16
+        })
+        .collect();
+    let volume = Volume::new_scaled(dims, [h; 3], VoxelData::U16(data))
+        .expect("synthetic volume dims are consistent");
+    SynthCt {
+        volume,
+        ct_to_build: to_array(&r_true, &t_true),
+        as_built,
+    }
+}
+
+fn coverage(
+    part: &AsBuilt,
+    to_build: &impl Fn(f64, f64, f64) -> [f64; 3],
+    idx: [usize; 3],
+    ss: usize,
+    h: f64,
+) -> f32 {
+    let c = to_build(idx[0] as f64, idx[1] as f64, idx[2] as f64);
+    let d = part.sdf(c);
+    if d.abs() > 0.87 * h {
+        return if d < 0.0 { 1.0 } else { 0.0 };
+    }
+    let mut inside = 0usize;
+    for a in 0..ss {
+        for b in 0..ss {
+            for e in 0..ss {
+                let off = |k: usize| (k as f64 + 0.5) / ss as f64 - 0.5;
+                let p = to_build(
+                    idx[0] as f64 + off(a),
+                    idx[1] as f64 + off(b),
+                    idx[2] as f64 + off(e),
+                );
+                if part.sdf(p) < 0.0 {
+                    inside += 1;
+                }
+            }
+        }
+    }
+    inside as f32 / (ss * ss * ss) as f32
+}
+
+/// Separable Gaussian blur (σ in voxels), clamped at the borders.
+pub fn gaussian_blur(mut v: Vec<f32>, dims: [usize; 3], sigma: f64) -> Vec<f32> {
+    if sigma <= 0.0 {
+        return v;
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|x| *x /= s);
+    let [nx, ny, _] = dims;
+    let plane = nx * ny;
+    let strides = [1usize, nx, plane];
+    let mut tmp = vec![0f32; v.len()];
+    for axis in 0..3 {
+        let n = dims[axis] as isize;
+        let stride = strides[axis];
+        let src = &v;
+        tmp.par_chunks_mut(plane).enumerate().for_each(|(z, out)| {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let p = [x, y, z];
+                    let base = x + nx * y + plane * z - p[axis] * stride;
+                    let mut acc = 0.0;
+                    for (ki, w) in k.iter().enumerate() {
+                        let q = (p[axis] as isize + ki as isize - r).clamp(0, n - 1) as usize;
+                        acc += w * src[base + q * stride];
+                    }
+                    out[x + nx * y] = acc;
+                }
+            }
+        });
+        std::mem::swap(&mut v, &mut tmp);
+    }
+    v
+}
+
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A standard normal deviate from (seed, index): splitmix64 + Box-Muller, so renders are
+/// reproducible in parallel.
+fn normal(seed: u64, i: u64) -> f64 {
+    let a = mix(seed ^ i.wrapping_mul(0xA24B_AED4_963E_E407));
+    let b = mix(a);
+    let u1 = ((a >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+    let u2 = (b >> 11) as f64 / (1u64 << 53) as f64;
+    (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+}
+
+/// Uniform in [−1, 1) from (seed, index).
+pub fn uniform(seed: u64, i: u64) -> f64 {
+    let a = mix(mix(seed ^ 0x5555_AAAA) ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
+    2.0 * ((a >> 11) as f64 / (1u64 << 53) as f64) - 1.0
+}
+
+/// The analytic SDF of a part as a distance field, truncated; gradient by central differences.
+pub struct AnalyticField<'a> {
+    pub part: &'a Part,
+    pub truncation: f64,
+}
+
+impl DistanceField for AnalyticField<'_> {
+    fn sample_with_gradient(&self, p: [f64; 3]) -> Option<(f64, [f64; 3])> {
+        let d = self.part.sdf(p);
+        if d.abs() >= self.truncation {
+            return Some((d.clamp(-self.truncation, self.truncation), [0.0; 3]));
+        }
+        let e = 1e-5;
+        let g = std::array::from_fn(|a| {
+            let mut lo = p;
+            let mut hi = p;
+            lo[a] -= e;
+            hi[a] += e;
+            (self.part.sdf(hi) - self.part.sdf(lo)) / (2.0 * e)
+        });
+        Some((d, g))
+    }
+
+    fn truncation_mm(&self) -> f64 {
+        self.truncation
+    }
+}
+
+/// A voxelised TSDF (f32 nodes) with trilinear sampling: what the laser-vector TSDF looks like.
+#[derive(Debug, Clone)]
+pub struct GridField {
+    pub origin: [f64; 3],
+    pub step: f64,
+    pub dims: [usize; 3],
+    pub values: Vec<f32>,
+    pub truncation: f64,
+}
+
+impl GridField {
+    /// Sample `sdf` at the nodes of a grid covering `lo..hi` plus the truncation band.
+    pub fn from_sdf(
+        sdf: impl Fn([f64; 3]) -> f64 + Sync,
+        lo: [f64; 3],
+        hi: [f64; 3],
+        step: f64,
+        truncation: f64,
+    ) -> Self {
+        let pad = truncation + 2.0 * step;
+        let origin = lo.map(|v| v - pad);
+        let dims: [usize; 3] =
+            std::array::from_fn(|a| ((hi[a] - lo[a] + 2.0 * pad) / step).ceil() as usize + 1);
+        let [nx, ny, _] = dims;
+        let plane = nx * ny;
+        let mut values = vec![0f32; dims.iter().product()];
+        // 4x4 columns of nodes far outside the band are filled from one sample (the SDF is
+        // 1-Lipschitz, or a lower bound of |d|, so |d(centre)| > trunc + reach is conservative).
+        let reach = 2.0 * 2f64.sqrt() * step;
+        values
+            .par_chunks_mut(plane)
+            .enumerate()
+            .for_each(|(z, out)| {
+                let node = |x: f64, y: f64| {
+                    [
+                        origin[0] + x * step,
+                        origin[1] + y * step,
+                        origin[2] + z as f64 * step,
+                    ]
+                };
+                for by in (0..ny).step_by(4) {
+                    for bx in (0..nx).step_by(4) {
+                        let d = sdf(node(bx as f64 + 1.5, by as f64 + 1.5));
+                        let far = d.abs() > truncation + reach;
+                        for y in by..(by + 4).min(ny) {
+                            for x in bx..(bx + 4).min(nx) {
+                                let v = if far {
+                                    d
+                                } else {
+                                    sdf(node(x as f64, y as f64))
+                                };
+                                out[x + nx * y] = v.clamp(-truncation, truncation) as f32;
+                            }
+                        }
+                    }
+                }
+            });
+        Self {
+            origin,
+            step,
+            dims,
+            values,
+            truncation,
+        }
+    }
+}
+
+impl DistanceField for GridField {
+    fn sample_with_gradient(&self, p: [f64; 3]) -> Option<(f64, [f64; 3])> {
+        let mut i = [0usize; 3];
+        let mut f = [0f64; 3];
+        for a in 0..3 {
+            let u = (p[a] - self.origin[a]) / self.step;
+            if !(u >= 0.0 && u < (self.dims[a] - 1) as f64) {
+                return None;
+            }
+            i[a] = u as usize;
+            f[a] = u - i[a] as f64;
+        }
+        let [nx, ny, _] = self.dims;
+        let at = |dx: usize, dy: usize, dz: usize| {
+            self.values[(i[0] + dx) + nx * ((i[1] + dy) + ny * (i[2] + dz))] as f64
+        };
+        let c: [[[f64; 2]; 2]; 2] = std::array::from_fn(|dz| {
+            std::array::from_fn(|dy| std::array::from_fn(|dx| at(dx, dy, dz)))
+        });
+        let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+        let [fx, fy, fz] = f;
+        // Value and analytic derivative of the trilinear interpolant.
+        let c00 = lerp(c[0][0][0], c[0][0][1], fx);
+        let c10 = lerp(c[0][1][0], c[0][1][1], fx);
+        let c01 = lerp(c[1][0][0], c[1][0][1], fx);
+        let c11 = lerp(c[1][1][0], c[1][1][1], fx);
+        let c0 = lerp(c00, c10, fy);
+        let c1 = lerp(c01, c11, fy);
+        let v = lerp(c0, c1, fz);
+        let dz = (c1 - c0) / self.step;
+        let dy = lerp(c10 - c00, c11 - c01, fz) / self.step;
+        let dx = {
+            let e0 = lerp(c[0][0][1] - c[0][0][0], c[0][1][1] - c[0][1][0], fy);
+            let e1 = lerp(c[1][0][1] - c[1][0][0], c[1][1][1] - c[1][1][0], fy);
+            lerp(e0, e1, fz) / self.step
+        };
+        Some((v, [dx, dy, dz]))
+    }
+
+    fn truncation_mm(&self) -> f64 {
+        self.truncation
+    }
+}
+
+/// The nominal part's centroid and principal extents, from a grid of material points: what the
+/// lead computes from the rasterised vectors.
+pub fn nominal_shape(part: &Part, step: f64) -> PartShape {
+    let (lo, hi) = part.bounds();
+    let n: [usize; 3] = std::array::from_fn(|a| ((hi[a] - lo[a]) / step).ceil() as usize);
+    let pts: Vec<[f64; 3]> = (0..n[2])
+        .into_par_iter()
+        .flat_map_iter(|z| {
+            let mut out = Vec::new();
+            for y in 0..n[1] {
+                for x in 0..n[0] {
+                    let p = [
+                        lo[0] + (x as f64 + 0.5) * step,
+                        lo[1] + (y as f64 + 0.5) * step,
+                        lo[2] + (z as f64 + 0.5) * step,
+                    ];
+                    if part.sdf(p) < 0.0 {
+                        out.push(p);
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    PartShape::from_points(&pts)
+}
+
+/// Point pairs for a 3-point start: landmarks in build mm and their CT positions perturbed by
+/// up to ±`error_mm` per coordinate (a user's clicking error).
+pub fn landmark_pairs(ct: &SynthCt, count: usize, error_mm: f64, seed: u64) -> Vec<PointPair> {
+    let (r, t) = super::align::split(&ct.ct_to_build);
+    let lm = ct.as_built.part.landmarks();
+    lm.iter()
+        .take(count)
+        .enumerate()
+        .map(|(i, b)| {
+            let c = r.transpose() * (Vector3::from(*b) - t);
+            let e: [f64; 3] = std::array::from_fn(|a| error_mm * uniform(seed, (3 * i + a) as u64));
+            PointPair {
+                ct: [c.x + e[0], c.y + e[1], c.z + e[2]],
+                build: *b,
+            }
+        })
+        .collect()
+}
+
+/// Rotation error (degrees) and the displacement (mm) at `at` (CT mm) between two transforms.
+pub fn transform_error(est: &[[f64; 4]; 4], truth: &[[f64; 4]; 4], at: [f64; 3]) -> (f64, f64) {
+    let (re, te) = super::align::split(est);
+    let (rt, tt) = super::align::split(truth);
+    let ang = super::align::rotation_angle(&(re * rt.transpose())).to_degrees();
+    let p = Vector3::from(at);
+    let disp = ((re * p + te) - (rt * p + tt)).norm();
+    (ang, disp)
+}

@@ -1,0 +1,242 @@
+//! `layerwise register ct` end to end, as a user runs it: a CLI vector file of a part, a synthetic
+//! GE phoenix CT (.vol + .pcr) of that part placed with a known rotation and translation (partial
+//! volume, noise, the bottom slab lost), three clicked point pairs off by 0.2 mm.
+
+mod common;
+
+use common::layerwise;
+use layerwise::vectors::{Direction, Format, Header, Layer, Polyline, VectorFile};
+use std::f64::consts::PI;
+
+const LAYERS: usize = 50;
+const DZ: f64 = 0.06;
+
+/// A cylinder r = 4 mm at (20, 30) and a separate 1.5 x 6 mm fin at x 26..27.5: the fin breaks the
+/// cylinder's symmetry without overlapping its contour.
+fn inside_part(p: [f64; 3]) -> bool {
+    if p[2] <= 0.0 || p[2] > LAYERS as f64 * DZ {
+        return false;
+    }
+    let cyl = (p[0] - 20.0).powi(2) + (p[1] - 30.0).powi(2) <= 16.0;
+    let fin = (26.0..=27.5).contains(&p[0]) && (27.0..=33.0).contains(&p[1]);
+    cyl || fin
+}
+
+fn vectors(path: &std::path::Path) {
+    let mut file = VectorFile {
+        header: Header::new(Format::Ascii, 0.001),
+        layers: Vec::new(),
+    };
+    file.header.labels.push((1, "cylinder with fin".into()));
+    for k in 0..LAYERS {
+        let mut layer = Layer::new(k, DZ * (k + 1) as f64);
+        let circle: Vec<[f64; 2]> = (0..=256)
+            .map(|i| 2.0 * PI * i as f64 / 256.0)
+            .map(|a| [20.0 + 4.0 * a.cos(), 30.0 + 4.0 * a.sin()])
+            .collect();
+        layer.polylines.push(Polyline {
+            part: 1,
+            direction: Direction::CounterClockwise,
+            points: circle,
+        });
+        let fin = vec![
+            [26.0, 27.0],
+            [27.5, 27.0],
+            [27.5, 33.0],
+            [26.0, 33.0],
+            [26.0, 27.0],
+        ];
+        layer.polylines.push(Polyline {
+            part: 1,
+            direction: Direction::CounterClockwise,
+            points: fin,
+        });
+        file.layers.push(layer);
+    }
+    let mut out = std::fs::File::create(path).unwrap();
+    layerwise::vectors::write_ascii(&file, &mut out).unwrap();
+}
+
+/// CT → build: 25° about (1, 2, 3)/|..|, then a translation.
+fn truth() -> [[f64; 4]; 4] {
+    let axis = [1.0, 2.0, 3.0f64];
+    let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    let (x, y, z) = (axis[0] / n, axis[1] / n, axis[2] / n);
+    let (s, c) = (25f64.to_radians().sin(), 25f64.to_radians().cos());
+    let t = 1.0 - c;
+    let r = [
+        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+    ];
+    // The CT grid's center (8, 8, 8) mm lands on the part's center (22, 30, 1.5).
+    let center = [8.0, 8.0, 8.0];
+    let target = [22.0, 30.0, 1.5];
+    let mut m = [[0.0; 4]; 4];
+    for i in 0..3 {
+        m[i][..3].copy_from_slice(&r[i]);
+        m[i][3] = target[i] - (0..3).map(|j| r[i][j] * center[j]).sum::<f64>();
+    }
+    m[3][3] = 1.0;
+    m
+}
+
+fn apply(m: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3])
+}
+
+#[test]
+fn registers_a_synthetic_ct_to_the_vectors() {
+    let dir = tempfile::tempdir().unwrap();
+    let cli = dir.path().join("part.cli");
+    vectors(&cli);
+    let (n, voxel) = (160usize, 0.1);
+    let t = truth();
+    // Partial volume from 2x2x2 samples, noise, and the bottom 0.2 mm lost when cut off the plate.
+    let mut data = vec![0u16; n * n * n];
+    let mut seed = 0x1234_5678_9abc_def0u64;
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let mut hits = 0;
+                for s in 0..8 {
+                    let o = [(s & 1) as f64, ((s >> 1) & 1) as f64, ((s >> 2) & 1) as f64]
+                        .map(|v| (v - 0.5) * 0.5);
+                    let q = apply(
+                        &t,
+                        [
+                            (i as f64 + o[0]) * voxel,
+                            (j as f64 + o[1]) * voxel,
+                            (k as f64 + o[2]) * voxel,
+                        ],
+                    );
+                    if q[2] > 0.2 && inside_part(q) {
+                        hits += 1;
+                    }
+                }
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                let noise = (seed % 200) as f64 - 100.0;
+                data[(k * n + j) * n + i] =
+                    (1000.0 + 3000.0 * hits as f64 / 8.0 + noise).max(0.0) as u16;
+            }
+        }
+    }
+    let vol = dir.path().join("scan.vol");
+    std::fs::write(
+        &vol,
+        data.iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<u8>>(),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("scan.pcr"),
+        format!("[VolumeData]\nVolume_SizeX={n}\nVolume_SizeY={n}\nVolume_SizeZ={n}\nVoxelSizeRec={voxel}\nFormat=5\n"),
+    )
+    .unwrap();
+    // Three clicks: CT points of known build landmarks, off by 0.2 mm.
+    let inv = |q: [f64; 3]| {
+        let d = [q[0] - t[0][3], q[1] - t[1][3], q[2] - t[2][3]];
+        [0, 1, 2].map(|c| (0..3).map(|r| t[r][c] * d[r]).sum::<f64>())
+    };
+    let mut points = String::from("# cx cy cz bx by bz\n");
+    for (b, e) in [
+        ([20.0, 34.0, 2.5], 0.2),
+        ([27.5, 33.0, 1.0], -0.2),
+        ([16.0, 30.0, 0.5], 0.15),
+    ] {
+        let c = inv(b);
+        points.push_str(&format!(
+            "{} {} {} {} {} {}\n",
+            c[0] + e,
+            c[1] - e,
+            c[2] + e,
+            b[0],
+            b[1],
+            b[2]
+        ));
+    }
+    std::fs::write(dir.path().join("points.txt"), points).unwrap();
+
+    let out = dir.path().join("ct.toml");
+    let ply = dir.path().join("surface.ply");
+    let dicom = dir.path().join("ct_dicom");
+    let run = layerwise()
+        .args(["register", "ct", "--vectors"])
+        .arg(&cli)
+        .arg("--ct")
+        .arg(dir.path().join("scan.pcr"))
+        .arg("--init")
+        .arg(dir.path().join("points.txt"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--surface-ply")
+        .arg(&ply)
+        .arg("--resample-dicom")
+        .arg(&dicom)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let result: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
+    let found: Vec<Vec<f64>> = result["transform"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|row| {
+            row.as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_float().unwrap())
+                .collect()
+        })
+        .collect();
+    // Rotation error from R_found · R_trueᵀ; displacement at the part's center.
+    let mut trace = 0.0;
+    for i in 0..3 {
+        for j in 0..3 {
+            trace += found[i][j] * t[i][j];
+        }
+    }
+    let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+    let center = [8.0, 8.0, 8.0];
+    let a = apply(&t, center);
+    let b = [0, 1, 2].map(|i| {
+        found[i][0] * center[0] + found[i][1] * center[1] + found[i][2] * center[2] + found[i][3]
+    });
+    let shift_um =
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt() * 1000.0;
+    eprintln!("register ct: rotation error {angle:.5}°, translation error {shift_um:.3} µm");
+    assert!(angle <= 0.05, "rotation error {angle}°");
+    assert!(shift_um <= 5.0, "translation error {shift_um} µm");
+    let mean_um = result["mean_abs_distance_um"].as_float().unwrap();
+    assert!(mean_um < 30.0, "mean |distance| {mean_um} µm");
+    assert!(std::fs::read_to_string(&ply).unwrap().starts_with("ply"));
+    assert!(
+        std::fs::read_dir(&dicom).unwrap().count() > 10,
+        "the resampled CT series"
+    );
+    // A wrong voxel size is refused with the ratio.
+    std::fs::write(
+        dir.path().join("scan.pcr"),
+        format!("[VolumeData]\nVolume_SizeX={n}\nVolume_SizeY={n}\nVolume_SizeZ={n}\nVoxelSizeRec={}\nFormat=5\n", voxel / 2.0),
+    )
+    .unwrap();
+    let run = layerwise()
+        .args(["register", "ct", "--vectors"])
+        .arg(&cli)
+        .arg("--ct")
+        .arg(dir.path().join("scan.pcr"))
+        .arg("--out")
+        .arg(dir.path().join("bad.toml"))
+        .output()
+        .unwrap();
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("voxel size") && err.contains("0.5"), "{err}");
+}
