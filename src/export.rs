@@ -471,18 +471,36 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         };
         if request.format == ExportFormat::Nrrd && !zs.is_empty() {
             let path = request.out.join(format!("{name}.nrrd"));
-            write_nrrd_u16(&path, &volume, grid, &zs)?;
+            write_nrrd(&path, NrrdVoxels::Gray16(&volume), grid, &zs)?;
             summary.written += 1;
         }
         summary.series.push((name, shots.len()));
     }
     bar.finish_and_clear();
+    if let Some(vectors) = &record.config.build.vectors {
+        let slices = export_vectors(vectors, &live, grid, &label, request, &mut summary)?;
+        summary.series.push((
+            if label == "export" {
+                "vectors".into()
+            } else {
+                format!("vectors_{}", label.replace(' ', "_"))
+            },
+            slices,
+        ));
+    }
     Ok(summary)
 }
 
 /// A 3D NRRD (raw, little endian) in the build frame: for 3D Slicer or napari without DICOM.
 /// Slices must be equally spaced in z (layers of one thickness).
-fn write_nrrd_u16(path: &Path, volume: &[u16], grid: Grid, zs: &[f64]) -> Result<(), ExportError> {
+/// Voxels of an NRRD volume: grey 16-bit, or RGB for the vectors' colours.
+enum NrrdVoxels<'a> {
+    Gray16(&'a [u16]),
+    Rgb8(&'a [u8]),
+}
+
+fn write_nrrd(path: &Path, voxels: NrrdVoxels, grid: Grid, zs: &[f64]) -> Result<(), ExportError> {
+    let rgb = matches!(voxels, NrrdVoxels::Rgb8(_));
     let dz = if zs.len() > 1 {
         (zs[zs.len() - 1] - zs[0]) / (zs.len() - 1) as f64
     } else {
@@ -490,19 +508,29 @@ fn write_nrrd_u16(path: &Path, volume: &[u16], grid: Grid, zs: &[f64]) -> Result
     };
     let p = grid.pixel_mm;
     let header = format!(
-        "NRRD0004\n# layerwise: build frame of docs/frames.md, mm\ntype: uint16\ndimension: 3\nspace dimension: 3\nsizes: {} {} {}\nspace directions: ({p},0,0) (0,{},0) (0,0,{dz})\nkinds: domain domain domain\nendian: little\nencoding: raw\nspace origin: ({},{},{})\nspace units: \"mm\" \"mm\" \"mm\"\n\n",
+        "NRRD0004\n# layerwise: build frame of docs/frames.md, mm\ntype: {}\ndimension: {}\nspace dimension: 3\nsizes: {}{} {} {}\nspace directions: {}({p},0,0) (0,{},0) (0,0,{dz})\nkinds: {}domain domain domain\nendian: little\nencoding: raw\nspace origin: ({},{},{})\nspace units: \"mm\" \"mm\" \"mm\"\n\n",
+        if rgb { "uint8" } else { "uint16" },
+        if rgb { 4 } else { 3 },
+        if rgb { "3 " } else { "" },
         grid.columns(),
         grid.rows(),
         zs.len(),
+        if rgb { "none " } else { "" },
         -p,
+        if rgb { "RGB-color " } else { "" },
         grid.x_min + p / 2.0,
         grid.y_max - p / 2.0,
         zs[0]
     );
     let mut bytes = header.into_bytes();
-    bytes.reserve(volume.len() * 2);
-    for v in volume {
-        bytes.extend_from_slice(&v.to_le_bytes());
+    match voxels {
+        NrrdVoxels::Gray16(volume) => {
+            bytes.reserve(volume.len() * 2);
+            for v in volume {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        NrrdVoxels::Rgb8(volume) => bytes.extend_from_slice(volume),
     }
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|e| ExportError::Io {
@@ -514,4 +542,103 @@ fn write_nrrd_u16(path: &Path, volume: &[u16], grid: Grid, zs: &[f64]) -> Result
         path: path.to_path_buf(),
         message: e.source.to_string(),
     })
+}
+
+/// Label values of the vectors series: the CT Image IOD is MONOCHROME2 only, so the Fig. 9 colours
+/// become grey levels (the NRRD export keeps them as RGB).
+pub const LABEL_FUSED: u16 = 1000;
+pub const LABEL_HATCH: u16 = 2000;
+pub const LABEL_CONTOUR: u16 = 3000;
+
+/// The rasterized vectors, one slice per layer at its z: contours, hatches, fused area.
+fn export_vectors(
+    path: &Path,
+    live: &crate::acquisition::series::LiveSeries,
+    grid: Grid,
+    label: &str,
+    request: &ExportRequest,
+    summary: &mut ExportSummary,
+) -> Result<usize, ExportError> {
+    use crate::raster::{self, RasterOptions, RGB_CONTOUR, RGB_HATCH};
+    let file = crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
+    let options = RasterOptions {
+        part: request.part,
+        ..RasterOptions::default()
+    };
+    let name = if label == "export" {
+        "vectors".to_string()
+    } else {
+        format!("vectors {label}")
+    };
+    let series = crate::dicom::Series::named(live.study(), 9, &name);
+    let dir = request.out.join(name.replace(' ', "_"));
+    let (rows, cols) = (grid.rows(), grid.columns());
+    let mut rgb_volume: Vec<u8> = Vec::new();
+    let mut zs = Vec::new();
+    let mut slices = 0;
+    for (k, layer) in file.layers.iter().enumerate() {
+        let layer_number = k as u32 + 1;
+        let rgb = raster::rgb(layer, &grid, &options)
+            .map_err(|e| ExportError::Invalid(format!("{}: layer {k}: {e}", path.display())))?;
+        slices += 1;
+        match request.format {
+            ExportFormat::Nrrd => {
+                rgb_volume.extend_from_slice(rgb.as_raw());
+                zs.push(layer.z_mm);
+            }
+            ExportFormat::Dicom => {
+                let target = dir.join(format!("L{layer_number:05}.dcm"));
+                if target.exists() {
+                    summary.unchanged += 1;
+                    continue;
+                }
+                let pixels: Vec<u16> = rgb
+                    .pixels()
+                    .map(|p| match p {
+                        p if *p == RGB_CONTOUR => LABEL_CONTOUR,
+                        p if *p == RGB_HATCH => LABEL_HATCH,
+                        p if p.0 != [0, 0, 0] => LABEL_FUSED,
+                        _ => 0,
+                    })
+                    .collect();
+                let thickness = if k > 0 {
+                    layer.z_mm - file.layers[k - 1].z_mm
+                } else {
+                    layer.z_mm
+                };
+                let slice = crate::dicom::Slice {
+                    layer: layer_number,
+                    plane: crate::dicom::Plane {
+                        origin: [grid.x_min + grid.pixel_mm / 2.0, grid.y_max - grid.pixel_mm / 2.0, layer.z_mm],
+                        pixel_mm: grid.pixel_mm,
+                        rows,
+                        columns: cols,
+                        thickness_mm: if thickness > 0.0 { thickness } else { 0.03 },
+                    },
+                    pixels: &pixels,
+                    acquired: None,
+                    window: (1500.0, 3000.0),
+                    derivation: "laser scan vectors rasterized: 3000 contour, 2000 hatch, 1000 fused area, 0 powder",
+                };
+                crate::dicom::write_slice(
+                    &target,
+                    live.study(),
+                    &series,
+                    &slice,
+                    crate::dicom::Compression::Deflate,
+                )
+                .map_err(|e| ExportError::Io {
+                    path: target.clone(),
+                    message: e.to_string(),
+                })?;
+                summary.written += 1;
+            }
+        }
+    }
+    if request.format == ExportFormat::Nrrd && !zs.is_empty() {
+        let out = request.out.join(format!("{}.nrrd", name.replace(' ', "_")));
+        write_nrrd(&out, NrrdVoxels::Rgb8(&rgb_volume), grid, &zs)?;
+        summary.written += 1;
+    }
+    Ok(slices)
 }

@@ -415,9 +415,10 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         String::from_utf8_lossy(&o.stdout).to_string()
     };
-    assert!(export(&[]).contains("12 written, 0 already there"));
+    // Six views of two layers, and the two layers of the rasterized vectors.
+    assert!(export(&[]).contains("14 written, 0 already there"));
     assert!(
-        export(&[]).contains("0 written, 12 already there"),
+        export(&[]).contains("0 written, 14 already there"),
         "re-running is idempotent"
     );
     assert!(export(&["--part", "7", "--margin-mm", "5"]).contains("60 x 44 px"));
@@ -427,7 +428,7 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
             files.push(f.unwrap().path());
         }
     }
-    assert_eq!(files.len(), 24);
+    assert_eq!(files.len(), 28);
     // Exports are deflated: dicom3tools read the explicit VR copies dcmtk converts them to.
     let plain = dir.path().join("plain");
     std::fs::create_dir_all(&plain).unwrap();
@@ -473,5 +474,17 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
     assert!(
         text.contains("(550, 550, 2)") && text.contains("(-137.25, 137.25, 0.08"),
         "{text}"
+    );
+    // The vectors keep their colours in NRRD: contours blue where the box's outline is.
+    let check = Command::new(python())
+        .args(["-c", "import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetNumberOfComponentsPerPixel(), im.GetSize(), im.GetPixel(im.TransformPhysicalPointToIndex((40.0, 50.0, 0.04))))"])
+        .arg(nrrd.join("vectors.nrrd"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        text.starts_with("3 (550, 550, 2) (0, 0, 255)"),
+        "{text}{}",
+        String::from_utf8_lossy(&check.stderr)
     );
 }
