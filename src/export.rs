@@ -297,6 +297,8 @@ pub struct ExportRequest {
     pub margin_mm: f64,
     pub format: ExportFormat,
     pub progress: bool,
+    /// The CT registration (ct.toml from `layerwise register ct`): the CT is resampled into the study.
+    pub ct: Option<PathBuf>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -477,6 +479,20 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         summary.series.push((name, shots.len()));
     }
     bar.finish_and_clear();
+    if let Some(ct) = &request.ct {
+        let slices = export_ct(
+            ct, &live, grid, &heights, &originals, &record, &label, request,
+        )?;
+        summary.written += slices;
+        summary.series.push((
+            if label == "export" {
+                "ct".into()
+            } else {
+                format!("ct_{}", label.replace(' ', "_"))
+            },
+            slices,
+        ));
+    }
     if let Some(vectors) = &record.config.build.vectors {
         let slices = export_vectors(vectors, &live, grid, &label, request, &mut summary)?;
         summary.series.push((
@@ -641,4 +657,68 @@ fn export_vectors(
         summary.written += 1;
     }
     Ok(slices)
+}
+
+/// The registered CT resampled onto the export grid, one slice per layer (the vector file's layers,
+/// else the layers the build photographed), in the build's study.
+#[allow(clippy::too_many_arguments)]
+fn export_ct(
+    ct_toml: &Path,
+    live: &crate::acquisition::series::LiveSeries,
+    grid: Grid,
+    heights: &LayerHeights,
+    originals: &std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>,
+    record: &BuildRecord,
+    label: &str,
+    request: &ExportRequest,
+) -> Result<usize, ExportError> {
+    use crate::registration::ct;
+    if request.format == ExportFormat::Nrrd {
+        return Err(ExportError::Invalid(
+            "--ct is exported as DICOM only; run the export again with --format dicom".into(),
+        ));
+    }
+    let registration =
+        ct::CtRegistration::read_toml(ct_toml).map_err(|e| ExportError::Invalid(e.to_string()))?;
+    let source = registration.source.as_ref().ok_or_else(|| {
+        ExportError::Invalid(format!(
+            "{}: records no CT source; register again with this layerwise",
+            ct_toml.display()
+        ))
+    })?;
+    let volume = source
+        .read()
+        .map_err(|e| ExportError::Invalid(e.to_string()))?;
+    let planes: Vec<(u32, f64, f64)> = match &record.config.build.vectors {
+        Some(path) => {
+            let file =
+                crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
+            ct::vectors_field::layer_planes(&file)
+        }
+        None => {
+            let layers: std::collections::BTreeSet<u32> =
+                originals.values().flatten().map(|(s, _)| s.layer).collect();
+            layers
+                .into_iter()
+                .map(|k| (k, heights.z(k), heights.thickness(k)))
+                .collect()
+        }
+    };
+    let name = if label == "export" {
+        "ct".to_string()
+    } else {
+        format!("ct {label}")
+    };
+    let series = crate::dicom::Series::named(live.study(), 8, &name);
+    let dir = request.out.join(name.replace(' ', "_"));
+    ct::vectors_field::resample_to_dicom(
+        &volume,
+        &registration.transform,
+        grid,
+        &planes,
+        live.study(),
+        &series,
+        &dir,
+    )
+    .map_err(ExportError::Invalid)
 }

@@ -101,6 +101,9 @@ enum Command {
         margin_mm: f64,
         #[arg(long, value_enum, default_value = "dicom")]
         format: layerwise::export::ExportFormat,
+        /// ct.toml from `layerwise register ct`: the CT joins the study, resampled onto the grid.
+        #[arg(long)]
+        ct: Option<PathBuf>,
     },
     /// Where a build point is: its layer, its pixel in each rectified view and in each original frame.
     Locate {
@@ -341,6 +344,7 @@ fn dispatch(command: Command) -> Result<()> {
                 },
         } => {
             use layerwise::registration::ct;
+            let (size_arg, dtype_arg) = (size.clone(), dtype.clone());
             let source = match (size, dtype) {
                 (Some(size), Some(dtype)) => {
                     let voxel =
@@ -363,7 +367,17 @@ fn dispatch(command: Command) -> Result<()> {
                 Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(&points)?),
                 None => ct::InitialTransform::Centroid,
             };
+            let recorded = ct::CtSource {
+                path: std::fs::canonicalize(&ct)
+                    .unwrap_or(ct.clone())
+                    .display()
+                    .to_string(),
+                voxel_mm,
+                size: size_arg,
+                dtype: dtype_arg,
+            };
             let request = ct::vectors_field::CtRequest {
+                source: recorded,
                 vectors,
                 part,
                 init,
@@ -459,6 +473,7 @@ fn dispatch(command: Command) -> Result<()> {
             part,
             margin_mm,
             format,
+            ct,
         } => {
             let request = layerwise::export::ExportRequest {
                 build,
@@ -466,6 +481,7 @@ fn dispatch(command: Command) -> Result<()> {
                 part,
                 margin_mm,
                 format,
+                ct,
                 progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
             };
             let summary = layerwise::export::export(&request)?;

@@ -221,6 +221,60 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         std::fs::read_dir(&dicom).unwrap().count() > 10,
         "the resampled CT series"
     );
+    // The export puts the registered CT in the build's study, on the export grid.
+    let build = dir.path().join("build");
+    let demo = layerwise()
+        .args(["demo", "--layers", "2", "--out"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    assert!(
+        demo.status.success(),
+        "{}",
+        String::from_utf8_lossy(&demo.stderr)
+    );
+    let exported = dir.path().join("export");
+    let run = layerwise()
+        .args(["export", "--build"])
+        .arg(&build)
+        .arg("--out")
+        .arg(&exported)
+        .arg("--ct")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("ct "),
+        "{}",
+        String::from_utf8_lossy(&run.stdout)
+    );
+    let info = layerwise()
+        .args(["dicom", "info", "--json"])
+        .arg(&exported)
+        .output()
+        .unwrap();
+    let series: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let all = series.as_array().unwrap();
+    let ct = all
+        .iter()
+        .find(|s| s["description"] == "ct")
+        .expect("a ct series");
+    assert_eq!(ct["slices"], 2);
+    assert!(all
+        .iter()
+        .all(|s| s["study_instance_uid"] == ct["study_instance_uid"]
+            && s["frame_of_reference_uid"] == ct["frame_of_reference_uid"]));
+    assert!(
+        all.iter()
+            .all(|s| s["rows"] == ct["rows"] && s["first_position"][0] == ct["first_position"][0]),
+        "one grid"
+    );
+
     // A wrong voxel size is refused with the ratio.
     std::fs::write(
         dir.path().join("scan.pcr"),

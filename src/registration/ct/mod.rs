@@ -342,6 +342,36 @@ pub struct CtToml {
     pub rms_distance_um: f64,
     pub percentiles: Percentiles,
     pub points: PointCounts,
+    /// Where the CT came from, so `layerwise export --ct ct.toml` can resample it again.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<CtSource>,
+}
+
+/// How to read the registered CT volume again.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CtSource {
+    pub path: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub voxel_mm: Option<f64>,
+    /// Raw volumes only: `X,Y,Z` voxels and the sample type.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dtype: Option<String>,
+}
+
+impl CtSource {
+    /// Reads the volume it names.
+    pub fn read(&self) -> Result<Volume> {
+        let path = std::path::PathBuf::from(&self.path);
+        let source = match (&self.size, &self.dtype, self.voxel_mm) {
+            (Some(size), Some(dtype), Some(voxel)) => {
+                VolumeSource::Raw(path, RawSpec::from_args(size, voxel, dtype)?)
+            }
+            _ => VolumeSource::detect(&path, self.voxel_mm)?,
+        };
+        read_volume(&source)
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -361,6 +391,11 @@ pub struct PointCounts {
 
 impl CtRegistration {
     pub fn to_toml_string(&self) -> String {
+        self.to_toml_string_with(None)
+    }
+
+    /// `ct.toml` text, recording where the CT came from.
+    pub fn to_toml_string_with(&self, source: Option<CtSource>) -> String {
         let file = CtToml {
             transform: self.transform,
             iterations: self.iterations,
@@ -379,6 +414,7 @@ impl CtRegistration {
                 excluded_plate: self.points_excluded_plate,
                 outside_field: self.points_outside,
             },
+            source,
         };
         // Serialising plain numbers and tables cannot fail.
         toml::to_string(&file).unwrap_or_default()

@@ -3,7 +3,8 @@
 //! into the build frame as a DICOM series.
 
 use super::{
-    register, CtParams, CtRegistration, DistanceField, InitialTransform, PartShape, Volume,
+    register, CtParams, CtRegistration, CtSource, DistanceField, InitialTransform, PartShape,
+    Volume,
 };
 use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
 use crate::rectify::Grid;
@@ -51,6 +52,8 @@ pub struct CtRequest {
     pub build: Option<PathBuf>,
     pub tsdf_voxel_mm: f64,
     pub params: CtParams,
+    /// Recorded in ct.toml so the export can read the CT again.
+    pub source: CtSource,
 }
 
 /// Registers `volume` to the vectors and writes ct.toml (and the PLY and resampled DICOM asked for).
@@ -66,10 +69,10 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
     let nominal = nominal_shape(&field);
     let registered = register(volume, &field, &nominal, &request.init, &request.params)
         .map_err(|e| e.to_string())?;
-    registered
+    let text = registered
         .registration
-        .write_toml(&request.out)
-        .map_err(|e| e.to_string())?;
+        .to_toml_string_with(Some(request.source.clone()));
+    std::fs::write(&request.out, text).map_err(|e| format!("{}: {e}", request.out.display()))?;
     if let Some(ply) = &request.surface_ply {
         super::ply::write_ply(
             ply,
@@ -80,12 +83,29 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
         .map_err(|e| e.to_string())?;
     }
     if let Some(dir) = &request.resample_dicom {
+        let bbox = crate::raster::file_bbox(&file, request.part)
+            .ok_or("the vectors have no geometry to resample around")?;
+        let grid = Grid::on_plate_lattice(bbox, 1.0, 0.0625);
+        let study = match request.build.as_deref() {
+            Some(build) => build_study(build)?,
+            None => standalone_study(),
+        };
+        let name = format!(
+            "ct{}",
+            request
+                .part
+                .map(|p| format!(" part {p}"))
+                .unwrap_or_default()
+        );
+        let series = Series::named(&study, 50, &name);
+        let planes = layer_planes(&file);
         resample_to_dicom(
             volume,
             &registered.registration.transform,
-            &file,
-            request.part,
-            request.build.as_deref(),
+            grid,
+            &planes,
+            &study,
+            &series,
             dir,
         )?;
     }
@@ -142,76 +162,69 @@ fn sample(volume: &Volume, p: [f64; 3]) -> Option<f64> {
     Some(lerp(lerp(c00, c10, fy), lerp(c01, c11, fy), fz))
 }
 
-/// The registered CT resampled onto the build grid around the part (the rectified views' 62.5 µm
-/// lattice), one slice per vector layer at its z: a CT Image series in the build's study, so
-/// viewers overlay it on the image views.
+/// The study of a build (its build.json).
+pub fn build_study(dir: &Path) -> Result<Study, String> {
+    let manifest: crate::acquisition::status::BuildManifest =
+        std::fs::read(dir.join(crate::acquisition::status::MANIFEST))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .ok_or_else(|| {
+                format!(
+                    "{}: no build.json: not a layerwise build directory",
+                    dir.display()
+                )
+            })?;
+    Ok(Study::of_build(&manifest))
+}
+
+fn standalone_study() -> Study {
+    let uid = crate::acquisition::status::new_uid();
+    let now = chrono::Utc::now();
+    Study {
+        frame_of_reference_uid: dicom::derived_uid(&uid, "frame-of-reference"),
+        study_instance_uid: uid,
+        date: now.format("%Y%m%d").to_string(),
+        time: now.format("%H%M%S").to_string(),
+        patient_name: "layerwise^".into(),
+        patient_id: "ct".into(),
+        study_id: "1".into(),
+        description: "layerwise CT resampled to the build frame".into(),
+    }
+}
+
+/// (layer number from 1, z, thickness) of each layer of a vector file.
+pub fn layer_planes(file: &VectorFile) -> Vec<(u32, f64, f64)> {
+    file.layers
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            let below = if k > 0 { file.layers[k - 1].z_mm } else { 0.0 };
+            let t = l.z_mm - below;
+            (k as u32 + 1, l.z_mm, if t > 0.0 { t } else { 0.03 })
+        })
+        .collect()
+}
+
+/// The registered CT resampled (trilinearly) onto `grid`, one slice per layer at its z: a CT Image
+/// series in `study`, so viewers overlay it on the image views. Slices the CT does not reach are
+/// left out. Returns how many were written.
 pub fn resample_to_dicom(
     volume: &Volume,
     ct_to_build: &[[f64; 4]; 4],
-    file: &VectorFile,
-    part: Option<i64>,
-    build: Option<&Path>,
+    grid: Grid,
+    layers: &[(u32, f64, f64)],
+    study: &Study,
+    series: &Series,
     out: &Path,
 ) -> Result<usize, String> {
-    let bbox = crate::raster::file_bbox(file, part)
-        .ok_or("the vectors have no geometry to resample around")?;
-    let grid = Grid::on_plate_lattice(bbox, 1.0, 0.0625);
     let build_to_ct = invert_rigid(ct_to_build);
     let mm_to_index =
         invert_affine(&volume.index_to_mm).ok_or("the CT's index-to-mm matrix is singular")?;
-    let study = match build {
-        Some(dir) => {
-            let manifest: crate::acquisition::status::BuildManifest =
-                std::fs::read(dir.join(crate::acquisition::status::MANIFEST))
-                    .ok()
-                    .and_then(|b| serde_json::from_slice(&b).ok())
-                    .ok_or_else(|| {
-                        format!(
-                            "{}: no build.json: not a layerwise build directory",
-                            dir.display()
-                        )
-                    })?;
-            Study::of_build(&manifest)
-        }
-        None => {
-            let uid = crate::acquisition::status::new_uid();
-            let now = chrono::Utc::now();
-            Study {
-                frame_of_reference_uid: dicom::derived_uid(&uid, "frame-of-reference"),
-                study_instance_uid: uid,
-                date: now.format("%Y%m%d").to_string(),
-                time: now.format("%H%M%S").to_string(),
-                patient_name: "layerwise^".into(),
-                patient_id: "ct".into(),
-                study_id: "1".into(),
-                description: "layerwise CT resampled to the build frame".into(),
-            }
-        }
-    };
-    let series = Series::named(
-        &study,
-        50,
-        &format!(
-            "ct{}",
-            part.map(|p| format!(" part {p}")).unwrap_or_default()
-        ),
-    );
     let (lo, hi) = volume.value_range();
     let scale = if hi > lo { 65535.0 / (hi - lo) } else { 1.0 };
     let (rows, cols) = (grid.rows(), grid.columns());
-    let zs: Vec<(usize, f64)> = file
-        .layers
-        .iter()
-        .enumerate()
-        .map(|(k, l)| (k + 1, l.z_mm))
-        .collect();
-    let thickness = if zs.len() > 1 {
-        (zs[zs.len() - 1].1 - zs[0].1) / (zs.len() - 1) as f64
-    } else {
-        0.03
-    };
     let mut written = 0;
-    for &(layer, z) in &zs {
+    for &(layer, z, thickness) in layers {
         let mut pixels = vec![0u16; rows * cols];
         use rayon::prelude::*;
         pixels
@@ -231,7 +244,7 @@ pub fn resample_to_dicom(
             continue;
         }
         let slice = Slice {
-            layer: layer as u32,
+            layer,
             plane: Plane {
                 origin: [grid.x_min + grid.pixel_mm / 2.0, grid.y_max - grid.pixel_mm / 2.0, z],
                 pixel_mm: grid.pixel_mm,
