@@ -259,8 +259,8 @@ pub fn resample_to_dicom(
         };
         dicom::write_slice(
             &out.join(format!("L{layer:05}.dcm")),
-            &study,
-            &series,
+            study,
+            series,
             &slice,
             Compression::Deflate,
         )
