@@ -71,13 +71,73 @@ pub struct ViewLocation {
     pub original: Option<PathBuf>,
 }
 
+/// Where a build point is in the registered CT.
+#[derive(Clone, Debug, Serialize)]
+pub struct CtLocation {
+    /// CT physical mm (DICOM patient coordinates of the CT, or voxel index x voxel size).
+    pub ct_mm: [f64; 3],
+    /// Fractional voxel index (i, j, k), when the CT volume could be read.
+    pub voxel: Option<[f64; 3]>,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Location {
     /// The point in the build frame, mm.
     pub build_mm: [f64; 3],
+    pub ct: Option<CtLocation>,
     pub layer: Option<u32>,
     pub layer_z_mm: Option<f64>,
     pub views: Vec<ViewLocation>,
+}
+
+/// The CT transform of a ct.toml and, when its source can be read, the CT's index geometry.
+pub struct CtFrame {
+    pub ct_to_build: [[f64; 4]; 4],
+    pub mm_to_index: Option<[[f64; 4]; 4]>,
+}
+
+impl CtFrame {
+    pub fn open(ct_toml: &Path) -> Result<CtFrame, ExportError> {
+        let registration = crate::registration::ct::CtRegistration::read_toml(ct_toml)
+            .map_err(|e| ExportError::Invalid(e.to_string()))?;
+        let mm_to_index = registration
+            .source
+            .as_ref()
+            .and_then(|s| s.read().ok())
+            .and_then(|v| {
+                let m = nalgebra::Matrix4::from_fn(|r, c| v.index_to_mm[r][c]).try_inverse()?;
+                Some(std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
+            });
+        Ok(CtFrame {
+            ct_to_build: registration.transform,
+            mm_to_index,
+        })
+    }
+
+    fn apply(m: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    }
+
+    /// CT mm → build mm.
+    pub fn to_build(&self, ct_mm: [f64; 3]) -> [f64; 3] {
+        Self::apply(&self.ct_to_build, ct_mm)
+    }
+
+    /// Build mm → CT mm and voxel.
+    pub fn locate(&self, build_mm: [f64; 3]) -> CtLocation {
+        let t = &self.ct_to_build;
+        let d = [
+            build_mm[0] - t[0][3],
+            build_mm[1] - t[1][3],
+            build_mm[2] - t[2][3],
+        ];
+        // The inverse of a rigid transform: Rᵀ (p − t).
+        let ct_mm = [0, 1, 2].map(|c| (0..3).map(|r| t[r][c] * d[r]).sum::<f64>());
+        CtLocation {
+            ct_mm,
+            voxel: self.mm_to_index.map(|m| Self::apply(&m, ct_mm)),
+        }
+    }
 }
 
 /// Where `point` (build mm) is in the layer stack, the rectified views and the original frames.
@@ -129,6 +189,7 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, ExportE
         })
         .collect();
     Ok(Location {
+        ct: None,
         build_mm: point,
         layer,
         layer_z_mm: layer.map(|k| record.heights.z(k)),
@@ -150,6 +211,14 @@ impl std::fmt::Display for Location {
         match (self.layer, self.layer_z_mm) {
             (Some(k), Some(zk)) => writeln!(f, "layer         {k} (top at z = {zk} mm)")?,
             _ => writeln!(f, "layer         none: z is outside the build")?,
+        }
+        if let Some(ct) = &self.ct {
+            let [a, b, c] = ct.ct_mm;
+            write!(f, "ct            ({a:.3}, {b:.3}, {c:.3}) mm")?;
+            match ct.voxel {
+                Some([i, j, k]) => writeln!(f, ", voxel ({i:.1}, {j:.1}, {k:.1})")?,
+                None => writeln!(f)?,
+            }
         }
         for v in &self.views {
             let rect = v

@@ -114,9 +114,21 @@ enum Command {
             long,
             value_delimiter = ',',
             allow_hyphen_values = true,
-            required = true
+            required_unless_present = "ct_point"
         )]
         point: Vec<f64>,
+        /// x,y,z in CT mm (needs --ct).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            conflicts_with = "point",
+            requires = "ct"
+        )]
+        ct_point: Vec<f64>,
+        /// ct.toml from `layerwise register ct`: also where the point is in the CT.
+        #[arg(long)]
+        ct: Option<PathBuf>,
         #[arg(long)]
         json: bool,
         /// Draw the point in each view, side by side.
@@ -501,14 +513,28 @@ fn dispatch(command: Command) -> Result<()> {
         Command::Locate {
             build,
             point,
+            ct_point,
+            ct,
             json,
             mark,
         } => {
-            let point: [f64; 3] = point
-                .try_into()
-                .map_err(|_| anyhow::anyhow!("--point takes x,y,z in mm"))?;
+            let three = |v: Vec<f64>, flag: &str| -> Result<[f64; 3]> {
+                v.try_into()
+                    .map_err(|_| anyhow::anyhow!("{flag} takes x,y,z in mm"))
+            };
+            let frame = ct
+                .as_deref()
+                .map(layerwise::export::CtFrame::open)
+                .transpose()?;
+            let point = match &frame {
+                Some(frame) if !ct_point.is_empty() => {
+                    frame.to_build(three(ct_point, "--ct-point")?)
+                }
+                _ => three(point, "--point")?,
+            };
             let record = layerwise::export::BuildRecord::open(&build)?;
-            let location = layerwise::export::locate(&record, point)?;
+            let mut location = layerwise::export::locate(&record, point)?;
+            location.ct = frame.map(|f| f.locate(point));
             if let Some(out) = mark {
                 layerwise::export::mark(&record, &location, &out)?;
             }

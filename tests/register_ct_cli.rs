@@ -275,6 +275,42 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         "one grid"
     );
 
+    // locate: a CT point in the build frame and back to its voxel.
+    let run = layerwise()
+        .args(["locate", "--json", "--ct-point", "8,8,8", "--build"])
+        .arg(&build)
+        .arg("--ct")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let loc: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let b: Vec<f64> = loc["build_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        (b[0] - 22.0).abs() < 0.01 && (b[1] - 30.0).abs() < 0.01 && (b[2] - 1.5).abs() < 0.01,
+        "{b:?}"
+    );
+    let ct_voxel: Vec<f64> = loc["ct"]["voxel"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        ct_voxel.iter().all(|v| (v - 80.0).abs() < 1e-6),
+        "{ct_voxel:?}"
+    );
+    assert_eq!(loc["layer"], 50);
+
     // A wrong voxel size is refused with the ratio.
     std::fs::write(
         dir.path().join("scan.pcr"),
