@@ -269,6 +269,24 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
     )
     .map_err(|e| ExportError::Invalid(format!("calibration: {e}")))?;
     let mut tiles: Vec<image::RgbImage> = Vec::new();
+    let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
+    // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.
+    if let (Some(path), Some(k), Some([r, c])) = (
+        &record.config.build.vectors,
+        location.layer,
+        location.views.first().and_then(|v| v.rectified_pixel),
+    ) {
+        let file = crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
+        if let Some(layer) = file.layers.get(k as usize - 1) {
+            let picture = crate::raster::rgb(
+                layer,
+                &record.grid,
+                &crate::raster::RasterOptions::default(),
+            )
+            .map_err(|e| ExportError::Invalid(e.to_string()))?;
+            tiles.push(crop_with_marker(&picture, r, c, HALF));
+        }
+    }
     for v in &location.views {
         let Some(original) = &v.original else {
             continue;
@@ -283,10 +301,10 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
         })?;
         if let Some([r, c]) = v.rectified_pixel {
             let rect = rectifier.rectify_gray8(&gray);
-            tiles.push(crop_with_marker(&rect, r, c, HALF));
+            tiles.push(crop_with_marker(&rgb(rect), r, c, HALF));
         }
         if let Some([u, vv]) = v.image_pixel {
-            tiles.push(crop_with_marker(&gray, vv, u, HALF));
+            tiles.push(crop_with_marker(&rgb(gray.clone()), vv, u, HALF));
         }
     }
     if tiles.is_empty() {
@@ -310,7 +328,7 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
 }
 
 /// A (2·half + 1)² crop centred on (row, col) with a green cross; outside the image is black.
-fn crop_with_marker(img: &image::GrayImage, row: f64, col: f64, half: i64) -> image::RgbImage {
+fn crop_with_marker(img: &image::RgbImage, row: f64, col: f64, half: i64) -> image::RgbImage {
     let (r0, c0) = (row.round() as i64, col.round() as i64);
     let side = (2 * half + 1) as u32;
     let mut tile = image::RgbImage::new(side, side);
@@ -318,11 +336,10 @@ fn crop_with_marker(img: &image::GrayImage, row: f64, col: f64, half: i64) -> im
         for dx in -half..=half {
             let (r, c) = (r0 + dy, c0 + dx);
             if r >= 0 && c >= 0 && (r as u32) < img.height() && (c as u32) < img.width() {
-                let g = img.get_pixel(c as u32, r as u32).0[0];
                 tile.put_pixel(
                     (dx + half) as u32,
                     (dy + half) as u32,
-                    image::Rgb([g, g, g]),
+                    *img.get_pixel(c as u32, r as u32),
                 );
             }
         }

@@ -475,6 +475,39 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
         text.contains("(550, 550, 2)") && text.contains("(-137.25, 137.25, 0.08"),
         "{text}"
     );
+    // SimpleITK stacks an exported DICOM series in the build frame too.
+    let check = Command::new(python())
+        .args(["-c", "import sys, SimpleITK as s; r = s.ImageSeriesReader(); r.SetFileNames(r.GetGDCMSeriesFileNames(sys.argv[1])); im = r.Execute(); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 0)), im.TransformIndexToPhysicalPoint((1, 1, 1)))"])
+        .arg(out.join("post_top_export"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        text.contains("(550, 550, 2) (-137.25, 137.25, 0.0")
+            && text.contains("(-136.75, 136.75, 0.0"),
+        "{text}{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    // locate --mark draws the vectors first (Fig. 9): blue contour pixels in the first tile.
+    let mark = dir.path().join("mark.png");
+    let o = layerwise()
+        .args(["locate", "--point", "40,50,0.08", "--build"])
+        .arg(&build)
+        .arg("--mark")
+        .arg(&mark)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sheet = image::open(&mark).unwrap().to_rgb8();
+    assert_eq!(
+        sheet.width(),
+        13 * 161 + 12 * 4,
+        "vectors + 6 views x (rectified, original)"
+    );
+    let first_tile_blue = (0..161)
+        .flat_map(|x| (0..161).map(move |y| (x, y)))
+        .any(|(x, y)| sheet.get_pixel(x, y).0 == [0, 0, 255]);
+    assert!(first_tile_blue, "the vectors tile shows the box's contour");
     // The vectors keep their colours in NRRD: contours blue where the box's outline is.
     let check = Command::new(python())
         .args(["-c", "import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetNumberOfComponentsPerPixel(), im.GetSize(), im.GetPixel(im.TransformPhysicalPointToIndex((40.0, 50.0, 0.04))))"])
