@@ -1,8 +1,10 @@
 //! Tests of the rasteriser: analytic shapes, fill rules, spot width, coverage, the grid
 //! contract of docs/frames.md, the exemplar, the standard deviation filter and the real files.
 
+mod common;
+use common::shared_cli;
 use std::f64::consts::{PI, TAU};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use layerwise::raster::{
     self, coverage, exemplar, mask, rgb, std_filter, FillRule, Grid, RasterError, RasterKind,
@@ -10,28 +12,7 @@ use layerwise::raster::{
 };
 use layerwise::vectors::{self, Direction, Hatches, Layer, Polyline};
 
-const FILES: [&str; 4] = [
-    "s_Cylinder_ex.cli",
-    "s_MiniCooper_ex.cli",
-    "frustrum_ASCII.cli",
-    "Box_support_solid_ascii_with_params.cli",
-];
-
-/// A real CLI file: `$LAYERWISE_SHARED_DATA/<name>` when set, else
-/// `<CARGO_MANIFEST_DIR>/../shared/data/cli/<name>`. Fails when the file is missing.
-fn shared_cli(name: &str) -> PathBuf {
-    let dir = match std::env::var_os("LAYERWISE_SHARED_DATA") {
-        Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli"),
-    };
-    let path = dir.join(name);
-    assert!(
-        path.is_file(),
-        "test data {} is missing: put shared/ beside the checkout or set LAYERWISE_SHARED_DATA",
-        path.display()
-    );
-    path
-}
+const FILES: [&str; 4] = common::REAL_CLI_FILES;
 
 fn circle(cx: f64, cy: f64, r: f64, n: usize, ccw: bool) -> Vec<[f64; 2]> {
     let sign = if ccw { 1.0 } else { -1.0 };

@@ -1,6 +1,8 @@
 //! Tests of the CLI vector reader/writer against the real files in shared/data/cli and against
 //! generated and deliberately broken input.
 
+mod common;
+use common::shared_cli;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -9,28 +11,7 @@ use layerwise::vectors::{
     VectorFile,
 };
 
-const FILES: [&str; 4] = [
-    "s_Cylinder_ex.cli",
-    "s_MiniCooper_ex.cli",
-    "frustrum_ASCII.cli",
-    "Box_support_solid_ascii_with_params.cli",
-];
-
-/// A real CLI file from shared/data/cli: `$LAYERWISE_SHARED_DATA/<name>` when that variable is
-/// set, else `<CARGO_MANIFEST_DIR>/../shared/data/cli/<name>`. Fails when the file is missing.
-fn shared_cli(name: &str) -> PathBuf {
-    let dir = match std::env::var_os("LAYERWISE_SHARED_DATA") {
-        Some(d) => PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli"),
-    };
-    let path = dir.join(name);
-    assert!(
-        path.is_file(),
-        "test data {} is missing: put shared/ beside the checkout or set LAYERWISE_SHARED_DATA",
-        path.display()
-    );
-    path
-}
+const FILES: [&str; 4] = common::REAL_CLI_FILES;
 
 fn bytes_of(name: &str) -> Vec<u8> {
     std::fs::read(shared_cli(name)).unwrap()

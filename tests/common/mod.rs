@@ -138,3 +138,27 @@ pub fn write_config(config: &Config, path: &Path) {
 pub fn layerwise() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_layerwise"))
 }
+
+/// The four real CLI files of shared/data/cli.
+pub const REAL_CLI_FILES: [&str; 4] = [
+    "s_Cylinder_ex.cli",
+    "s_MiniCooper_ex.cli",
+    "frustrum_ASCII.cli",
+    "Box_support_solid_ascii_with_params.cli",
+];
+
+/// A real CLI file from shared/data/cli: `$LAYERWISE_SHARED_DATA/<name>` when that variable is
+/// set, else `<CARGO_MANIFEST_DIR>/../shared/data/cli/<name>`. Fails when the file is missing.
+pub fn shared_cli(name: &str) -> std::path::PathBuf {
+    let dir = match std::env::var_os("LAYERWISE_SHARED_DATA") {
+        Some(d) => std::path::PathBuf::from(d),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli"),
+    };
+    let path = dir.join(name);
+    assert!(
+        path.is_file(),
+        "test data {} is missing: put shared/ beside the checkout or set LAYERWISE_SHARED_DATA",
+        path.display()
+    );
+    path
+}
