@@ -424,7 +424,8 @@ fn default_layer_thickness() -> f64 {
     0.03
 }
 fn default_dicom_compression() -> crate::dicom::Compression {
-    crate::dicom::Compression::Deflate
+    // Explicit VR little endian: what every reader and validator takes.
+    crate::dicom::Compression::None
 }
 
 impl Config {
