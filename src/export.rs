@@ -759,11 +759,6 @@ fn export_ct(
     request: &ExportRequest,
 ) -> Result<usize, ExportError> {
     use crate::registration::ct;
-    if request.format == ExportFormat::Nrrd {
-        return Err(ExportError::Invalid(
-            "--ct is exported as DICOM only; run the export again with --format dicom".into(),
-        ));
-    }
     let registration =
         ct::CtRegistration::read_toml(ct_toml).map_err(|e| ExportError::Invalid(e.to_string()))?;
     let source = registration.source.as_ref().ok_or_else(|| {
@@ -795,6 +790,21 @@ fn export_ct(
     } else {
         format!("ct {label}")
     };
+    if request.format == ExportFormat::Nrrd {
+        let slices =
+            ct::vectors_field::resample_slices(&volume, &registration.transform, grid, &planes)
+                .map_err(ExportError::Invalid)?;
+        let zs: Vec<f64> = slices.iter().map(|s| s.z_mm).collect();
+        let voxels: Vec<u16> = slices
+            .iter()
+            .flat_map(|s| s.pixels.iter().copied())
+            .collect();
+        if !zs.is_empty() {
+            let path = request.out.join(format!("{}.nrrd", name.replace(' ', "_")));
+            write_nrrd(&path, NrrdVoxels::Gray16(&voxels), grid, &zs)?;
+        }
+        return Ok(zs.len());
+    }
     let series = crate::dicom::Series::named(live.study(), 8, &name);
     let dir = request.out.join(name.replace(' ', "_"));
     ct::vectors_field::resample_to_dicom(

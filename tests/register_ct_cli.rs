@@ -275,6 +275,41 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         "one grid"
     );
 
+    // NRRD too: the CT volume on the same grid as the views.
+    let nrrd = dir.path().join("nrrd");
+    let run = layerwise()
+        .args(["export", "--format", "nrrd", "--build"])
+        .arg(&build)
+        .arg("--out")
+        .arg(&nrrd)
+        .arg("--ct")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let header = |name: &str| -> String {
+        let bytes = std::fs::read(nrrd.join(name)).unwrap();
+        let end = bytes.windows(2).position(|w| w == b"\n\n").unwrap();
+        String::from_utf8_lossy(&bytes[..end]).to_string()
+    };
+    let ct_header = header("ct.nrrd");
+    assert!(
+        ct_header.contains("sizes: 1100 1100 2") && ct_header.contains("type: uint16"),
+        "{ct_header}"
+    );
+    let view = header("post_top.nrrd");
+    let origin = |h: &str| {
+        h.lines()
+            .find(|l| l.starts_with("space origin"))
+            .unwrap_or("")
+            .to_string()
+    };
+    assert_eq!(origin(&ct_header), origin(&view), "one grid");
+
     // locate: a CT point in the build frame and back to its voxel.
     let run = layerwise()
         .args(["locate", "--json", "--ct-point", "8,8,8", "--build"])

@@ -205,9 +205,57 @@ pub fn layer_planes(file: &VectorFile) -> Vec<(u32, f64, f64)> {
         .collect()
 }
 
-/// The registered CT resampled (trilinearly) onto `grid`, one slice per layer at its z: a CT Image
-/// series in `study`, so viewers overlay it on the image views. Slices the CT does not reach are
-/// left out. Returns how many were written.
+/// One layer of the CT resampled into the build frame.
+pub struct CtSlice {
+    pub layer: u32,
+    pub z_mm: f64,
+    pub thickness_mm: f64,
+    /// Row-major on the grid; the CT's value range mapped to 0..65535, 0 where the CT does not reach.
+    pub pixels: Vec<u16>,
+}
+
+/// The registered CT resampled (trilinearly) onto `grid`, one slice per layer at its z.
+pub fn resample_slices(
+    volume: &Volume,
+    ct_to_build: &[[f64; 4]; 4],
+    grid: Grid,
+    layers: &[(u32, f64, f64)],
+) -> Result<Vec<CtSlice>, String> {
+    use rayon::prelude::*;
+    let build_to_ct = invert_rigid(ct_to_build);
+    let mm_to_index =
+        invert_affine(&volume.index_to_mm).ok_or("the CT's index-to-mm matrix is singular")?;
+    let (lo, hi) = volume.value_range();
+    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 1.0 };
+    let cols = grid.columns();
+    Ok(layers
+        .iter()
+        .map(|&(layer, z, thickness)| {
+            let mut pixels = vec![0u16; grid.rows() * cols];
+            pixels
+                .par_chunks_mut(cols)
+                .enumerate()
+                .for_each(|(r, row)| {
+                    for (c, px) in row.iter_mut().enumerate() {
+                        let (x, y) = grid.center_of(r as f64, c as f64);
+                        let index = apply(&mm_to_index, apply(&build_to_ct, [x, y, z]));
+                        if let Some(v) = sample(volume, index) {
+                            *px = ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16;
+                        }
+                    }
+                });
+            CtSlice {
+                layer,
+                z_mm: z,
+                thickness_mm: thickness,
+                pixels,
+            }
+        })
+        .collect())
+}
+
+/// The registered CT resampled onto `grid` as a CT Image series in `study`, so viewers overlay
+/// it on the image views. Slices the CT does not reach are left out. Returns how many were written.
 pub fn resample_to_dicom(
     volume: &Volume,
     ct_to_build: &[[f64; 4]; 4],
@@ -217,54 +265,28 @@ pub fn resample_to_dicom(
     series: &Series,
     out: &Path,
 ) -> Result<usize, String> {
-    let build_to_ct = invert_rigid(ct_to_build);
-    let mm_to_index =
-        invert_affine(&volume.index_to_mm).ok_or("the CT's index-to-mm matrix is singular")?;
-    let (lo, hi) = volume.value_range();
-    let scale = if hi > lo { 65535.0 / (hi - lo) } else { 1.0 };
-    let (rows, cols) = (grid.rows(), grid.columns());
     let mut written = 0;
-    for &(layer, z, thickness) in layers {
-        let mut pixels = vec![0u16; rows * cols];
-        use rayon::prelude::*;
-        pixels
-            .par_chunks_mut(cols)
-            .enumerate()
-            .for_each(|(r, row)| {
-                for (c, px) in row.iter_mut().enumerate() {
-                    let (x, y) = grid.center_of(r as f64, c as f64);
-                    let ct = apply(&build_to_ct, [x, y, z]);
-                    let index = apply(&mm_to_index, ct);
-                    if let Some(v) = sample(volume, index) {
-                        *px = ((v - lo) * scale).round().clamp(0.0, 65535.0) as u16;
-                    }
-                }
-            });
-        if pixels.iter().all(|&p| p == 0) {
+    for s in resample_slices(volume, ct_to_build, grid, layers)? {
+        if s.pixels.iter().all(|&p| p == 0) {
             continue;
         }
         let slice = Slice {
-            layer,
+            layer: s.layer,
             plane: Plane {
-                origin: [grid.x_min + grid.pixel_mm / 2.0, grid.y_max - grid.pixel_mm / 2.0, z],
+                origin: [grid.x_min + grid.pixel_mm / 2.0, grid.y_max - grid.pixel_mm / 2.0, s.z_mm],
                 pixel_mm: grid.pixel_mm,
-                rows,
-                columns: cols,
-                thickness_mm: thickness,
+                rows: grid.rows(),
+                columns: grid.columns(),
+                thickness_mm: s.thickness_mm,
             },
-            pixels: &pixels,
+            pixels: &s.pixels,
             acquired: None,
             window: (32767.0, 65535.0),
             derivation: "CT resampled (trilinear) into the build frame through the CT-to-vector registration",
         };
-        dicom::write_slice(
-            &out.join(format!("L{layer:05}.dcm")),
-            study,
-            series,
-            &slice,
-            Compression::Deflate,
-        )
-        .map_err(|e| e.to_string())?;
+        let path = out.join(format!("L{:05}.dcm", s.layer));
+        dicom::write_slice(&path, study, series, &slice, Compression::Deflate)
+            .map_err(|e| e.to_string())?;
         written += 1;
     }
     Ok(written)
