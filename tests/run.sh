@@ -31,6 +31,9 @@ fi
 LAYERWISE_VCAM_LIBDIR="$("$venv/bin/python" -c 'import gphoto2, os; print(os.path.join(os.path.dirname(gphoto2.__file__), "libgphoto2"))')"
 export LAYERWISE_VCAM_LIBDIR
 
+# A one-off build (CI) gains nothing from incremental artifacts, which take gigabytes.
+if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
+
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
 cargo test --workspace --all-features
