@@ -1,10 +1,12 @@
 //! After the build: locating one point of the build frame in every modality (and, with the
 //! raster and CT modules, exporting them all as one study).
 
+use crate::acquisition::processing::FrameProcessor;
 use crate::acquisition::series::{series_dir, LayerHeights, SeriesSettings};
 use crate::acquisition::status;
 use crate::config::Config;
 use crate::rectify::{Calibration, Grid, Rectifier};
+use crate::registration::ct::vectors_field::{apply, invert_affine, invert_rigid};
 use crate::view::{Shot, View};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -104,38 +106,24 @@ impl CtFrame {
             .source
             .as_ref()
             .and_then(|s| s.read().ok())
-            .and_then(|v| {
-                let m = nalgebra::Matrix4::from_fn(|r, c| v.index_to_mm[r][c]).try_inverse()?;
-                Some(std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)])))
-            });
+            .and_then(|v| invert_affine(&v.index_to_mm));
         Ok(CtFrame {
             ct_to_build: registration.transform,
             mm_to_index,
         })
     }
 
-    fn apply(m: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
-    }
-
     /// CT mm → build mm.
     pub fn to_build(&self, ct_mm: [f64; 3]) -> [f64; 3] {
-        Self::apply(&self.ct_to_build, ct_mm)
+        apply(&self.ct_to_build, ct_mm)
     }
 
     /// Build mm → CT mm and voxel.
     pub fn locate(&self, build_mm: [f64; 3]) -> CtLocation {
-        let t = &self.ct_to_build;
-        let d = [
-            build_mm[0] - t[0][3],
-            build_mm[1] - t[1][3],
-            build_mm[2] - t[2][3],
-        ];
-        // The inverse of a rigid transform: Rᵀ (p − t).
-        let ct_mm = [0, 1, 2].map(|c| (0..3).map(|r| t[r][c] * d[r]).sum::<f64>());
+        let ct_mm = apply(&invert_rigid(&self.ct_to_build), build_mm);
         CtLocation {
             ct_mm,
-            voxel: self.mm_to_index.map(|m| Self::apply(&m, ct_mm)),
+            voxel: self.mm_to_index.map(|m| apply(&m, ct_mm)),
         }
     }
 }
@@ -514,32 +502,22 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         let mut volume: Vec<u16> = Vec::new();
         let mut zs = Vec::new();
         for (shot, path) in shots {
-            let bytes = std::fs::read(path).map_err(|e| ExportError::Io {
+            let io = |message: String| ExportError::Io {
                 path: path.clone(),
-                message: e.to_string(),
-            })?;
+                message,
+            };
             match request.format {
                 ExportFormat::Dicom => {
-                    let target = live.slice_path(&request.build, *shot);
-                    if target.exists() {
+                    // Already exported: nothing to read or write (the UIDs make it identical).
+                    if live.slice_path(&request.build, *shot).exists() {
                         summary.unchanged += 1;
                     } else {
-                        let acquired = std::fs::read(path.with_extension("json"))
-                            .ok()
-                            .and_then(|b| {
-                                serde_json::from_slice::<crate::acquisition::storage::Sidecar>(&b)
-                                    .ok()
-                            })
-                            .map(|s| s.captured_at);
-                        live.write(&request.build, *shot, &bytes, acquired)
-                            .map_err(|message| ExportError::Io {
-                                path: path.clone(),
-                                message,
-                            })?;
+                        live.process(&request.build, *shot, path).map_err(io)?;
                         summary.written += 1;
                     }
                 }
                 ExportFormat::Nrrd => {
+                    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
                     let luma = live
                         .rectified_luma(&bytes)
                         .map_err(|message| ExportError::Io {

@@ -112,7 +112,8 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
     Ok(registered.registration)
 }
 
-fn invert_rigid(t: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
+/// The inverse of a rigid 4x4 transform: Rᵀ and −Rᵀt.
+pub fn invert_rigid(t: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     let mut inv = [[0.0; 4]; 4];
     for r in 0..3 {
         for c in 0..3 {
@@ -124,11 +125,13 @@ fn invert_rigid(t: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     inv
 }
 
-fn apply(t: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
+/// A 4x4 affine transform applied to a point.
+pub fn apply(t: &[[f64; 4]; 4], p: [f64; 3]) -> [f64; 3] {
     [0, 1, 2].map(|r| t[r][0] * p[0] + t[r][1] * p[1] + t[r][2] * p[2] + t[r][3])
 }
 
-fn invert_affine(m: &[[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
+/// The inverse of a 4x4 affine transform, if it has one.
+pub fn invert_affine(m: &[[f64; 4]; 4]) -> Option<[[f64; 4]; 4]> {
     let a = nalgebra::Matrix4::from_fn(|r, c| m[r][c]);
     let inv = a.try_inverse()?;
     Some(std::array::from_fn(|r| {
