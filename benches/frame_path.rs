@@ -17,6 +17,31 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// Per-frame times (ms, each frame alone) and per-layer times (s, the six frames one per core at
+/// a time, as the processing worker runs them) over `rounds` rounds.
+fn time_frames(
+    live: &LiveSeries,
+    build_dir: &std::path::Path,
+    originals: &[(Shot, std::path::PathBuf)],
+    rounds: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut per_frame = Vec::new();
+    let mut layer_totals = Vec::new();
+    for _ in 0..rounds {
+        for (shot, path) in originals {
+            let t = Instant::now();
+            live.process(build_dir, *shot, path).expect("process");
+            per_frame.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        let layer = Instant::now();
+        originals
+            .par_iter()
+            .for_each(|(shot, path)| live.process(build_dir, *shot, path).expect("process"));
+        layer_totals.push(layer.elapsed().as_secs_f64());
+    }
+    (per_frame, layer_totals)
+}
+
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let (w, h) = if full { (7360, 4912) } else { (736, 491) };
@@ -116,21 +141,8 @@ fn main() {
             fill: 0,
         };
         let live = LiveSeries::new(&manifest, &views, &calibration, settings).expect("series");
-        let mut layer_totals = Vec::new();
-        let mut per_frame = Vec::new();
-        for _ in 0..if full { 3 } else { 1 } {
-            for (shot, path) in &originals {
-                let t = Instant::now();
-                live.process(dir.path(), *shot, path).expect("process");
-                per_frame.push(t.elapsed().as_secs_f64() * 1e3);
-            }
-            // As the processing worker does it: one frame per core at a time.
-            let layer = Instant::now();
-            originals
-                .par_iter()
-                .for_each(|(shot, path)| live.process(dir.path(), *shot, path).expect("process"));
-            layer_totals.push(layer.elapsed().as_secs_f64());
-        }
+        let (per_frame, layer_totals) =
+            time_frames(&live, dir.path(), &originals, if full { 3 } else { 1 });
         let size = std::fs::metadata(dir.path().join("dicom/post_top/L00001.dcm"))
             .map(|m| m.len())
             .unwrap_or(0);
@@ -142,4 +154,82 @@ fn main() {
             6.0 * size as f64 / 1e6
         );
     }
+    #[cfg(feature = "nef")]
+    raw_frames(&renderer, &parts, &views, &manifest, &calibration, full);
+}
+
+/// The same path when the camera is set to NEF (14-bit lossless compressed, the D810's
+/// default): decode and develop with rawler, linear luminance, 16-bit rectify, DICOM write.
+#[cfg(feature = "nef")]
+fn raw_frames(
+    renderer: &mock_camera::Renderer,
+    parts: &[mock_camera::Shape],
+    views: &[View],
+    manifest: &BuildManifest,
+    calibration: &Calibration,
+    full: bool,
+) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::create_dir_all(dir.path().join("raw")).expect("raw");
+    let mut originals = Vec::new();
+    for view in views {
+        let scene = mock_camera::Scene {
+            layer: 1,
+            fused: parts,
+            scanned: view.phase == Phase::Post,
+            illumination: mock_camera::Illumination::Top,
+        };
+        let shot = Shot {
+            layer: 1,
+            phase: view.phase,
+            light: view.light,
+        };
+        let nef = mock_camera::nef::encode_nef(
+            &renderer.render(&scene),
+            &mock_camera::nef::NefOptions::default(),
+        );
+        let path = dir.path().join(format!("raw/{}.nef", shot.stem()));
+        std::fs::write(&path, nef).expect("frame");
+        originals.push((shot, path));
+    }
+    let bytes = std::fs::read(&originals[5].1).expect("frame");
+    let t = Instant::now();
+    let developed = layerwise::rectify::raw::develop(&bytes).expect("develop");
+    let develop_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let luminance = developed.luminance();
+    let luminance_ms = t.elapsed().as_secs_f64() * 1e3;
+    let grid = calibration.grid.expect("grid");
+    let rectifier = layerwise::rectify::Rectifier::new(
+        calibration.homography,
+        grid,
+        None,
+        Interpolation::Bilinear,
+        0,
+    )
+    .expect("rectifier");
+    let t = Instant::now();
+    let _ = rectifier.rectify_gray16(&luminance);
+    let rectify_ms = t.elapsed().as_secs_f64() * 1e3;
+    println!(
+        "NEF {}x{} ({:.1} MB): decode + develop {develop_ms:.0} ms, luminance {luminance_ms:.0} ms, rectify 16-bit {rectify_ms:.0} ms",
+        developed.width,
+        developed.height,
+        bytes.len() as f64 / 1e6
+    );
+    let settings = SeriesSettings {
+        grid,
+        heights: LayerHeights::uniform(0.03),
+        compression: Compression::None,
+        interpolation: Interpolation::Bilinear,
+        fill: 0,
+    };
+    let live = LiveSeries::new(manifest, views, calibration, settings).expect("series");
+    let (per_frame, layer_totals) =
+        time_frames(&live, dir.path(), &originals, if full { 2 } else { 1 });
+    println!(
+        "NEF, None: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s",
+        median(per_frame),
+        median(layer_totals)
+    );
 }

@@ -331,7 +331,7 @@ fn npy_header(descr: &str, rows: usize, cols: usize) -> Vec<u8> {
     let mut h = b"\x93NUMPY\x01\x00".to_vec();
     h.extend((len as u16).to_le_bytes());
     h.extend(dict.bytes());
-    h.extend(std::iter::repeat(b' ').take(pad));
+    h.extend(std::iter::repeat_n(b' ', pad));
     h.push(b'\n');
     h
 }

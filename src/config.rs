@@ -247,11 +247,24 @@ pub struct MockCameraConfig {
     pub height: u32,
     #[serde(default = "default_jpeg_quality")]
     pub jpeg_quality: u8,
+    /// What the body writes: `jpeg`, or a D810 raw frame `nef` (lossless compressed, the body's
+    /// default) or `nef-uncompressed`.
+    #[serde(default)]
+    pub format: MockFrameFormat,
     #[serde(default)]
     pub seed: u64,
     /// Faults to inject, for tests and demonstrations.
     #[serde(default)]
     pub faults: Vec<MockFaultConfig>,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MockFrameFormat {
+    #[default]
+    Jpeg,
+    Nef,
+    NefUncompressed,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]

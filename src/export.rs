@@ -283,16 +283,16 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
             path: original.clone(),
             message: e.to_string(),
         })?;
-        let gray = crate::rectify::decode_jpeg_luma(&bytes).map_err(|e| ExportError::Io {
+        let luma = crate::rectify::decode_frame_luma(&bytes).map_err(|e| ExportError::Io {
             path: original.clone(),
             message: e.to_string(),
         })?;
         if let Some([r, c]) = v.rectified_pixel {
-            let rect = rectifier.rectify_gray8(&gray);
+            let rect = luma.rectified(&rectifier).to_display8();
             tiles.push(crop_with_marker(&rgb(rect), r, c, HALF));
         }
         if let Some([u, vv]) = v.image_pixel {
-            tiles.push(crop_with_marker(&rgb(gray.clone()), vv, u, HALF));
+            tiles.push(crop_with_marker(&rgb(luma.to_display8()), vv, u, HALF));
         }
     }
     if tiles.is_empty() {
@@ -524,7 +524,7 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                             path: path.clone(),
                             message,
                         })?;
-                    volume.extend(luma.as_raw().iter().map(|&v| v as u16));
+                    volume.extend(luma.into_u16());
                     zs.push(heights.z(shot.layer));
                 }
             }

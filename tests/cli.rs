@@ -110,17 +110,7 @@ fn kill_9_mid_build_then_restart_keeps_every_frame_once() {
         child.kill().unwrap(); // SIGKILL
         child.wait().unwrap();
     }
-    let out = layerwise()
-        .arg("run")
-        .arg("--config")
-        .arg(&config_path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    run_build(&config_path);
 
     assert_eq!(originals(&build), expected_originals(8));
     let records = frame_records(&build);
@@ -335,45 +325,12 @@ fn vectors_info_json_agrees_with_each_real_file_header() {
 #[test]
 fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
     let dir = tempfile::tempdir().unwrap();
-    let (w, h) = (320, 214);
-    let truth = mock_camera::Homography::oblique_view(w, h);
-    let renderer = mock_camera::Renderer::new(w, h, truth);
-    let parts = mock_camera::demo_parts(1);
-    let scene = mock_camera::Scene {
-        layer: 1,
-        fused: &parts,
-        scanned: true,
-        illumination: mock_camera::Illumination::Top,
-    };
+    let view = SmallView::new(dir.path());
     let frame = dir.path().join("frame.jpg");
-    std::fs::write(&frame, renderer.render_jpeg(&scene, 95)).unwrap();
-    let grid = layerwise::rectify::Grid {
-        x_min: -137.5,
-        x_max: 137.5,
-        y_min: -137.5,
-        y_max: 137.5,
-        pixel_mm: 0.5,
-    };
-    let calibration = layerwise::rectify::Calibration {
-        homography: truth.m,
-        distortion: None,
-        grid: Some(grid),
-        fit: None,
-    };
-    let cal = dir.path().join("calibration.toml");
-    std::fs::write(&cal, calibration.to_toml()).unwrap();
+    std::fs::write(&frame, view.jpeg()).unwrap();
     for out in ["top.png", "top.dcm"] {
         let out = dir.path().join(out);
-        let run = layerwise()
-            .arg("rectify")
-            .arg("--calibration")
-            .arg(&cal)
-            .arg("--image")
-            .arg(&frame)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
+        let run = view.rectify(&frame, &out);
         assert!(
             run.status.success(),
             "{}",
@@ -393,16 +350,7 @@ fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
     assert_eq!(series[0]["first_position"][0], -137.25);
     let bad = dir.path().join("bad.jpg");
     std::fs::write(&bad, b"\xff\xd8not a jpeg at all").unwrap();
-    let run = layerwise()
-        .arg("rectify")
-        .arg("--calibration")
-        .arg(&cal)
-        .arg("--image")
-        .arg(&bad)
-        .arg("--out")
-        .arg(dir.path().join("x.png"))
-        .output()
-        .unwrap();
+    let run = view.rectify(&bad, &dir.path().join("x.png"));
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("bad.jpg"));
 }

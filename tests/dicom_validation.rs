@@ -7,9 +7,9 @@ mod common;
 use common::*;
 use layerwise::acquisition::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::acquisition::{run, RunOptions};
-use layerwise::config::{CameraConfig, Config};
+use layerwise::config::Config;
 use layerwise::dicom::Compression;
-use layerwise::rectify::{Calibration, Grid};
+use layerwise::rectify::Calibration;
 use layerwise::view::{Light, Phase, Shot, View};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -38,34 +38,6 @@ fn python() -> PathBuf {
         python.display()
     );
     python
-}
-
-/// A calibrated mock build: the mock camera's true homography as the calibration.
-fn calibrated_config(dir: &Path, layers: u32, compression: Compression) -> Config {
-    let mut config = demo_config(dir, layers);
-    config.rectify = Grid {
-        x_min: -137.5,
-        x_max: 137.5,
-        y_min: -137.5,
-        y_max: 137.5,
-        pixel_mm: 0.5,
-    };
-    config.storage.dicom = compression;
-    let CameraConfig::Mock(mock) = &config.camera else {
-        unreachable!("demo camera is the mock")
-    };
-    let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
-    let calibration = Calibration {
-        homography: truth.m,
-        distortion: None,
-        grid: Some(config.rectify),
-        fit: None,
-    };
-    std::fs::create_dir_all(dir).unwrap();
-    let path = dir.join("calibration.toml");
-    std::fs::write(&path, calibration.to_toml()).unwrap();
-    config.calibration.file = Some(path);
-    config
 }
 
 /// Runs to the end of the mock trigger and processes every frame before returning.
@@ -122,9 +94,9 @@ fn write_expectations(build: &Path, config: &Config, layers: u32, expected: &Pat
             let original = std::fs::read(build.join(format!("raw/{}.jpg", shot.stem()))).unwrap();
             let luma = live.rectified_luma(&original).unwrap();
             let raw: Vec<u8> = luma
-                .as_raw()
-                .iter()
-                .flat_map(|&v| (v as u16).to_le_bytes())
+                .into_u16()
+                .into_iter()
+                .flat_map(|v| v.to_le_bytes())
                 .collect();
             std::fs::write(expected.join(format!("{view}_L{layer:05}.u16")), raw).unwrap();
         }

@@ -108,6 +108,8 @@ pub struct MockCamera {
     renderer: Renderer,
     schedule: FaultSchedule,
     jpeg_quality: u8,
+    /// `Some` when the body is set to raw: frames are D810 NEFs of the rendered picture.
+    raw: Option<crate::nef::NefOptions>,
     attempts: HashMap<ShotKey, u32>,
     connected: bool,
     /// Shots whose Disconnect fault already fired (it fires once).
@@ -122,14 +124,21 @@ impl MockCamera {
             renderer,
             schedule,
             jpeg_quality,
+            raw: None,
             attempts: HashMap::new(),
             connected: true,
             disconnects_fired: BTreeSet::new(),
         }
     }
 
+    /// Sets the body to raw: later frames are NEFs (see [`crate::nef`]) instead of JPEGs.
+    pub fn with_raw(mut self, options: crate::nef::NefOptions) -> MockCamera {
+        self.raw = Some(options);
+        self
+    }
+
     /// Capture one frame of `scene`; `key` says which shot it is (for the fault schedule).
-    /// Returns JPEG bytes. Busy/Disconnected/Failed/Timeout as scheduled. A Disconnect fault fires
+    /// Returns JPEG bytes, or NEF bytes when set to raw. Busy/Disconnected/Failed/Timeout as scheduled. A Disconnect fault fires
     /// once (the first attempt of that shot made while connected); after reconnect() later
     /// attempts of that shot succeed. Every call counts as an attempt of `key`, including calls
     /// refused because the camera is disconnected.
@@ -161,9 +170,16 @@ impl MockCamera {
             }
             _ => {}
         }
-        self.renderer
-            .try_render_jpeg(scene, self.jpeg_quality)
-            .map_err(|e| MockError::Failed(format!("{key}: JPEG encoding: {e}")))
+        match &self.raw {
+            Some(options) => Ok(crate::nef::encode_nef(
+                &self.renderer.render(scene),
+                options,
+            )),
+            None => self
+                .renderer
+                .try_render_jpeg(scene, self.jpeg_quality)
+                .map_err(|e| MockError::Failed(format!("{key}: JPEG encoding: {e}"))),
+        }
     }
 
     /// Re-opens the (mock) USB device. Always succeeds.

@@ -9,6 +9,7 @@
 
 mod camera;
 mod homography;
+pub mod nef;
 mod render;
 mod shape;
 

@@ -6,7 +6,7 @@ use super::processing::FrameProcessor;
 use super::status::BuildManifest;
 use crate::config::Config;
 use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
-use crate::rectify::{self, Calibration, Grid, Interpolation, Rectifier};
+use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier};
 use crate::vectors::LayerIndex;
 use crate::view::{Shot, View};
 use std::collections::BTreeMap;
@@ -185,16 +185,11 @@ impl LiveSeries {
         })
     }
 
-    /// The rectified luma of an original, as the slice will hold it.
-    pub fn rectified_luma(&self, original: &[u8]) -> Result<image::GrayImage, String> {
-        let gray = if original.starts_with(&[0xFF, 0xD8]) {
-            rectify::decode_jpeg_luma(original).map_err(|e| e.to_string())?
-        } else {
-            image::load_from_memory(original)
-                .map_err(|e| e.to_string())?
-                .to_luma8()
-        };
-        Ok(self.rectifier.rectify_gray8(&gray))
+    /// The rectified luma of an original, as the slice will hold it: 8-bit luma of a JPEG, or
+    /// linear 16-bit luminance of a raw frame.
+    pub fn rectified_luma(&self, original: &[u8]) -> Result<FrameLuma, String> {
+        let luma = rectify::decode_frame_luma(original).map_err(|e| e.to_string())?;
+        Ok(luma.rectified(&self.rectifier))
     }
 
     /// The same series under other names (`{view} {label}`, numbered from `first_number`) in
@@ -245,7 +240,8 @@ impl LiveSeries {
             .get(&shot.view())
             .ok_or_else(|| format!("view {} is not configured", shot.view()))?;
         let rectified = self.rectified_luma(original)?;
-        let pixels: Vec<u16> = rectified.as_raw().iter().map(|&v| v as u16).collect();
+        let (window, derivation) = (rectified.window(), rectified.derivation());
+        let pixels = rectified.into_u16();
         let grid = self.rectifier.grid();
         let plane = Plane {
             origin: [
@@ -263,8 +259,8 @@ impl LiveSeries {
             plane,
             pixels: &pixels,
             acquired,
-            window: (128.0, 256.0),
-            derivation: "camera frame luma (BT.601), rectified to the build plane through the calibration homography",
+            window,
+            derivation,
         };
         let path = self.slice_path(build_dir, shot);
         dicom::write_slice(&path, &self.study, series, &slice, self.compression)

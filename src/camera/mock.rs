@@ -3,7 +3,7 @@
 //! the mock lights switch the lamps, and the camera photographs whatever that world looks like.
 
 use super::{Camera, CameraError, Frame};
-use crate::config::MockCameraConfig;
+use crate::config::{MockCameraConfig, MockFrameFormat};
 use crate::view::{Light, Phase};
 use mock_camera::{
     Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey,
@@ -91,6 +91,19 @@ impl MockCameraBody {
         renderer.seed = config.seed;
         let body =
             mock_camera::MockCamera::new(renderer, fault_schedule(config), config.jpeg_quality);
+        let body = match config.format {
+            MockFrameFormat::Jpeg => body,
+            MockFrameFormat::Nef | MockFrameFormat::NefUncompressed => {
+                body.with_raw(mock_camera::nef::NefOptions {
+                    compression: if config.format == MockFrameFormat::Nef {
+                        mock_camera::nef::NefCompression::Lossless
+                    } else {
+                        mock_camera::nef::NefCompression::Uncompressed
+                    },
+                    ..mock_camera::nef::NefOptions::default()
+                })
+            }
+        };
         MockCameraBody {
             body,
             world,
@@ -146,7 +159,11 @@ impl Camera for MockCameraBody {
         let data = self.body.capture(&key, &scene).map_err(map_error)?;
         Ok(Frame {
             data,
-            extension: "jpg".into(),
+            extension: match self.config.format {
+                MockFrameFormat::Jpeg => "jpg",
+                MockFrameFormat::Nef | MockFrameFormat::NefUncompressed => "nef",
+            }
+            .into(),
             capture_ms: started.elapsed().as_secs_f64() * 1e3,
             download_ms: 0.0,
         })

@@ -286,7 +286,7 @@ pub fn plan(input: &OpticsInput) -> Result<OpticsReport, OpticsError> {
     let hyperfocal = aperture * f / d + f; // eq. 2
     let near = s * (hyperfocal - f) / (hyperfocal + s - 2.0 * f); // eq. 3
     let far = (s < hyperfocal).then(|| s * (hyperfocal - f) / (hyperfocal - s)); // eq. 4
-    let plate_in_focus = near_edge >= near && far.map_or(true, |far| far_edge <= far);
+    let plate_in_focus = near_edge >= near && far.is_none_or(|far| far_edge <= far);
 
     let sensor_w = f64::from(width_px) * d;
     let sensor_h = f64::from(height_px) * d;

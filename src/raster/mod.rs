@@ -220,7 +220,7 @@ pub fn rgb(layer: &Layer, grid: &Grid, opts: &RasterOptions) -> Result<RgbImage,
                 px.copy_from_slice(&RGB_FUSED.0);
             }
         });
-    let keep = |part: i64| opts.part.map_or(true, |want| want == part);
+    let keep = |part: i64| opts.part.is_none_or(|want| want == part);
     for h in layer.hatches.iter().filter(|h| keep(h.part)) {
         for s in &h.segments {
             draw::line(&mut img, grid, [s[0], s[1]], [s[2], s[3]], RGB_HATCH);
@@ -279,7 +279,7 @@ pub fn layer_bbox(layer: &Layer, part: Option<i64>) -> Option<[f64; 4]> {
         f64::NEG_INFINITY,
         f64::NEG_INFINITY,
     ];
-    let keep = |p: i64| part.map_or(true, |want| want == p);
+    let keep = |p: i64| part.is_none_or(|want| want == p);
     let mut grow = |x: f64, y: f64| {
         if x.is_finite() && y.is_finite() {
             bb = [bb[0].min(x), bb[1].min(y), bb[2].max(x), bb[3].max(y)];

@@ -62,7 +62,7 @@ impl Scene {
                 (grid.y_max - p[1]) / grid.pixel_mm,
             ]
         };
-        let keep = |part: i64| opts.part.map_or(true, |want| want == part);
+        let keep = |part: i64| opts.part.is_none_or(|want| want == part);
         let hatch_r = 0.5 * opts.hatch_width_mm.max(0.0) / grid.pixel_mm;
         let contour_r = 0.5 * opts.contour_width_mm.max(0.0) / grid.pixel_mm;
         let mut scene = Scene {

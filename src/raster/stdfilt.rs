@@ -81,7 +81,7 @@ pub fn std_filter(
     height: usize,
     window: usize,
 ) -> Result<Vec<f32>, RasterError> {
-    if window == 0 || window % 2 == 0 {
+    if window == 0 || window.is_multiple_of(2) {
         return Err(RasterError::InvalidWindow(window));
     }
     if data.len() != width.saturating_mul(height) {

@@ -1,7 +1,7 @@
 //! `layerwise rectify`: one frame through a calibration, to a PNG (colour kept) or to a DICOM
 //! slice (luma, as the live series hold it).
 
-use super::{decode_jpeg, luma, Calibration, Grid, Interpolation, Rectifier};
+use super::{decode_frame, decode_frame_luma, Calibration, Grid, Interpolation, Rectifier};
 use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
 use std::path::Path;
 
@@ -41,12 +41,6 @@ pub fn rectify_file(
         message,
     };
     let bytes = std::fs::read(image).map_err(|e| bad_image(e.to_string()))?;
-    let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
-    let decoded = if is_jpeg {
-        decode_jpeg(&bytes).map_err(|e| bad_image(e.to_string()))?
-    } else {
-        image::load_from_memory(&bytes).map_err(|e| bad_image(e.to_string()))?
-    };
     match out
         .extension()
         .and_then(|e| e.to_str())
@@ -54,6 +48,7 @@ pub fn rectify_file(
         .as_deref()
     {
         Some("png") => {
+            let decoded = decode_frame(&bytes).map_err(|e| bad_image(e.to_string()))?;
             rectifier
                 .rectify_dynamic(&decoded)
                 .save(out)
@@ -63,12 +58,11 @@ pub fn rectify_file(
                 })?;
         }
         Some("dcm") => {
-            let gray = match decoded {
-                image::DynamicImage::ImageLuma8(g) => g,
-                other => luma(&other.to_rgb8()),
-            };
-            let rectified = rectifier.rectify_gray8(&gray);
-            let pixels: Vec<u16> = rectified.as_raw().iter().map(|&v| v as u16).collect();
+            let rectified = decode_frame_luma(&bytes)
+                .map_err(|e| bad_image(e.to_string()))?
+                .rectified(&rectifier);
+            let (window, derivation) = (rectified.window(), rectified.derivation());
+            let pixels = rectified.into_u16();
             let now = chrono::Utc::now();
             let study_uid = crate::acquisition::status::new_uid();
             let study = Study {
@@ -98,8 +92,8 @@ pub fn rectify_file(
                 plane,
                 pixels: &pixels,
                 acquired: None,
-                window: (128.0, 256.0),
-                derivation: "camera frame luma (BT.601), rectified to the build plane through the calibration homography",
+                window,
+                derivation,
             };
             dicom::write_slice(out, &study, &series, &slice, Compression::None)?;
         }

@@ -37,10 +37,13 @@ mod crop;
 mod decode;
 mod distortion;
 mod file;
+mod frame;
 mod grid;
 mod homography;
 mod luma_decode;
 mod os;
+#[cfg(feature = "nef")]
+pub mod raw;
 #[cfg(target_arch = "x86_64")]
 mod simd;
 #[cfg(test)]
@@ -53,6 +56,7 @@ pub use calibration::Calibration;
 pub use decode::{decode_jpeg, luma};
 pub use distortion::RadialDistortion;
 pub use file::{rectify_file, RectifyFileError};
+pub use frame::{decode_frame, decode_frame_luma, FrameLuma};
 pub use grid::Grid;
 pub use homography::homography_from_points;
 pub use luma_decode::decode_jpeg_luma;
@@ -91,6 +95,10 @@ pub enum RectifyError {
     InvalidDistortion(String),
     #[error("point correspondences are degenerate (three collinear or repeated points)")]
     DegenerateCorrespondences,
+    #[error("camera raw frame: {0}")]
+    Raw(String),
+    #[error("cannot read the picture: {0}")]
+    Image(String),
     #[error("JPEG decoding failed: {0}")]
     Jpeg(String),
 }

@@ -34,7 +34,7 @@ use std::time::Instant;
 use image::DynamicImage;
 use rayon::prelude::*;
 
-use crate::rectify::{calibration::Calibration, decode_jpeg, luma, Grid, RadialDistortion};
+use crate::rectify::{calibration::Calibration, luma, Grid, RadialDistortion};
 use crate::vectors::{self, Layer, VectorError};
 
 pub use exemplar::F32Image;
@@ -326,7 +326,7 @@ pub fn register_frames(
         .first()
         .ok_or_else(|| RegistrationError::Invalid("no frames to register".into()))?;
     let window = options.std_window;
-    if window % 2 == 0 || window > 255 {
+    if window.is_multiple_of(2) || window > 255 {
         return Err(RegistrationError::Invalid(format!(
             "std window must be odd and at most 255, got {window}"
         )));
@@ -687,25 +687,17 @@ fn check_frame(
     Ok(())
 }
 
-/// Decodes a frame: JPEG through zune-jpeg (as the daemon does), anything else through `image`.
+/// Decodes a frame as the daemon does: JPEG through zune-jpeg, camera raw (NEF) through rawler,
+/// anything else through `image`.
 pub fn load_image(path: &Path) -> Result<DynamicImage, RegistrationError> {
-    let name = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|source| RegistrationError::Read {
         file: path.to_path_buf(),
         source,
     })?;
-    let is_jpeg = bytes.starts_with(&[0xFF, 0xD8]);
-    if is_jpeg {
-        decode_jpeg(&bytes).map_err(|e| RegistrationError::Image {
-            image: name,
-            message: e.to_string(),
-        })
-    } else {
-        image::load_from_memory(&bytes).map_err(|e| RegistrationError::Image {
-            image: name,
-            message: e.to_string(),
-        })
-    }
+    crate::rectify::decode_frame(&bytes).map_err(|e| RegistrationError::Image {
+        image: path.display().to_string(),
+        message: e.to_string(),
+    })
 }
 
 /// BT.601 luma as f32 0..255 (the rectifier's luma for RGB frames).

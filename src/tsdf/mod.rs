@@ -482,7 +482,7 @@ fn slabs(file: &VectorFile, part: Option<i64>, thickness: f64) -> Vec<Slab> {
         let contours: Vec<_> = l
             .polylines
             .iter()
-            .filter(|p| part.map_or(true, |want| want == p.part))
+            .filter(|p| part.is_none_or(|want| want == p.part))
             .filter(|p| is_contour(p.direction, &p.points))
             .cloned()
             .collect();

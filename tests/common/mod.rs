@@ -78,7 +78,7 @@ pub fn originals(dir: &Path) -> Vec<String> {
     let mut out: Vec<String> = entries
         .filter_map(|e| e.ok())
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.ends_with(".jpg"))
+        .filter(|n| n.ends_with(".jpg") || n.ends_with(".nef"))
         .map(|n| format!("raw/{n}"))
         .collect();
     out.sort();
@@ -98,7 +98,7 @@ pub fn temporaries(dir: &Path) -> Vec<String> {
 pub fn assert_sidecars_match(dir: &Path) {
     for file in originals(dir) {
         let data = std::fs::read(dir.join(&file)).expect("original");
-        let sidecar_path = dir.join(file.replace(".jpg", ".json"));
+        let sidecar_path = dir.join(&file).with_extension("json");
         let sidecar: serde_json::Value =
             serde_json::from_slice(&std::fs::read(&sidecar_path).expect("sidecar"))
                 .expect("sidecar json");
@@ -161,4 +161,117 @@ pub fn shared_cli(name: &str) -> std::path::PathBuf {
         path.display()
     );
     path
+}
+
+/// A calibrated mock build: the mock camera's true homography as the calibration.
+pub fn calibrated_config(
+    dir: &Path,
+    layers: u32,
+    compression: layerwise::dicom::Compression,
+) -> Config {
+    let mut config = demo_config(dir, layers);
+    config.rectify = layerwise::rectify::Grid {
+        x_min: -137.5,
+        x_max: 137.5,
+        y_min: -137.5,
+        y_max: 137.5,
+        pixel_mm: 0.5,
+    };
+    config.storage.dicom = compression;
+    let CameraConfig::Mock(mock) = &config.camera else {
+        unreachable!("demo camera is the mock")
+    };
+    let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
+    let calibration = layerwise::rectify::Calibration {
+        homography: truth.m,
+        distortion: None,
+        grid: Some(config.rectify),
+        fit: None,
+    };
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("calibration.toml");
+    std::fs::write(&path, calibration.to_toml()).unwrap();
+    config.calibration.file = Some(path);
+    config
+}
+
+/// A small oblique picture of the demo plate at layer 1 (top light, after the scan), and a
+/// calibration file holding its true homography onto the plate at 0.5 mm: a 550×550 grid.
+pub struct SmallView {
+    pub renderer: mock_camera::Renderer,
+    pub parts: Vec<mock_camera::Shape>,
+    pub calibration: std::path::PathBuf,
+}
+
+impl SmallView {
+    pub fn new(dir: &Path) -> Self {
+        let (w, h) = (320, 214);
+        let truth = mock_camera::Homography::oblique_view(w, h);
+        let calibration = layerwise::rectify::Calibration {
+            homography: truth.m,
+            distortion: None,
+            grid: Some(layerwise::rectify::Grid {
+                x_min: -137.5,
+                x_max: 137.5,
+                y_min: -137.5,
+                y_max: 137.5,
+                pixel_mm: 0.5,
+            }),
+            fit: None,
+        };
+        let path = dir.join("calibration.toml");
+        std::fs::write(&path, calibration.to_toml()).unwrap();
+        SmallView {
+            renderer: mock_camera::Renderer::new(w, h, truth),
+            parts: mock_camera::demo_parts(1),
+            calibration: path,
+        }
+    }
+
+    fn scene(&self) -> mock_camera::Scene<'_> {
+        mock_camera::Scene {
+            layer: 1,
+            fused: &self.parts,
+            scanned: true,
+            illumination: mock_camera::Illumination::Top,
+        }
+    }
+
+    pub fn picture(&self) -> image::RgbImage {
+        self.renderer.render(&self.scene())
+    }
+
+    pub fn jpeg(&self) -> Vec<u8> {
+        self.renderer.render_jpeg(&self.scene(), 95)
+    }
+
+    /// `layerwise rectify` of one frame with this calibration.
+    pub fn rectify(&self, image: &Path, out: &Path) -> std::process::Output {
+        layerwise()
+            .arg("rectify")
+            .arg("--calibration")
+            .arg(&self.calibration)
+            .arg("--image")
+            .arg(image)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    }
+}
+
+/// Runs `layerwise run --config FILE` to its end and checks it succeeded.
+pub fn run_build(config_path: &Path) -> std::process::Output {
+    let out = layerwise()
+        .arg("run")
+        .arg("--config")
+        .arg(config_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "layerwise run: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
 }
