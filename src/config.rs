@@ -567,6 +567,27 @@ impl Config {
                 }
             }
         }
+        if let CameraConfig::Gphoto2(camera) = &self.camera {
+            // One shot must give one file: the daemon downloads the file the capture names, so
+            // the second file of a RAW+JPEG shot would pile up in the camera's RAM; and a TIFF
+            // frame is neither a JPEG nor a raw mosaic.
+            let quality = camera
+                .settings
+                .iter()
+                .find(|(key, _)| key.eq_ignore_ascii_case("imagequality"));
+            if let Some((key, value)) = quality {
+                let upper = value.to_ascii_uppercase();
+                if upper.contains('+') || upper.contains("TIFF") {
+                    return Err(invalid(
+                        &format!("camera.settings.{key}"),
+                        format!(
+                            "'{value}' is not supported: layerwise takes one JPEG or one raw \
+                             frame per shot; set \"JPEG Fine\" or \"NEF (Raw)\""
+                        ),
+                    ));
+                }
+            }
+        }
         if self.capture.call_timeout_s == 0 {
             return Err(invalid(
                 "capture.call_timeout_s",
@@ -723,6 +744,25 @@ kind = "mock"
             err.contains("lights.commands") && err.contains("side_on"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn one_file_per_shot_image_quality() {
+        let real = include_str!("../config/layerwise.toml");
+        for quality in ["JPEG Fine", "NEF (Raw)"] {
+            let text = real.replace("\"JPEG Fine\"", &format!("\"{quality}\""));
+            parse(&text).unwrap_or_else(|e| panic!("{quality}: {e}"));
+        }
+        for quality in ["NEF+Fine", "TIFF (RGB)"] {
+            let text = real.replace("\"JPEG Fine\"", &format!("\"{quality}\""));
+            let err = parse(&text).unwrap_err().to_string();
+            assert!(
+                err.contains("camera.settings.imagequality")
+                    && err.contains(quality)
+                    && err.contains("NEF (Raw)"),
+                "{err}"
+            );
+        }
     }
 
     #[test]

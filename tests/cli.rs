@@ -338,6 +338,17 @@ fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
         );
         assert!(std::fs::metadata(&out).unwrap().len() > 1000);
     }
+    // A bare file name writes into the working directory.
+    let run = layerwise()
+        .current_dir(dir.path())
+        .arg("rectify")
+        .arg("--calibration")
+        .arg(&view.calibration)
+        .args(["--image", "frame.jpg", "--out", "here.dcm"])
+        .output()
+        .unwrap();
+    assert_success(&run);
+    assert!(dir.path().join("here.dcm").is_file());
     let png = image::open(dir.path().join("top.png")).unwrap();
     assert_eq!((png.width(), png.height()), (550, 550));
     let info = layerwise()

@@ -196,6 +196,15 @@ pub fn write_atomic(path: &Path, data: &[u8], fsync: bool) -> Result<(), Storage
     write_atomic_all(&[(path, data)], fsync)
 }
 
+/// The directory a file is in; "." for a bare file name (whose `parent()` is the empty path,
+/// which cannot be opened to fsync).
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    }
+}
+
 /// Writes files of one directory atomically, renaming them in the order given, with a single
 /// fsync of the directory for all the renames (it is the slowest part of the capture path).
 fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), StorageError> {
@@ -205,7 +214,7 @@ fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Storage
             path: path.to_path_buf(),
             source,
         };
-        let dir = path.parent().unwrap_or_else(|| Path::new("."));
+        let dir = parent_dir(path);
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -225,10 +234,7 @@ fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Storage
         })?;
     }
     if fsync {
-        let mut dirs: Vec<&Path> = renames
-            .iter()
-            .map(|(_, p)| p.parent().unwrap_or_else(|| Path::new(".")))
-            .collect();
+        let mut dirs: Vec<&Path> = renames.iter().map(|(_, p)| parent_dir(p)).collect();
         dirs.dedup();
         for dir in dirs {
             File::open(dir)

@@ -187,6 +187,20 @@ impl GphotoCamera {
     }
 }
 
+/// The extension an original keeps, from the name the camera gave the file: lower case, `jpg`
+/// for JPEGs (`DSC_0001.JPG`), `nef` for the D810's raw frames (`DSC_0001.NEF`).
+fn frame_extension(camera_name: &str) -> String {
+    let extension = std::path::Path::new(camera_name)
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_else(|| "jpg".into());
+    if extension == "jpeg" {
+        "jpg".into()
+    } else {
+        extension
+    }
+}
+
 impl Camera for GphotoCamera {
     fn capture(&mut self) -> Result<Frame, CameraError> {
         let started = Instant::now();
@@ -203,17 +217,9 @@ impl Camera for GphotoCamera {
         let downloaded = Instant::now();
         // Frees the camera's RAM buffer; a failure here does not lose the frame we hold.
         let _ = self.camera.fs().delete_file(&folder, &name).wait();
-        let extension = std::path::Path::new(&name)
-            .extension()
-            .map(|e| e.to_string_lossy().to_ascii_lowercase())
-            .unwrap_or_else(|| "jpg".into());
         Ok(Frame {
             data,
-            extension: if extension == "jpeg" {
-                "jpg".into()
-            } else {
-                extension
-            },
+            extension: frame_extension(&name),
             capture_ms: (captured - started).as_secs_f64() * 1e3,
             download_ms: (downloaded - captured).as_secs_f64() * 1e3,
         })
@@ -267,6 +273,14 @@ mod tests {
             classify(ErrorKind::CorruptedData, "bad"),
             CameraError::Failed(_)
         ));
+    }
+
+    #[test]
+    fn originals_keep_the_camera_file_type() {
+        assert_eq!(frame_extension("DSC_0001.NEF"), "nef");
+        assert_eq!(frame_extension("DSC_0001.JPG"), "jpg");
+        assert_eq!(frame_extension("capt0000.jpeg"), "jpg");
+        assert_eq!(frame_extension("capt0000"), "jpg");
     }
 
     #[test]

@@ -260,6 +260,16 @@ impl SmallView {
     }
 }
 
+/// Checks that a command exited 0, showing its stderr if not.
+pub fn assert_success(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Runs `layerwise run --config FILE` to its end and checks it succeeded.
 pub fn run_build(config_path: &Path) -> std::process::Output {
     let out = layerwise()
@@ -268,10 +278,6 @@ pub fn run_build(config_path: &Path) -> std::process::Output {
         .arg(config_path)
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "layerwise run: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     out
 }
