@@ -1,5 +1,5 @@
 //! The calibration file: what `layerwise register images` writes and the rectifier reads.
-//! `homography` maps image (u, v, 1) to build (x, y, 1) in mm, H[2][2] = 1 (docs/frames.md); with
+//! `homography` maps image (u, v, 1) to build (x, y, 1) in mm, `H[2][2] = 1` (docs/frames.md); with
 //! a `[distortion]` table it maps undistorted pixels.
 
 use super::{Grid, RadialDistortion};

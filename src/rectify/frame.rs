@@ -93,7 +93,7 @@ pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
         return decode_jpeg_luma(bytes).map(FrameLuma::Gamma8);
     }
     if let Some(raw) = camera_raw(bytes)? {
-        return Ok(FrameLuma::Linear16(raw.luminance()));
+        return raw.luminance().map(FrameLuma::Linear16);
     }
     let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))?;
     Ok(FrameLuma::Gamma8(picture.to_luma8()))
@@ -105,15 +105,15 @@ pub fn decode_frame(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
         return decode_jpeg(bytes);
     }
     if let Some(raw) = camera_raw(bytes)? {
-        return Ok(DynamicImage::ImageRgb16(raw.display()));
+        return raw.display().map(DynamicImage::ImageRgb16);
     }
     image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))
 }
 
 #[cfg(feature = "nef")]
-fn camera_raw(bytes: &[u8]) -> Result<Option<super::raw::LinearFrame>, RectifyError> {
+fn camera_raw(bytes: &[u8]) -> Result<Option<super::raw::RawFrame>, RectifyError> {
     if super::raw::is_camera_raw(bytes) {
-        super::raw::develop(bytes).map(Some)
+        super::raw::decode(bytes).map(Some)
     } else {
         Ok(None)
     }
@@ -140,11 +140,11 @@ enum NoRawDeveloper {}
 
 #[cfg(not(feature = "nef"))]
 impl NoRawDeveloper {
-    fn luminance(&self) -> Gray16Image {
+    fn luminance(&self) -> Result<Gray16Image, RectifyError> {
         match *self {}
     }
 
-    fn display(&self) -> super::Rgb16Image {
+    fn display(&self) -> Result<super::Rgb16Image, RectifyError> {
         match *self {}
     }
 }

@@ -145,7 +145,7 @@ pub struct LevelReport {
 /// The photometric match and quality of one pair at full resolution.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PairFit {
-    /// φ: I_E ≈ Σ_k photometric[k]·I_B^k.
+    /// φ: `I_E ≈ Σ_k photometric[k]·I_B^k`.
     pub photometric: Vec<f64>,
     /// Correlation R of I_E with φ(I_B(W)) at the starting warp and at the result.
     pub initial_correlation: f64,

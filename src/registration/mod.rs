@@ -14,7 +14,7 @@
 //!    frame shows contrast there (pre-scan frames do not).
 //! 4. IC-LM, coarse to fine, on the warp exemplar pixel → image pixel
 //!    M = H⁻¹·G (G the grid's pixel → mm map), optionally with radial k1, k2 ([`homography`]).
-//! 5. H = G·M⁻¹, normalised to H[2][2] = 1 (docs/frames.md), into a [`Calibration`] whose `fit`
+//! 5. H = G·M⁻¹, normalised to `H[2][2] = 1` (docs/frames.md), into a [`Calibration`] whose `fit`
 //!    table records the images, layers, per-level reports and residual statistics.
 
 // `!(x > y)` is deliberate throughout: a NaN must fail the check. Index loops over the fixed

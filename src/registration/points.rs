@@ -83,7 +83,7 @@ pub fn parse_points(text: &str, file: &Path) -> Result<Vec<Correspondence>, Regi
     Ok(out)
 }
 
-/// The image → build homography (H[2][2] = 1) from `points` by the normalized DLT: both point
+/// The image → build homography (`H[2][2] = 1`) from `points` by the normalized DLT: both point
 /// sets moved to centroid 0 and mean distance √2, the 2n x 9 system solved by SVD, then
 /// denormalised. `file` names the source in errors.
 ///

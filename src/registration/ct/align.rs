@@ -147,10 +147,10 @@ fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
 }
 
-/// The exact SE(3) exponential of ξ = (ω, v): (R, t) with R = exp([ω]×) (Rodrigues) and
-/// t = V·v, V = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×².
+/// The exact SE(3) exponential of ξ = (ω, v): (R, t) with R = exp(`[ω]×`) (Rodrigues) and
+/// t = V·v, V = I + (1 − cos θ)/θ² `[ω]×` + (θ − sin θ)/θ³ `[ω]×²`.
 ///
-/// Eq. 13 of the paper is its first-order form (I + [ω]×, (I + ½[ω]×)v); we accumulate with the
+/// Eq. 13 of the paper is its first-order form (I + `[ω]×`, (I + ½`[ω]×`)v); we accumulate with the
 /// exact map so that T stays a rotation however many steps are composed.
 pub fn se3_exp(xi: &Vector6<f64>) -> (Matrix3<f64>, Vector3<f64>) {
     let w = Vector3::new(xi[0], xi[1], xi[2]);

@@ -12,7 +12,7 @@
 //!    part centroid moved onto the vectors' centroid ([`align::horn`]);
 //! 4. plate-side points (the lowest slab of the part along build z, §4.2) are left out;
 //! 5. Levenberg-Marquardt on a Lie-algebra update, `T ← exp(ξ)·T` (eq. 14-17), with an optional
-//!    Huber loss against CT reflections ([`align::refine`]);
+//!    Huber loss against CT reflections ([`align`]);
 //! 6. the error of Table 2: mean |Ψ| over the CT surface points, in µm, plus percentiles.
 //!
 //! The distance field is abstract ([`DistanceField`]): the lead implements it for `tsdf::Tsdf`;
