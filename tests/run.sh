@@ -37,5 +37,7 @@ if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
 cargo test --workspace --all-features
+# The build without raw support (`--no-default-features`): how it treats a NEF.
+cargo test --no-default-features --lib rectify::frame
 # Benchmarks are run by hand (cargo bench); here they only have to build.
 cargo bench --workspace --all-features --no-run

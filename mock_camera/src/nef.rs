@@ -31,6 +31,9 @@ pub struct NefOptions {
     pub compression: NefCompression,
     /// As-shot white balance multipliers (R, G, B), G = 1: the raw holds scene / multiplier.
     pub white_balance: [f64; 3],
+    /// Black level of each site of the 2 x 2 pattern, row-major from the sensor's top-left
+    /// photosite (R, G, G, B); a real D810 has [`D810_BLACK`] on all four.
+    pub black_level: [u16; 4],
 }
 
 impl Default for NefOptions {
@@ -39,6 +42,7 @@ impl Default for NefOptions {
             compression: NefCompression::Lossless,
             // A D810 under daylight, from a real frame's colour balance record.
             white_balance: [2.160_156_2, 1.0, 1.183_593_8],
+            black_level: [D810_BLACK; 4],
         }
     }
 }
@@ -88,16 +92,19 @@ pub fn srgb_to_linear(code: u8) -> f64 {
     }
 }
 
-/// The 14-bit mosaic of `picture` (sRGB-encoded) as the D810 would record it: RGGB, black level
-/// [`D810_BLACK`], full scale [`D810_WHITE`], with the sensor margins of [`D810_CROP`] filled by
-/// the picture's edge. Row-major, `(width + 20) x (height + 16)`.
-pub fn bayer_mosaic(picture: &RgbImage, white_balance: [f64; 3]) -> (u32, u32, Vec<u16>) {
+/// The 14-bit mosaic of `picture` (sRGB-encoded) as the D810 would record it: RGGB, the black
+/// level of each site, white at [`D810_WHITE`], with the sensor margins of [`D810_CROP`] filled
+/// by the picture's edge. Row-major, `(width + 20) x (height + 16)`.
+pub fn bayer_mosaic(
+    picture: &RgbImage,
+    white_balance: [f64; 3],
+    black_level: [u16; 4],
+) -> (u32, u32, Vec<u16>) {
     let (w, h) = picture.dimensions();
     let [left, top, right, bottom] = D810_CROP;
     let (sensor_w, sensor_h) = (w + left + right, h + top + bottom);
     let lut: Vec<f64> = (0..=255u8).map(srgb_to_linear).collect();
     let to_camera = srgb_to_camera();
-    let range = f64::from(D810_WHITE - D810_BLACK);
     let mut mosaic = Vec::with_capacity(sensor_w as usize * sensor_h as usize);
     for row in 0..sensor_h {
         let y = row.saturating_sub(top).min(h.saturating_sub(1));
@@ -117,7 +124,8 @@ pub fn bayer_mosaic(picture: &RgbImage, white_balance: [f64; 3]) -> (u32, u32, V
                 let camera: f64 = (0..3).map(|k| to_camera[channel][k] * linear[k]).sum();
                 camera / white_balance[channel]
             };
-            let dn = f64::from(D810_BLACK) + value.clamp(0.0, 1.0) * range;
+            let black = f64::from(black_level[(row % 2 * 2 + col % 2) as usize]);
+            let dn = black + value.clamp(0.0, 1.0) * (f64::from(D810_WHITE) - black);
             mosaic.push(dn.round() as u16);
         }
     }
@@ -126,7 +134,11 @@ pub fn bayer_mosaic(picture: &RgbImage, white_balance: [f64; 3]) -> (u32, u32, V
 
 /// A D810 NEF of `picture` (the picture is what the body's own JPEG would show).
 pub fn encode_nef(picture: &RgbImage, options: &NefOptions) -> Vec<u8> {
-    let (width, height, mosaic) = bayer_mosaic(picture, options.white_balance);
+    // The file stores the multipliers in 1/256 steps: the mosaic is made with those.
+    let white_balance = options
+        .white_balance
+        .map(|m| (m * 256.0).round().clamp(1.0, 65535.0) / 256.0);
+    let (width, height, mosaic) = bayer_mosaic(picture, white_balance, options.black_level);
     let (strip, nef_compression, tiff_compression) = match options.compression {
         NefCompression::Uncompressed => (
             mosaic
@@ -142,7 +154,7 @@ pub fn encode_nef(picture: &RgbImage, options: &NefOptions) -> Vec<u8> {
             34713,
         ),
     };
-    let maker_note = maker_note(nef_compression, options.white_balance);
+    let maker_note = maker_note(nef_compression, white_balance, options.black_level);
 
     let ifd0 = |raw_ifd: u32, exif_ifd: u32| {
         vec![
@@ -189,7 +201,7 @@ pub fn encode_nef(picture: &RgbImage, options: &NefOptions) -> Vec<u8> {
 }
 
 /// The Nikon type-2 maker note: header, its own TIFF header (offsets count from there), one IFD.
-fn maker_note(nef_compression: u16, white_balance: [f64; 3]) -> Vec<u8> {
+fn maker_note(nef_compression: u16, white_balance: [f64; 3], black_level: [u16; 4]) -> Vec<u8> {
     // Colour balance 0204: "0204", 280 bytes, then 280 enciphered bytes whose bytes 6..14 hold
     // the R, G, G, B multipliers x 256, big-endian.
     let mut balance = vec![0u8; 284 + 280];
@@ -216,7 +228,7 @@ fn maker_note(nef_compression: u16, white_balance: [f64; 3]) -> Vec<u8> {
     }
     let mut entries = vec![
         Entry::ascii(0x001D, "256"),
-        Entry::shorts(0x003D, &[D810_BLACK; 4]),
+        Entry::shorts(0x003D, &black_level),
         Entry::shorts(0x0093, &[nef_compression]),
         Entry::bytes(0x0097, 7, &balance),
         Entry::longs(0x00A7, &[0]),
@@ -406,7 +418,7 @@ mod tests {
     fn mosaic_of_grey_is_neutral_after_white_balance() {
         let picture = RgbImage::from_pixel(6, 4, image::Rgb([128, 128, 128]));
         let wb = [2.0, 1.0, 1.5];
-        let (w, h, m) = bayer_mosaic(&picture, wb);
+        let (w, h, m) = bayer_mosaic(&picture, wb, [D810_BLACK; 4]);
         assert_eq!((w, h), (26, 20));
         let lin = srgb_to_linear(128);
         let range = f64::from(D810_WHITE - D810_BLACK);

@@ -61,19 +61,14 @@ impl FrameLuma {
         match self {
             FrameLuma::Gamma8(g) => g.clone(),
             FrameLuma::Linear16(g) => {
-                let lut: Vec<u8> = (0..=255u32)
-                    .map(|i| (srgb_encode(i as f64 / 255.0) * 255.0).round() as u8)
+                // One entry per 16-bit value: quantising the linear value first would leave
+                // gaps in the shadows, where the curve is steep.
+                let lut: Vec<u8> = (0..=65535u32)
+                    .map(|v| (srgb_encode(f64::from(v) / 65535.0) * 255.0).round() as u8)
                     .collect();
-                GrayImage::from_fn(g.width(), g.height(), |x, y| {
-                    let v = g.get_pixel(x, y).0[0];
-                    // Linear to 8 bits first would crush the shadows: interpolate the curve.
-                    let linear = f64::from(v) / 65535.0;
-                    if linear < 1.0 / 255.0 {
-                        image::Luma([(srgb_encode(linear) * 255.0).round() as u8])
-                    } else {
-                        image::Luma([lut[(linear * 255.0).round() as usize]])
-                    }
-                })
+                let pixels = g.as_raw().iter().map(|&v| lut[usize::from(v)]).collect();
+                // One byte per pixel of the same size.
+                GrayImage::from_raw(g.width(), g.height(), pixels).expect("same size")
             }
         }
     }
@@ -123,9 +118,18 @@ fn camera_raw(bytes: &[u8]) -> Result<Option<super::raw::RawFrame>, RectifyError
 /// opens it.
 #[cfg(not(feature = "nef"))]
 fn camera_raw(bytes: &[u8]) -> Result<Option<NoRawDeveloper>, RectifyError> {
-    let tiff = bytes.starts_with(b"MM\0\x2A") || bytes.starts_with(b"II\x2A\0");
-    let head = &bytes[..bytes.len().min(4096)];
-    if tiff && head.windows(5).any(|w| w == b"NIKON") {
+    let big_endian = bytes.starts_with(b"MM\0\x2A");
+    let tiff = big_endian || bytes.starts_with(b"II\x2A\0");
+    let head = &bytes[..bytes.len().min(65536)];
+    // A directory entry PhotometricInterpretation (0x0106), SHORT, count 1, = CFA (32803): the
+    // raw mosaic's. A Nikon TIFF (RGB) frame has none.
+    let cfa_entry: [u8; 10] = if big_endian {
+        [0x01, 0x06, 0, 3, 0, 0, 0, 1, 0x80, 0x23]
+    } else {
+        [0x06, 0x01, 3, 0, 1, 0, 0, 0, 0x23, 0x80]
+    };
+    let nikon = head.windows(5).any(|w| w == b"NIKON");
+    if tiff && nikon && head.windows(10).any(|w| w == cfa_entry) {
         return Err(RectifyError::Raw(
             "this is a Nikon raw frame (NEF) and layerwise was built without the `nef` feature: \
              rebuild with `--features nef` (it is on by default)"
@@ -146,5 +150,48 @@ impl NoRawDeveloper {
 
     fn display(&self) -> Result<super::Rgb16Image, RectifyError> {
         match *self {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without the `nef` feature (`cargo test --no-default-features`), a NEF is refused with
+    /// the way out, and a plain TIFF still opens.
+    #[cfg(not(feature = "nef"))]
+    #[test]
+    fn a_build_without_raw_support_names_the_feature() {
+        let picture = image::RgbImage::from_pixel(32, 24, image::Rgb([90, 90, 90]));
+        let nef = mock_camera::nef::encode_nef(&picture, &Default::default());
+        for result in [
+            decode_frame_luma(&nef).map(|_| ()),
+            decode_frame(&nef).map(|_| ()),
+        ] {
+            let err = result.unwrap_err().to_string();
+            assert!(err.contains("--features nef"), "{err}");
+        }
+        let mut tiff = Vec::new();
+        image::DynamicImage::ImageRgb8(picture)
+            .write_to(
+                &mut std::io::Cursor::new(&mut tiff),
+                image::ImageFormat::Tiff,
+            )
+            .unwrap();
+        assert!(decode_frame_luma(&tiff).is_ok());
+    }
+
+    #[test]
+    fn linear_frames_show_every_grey_level() {
+        let ramp = Gray16Image::from_fn(256, 256, |x, y| image::Luma([(y * 256 + x) as u16]));
+        let shown = FrameLuma::Linear16(ramp).to_display8();
+        let levels = shown.as_raw();
+        assert!(levels.windows(2).all(|w| w[0] <= w[1]), "not monotonic");
+        let mut seen = [false; 256];
+        levels.iter().for_each(|&v| seen[usize::from(v)] = true);
+        let missing: Vec<usize> = (0..256).filter(|&v| !seen[v]).collect();
+        assert!(missing.is_empty(), "grey levels never shown: {missing:?}");
+        // Linear mid-grey (18%) shows as sRGB's 118.
+        assert_eq!(levels[(0.18f64 * 65535.0).round() as usize], 118);
     }
 }

@@ -101,12 +101,21 @@ impl RawFrame {
     /// Linear relative luminance (white = 65535) on the default crop, straight from the mosaic:
     /// what the view series hold. Luminance is one linear combination of the camera's three
     /// channels (white balance, colour matrix and the Rec. 709 weights folded together), so one
-    /// bilinear-demosaicing pass over 3 x 3 neighbourhoods gives it, 13x faster than developing
+    /// bilinear-demosaicing pass over 3 x 3 neighbourhoods gives it, 13-17x faster than developing
     /// the colour picture and mixing it down (benches/frame_path.rs). Mosaics this pass does not know (not a
     /// 2 x 2 RGB Bayer pattern, float data, no D65 matrix) go the long way.
+    ///
+    /// Where the colour is out of the sRGB gamut or clipped, rawler's development pulls the
+    /// colour back in gamut (`clip_euclidean_norm_avg`) before luminance could be taken; this
+    /// pass keeps the luminance of the light as recorded, clamped to 0..65535 only.
     pub fn luminance(&self) -> Result<Gray16Image, RectifyError> {
-        match BayerLuminance::new(&self.raw) {
-            Some(kernel) => Ok(kernel.run()),
+        // rawler's level accessors index their vectors: a malformed file must not panic here.
+        let fused = std::panic::catch_unwind(|| BayerLuminance::new(&self.raw).map(|k| k.run()))
+            .map_err(|_| {
+                failed("malformed levels or layout in the raw file (a panic inside rawler)")
+            })?;
+        match fused {
+            Some(luminance) => Ok(luminance),
             None => Ok(self.develop()?.luminance()),
         }
     }
@@ -125,8 +134,12 @@ impl RawFrame {
 /// of the 2 x 2 pattern, applied to photosites already black-subtracted and scaled to 0..1.
 struct BayerLuminance<'a> {
     photosites: &'a [u16],
+    /// Photosites per sensor row.
     width: usize,
-    height: usize,
+    /// The photosites that see light (rawler demosaics inside it too); neighbours beyond it are
+    /// mirrored back in.
+    active: Rect,
+    /// The body's default crop, inside `active`: the output.
     crop: Rect,
     /// Per site (row parity · 2 + column parity): [w0, w1, w2, w3].
     weights: [[f32; 4]; 4],
@@ -166,10 +179,11 @@ impl<'a> BayerLuminance<'a> {
         // As rawler's Calibrate step: camera from sRGB with rows normalised (camera white is
         // sRGB white), inverted; white balance applied to the camera channels first.
         let cam_to_srgb = pseudo_inverse(normalize(multiply(&xyz_to_cam, &SRGB_TO_XYZ_D65)));
-        let wb = if raw.wb_coeffs[..3].iter().all(|c| c.is_finite() && *c > 0.0) {
-            [raw.wb_coeffs[0], raw.wb_coeffs[1], raw.wb_coeffs[2]]
-        } else {
+        // As rawler: no coefficients (NaN) means none applied.
+        let wb = if raw.wb_coeffs[0].is_nan() {
             [1.0; 3]
+        } else {
+            [raw.wb_coeffs[0], raw.wb_coeffs[1], raw.wb_coeffs[2]]
         };
         let rec709 = [0.2126f32, 0.7152, 0.0722];
         let channel_weight: [f32; 3] = std::array::from_fn(|c| {
@@ -224,19 +238,28 @@ impl<'a> BayerLuminance<'a> {
                 && c(0, 0) <= 2
         });
         let full = Rect::new(Point::new(0, 0), Dim2::new(raw.width, raw.height));
-        let crop = raw.crop_area.or(raw.active_area).unwrap_or(full);
+        let active = raw.active_area.unwrap_or(full);
+        let crop = raw.crop_area.unwrap_or(active);
+        let inside = |r: &Rect, outer: &Rect| {
+            r.p.x >= outer.p.x
+                && r.p.y >= outer.p.y
+                && r.p.x + r.d.w <= outer.p.x + outer.d.w
+                && r.p.y + r.d.h <= outer.p.y + outer.d.h
+        };
         if !one_colour_per_class
+            || active.d.w < 2
+            || active.d.h < 2
             || crop.d.w == 0
             || crop.d.h == 0
-            || crop.p.x + crop.d.w > raw.width
-            || crop.p.y + crop.d.h > raw.height
+            || !inside(&active, &full)
+            || !inside(&crop, &active)
         {
             return None;
         }
         Some(BayerLuminance {
             photosites,
             width: raw.width,
-            height: raw.height,
+            active,
             crop,
             weights,
             black,
@@ -244,23 +267,20 @@ impl<'a> BayerLuminance<'a> {
         })
     }
 
-    /// Row `r` of the sensor (mirrored at its edges, which keeps the colours), black-subtracted
-    /// and scaled, with one mirrored photosite on each side: `line[x + 1]` is column x.
+    /// Sensor row `r` across the active area, black-subtracted and scaled, mirrored at the
+    /// active area's edges (which keeps the colours), with one mirrored photosite on each side:
+    /// `line[x - active.x + 1]` is column x.
     fn linearise(&self, r: isize, line: &mut [f32]) {
-        let n = self.height as isize;
-        let r = if r < 0 {
-            -r
-        } else if r >= n {
-            2 * n - 2 - r
-        } else {
-            r
-        };
-        let r = r.clamp(0, n - 1) as usize;
-        let row = &self.photosites[r * self.width..(r + 1) * self.width];
-        let site = (r % 2) * 2;
-        let (b0, b1) = (self.black[site], self.black[site + 1]);
-        let (s0, s1) = (self.scale[site], self.scale[site + 1]);
-        let body = &mut line[1..=self.width];
+        let (top, rows) = (self.active.p.y as isize, self.active.d.h as isize);
+        let r = mirror(r - top, rows) + top as usize;
+        let (left, columns) = (self.active.p.x, self.active.d.w);
+        let row = &self.photosites[r * self.width + left..r * self.width + left + columns];
+        // Sites of this row, for even and odd sensor columns.
+        let site = |column: usize| (r % 2) * 2 + column % 2;
+        let (first, second) = (site(left), site(left + 1));
+        let (b0, b1) = (self.black[first], self.black[second]);
+        let (s0, s1) = (self.scale[first], self.scale[second]);
+        let body = &mut line[1..=columns];
         for (out, pair) in body.chunks_mut(2).zip(row.chunks(2)) {
             out[0] = (f32::from(pair[0]) - b0).max(0.0) * s0;
             if let (Some(o), Some(&p)) = (out.get_mut(1), pair.get(1)) {
@@ -268,7 +288,7 @@ impl<'a> BayerLuminance<'a> {
             }
         }
         line[0] = line[2];
-        line[self.width + 1] = line[self.width - 1];
+        line[columns + 1] = line[columns - 1];
     }
 
     fn run(&self) -> Gray16Image {
@@ -278,18 +298,17 @@ impl<'a> BayerLuminance<'a> {
             .enumerate()
             .for_each(|(band, lines)| {
                 let first = self.crop.p.y + band * BAND_ROWS;
-                let mut rows = [0usize, 1, 2].map(|_| vec![0f32; self.width + 2]);
+                let mut rows = [0usize, 1, 2].map(|_| vec![0f32; self.active.d.w + 2]);
                 self.linearise(first as isize - 1, &mut rows[0]);
                 self.linearise(first as isize, &mut rows[1]);
                 for (i, line) in lines.chunks_mut(w).enumerate() {
                     let y = first + i;
                     self.linearise(y as isize + 1, &mut rows[2]);
                     let [up, centre, down] = &rows;
-                    let x0 = self.crop.p.x;
                     for (j, out) in line.iter_mut().enumerate() {
-                        // Buffer index of column x is x + 1.
-                        let x = x0 + j + 1;
-                        let [w0, w1, w2, w3] = self.weights[(y % 2) * 2 + (x - 1) % 2];
+                        let column = self.crop.p.x + j;
+                        let x = column - self.active.p.x + 1;
+                        let [w0, w1, w2, w3] = self.weights[(y % 2) * 2 + column % 2];
                         let y_lin = w0 * centre[x]
                             + w1 * (centre[x - 1] + centre[x + 1])
                             + w2 * (up[x] + down[x])
@@ -302,6 +321,19 @@ impl<'a> BayerLuminance<'a> {
         // One value per pixel of the crop.
         Gray16Image::from_raw(w as u32, h as u32, out).expect("luminance sized for the crop")
     }
+}
+
+/// Index `i` of `0..n` (n >= 2) reflected at both ends without repeating the edge, which keeps
+/// the parity and so a photosite's colour.
+fn mirror(i: isize, n: isize) -> usize {
+    let i = if i < 0 {
+        -i
+    } else if i >= n {
+        2 * n - 2 - i
+    } else {
+        i
+    };
+    i.clamp(0, n - 1) as usize
 }
 
 impl LinearFrame {
@@ -346,12 +378,15 @@ mod tests {
     use super::*;
     use mock_camera::nef::{encode_nef, NefCompression, NefOptions};
 
+    /// A grey frame; its four sites have different black levels, so that a black level read
+    /// from the wrong site shows.
     fn grey_nef(level: u8, compression: NefCompression) -> Vec<u8> {
         let picture = image::RgbImage::from_pixel(64, 48, image::Rgb([level, level, level]));
         encode_nef(
             &picture,
             &NefOptions {
                 compression,
+                black_level: [560, 600, 620, 680],
                 ..NefOptions::default()
             },
         )
@@ -483,6 +518,51 @@ mod tests {
             bias.abs() < 0.0005 * 65535.0 && spread < 0.01 * 65535.0,
             "fused - developed: mean {bias:.1}, mean |.| {spread:.1} / 65535"
         );
+    }
+
+    #[test]
+    fn neighbours_beyond_the_edge_mirror_to_the_same_colour() {
+        assert_eq!([-1, 0, 4, 5, 6].map(|i| mirror(i, 6)), [1, 0, 4, 5, 4]);
+        // Parity (the colour of a 2 x 2 pattern) is kept.
+        for n in [2, 5, 6] {
+            for i in [-1, n] {
+                assert_eq!(mirror(i, n) % 2, i.rem_euclid(2) as usize, "{i} of {n}");
+            }
+        }
+    }
+
+    #[test]
+    fn colours_keep_their_luminance() {
+        // In-gamut colours: grey alone cannot tell a wrong colour matrix or wrong Rec. 709
+        // weights (both keep white white).
+        let colours = [
+            [200u8, 80, 40],
+            [40, 160, 90],
+            [60, 80, 200],
+            [180, 180, 60],
+            [150, 60, 160],
+            [90, 190, 200],
+        ];
+        let patch = 16;
+        let picture = image::RgbImage::from_fn(patch * colours.len() as u32, patch, |x, _| {
+            image::Rgb(colours[(x / patch) as usize])
+        });
+        let raw = decode(&encode_nef(&picture, &NefOptions::default())).unwrap();
+        let fused = raw.luminance().unwrap();
+        let developed = raw.develop().unwrap().luminance();
+        for (i, c) in colours.iter().enumerate() {
+            let linear = c.map(mock_camera::nef::srgb_to_linear);
+            let expected = 0.2126 * linear[0] + 0.7152 * linear[1] + 0.0722 * linear[2];
+            // The patch's middle, away from the colour edges.
+            let (x, y) = (i as u32 * patch + patch / 2, patch / 2);
+            for (path, image) in [("fused", &fused), ("developed", &developed)] {
+                let got = f64::from(image.get_pixel(x, y).0[0]) / 65535.0;
+                assert!(
+                    (got - expected).abs() < 0.003 + 0.01 * expected,
+                    "{c:?}, {path}: Y {got:.4}, expected {expected:.4}"
+                );
+            }
+        }
     }
 
     #[test]
