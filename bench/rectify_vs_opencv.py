@@ -24,25 +24,15 @@ import json
 import os
 import subprocess
 import sys
-import venv
+
+from benchenv import ensure_venv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CRATE = os.path.dirname(HERE)
 VENV = os.path.join(HERE, ".venv")
-VPY = os.path.join(VENV, "bin", "python")
 
 
-def ensure_venv():
-    if os.path.realpath(sys.prefix) == os.path.realpath(VENV):
-        return
-    if not os.path.exists(VPY):
-        print("creating", VENV, flush=True)
-        venv.create(VENV, with_pip=True)
-        subprocess.check_call([VPY, "-m", "pip", "install", "-q", "opencv-python-headless", "numpy"])
-    os.execv(VPY, [VPY] + sys.argv)
-
-
-ensure_venv()
+ensure_venv(VENV, ["opencv-python-headless", "numpy"])
 
 import statistics  # noqa: E402
 import time  # noqa: E402

@@ -42,6 +42,43 @@ fn time_frames(
     (per_frame, layer_totals)
 }
 
+/// Layer 1 of the demo plate as `view` sees it.
+fn scene<'a>(parts: &'a [mock_camera::Shape], view: &View) -> mock_camera::Scene<'a> {
+    mock_camera::Scene {
+        layer: 1,
+        fused: parts,
+        scanned: view.phase == Phase::Post,
+        illumination: match view.light {
+            Light::Front => mock_camera::Illumination::Front,
+            Light::Side => mock_camera::Illumination::Side,
+            Light::Top => mock_camera::Illumination::Top,
+        },
+    }
+}
+
+/// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it.
+fn write_originals(
+    build_dir: &std::path::Path,
+    views: &[View],
+    extension: &str,
+    frame: impl Fn(&View) -> Vec<u8>,
+) -> Vec<(Shot, std::path::PathBuf)> {
+    std::fs::create_dir_all(build_dir.join("raw")).expect("raw");
+    views
+        .iter()
+        .map(|view| {
+            let shot = Shot {
+                layer: 1,
+                phase: view.phase,
+                light: view.light,
+            };
+            let path = build_dir.join(format!("raw/{}.{extension}", shot.stem()));
+            std::fs::write(&path, frame(view)).expect("frame");
+            (shot, path)
+        })
+        .collect()
+}
+
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let (w, h) = if full { (7360, 4912) } else { (736, 491) };
@@ -53,29 +90,9 @@ fn main() {
         .iter()
         .flat_map(|&phase| Light::ALL.iter().map(move |&light| View { phase, light }))
         .collect();
-    let mut originals = Vec::new();
-    std::fs::create_dir_all(dir.path().join("raw")).expect("raw");
-    for view in &views {
-        let illumination = match view.light {
-            Light::Front => mock_camera::Illumination::Front,
-            Light::Side => mock_camera::Illumination::Side,
-            Light::Top => mock_camera::Illumination::Top,
-        };
-        let scene = mock_camera::Scene {
-            layer: 1,
-            fused: &parts,
-            scanned: view.phase == Phase::Post,
-            illumination,
-        };
-        let shot = Shot {
-            layer: 1,
-            phase: view.phase,
-            light: view.light,
-        };
-        let path = dir.path().join(format!("raw/{}.jpg", shot.stem()));
-        std::fs::write(&path, renderer.render_jpeg(&scene, 95)).expect("frame");
-        originals.push((shot, path));
-    }
+    let originals = write_originals(dir.path(), &views, "jpg", |view| {
+        renderer.render_jpeg(&scene(&parts, view), 95)
+    });
     let jpeg_mb = std::fs::metadata(&originals[0].1)
         .map(|m| m.len())
         .unwrap_or(0) as f64
@@ -155,11 +172,19 @@ fn main() {
         );
     }
     #[cfg(feature = "nef")]
-    raw_frames(&renderer, &parts, &views, &manifest, &calibration, full);
+    raw_frames(
+        &renderer,
+        &parts,
+        &views,
+        &manifest,
+        &calibration,
+        &rectifier,
+        full,
+    );
 }
 
 /// The same path when the camera is set to NEF (14-bit lossless compressed, the D810's
-/// default): decode and develop with rawler, linear luminance, 16-bit rectify, DICOM write.
+/// default): decode with rawler, luminance from the mosaic, 16-bit rectify, DICOM write.
 #[cfg(feature = "nef")]
 fn raw_frames(
     renderer: &mock_camera::Renderer,
@@ -167,31 +192,16 @@ fn raw_frames(
     views: &[View],
     manifest: &BuildManifest,
     calibration: &Calibration,
+    rectifier: &layerwise::rectify::Rectifier,
     full: bool,
 ) {
     let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::create_dir_all(dir.path().join("raw")).expect("raw");
-    let mut originals = Vec::new();
-    for view in views {
-        let scene = mock_camera::Scene {
-            layer: 1,
-            fused: parts,
-            scanned: view.phase == Phase::Post,
-            illumination: mock_camera::Illumination::Top,
-        };
-        let shot = Shot {
-            layer: 1,
-            phase: view.phase,
-            light: view.light,
-        };
-        let nef = mock_camera::nef::encode_nef(
-            &renderer.render(&scene),
+    let originals = write_originals(dir.path(), views, "nef", |view| {
+        mock_camera::nef::encode_nef(
+            &renderer.render(&scene(parts, view)),
             &mock_camera::nef::NefOptions::default(),
-        );
-        let path = dir.path().join(format!("raw/{}.nef", shot.stem()));
-        std::fs::write(&path, nef).expect("frame");
-        originals.push((shot, path));
-    }
+        )
+    });
     let bytes = std::fs::read(&originals[5].1).expect("frame");
     let t = Instant::now();
     let raw = layerwise::rectify::raw::decode(&bytes).expect("decode");
@@ -204,15 +214,6 @@ fn raw_frames(
     let developed = raw.develop().expect("develop");
     let _ = developed.luminance();
     let develop_ms = t.elapsed().as_secs_f64() * 1e3;
-    let grid = calibration.grid.expect("grid");
-    let rectifier = layerwise::rectify::Rectifier::new(
-        calibration.homography,
-        grid,
-        None,
-        Interpolation::Bilinear,
-        0,
-    )
-    .expect("rectifier");
     let t = Instant::now();
     let _ = rectifier.rectify_gray16(&luminance);
     let rectify_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -225,7 +226,7 @@ fn raw_frames(
         develop_ms / luminance_ms
     );
     let settings = SeriesSettings {
-        grid,
+        grid: rectifier.grid(),
         heights: LayerHeights::uniform(0.03),
         compression: Compression::None,
         interpolation: Interpolation::Bilinear,

@@ -37,21 +37,16 @@ fn slice(path: &Path) -> (Vec<u16>, f64, String) {
         .chunks_exact(2)
         .map(|b| u16::from_le_bytes([b[0], b[1]]))
         .collect();
-    let center = obj
-        .element(tags::WINDOW_CENTER)
-        .unwrap()
-        .to_str()
-        .unwrap()
-        .trim()
-        .parse()
-        .unwrap();
-    let derivation = obj
-        .element(tags::DERIVATION_DESCRIPTION)
-        .unwrap()
-        .to_str()
-        .unwrap()
-        .to_string();
-    (pixels, center, derivation)
+    let text = |tag| {
+        obj.element(tag)
+            .unwrap()
+            .to_str()
+            .unwrap()
+            .trim()
+            .to_string()
+    };
+    let center = text(tags::WINDOW_CENTER).parse().unwrap();
+    (pixels, center, text(tags::DERIVATION_DESCRIPTION))
 }
 
 #[test]

@@ -138,10 +138,10 @@ impl MockCamera {
     }
 
     /// Capture one frame of `scene`; `key` says which shot it is (for the fault schedule).
-    /// Returns JPEG bytes, or NEF bytes when set to raw. Busy/Disconnected/Failed/Timeout as scheduled. A Disconnect fault fires
-    /// once (the first attempt of that shot made while connected); after reconnect() later
-    /// attempts of that shot succeed. Every call counts as an attempt of `key`, including calls
-    /// refused because the camera is disconnected.
+    /// Returns JPEG bytes, or NEF bytes when set to raw. Busy/Disconnected/Failed/Timeout as
+    /// scheduled. A Disconnect fault fires once (the first attempt of that shot made while
+    /// connected); after reconnect() later attempts of that shot succeed. Every call counts as
+    /// an attempt of `key`, including calls refused because the camera is disconnected.
     pub fn capture(&mut self, key: &ShotKey, scene: &Scene) -> Result<Vec<u8>, MockError> {
         let attempt = {
             let n = self.attempts.entry(key.clone()).or_insert(0);

@@ -91,17 +91,15 @@ impl MockCameraBody {
         renderer.seed = config.seed;
         let body =
             mock_camera::MockCamera::new(renderer, fault_schedule(config), config.jpeg_quality);
+        let raw = |compression| mock_camera::nef::NefOptions {
+            compression,
+            ..mock_camera::nef::NefOptions::default()
+        };
         let body = match config.format {
             MockFrameFormat::Jpeg => body,
-            MockFrameFormat::Nef | MockFrameFormat::NefUncompressed => {
-                body.with_raw(mock_camera::nef::NefOptions {
-                    compression: if config.format == MockFrameFormat::Nef {
-                        mock_camera::nef::NefCompression::Lossless
-                    } else {
-                        mock_camera::nef::NefCompression::Uncompressed
-                    },
-                    ..mock_camera::nef::NefOptions::default()
-                })
+            MockFrameFormat::Nef => body.with_raw(raw(mock_camera::nef::NefCompression::Lossless)),
+            MockFrameFormat::NefUncompressed => {
+                body.with_raw(raw(mock_camera::nef::NefCompression::Uncompressed))
             }
         };
         MockCameraBody {

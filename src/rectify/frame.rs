@@ -13,13 +13,6 @@ pub enum FrameLuma {
 }
 
 impl FrameLuma {
-    pub fn dimensions(&self) -> (u32, u32) {
-        match self {
-            FrameLuma::Gamma8(g) => g.dimensions(),
-            FrameLuma::Linear16(g) => g.dimensions(),
-        }
-    }
-
     /// The same luma on the calibration's grid.
     pub fn rectified(&self, rectifier: &Rectifier) -> FrameLuma {
         match self {
@@ -63,9 +56,12 @@ impl FrameLuma {
             FrameLuma::Linear16(g) => {
                 // One entry per 16-bit value: quantising the linear value first would leave
                 // gaps in the shadows, where the curve is steep.
-                let lut: Vec<u8> = (0..=65535u32)
-                    .map(|v| (srgb_encode(f64::from(v) / 65535.0) * 255.0).round() as u8)
-                    .collect();
+                static SRGB8: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+                let lut = SRGB8.get_or_init(|| {
+                    (0..=65535u32)
+                        .map(|v| (srgb_encode(f64::from(v) / 65535.0) * 255.0).round() as u8)
+                        .collect()
+                });
                 let pixels = g.as_raw().iter().map(|&v| lut[usize::from(v)]).collect();
                 // One byte per pixel of the same size.
                 GrayImage::from_raw(g.width(), g.height(), pixels).expect("same size")
@@ -74,7 +70,9 @@ impl FrameLuma {
     }
 }
 
-fn srgb_encode(v: f64) -> f64 {
+/// The sRGB transfer curve: linear 0..1 to encoded 0..1.
+pub(super) fn srgb_encode(v: f64) -> f64 {
+    let v = v.clamp(0.0, 1.0);
     if v <= 0.003_130_8 {
         v * 12.92
     } else {

@@ -170,29 +170,39 @@ pub fn calibrated_config(
     compression: layerwise::dicom::Compression,
 ) -> Config {
     let mut config = demo_config(dir, layers);
-    config.rectify = layerwise::rectify::Grid {
-        x_min: -137.5,
-        x_max: 137.5,
-        y_min: -137.5,
-        y_max: 137.5,
-        pixel_mm: 0.5,
-    };
+    config.rectify = plate_grid();
     config.storage.dicom = compression;
     let CameraConfig::Mock(mock) = &config.camera else {
         unreachable!("demo camera is the mock")
     };
     let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
+    std::fs::create_dir_all(dir).unwrap();
+    config.calibration.file = Some(write_true_calibration(dir, &truth));
+    config
+}
+
+/// The whole 275 mm plate at 0.5 mm: 550 x 550 pixels, small enough for tests.
+pub fn plate_grid() -> layerwise::rectify::Grid {
+    layerwise::rectify::Grid {
+        x_min: -137.5,
+        x_max: 137.5,
+        y_min: -137.5,
+        y_max: 137.5,
+        pixel_mm: 0.5,
+    }
+}
+
+/// `dir/calibration.toml` holding the mock camera's true homography onto [`plate_grid`].
+pub fn write_true_calibration(dir: &Path, truth: &mock_camera::Homography) -> std::path::PathBuf {
     let calibration = layerwise::rectify::Calibration {
         homography: truth.m,
         distortion: None,
-        grid: Some(config.rectify),
+        grid: Some(plate_grid()),
         fit: None,
     };
-    std::fs::create_dir_all(dir).unwrap();
     let path = dir.join("calibration.toml");
     std::fs::write(&path, calibration.to_toml()).unwrap();
-    config.calibration.file = Some(path);
-    config
+    path
 }
 
 /// A small oblique picture of the demo plate at layer 1 (top light, after the scan), and a
@@ -207,24 +217,10 @@ impl SmallView {
     pub fn new(dir: &Path) -> Self {
         let (w, h) = (320, 214);
         let truth = mock_camera::Homography::oblique_view(w, h);
-        let calibration = layerwise::rectify::Calibration {
-            homography: truth.m,
-            distortion: None,
-            grid: Some(layerwise::rectify::Grid {
-                x_min: -137.5,
-                x_max: 137.5,
-                y_min: -137.5,
-                y_max: 137.5,
-                pixel_mm: 0.5,
-            }),
-            fit: None,
-        };
-        let path = dir.join("calibration.toml");
-        std::fs::write(&path, calibration.to_toml()).unwrap();
         SmallView {
+            calibration: write_true_calibration(dir, &truth),
             renderer: mock_camera::Renderer::new(w, h, truth),
             parts: mock_camera::demo_parts(1),
-            calibration: path,
         }
     }
 
