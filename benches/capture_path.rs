@@ -6,9 +6,9 @@
 //! 2. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
 
-use layerwise::acquisition::journal::Record;
+use layerwise::build_dir::journal::Record;
 use layerwise::acquisition::{run, RunOptions};
-use layerwise::camera::{Camera, CameraError, Frame};
+use layerwise::hardware::camera::{Camera, CameraError, Frame};
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -88,7 +88,7 @@ fn overhead(label: &str, width: u32, height: u32, layers: u32) {
     build(&config(dir.path(), layers, true), frame);
     // Intervals between consecutive frames of the same layer signal.
     let text = std::fs::read_to_string(dir.path().join("journal.jsonl")).expect("journal");
-    let mut last: Option<(u32, layerwise::view::Phase, chrono::DateTime<chrono::Utc>)> = None;
+    let mut last: Option<(u32, layerwise::shot::Phase, chrono::DateTime<chrono::Utc>)> = None;
     let mut gaps = Vec::new();
     for line in text.lines() {
         if let Ok(Record::Frame {

@@ -3,7 +3,7 @@
 //! `CARGO_TARGET_DIR=… cargo bench --bench ct_register`
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use layerwise::registration::ct::{self, synth, CtParams, InitialTransform, Threshold};
+use layerwise::ct::{self, synth, CtParams, InitialTransform, Threshold};
 
 fn bench(c: &mut Criterion) {
     let voxel = std::env::var("CT_BENCH_VOXEL_MM")

@@ -4,11 +4,11 @@
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 
 use layerwise::acquisition::processing::FrameProcessor;
-use layerwise::acquisition::series::{LayerHeights, LiveSeries, SeriesSettings};
-use layerwise::acquisition::status::BuildManifest;
+use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
+use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
 use layerwise::rectify::{Calibration, Grid, Interpolation};
-use layerwise::view::{Light, Phase, Shot, View};
+use layerwise::shot::{Light, Phase, Shot, View};
 use rayon::prelude::*;
 use std::time::Instant;
 

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use layerwise::rectify::Grid;
-use layerwise::registration::{
+use layerwise::calibrate::{
     align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, render_exemplar,
     Correspondence, LmOptions, Pair,
 };
@@ -82,7 +82,7 @@ fn bench(c: &mut Criterion) {
     let (exemplar, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED);
     let (image, _) = filter_frame(&lum, &h0, &grid, extent, true).expect("filter");
     let start =
-        layerwise::registration::mat_mul(&mat_inv(&h0).expect("regular"), &grid_matrix(&grid));
+        layerwise::calibrate::mat_mul(&mat_inv(&h0).expect("regular"), &grid_matrix(&grid));
     let pair = [Pair {
         image: &image,
         exemplar: &exemplar,

@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
 
-use layerwise::registration::ct::{self, synth, CtParams, InitialTransform, VoxelData};
+use layerwise::ct::{self, synth, CtParams, InitialTransform, VoxelData};
 
 fn write_mha(
     path: &Path,

@@ -2,7 +2,7 @@
 //! `cargo run --release --example ct_synth_register -- [voxel_mm] [angle_deg] [start: points|centroid]`
 use std::time::Instant;
 
-use layerwise::registration::ct::{self, synth, CtParams, InitialTransform};
+use layerwise::ct::{self, synth, CtParams, InitialTransform};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

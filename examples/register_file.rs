@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use layerwise::rectify::Grid;
-use layerwise::registration::{
+use layerwise::calibrate::{
     align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, mat_mul, project,
     render_exemplar, Correspondence, F32Image, LmOptions, Mat3, Pair,
 };

@@ -1,7 +1,8 @@
 //! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
 //! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
 
-use crate::view::{Light, Phase, View};
+use crate::fsutil::{parse_toml, TomlError};
+use crate::shot::{Light, Phase, View};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -14,8 +15,8 @@ pub enum ConfigError {
         file: PathBuf,
         source: std::io::Error,
     },
-    #[error("{file}: {message}")]
-    Parse { file: PathBuf, message: String },
+    #[error(transparent)]
+    Parse(#[from] TomlError),
     #[error("{file}: key `{key}`: {message}")]
     Invalid {
         file: PathBuf,
@@ -626,45 +627,6 @@ impl Config {
     pub fn build_id(&self) -> &str {
         self.build.id.as_deref().unwrap_or(&self.build.name)
     }
-}
-
-/// Deserializes TOML, naming the file, the line and column, the key and what was expected.
-pub fn parse_toml<T: serde::de::DeserializeOwned>(
-    text: &str,
-    file: &Path,
-) -> Result<T, ConfigError> {
-    let deserializer = toml::Deserializer::new(text);
-    serde_path_to_error::deserialize(deserializer).map_err(|err| {
-        let key = err.path().to_string();
-        let inner = err.into_inner();
-        let message = inner.message().trim().to_string();
-        let place = match inner.span() {
-            Some(span) => {
-                let (line, column) = line_column(text, span.start);
-                format!("line {line}, column {column}: ")
-            }
-            None => String::new(),
-        };
-        let key = if key == "." || key.is_empty() {
-            String::new()
-        } else {
-            format!("key `{key}`: ")
-        };
-        ConfigError::Parse {
-            file: file.to_path_buf(),
-            message: format!("{place}{key}{message}"),
-        }
-    })
-}
-
-fn line_column(text: &str, offset: usize) -> (usize, usize) {
-    let before = &text[..offset.min(text.len())];
-    let line = before.matches('\n').count() + 1;
-    let column = before
-        .rfind('\n')
-        .map_or(before.len(), |nl| before.len() - nl - 1)
-        + 1;
-    (line, column)
 }
 
 /// The demo's configuration, embedded so `layerwise demo` runs with no files around.

@@ -1,14 +1,15 @@
-//! After the build: locating one point of the build frame in every modality (and, with the
-//! raster and CT modules, exporting them all as one study).
+//! After the build: the vectors, the six views and the registered CT exported as one study on one
+//! grid (part crops), DICOM or NRRD.
 
-use crate::acquisition::processing::FrameProcessor;
-use crate::acquisition::series::{series_dir, LayerHeights, SeriesSettings};
-use crate::acquisition::status;
-use crate::config::Config;
-use crate::rectify::{Calibration, Grid, Rectifier};
-use crate::registration::ct::vectors_field::{apply, invert_affine, invert_rigid};
-use crate::view::{Shot, View};
+use crate::ct::CtError;
+use crate::dicom::DicomError;
+use crate::fsutil::WriteError;
+use crate::raster::RasterError;
+use crate::rectify::Grid;
+use crate::series::{BuildRecord, LayerHeights, SeriesError, SeriesSettings};
 use serde::Serialize;
+use crate::shot::{Shot, View};
+use crate::vectors::VectorError;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -18,338 +19,30 @@ pub enum ExportError {
     )]
     NotABuild(PathBuf, &'static str),
     #[error(transparent)]
-    Config(#[from] crate::config::ConfigError),
+    Series(#[from] SeriesError),
+    #[error(transparent)]
+    Vectors(#[from] VectorError),
+    #[error(transparent)]
+    Ct(#[from] CtError),
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    #[error("{file}: layer {layer}: {source}")]
+    Raster {
+        file: PathBuf,
+        layer: usize,
+        source: RasterError,
+    },
+    #[error("{path}: {source}")]
+    Frame { path: PathBuf, source: SeriesError },
+    #[error("{path}: {source}")]
+    Dicom { path: PathBuf, source: DicomError },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{0}")]
     Invalid(String),
-    #[error("{path}: {message}")]
-    Io { path: PathBuf, message: String },
-}
-
-/// Everything known about a build after the fact: its configuration, calibration and grid.
-pub struct BuildRecord {
-    pub dir: PathBuf,
-    pub config: Config,
-    pub calibration: Option<Calibration>,
-    pub grid: Grid,
-    pub heights: LayerHeights,
-}
-
-impl BuildRecord {
-    pub fn open(dir: &Path) -> Result<BuildRecord, ExportError> {
-        let config_path = dir.join(status::CONFIG_SNAPSHOT);
-        if !config_path.exists() {
-            return Err(ExportError::NotABuild(
-                dir.to_path_buf(),
-                status::CONFIG_SNAPSHOT,
-            ));
-        }
-        let config = Config::load(&config_path)?;
-        let calibration_path = dir.join(status::CALIBRATION_COPY);
-        let calibration = if calibration_path.exists() {
-            Some(Calibration::load(&calibration_path)?)
-        } else {
-            None
-        };
-        let settings = SeriesSettings::from_config(&config).map_err(ExportError::Invalid)?;
-        Ok(BuildRecord {
-            dir: dir.to_path_buf(),
-            config,
-            calibration,
-            grid: settings.grid,
-            heights: settings.heights,
-        })
-    }
-}
-
-/// Where a build point is in one view.
-#[derive(Clone, Debug, Serialize)]
-pub struct ViewLocation {
-    pub view: String,
-    /// Pixel (row, column) in the rectified series, when the point is on its grid.
-    pub rectified_pixel: Option<[f64; 2]>,
-    pub dicom: Option<PathBuf>,
-    /// Pixel (u, v) in the original camera frame (through the homography and distortion).
-    pub image_pixel: Option<[f64; 2]>,
-    pub original: Option<PathBuf>,
-}
-
-/// Where a build point is in the registered CT.
-#[derive(Clone, Debug, Serialize)]
-pub struct CtLocation {
-    /// CT physical mm (DICOM patient coordinates of the CT, or voxel index x voxel size).
-    pub ct_mm: [f64; 3],
-    /// Fractional voxel index (i, j, k), when the CT volume could be read.
-    pub voxel: Option<[f64; 3]>,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct Location {
-    /// The point in the build frame, mm.
-    pub build_mm: [f64; 3],
-    pub ct: Option<CtLocation>,
-    pub layer: Option<u32>,
-    pub layer_z_mm: Option<f64>,
-    pub views: Vec<ViewLocation>,
-}
-
-/// The CT transform of a ct.toml and, when its source can be read, the CT's index geometry.
-pub struct CtFrame {
-    pub ct_to_build: [[f64; 4]; 4],
-    pub mm_to_index: Option<[[f64; 4]; 4]>,
-}
-
-impl CtFrame {
-    pub fn open(ct_toml: &Path) -> Result<CtFrame, ExportError> {
-        let registration = crate::registration::ct::CtRegistration::read_toml(ct_toml)
-            .map_err(|e| ExportError::Invalid(e.to_string()))?;
-        let mm_to_index = registration
-            .source
-            .as_ref()
-            .and_then(|s| s.read().ok())
-            .and_then(|v| invert_affine(&v.index_to_mm));
-        Ok(CtFrame {
-            ct_to_build: registration.transform,
-            mm_to_index,
-        })
-    }
-
-    /// CT mm → build mm.
-    pub fn to_build(&self, ct_mm: [f64; 3]) -> [f64; 3] {
-        apply(&self.ct_to_build, ct_mm)
-    }
-
-    /// Build mm → CT mm and voxel.
-    pub fn locate(&self, build_mm: [f64; 3]) -> CtLocation {
-        let ct_mm = apply(&invert_rigid(&self.ct_to_build), build_mm);
-        CtLocation {
-            ct_mm,
-            voxel: self.mm_to_index.map(|m| apply(&m, ct_mm)),
-        }
-    }
-}
-
-/// Where `point` (build mm) is in the layer stack, the rectified views and the original frames.
-pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, ExportError> {
-    let layer = record.heights.layer_at(point[2]);
-    let rectifier = match &record.calibration {
-        Some(c) => Some(
-            Rectifier::new(
-                c.homography,
-                record.grid,
-                c.distortion,
-                Default::default(),
-                0,
-            )
-            .map_err(|e| ExportError::Invalid(format!("calibration: {e}")))?,
-        ),
-        None => None,
-    };
-    let (row, col) = record.grid.pixel_of(point[0], point[1]);
-    let on_grid = row >= -0.5
-        && col >= -0.5
-        && row <= record.grid.rows() as f64 - 0.5
-        && col <= record.grid.columns() as f64 - 0.5;
-    let views = record
-        .config
-        .views
-        .all()
-        .into_iter()
-        .map(|view: View| {
-            let shot = layer.map(|layer| Shot {
-                layer,
-                phase: view.phase,
-                light: view.light,
-            });
-            let dicom = shot
-                .map(|s| series_dir(&record.dir, view).join(format!("L{:05}.dcm", s.layer)))
-                .filter(|p| p.exists());
-            let original = shot.and_then(|s| find_original(&record.dir, &s));
-            ViewLocation {
-                view: view.to_string(),
-                rectified_pixel: on_grid.then_some([row, col]),
-                dicom,
-                image_pixel: rectifier
-                    .as_ref()
-                    .and_then(|r| r.image_point(point[0], point[1]))
-                    .map(|(u, v)| [u, v]),
-                original,
-            }
-        })
-        .collect();
-    Ok(Location {
-        ct: None,
-        build_mm: point,
-        layer,
-        layer_z_mm: layer.map(|k| record.heights.z(k)),
-        views,
-    })
-}
-
-fn find_original(dir: &Path, shot: &Shot) -> Option<PathBuf> {
-    ["jpg", "jpeg", "nef", "png", "tif"]
-        .iter()
-        .map(|ext| dir.join(format!("raw/{}.{ext}", shot.stem())))
-        .find(|p| p.exists())
-}
-
-impl std::fmt::Display for Location {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let [x, y, z] = self.build_mm;
-        writeln!(f, "build point   ({x}, {y}, {z}) mm")?;
-        match (self.layer, self.layer_z_mm) {
-            (Some(k), Some(zk)) => writeln!(f, "layer         {k} (top at z = {zk} mm)")?,
-            _ => writeln!(f, "layer         none: z is outside the build")?,
-        }
-        if let Some(ct) = &self.ct {
-            let [a, b, c] = ct.ct_mm;
-            write!(f, "ct            ({a:.3}, {b:.3}, {c:.3}) mm")?;
-            match ct.voxel {
-                Some([i, j, k]) => writeln!(f, ", voxel ({i:.1}, {j:.1}, {k:.1})")?,
-                None => writeln!(f)?,
-            }
-        }
-        for v in &self.views {
-            let rect = v
-                .rectified_pixel
-                .map_or("off the grid".to_string(), |[r, c]| {
-                    format!("row {r:.1}, column {c:.1}")
-                });
-            let img = v.image_pixel.map_or("not in view".to_string(), |[u, v]| {
-                format!("u {u:.1}, v {v:.1}")
-            });
-            writeln!(
-                f,
-                "{:<10}    rectified {rect}{}",
-                v.view,
-                v.dicom
-                    .as_ref()
-                    .map(|p| format!(" in {}", p.display()))
-                    .unwrap_or_default()
-            )?;
-            writeln!(
-                f,
-                "              original  {img}{}",
-                v.original
-                    .as_ref()
-                    .map(|p| format!(" in {}", p.display()))
-                    .unwrap_or_default()
-            )?;
-        }
-        Ok(())
-    }
-}
-
-/// Draws the point in each view, side by side: the rectified view (re-rectified from the original,
-/// the same pixels as its DICOM slice) and the original frame, cropped around the point, with a
-/// green marker (the paper's Fig. 9).
-pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(), ExportError> {
-    const HALF: i64 = 80;
-    let calibration = record
-        .calibration
-        .as_ref()
-        .ok_or_else(|| ExportError::Invalid("the build has no calibration.toml".into()))?;
-    let rectifier = Rectifier::new(
-        calibration.homography,
-        record.grid,
-        calibration.distortion,
-        Default::default(),
-        0,
-    )
-    .map_err(|e| ExportError::Invalid(format!("calibration: {e}")))?;
-    let mut tiles: Vec<image::RgbImage> = Vec::new();
-    let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
-    // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.
-    if let (Some(path), Some(k), Some([r, c])) = (
-        &record.config.build.vectors,
-        location.layer,
-        location.views.first().and_then(|v| v.rectified_pixel),
-    ) {
-        let file = crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
-        if let Some(layer) = file.layers.get(k as usize - 1) {
-            let picture = crate::raster::rgb(
-                layer,
-                &record.grid,
-                &crate::raster::RasterOptions::default(),
-            )
-            .map_err(|e| ExportError::Invalid(e.to_string()))?;
-            tiles.push(crop_with_marker(&picture, r, c, HALF));
-        }
-    }
-    for v in &location.views {
-        let Some(original) = &v.original else {
-            continue;
-        };
-        let bytes = std::fs::read(original).map_err(|e| ExportError::Io {
-            path: original.clone(),
-            message: e.to_string(),
-        })?;
-        let luma = crate::rectify::decode_frame_luma(&bytes).map_err(|e| ExportError::Io {
-            path: original.clone(),
-            message: e.to_string(),
-        })?;
-        if let Some([r, c]) = v.rectified_pixel {
-            let rect = luma.rectified(&rectifier).to_display8();
-            tiles.push(crop_with_marker(&rgb(rect), r, c, HALF));
-        }
-        if let Some([u, vv]) = v.image_pixel {
-            tiles.push(crop_with_marker(&rgb(luma.to_display8()), vv, u, HALF));
-        }
-    }
-    if tiles.is_empty() {
-        return Err(ExportError::Invalid(
-            "nothing to draw: no frame of that layer holds the point".into(),
-        ));
-    }
-    let side = (2 * HALF + 1) as u32;
-    let mut sheet = image::RgbImage::from_pixel(
-        side * tiles.len() as u32 + 4 * (tiles.len() as u32 - 1),
-        side,
-        image::Rgb([255, 255, 255]),
-    );
-    for (i, tile) in tiles.iter().enumerate() {
-        image::imageops::replace(&mut sheet, tile, (i as u32 * (side + 4)) as i64, 0);
-    }
-    sheet.save(out).map_err(|e| ExportError::Io {
-        path: out.to_path_buf(),
-        message: e.to_string(),
-    })
-}
-
-/// A (2·half + 1)² crop centred on (row, col) with a green cross; outside the image is black.
-fn crop_with_marker(img: &image::RgbImage, row: f64, col: f64, half: i64) -> image::RgbImage {
-    let (r0, c0) = (row.round() as i64, col.round() as i64);
-    let side = (2 * half + 1) as u32;
-    let mut tile = image::RgbImage::new(side, side);
-    for dy in -half..=half {
-        for dx in -half..=half {
-            let (r, c) = (r0 + dy, c0 + dx);
-            if r >= 0 && c >= 0 && (r as u32) < img.height() && (c as u32) < img.width() {
-                tile.put_pixel(
-                    (dx + half) as u32,
-                    (dy + half) as u32,
-                    *img.get_pixel(c as u32, r as u32),
-                );
-            }
-        }
-    }
-    for d in -6i64..=6 {
-        if d.abs() < 2 {
-            continue;
-        }
-        for t in [-1i64, 0, 1] {
-            tile.put_pixel(
-                (half + d) as u32,
-                (half + t) as u32,
-                image::Rgb([0, 255, 0]),
-            );
-            tile.put_pixel(
-                (half + t) as u32,
-                (half + d) as u32,
-                image::Rgb([0, 255, 0]),
-            );
-        }
-    }
-    tile
 }
 
 /// What `layerwise export` writes.
@@ -392,9 +85,9 @@ fn originals_by_view(
     dir: &Path,
 ) -> Result<std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>, ExportError> {
     let raw = dir.join("raw");
-    let entries = std::fs::read_dir(&raw).map_err(|e| ExportError::Io {
+    let entries = std::fs::read_dir(&raw).map_err(|source| ExportError::Io {
         path: raw.clone(),
-        message: e.to_string(),
+        source,
     })?;
     let mut out: std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>> = Default::default();
     for entry in entries.flatten() {
@@ -426,14 +119,14 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
             request.build.display()
         ))
     })?;
-    let manifest: status::BuildManifest = std::fs::read(request.build.join(status::MANIFEST))
+    let manifest: crate::build_dir::BuildManifest = std::fs::read(request.build.join(crate::build_dir::MANIFEST))
         .ok()
         .and_then(|b| serde_json::from_slice(&b).ok())
         .ok_or(ExportError::NotABuild(
             request.build.clone(),
-            status::MANIFEST,
+            crate::build_dir::MANIFEST,
         ))?;
-    let mut settings = SeriesSettings::from_config(&record.config).map_err(ExportError::Invalid)?;
+    let mut settings = SeriesSettings::from_config(&record.config)?;
     let label = match request.part {
         Some(part) => {
             let vectors = record.config.build.vectors.as_ref().ok_or_else(|| {
@@ -442,14 +135,8 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                         .into(),
                 )
             })?;
-            let info =
-                crate::vectors::info(vectors).map_err(|e| ExportError::Invalid(e.to_string()))?;
-            let bbox = info
-                .parts
-                .iter()
-                .find(|p| p.id == part)
-                .and_then(|p| p.bbox)
-                .ok_or_else(|| {
+            let info = crate::vectors::info(vectors)?;
+            let bbox = info.part_bbox(part).ok_or_else(|| {
                     ExportError::Invalid(format!(
                         "{}: no part {part} with geometry",
                         vectors.display()
@@ -464,10 +151,8 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
     let grid = settings.grid;
     let heights = settings.heights.clone();
     let views = record.config.views.all();
-    let live =
-        crate::acquisition::series::LiveSeries::new(&manifest, &views, &calibration, settings)
-            .map_err(ExportError::Invalid)?
-            .relabelled(&request.out, &label, 10);
+    let live = crate::series::LiveSeries::new(&manifest, &views, &calibration, settings)?
+        .relabelled(&request.out, &label, 10);
     let originals = originals_by_view(&request.build)?;
     let total: usize = originals.values().map(Vec::len).sum();
     let bar = if request.progress {
@@ -502,9 +187,9 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         let mut volume: Vec<u16> = Vec::new();
         let mut zs = Vec::new();
         for (shot, path) in shots {
-            let io = |message: String| ExportError::Io {
+            let frame = |source: SeriesError| ExportError::Frame {
                 path: path.clone(),
-                message,
+                source,
             };
             match request.format {
                 ExportFormat::Dicom => {
@@ -512,18 +197,16 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                     if live.slice_path(&request.build, *shot).exists() {
                         summary.unchanged += 1;
                     } else {
-                        live.process(&request.build, *shot, path).map_err(io)?;
+                        live.write_original(&request.build, *shot, path).map_err(frame)?;
                         summary.written += 1;
                     }
                 }
                 ExportFormat::Nrrd => {
-                    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
-                    let luma = live
-                        .rectified_luma(&bytes)
-                        .map_err(|message| ExportError::Io {
-                            path: path.clone(),
-                            message,
-                        })?;
+                    let bytes = std::fs::read(path).map_err(|source| ExportError::Io {
+                        path: path.clone(),
+                        source,
+                    })?;
+                    let luma = live.rectified_luma(&bytes).map_err(frame)?;
                     volume.extend(luma.into_u16());
                     zs.push(heights.z(shot.layer));
                 }
@@ -613,15 +296,12 @@ fn write_nrrd(path: &Path, voxels: NrrdVoxels, grid: Grid, zs: &[f64]) -> Result
         NrrdVoxels::Rgb8(volume) => bytes.extend_from_slice(volume),
     }
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| ExportError::Io {
+        std::fs::create_dir_all(dir).map_err(|source| ExportError::Io {
             path: dir.to_path_buf(),
-            message: e.to_string(),
+            source,
         })?;
     }
-    crate::acquisition::storage::write_atomic(path, &bytes, true).map_err(|e| ExportError::Io {
-        path: path.to_path_buf(),
-        message: e.source.to_string(),
-    })
+    Ok(crate::fsutil::write_atomic(path, &bytes, true)?)
 }
 
 /// Label values of the vectors series: the CT Image IOD is MONOCHROME2 only, so the Fig. 9 colours
@@ -633,14 +313,14 @@ pub const LABEL_CONTOUR: u16 = 3000;
 /// The rasterized vectors, one slice per layer at its z: contours, hatches, fused area.
 fn export_vectors(
     path: &Path,
-    live: &crate::acquisition::series::LiveSeries,
+    live: &crate::series::LiveSeries,
     grid: Grid,
     label: &str,
     request: &ExportRequest,
     summary: &mut ExportSummary,
 ) -> Result<usize, ExportError> {
     use crate::raster::{self, RasterOptions, RGB_CONTOUR, RGB_HATCH};
-    let file = crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
+    let file = crate::vectors::read(path)?;
     let options = RasterOptions {
         part: request.part,
         ..RasterOptions::default()
@@ -658,8 +338,11 @@ fn export_vectors(
     let mut slices = 0;
     for (k, layer) in file.layers.iter().enumerate() {
         let layer_number = k as u32 + 1;
-        let rgb = raster::rgb(layer, &grid, &options)
-            .map_err(|e| ExportError::Invalid(format!("{}: layer {k}: {e}", path.display())))?;
+        let rgb = raster::rgb(layer, &grid, &options).map_err(|source| ExportError::Raster {
+            file: path.to_path_buf(),
+            layer: k,
+            source,
+        })?;
         slices += 1;
         match request.format {
             ExportFormat::Nrrd => {
@@ -707,9 +390,9 @@ fn export_vectors(
                     &slice,
                     crate::dicom::Compression::Deflate,
                 )
-                .map_err(|e| ExportError::Io {
+                .map_err(|source| ExportError::Dicom {
                     path: target.clone(),
-                    message: e.to_string(),
+                    source,
                 })?;
                 summary.written += 1;
             }
@@ -728,7 +411,7 @@ fn export_vectors(
 #[allow(clippy::too_many_arguments)]
 fn export_ct(
     ct_toml: &Path,
-    live: &crate::acquisition::series::LiveSeries,
+    live: &crate::series::LiveSeries,
     grid: Grid,
     heights: &LayerHeights,
     originals: &std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>,
@@ -736,22 +419,18 @@ fn export_ct(
     label: &str,
     request: &ExportRequest,
 ) -> Result<usize, ExportError> {
-    use crate::registration::ct;
-    let registration =
-        ct::CtRegistration::read_toml(ct_toml).map_err(|e| ExportError::Invalid(e.to_string()))?;
+    use crate::ct;
+    let registration = ct::CtRegistration::read_toml(ct_toml)?;
     let source = registration.source.as_ref().ok_or_else(|| {
         ExportError::Invalid(format!(
             "{}: records no CT source; register again with this layerwise",
             ct_toml.display()
         ))
     })?;
-    let volume = source
-        .read()
-        .map_err(|e| ExportError::Invalid(e.to_string()))?;
+    let volume = source.read()?;
     let planes: Vec<(u32, f64, f64)> = match &record.config.build.vectors {
         Some(path) => {
-            let file =
-                crate::vectors::read(path).map_err(|e| ExportError::Invalid(e.to_string()))?;
+            let file = crate::vectors::read(path)?;
             ct::vectors_field::layer_planes(&file)
         }
         None => {

@@ -1,18 +1,38 @@
 //! layerwise: layer-wise imaging of laser powder bed fusion builds, registered to the laser scan
 //! vectors and to post-build CT in one frame of reference (docs/frames.md).
+//!
+//! The modules form layers (docs/architecture.md; `tests/architecture.rs` enforces it): each uses
+//! only modules of lower layers.
+//!
+//! | layer | modules | what |
+//! | --- | --- | --- |
+//! | 0 foundation | [`fsutil`], [`clock`], [`geometry`] | atomic files, time, frame-named transforms and grids |
+//! | 1 formats | [`shot`], [`vectors`], [`dicom`], [`optics`] | what a frame is, CLI vector files, DICOM writing and reading, the optics planner |
+//! | 2 records | [`build_dir`], [`config`], [`raster`] | the build directory, the configuration, vectors on a grid |
+//! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
+//! | 4 registration | [`calibrate`], [`ct`], [`series`] | image ↔ vectors, CT ↔ vectors, the live DICOM series of a view |
+//! | 5 products | [`export`], [`locate`], [`hardware`] | one study per build, a point in every view, camera/lights/trigger |
+//! | 6 daemon | [`acquisition`], [`logging`] | the acquisition daemon |
+//! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
 
 pub mod acquisition;
-pub mod camera;
+pub mod build_dir;
+pub mod calibrate;
+pub mod clock;
 pub mod config;
+pub mod ct;
 pub mod dicom;
 pub mod export;
-pub mod lights;
+pub mod fsutil;
+pub mod geometry;
+pub mod hardware;
+pub mod locate;
 pub mod logging;
 pub mod optics;
 pub mod raster;
 pub mod rectify;
-pub mod registration;
-pub mod trigger;
+pub mod series;
+pub mod shot;
+pub mod sim;
 pub mod tsdf;
 pub mod vectors;
-pub mod view;

@@ -4,7 +4,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use layerwise::acquisition::{self, status, RunOptions};
 use layerwise::config::{Config, TriggerConfig, DEMO_CONFIG};
-use layerwise::registration::{
+use layerwise::calibrate::{
     register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
 };
 use std::path::{Path, PathBuf};
@@ -355,7 +355,7 @@ fn dispatch(command: Command) -> Result<()> {
                     tsdf_voxel_mm,
                 },
         } => {
-            use layerwise::registration::ct;
+            use layerwise::ct;
             let (size_arg, dtype_arg) = (size.clone(), dtype.clone());
             let source = match (size, dtype) {
                 (Some(size), Some(dtype)) => {

@@ -122,7 +122,7 @@ fn kill_9_mid_build_then_restart_keeps_every_frame_once() {
     assert!(temporaries(&build).is_empty());
     assert_sidecars_match(&build);
     let replay = replay(&build);
-    assert_eq!(replay.last_event, Some((8, layerwise::view::Phase::Post)));
+    assert_eq!(replay.last_event, Some((8, layerwise::shot::Phase::Post)));
     assert!(replay.missing.is_empty(), "{:?}", replay.missing);
     assert_eq!(replay.starts, 3);
 

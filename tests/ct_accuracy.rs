@@ -9,7 +9,7 @@
 
 use std::sync::OnceLock;
 
-use layerwise::registration::ct::{
+use layerwise::ct::{
     self, synth, CtError, CtParams, DistanceField, InitialTransform, PartShape, Threshold,
 };
 

@@ -9,7 +9,7 @@ use dicom_core::value::{PrimitiveValue, C};
 use dicom_core::{DataElement, Tag, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
-use layerwise::registration::ct::{self, synth, volume, CtParams, InitialTransform, VoxelData};
+use layerwise::ct::{self, synth, volume, CtParams, InitialTransform, VoxelData};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
 fn put(o: &mut InMemDicomObject, tag: Tag, vr: VR, v: impl Into<PrimitiveValue>) {

@@ -5,8 +5,8 @@ mod common;
 use common::*;
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::acquisition::{run, AcquisitionError, RunOptions};
-use layerwise::lights::{LightSwitch, MockLightsLog};
-use layerwise::view::{Light, Phase, Shot};
+use layerwise::hardware::lights::{LightSwitch, MockLightsLog};
+use layerwise::shot::{Light, Phase, Shot};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -233,7 +233,7 @@ fn capture_never_waits_for_processing() {
     );
     let processed_records = records(&build)
         .into_iter()
-        .filter(|r| matches!(r, layerwise::acquisition::journal::Record::Processed { .. }))
+        .filter(|r| matches!(r, layerwise::build_dir::journal::Record::Processed { .. }))
         .count();
     assert_eq!(processed_records, 24);
 }

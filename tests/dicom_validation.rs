@@ -5,12 +5,12 @@
 mod common;
 
 use common::*;
-use layerwise::acquisition::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
+use layerwise::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::acquisition::{run, RunOptions};
 use layerwise::config::Config;
 use layerwise::dicom::Compression;
 use layerwise::rectify::Calibration;
-use layerwise::view::{Light, Phase, Shot, View};
+use layerwise::shot::{Light, Phase, Shot, View};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -71,7 +71,7 @@ fn dciodvfy_errors(file: &Path) -> Vec<String> {
 /// Writes what dicom_check.py compares against: the grid contract and rectified pixels.
 fn write_expectations(build: &Path, config: &Config, layers: u32, expected: &Path) {
     std::fs::create_dir_all(expected).unwrap();
-    let manifest: layerwise::acquisition::status::BuildManifest =
+    let manifest: layerwise::build_dir::BuildManifest =
         serde_json::from_slice(&std::fs::read(build.join("build.json")).unwrap()).unwrap();
     let calibration = Calibration::load(config.calibration.file.as_ref().unwrap()).unwrap();
     let heights = LayerHeights::uniform(config.build.layer_thickness_mm);

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use image::{DynamicImage, RgbImage};
 use layerwise::rectify::{calibration::Calibration, Interpolation, RadialDistortion, Rectifier};
-use layerwise::registration::{
+use layerwise::calibrate::{
     self, register_images, DistortionChoice, ImageRegistration, ImageRegistrationReport, Mapping,
     RegistrationImage, RegistrationOptions,
 };

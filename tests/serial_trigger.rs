@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use layerwise::config::{SerialTriggerConfig, TriggerConfig};
-use layerwise::trigger::{SerialTrigger, Trigger};
-use layerwise::view::Phase;
+use layerwise::hardware::trigger::{SerialTrigger, Trigger};
+use layerwise::shot::Phase;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -74,12 +74,12 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     let dir = tempfile::tempdir().unwrap();
     let pair = PtyPair::start(dir.path());
     let trigger = SerialTrigger::new(serial_config(&pair.daemon)).unwrap();
-    let mut events = layerwise::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>);
+    let mut events = layerwise::hardware::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>);
     let next = |events: &mut tokio::sync::mpsc::Receiver<_>| -> (u32, Phase) {
         let deadline = Instant::now() + Duration::from_secs(10);
         loop {
             match events.try_recv() {
-                Ok(Ok(e @ layerwise::trigger::LayerEvent { .. })) => return (e.layer, e.phase),
+                Ok(Ok(e @ layerwise::hardware::trigger::LayerEvent { .. })) => return (e.layer, e.phase),
                 Ok(Err(e)) => panic!("trigger error: {e}"),
                 Err(_) => {
                     assert!(Instant::now() < deadline, "no event");
@@ -162,8 +162,8 @@ fn the_daemon_captures_on_serial_signals() {
 #[test]
 fn relay_lights_send_their_command_strings_and_all_off() {
     use layerwise::config::SerialRelayConfig;
-    use layerwise::lights::{Lights, LightsGuard, SerialRelayLights};
-    use layerwise::view::Light;
+    use layerwise::hardware::lights::{Lights, LightsGuard, SerialRelayLights};
+    use layerwise::shot::Light;
     use std::io::Read;
     let dir = tempfile::tempdir().unwrap();
     let pair = PtyPair::start(dir.path());

@@ -82,7 +82,7 @@ fn camera_frames(dir: &Path) -> Vec<String> {
             illumination: mock_camera::Illumination::Top,
         };
         let jpeg = renderer.render_jpeg(&scene, 90);
-        hashes.push(layerwise::acquisition::storage::sha256_hex(&jpeg));
+        hashes.push(layerwise::fsutil::sha256_hex(&jpeg));
         std::fs::write(dir.join(format!("frame{layer}.jpg")), jpeg).unwrap();
     }
     hashes
@@ -109,7 +109,7 @@ fn captures_and_downloads_through_real_libgphoto2() {
     assert_sidecars_match(&build);
     for file in originals(&build) {
         let sha =
-            layerwise::acquisition::storage::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
+            layerwise::fsutil::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
         assert!(
             served.contains(&sha),
             "{file} is not a frame the camera holds"

@@ -2,34 +2,34 @@
 //! capture and download, light off, store the original, hand it to processing. Resumes from the
 //! journal after any stop; never waits for processing.
 
-pub mod journal;
 pub mod processing;
-pub mod series;
-pub mod status;
 pub mod storage;
 
-use crate::camera::mock::{MockCameraBody, MockWorld};
-use crate::camera::{capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy};
-use crate::config::{CameraConfig, Config, TriggerConfig};
-use crate::lights::{LightsError, LightsGuard, MockLightsLog};
-use crate::trigger::{LayerEvent, Trigger, TriggerError};
-use crate::view::{Light, Phase, Shot};
-use chrono::Utc;
-use journal::{Journal, JournalError, Record, Replay};
-use processing::{FrameProcessor, ProcessingQueue};
-use status::{BuildManifest, LastFrame, LiveStatus};
+use crate::build_dir::status::{LastFrame, LiveStatus};
+use crate::build_dir::{self, BuildManifest, Journal, JournalError, Record, Replay};
+use crate::clock::{SharedClock, SystemClock};
+use crate::config::Config;
+use crate::hardware::camera::{capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy};
+use crate::hardware::lights::{LightsError, LightsGuard};
+use crate::hardware::trigger::{LayerEvent, TriggerError};
+use crate::hardware::Machine;
+use crate::series::{FrameProcessor, KeepOriginals};
+use crate::shot::{Light, Phase, Shot};
+use chrono::{DateTime, Utc};
+use processing::ProcessingQueue;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
-use storage::{Storage, StorageError};
+use std::time::Duration;
+use storage::Storage;
+use crate::fsutil::WriteError;
 use tracing::{error, info, warn};
 
 #[derive(Debug, thiserror::Error)]
 pub enum AcquisitionError {
     #[error(transparent)]
-    Storage(#[from] StorageError),
+    Storage(#[from] WriteError),
     #[error(transparent)]
     Journal(#[from] JournalError),
     #[error("camera: {0}")]
@@ -40,6 +40,12 @@ pub enum AcquisitionError {
     Trigger(#[from] TriggerError),
     #[error(transparent)]
     Lights(#[from] LightsError),
+    #[error(transparent)]
+    Calibration(#[from] crate::rectify::CalibrationError),
+    #[error(transparent)]
+    Series(#[from] crate::series::SeriesError),
+    #[error("cannot record the configuration: {0}")]
+    Snapshot(#[from] toml::ser::Error),
     #[error("{0}")]
     Runtime(String),
 }
@@ -54,27 +60,17 @@ pub struct RunSummary {
     pub stop_reason: String,
 }
 
-/// Opens a camera on the camera thread.
-pub type CameraFactory =
-    Box<dyn FnOnce() -> Result<Box<dyn crate::camera::Camera>, CameraError> + Send>;
-
-/// How to run: what to do with frames, and the pieces tests replace.
+/// How to run: what to do with frames, and the clock.
 pub struct RunOptions {
     /// What to do with stored frames; by default the live DICOM series when a calibration is
     /// configured, else keep the originals only.
     pub processor: Option<Arc<dyn FrameProcessor>>,
     /// Send READY and WATCHDOG to systemd.
     pub notify_systemd: bool,
-    /// When the trigger ends (a mock build), process every frame before returning.
+    /// When the trigger ends (a simulated build), process every frame before returning.
     pub drain_at_end: bool,
-    /// Replaces the configured trigger (tests).
-    pub trigger: Option<Box<dyn Trigger>>,
-    /// Replaces the configured camera (tests, benchmarks).
-    pub camera: Option<CameraFactory>,
-    /// The simulated machine shared by the mock trigger, lights and camera.
-    pub world: MockWorld,
-    /// Filled with the mock lights' log when the lights are mock (tests).
-    pub lights_log: Option<Arc<Mutex<Option<MockLightsLog>>>>,
+    /// Where time comes from.
+    pub clock: SharedClock,
 }
 
 impl Default for RunOptions {
@@ -89,10 +85,7 @@ impl RunOptions {
             processor: None,
             notify_systemd: false,
             drain_at_end: false,
-            trigger: None,
-            camera: None,
-            world: MockWorld::new(),
-            lights_log: None,
+            clock: SystemClock::shared(),
         }
     }
 }
@@ -101,7 +94,7 @@ impl RunOptions {
 struct OpenEvent {
     layer: u32,
     phase: Phase,
-    at: chrono::DateTime<Utc>,
+    at: DateTime<Utc>,
     done: BTreeSet<Light>,
 }
 
@@ -120,15 +113,13 @@ struct Sequencer {
     live: LiveStatus,
     summary: RunSummary,
     heartbeat: Arc<AtomicU64>,
-    epoch: Instant,
-    /// The simulated plate, when the camera is the mock: it shows the layer being handled.
-    world: MockWorld,
+    clock: SharedClock,
 }
 
 impl Sequencer {
     fn beat(&self) {
         self.heartbeat
-            .store(self.epoch.elapsed().as_millis() as u64, Ordering::SeqCst);
+            .store(self.clock.elapsed().as_millis() as u64, Ordering::SeqCst);
     }
 
     fn journal(&self, record: &Record) -> Result<(), AcquisitionError> {
@@ -154,7 +145,7 @@ impl Sequencer {
             phase: shot.phase,
             light: shot.light,
             reason,
-            at: Utc::now(),
+            at: self.clock.now(),
         })?;
         self.summary.missing += 1;
         if let Some(open) = self.open.as_mut() {
@@ -225,7 +216,6 @@ impl Sequencer {
         }
         self.live.layer = Some(event.layer);
         self.live.phase = Some(event.phase);
-        self.world.set_layer(event.layer, event.phase);
         for shot in shots {
             if self.is_done(&shot) {
                 self.summary.skipped += 1;
@@ -239,7 +229,7 @@ impl Sequencer {
 
     fn take(&mut self, shot: Shot) -> Result<(), AcquisitionError> {
         self.beat();
-        let event_at = self.open.as_ref().map_or_else(Utc::now, |o| o.at);
+        let event_at = self.open.as_ref().map_or_else(|| self.clock.now(), |o| o.at);
         if let Err(e) = self.lights.switch(shot.light, true) {
             self.lights.all_off_logged();
             return self.record_missing(
@@ -247,10 +237,8 @@ impl Sequencer {
                 format!("the {} light did not switch on: {e}", shot.light),
             );
         }
-        if !self.settle.is_zero() {
-            std::thread::sleep(self.settle);
-        }
-        let result = capture_with_retries(&self.camera, &self.policy);
+        self.clock.sleep(self.settle);
+        let result = capture_with_retries(&self.camera, &self.policy, &shot);
         if let Err(e) = self.lights.switch(shot.light, false) {
             warn!(light = %shot.light, error = %e, "lights: could not switch off; switching all off");
             self.lights.all_off_logged();
@@ -262,6 +250,7 @@ impl Sequencer {
                     &shot,
                     &frame,
                     event_at,
+                    self.clock.now(),
                     attempts,
                     self.camera.settings(),
                 )?;
@@ -321,7 +310,7 @@ impl Sequencer {
 
     fn write_live(&mut self, state: &str) {
         self.live.state = state.to_string();
-        self.live.updated_at = Some(Utc::now());
+        self.live.updated_at = Some(self.clock.now());
         if let Some(queue) = &self.queue {
             self.live.queue_depth = queue.depth();
         }
@@ -343,7 +332,7 @@ impl Sequencer {
         }
         if let Err(e) = self.journal(&Record::Stop {
             reason: reason.to_string(),
-            at: Utc::now(),
+            at: self.clock.now(),
         }) {
             error!(error = %e, "cannot journal the stop");
         }
@@ -354,63 +343,33 @@ impl Sequencer {
     }
 }
 
-fn open_trigger(config: &Config) -> Result<Box<dyn Trigger>, TriggerError> {
-    Ok(match &config.trigger {
-        TriggerConfig::Serial(serial) => {
-            Box::new(crate::trigger::SerialTrigger::new(serial.clone())?)
-        }
-        TriggerConfig::Gpio(gpio) => Box::new(crate::trigger::GpioTrigger::open(gpio.clone())?),
-        TriggerConfig::Mock(mock) => Box::new(crate::trigger::MockTrigger::from_config(mock)?),
-    })
+/// The build directory opened for a run: originals, manifest, journal and what it replayed.
+struct OpenedBuild {
+    storage: Storage,
+    manifest: BuildManifest,
+    journal: Journal,
+    replay: Replay,
 }
 
-fn open_camera(
-    config: &Config,
-    world: &MockWorld,
-    factory: Option<CameraFactory>,
-) -> Result<CameraActor, CameraError> {
-    let timeout = Duration::from_secs(config.capture.call_timeout_s);
-    if let Some(factory) = factory {
-        return CameraActor::spawn(factory, timeout);
-    }
-    match &config.camera {
-        CameraConfig::Mock(mock) => {
-            let (mock, world) = (mock.clone(), world.clone());
-            CameraActor::spawn(move || Ok(Box::new(MockCameraBody::new(&mock, world)) as Box<dyn crate::camera::Camera>), timeout)
-        }
-        #[cfg(feature = "gphoto")]
-        CameraConfig::Gphoto2(real) => {
-            let real = real.clone();
-            CameraActor::spawn(
-                move || Ok(Box::new(crate::camera::gphoto::GphotoCamera::open(&real)?) as Box<dyn crate::camera::Camera>),
-                timeout,
-            )
-        }
-        #[cfg(not(feature = "gphoto"))]
-        CameraConfig::Gphoto2(_) => Err(CameraError::Failed(
-            "this layerwise was built without the `gphoto` feature; rebuild with it (needs libgphoto2-dev)".into(),
-        )),
-    }
-}
-
-/// Runs the daemon until the trigger ends or SIGTERM/SIGINT arrives.
-pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary, AcquisitionError> {
+/// Opens (or starts) the build directory, adopts originals a crash left unjournaled, and
+/// journals the start.
+fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, AcquisitionError> {
     let dir = config.build.output_dir.clone();
     let storage = Storage::open(&dir, config.storage.fsync)?;
     let views: Vec<String> = config.views.all().iter().map(|v| v.to_string()).collect();
     let manifest = BuildManifest::load_or_create(&dir, || BuildManifest {
         name: config.build.name.clone(),
         id: config.build_id().to_string(),
-        created_at: Utc::now(),
+        created_at: clock.now(),
         layers_expected: config.build.layers,
         views,
-        study_instance_uid: status::new_uid(),
-        frame_of_reference_uid: status::new_uid(),
+        study_instance_uid: crate::dicom::new_uid(),
+        frame_of_reference_uid: crate::dicom::new_uid(),
         software_version: env!("CARGO_PKG_VERSION").to_string(),
     })?;
     snapshot_configuration(config, &storage)?;
     let (mut journal, mut replay) =
-        Journal::open(&dir.join(status::JOURNAL), config.storage.fsync)?;
+        Journal::open(&dir.join(build_dir::JOURNAL), config.storage.fsync)?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
     for adopted in storage.recover(|shot| replay.frames.contains_key(shot))? {
         warn!(file = %adopted.file, "recovered a frame stored just before a crash");
@@ -427,37 +386,80 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         replay.apply(&record);
     }
     journal.append(&Record::Start {
-        at: Utc::now(),
+        at: clock.now(),
         pid: std::process::id(),
         version: env!("CARGO_PKG_VERSION").into(),
     })?;
+    let last_event = replay
+        .last_event
+        .map(|(layer, phase)| format!("layer {layer} {phase}"))
+        .unwrap_or_else(|| "none".into());
     info!(
         build = %manifest.name,
         dir = %dir.display(),
         frames = replay.frames.len(),
         missing = replay.missing.len(),
         restarts = replay.starts,
-        last_event = ?replay.last_event,
+        last_event = %last_event,
         "build opened"
     );
+    Ok(OpenedBuild {
+        storage,
+        manifest,
+        journal,
+        replay,
+    })
+}
 
-    let world = options.world.clone();
-    let (lights, lights_log) = crate::lights::open(&config.lights, Some(world.clone()))?;
-    if let (Some(slot), Some(log)) = (&options.lights_log, lights_log) {
-        if let Ok(mut slot) = slot.lock() {
-            *slot = Some(log);
-        }
-    }
+/// The event a restart interrupted, with the lights it had already done.
+fn interrupted_event(config: &Config, replay: &Replay, clock: &SharedClock) -> Option<OpenEvent> {
+    let (layer, phase) = replay.last_event?;
+    let lights = &config.views.lights;
+    let done: BTreeSet<Light> = lights
+        .iter()
+        .copied()
+        .filter(|&light| {
+            replay.is_done(&Shot {
+                layer,
+                phase,
+                light,
+            })
+        })
+        .collect();
+    (done.len() < lights.len()).then(|| OpenEvent {
+        layer,
+        phase,
+        at: clock.now(),
+        done,
+    })
+}
+
+/// Runs the daemon on `machine` until the trigger ends or SIGTERM/SIGINT arrives.
+pub async fn run(
+    config: &Config,
+    machine: Machine,
+    mut options: RunOptions,
+) -> Result<RunSummary, AcquisitionError> {
+    let clock = options.clock.clone();
+    let dir = config.build.output_dir.clone();
+    let OpenedBuild {
+        storage,
+        manifest,
+        journal,
+        replay,
+    } = open_build(config, &clock)?;
+
+    let Machine {
+        mut trigger,
+        lights,
+        camera,
+    } = machine;
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
+    let timeout = Duration::from_secs(config.capture.call_timeout_s);
     let camera =
-        open_camera(config, &world, options.camera.take()).map_err(AcquisitionError::CameraOpen)?;
+        CameraActor::spawn(camera, timeout, clock.clone()).map_err(AcquisitionError::CameraOpen)?;
     info!(camera = camera.describe(), "camera open");
-
-    let mut trigger = match options.trigger.take() {
-        Some(t) => t,
-        None => open_trigger(config)?,
-    };
     trigger.resume_after(replay.last_event);
 
     let journal = Arc::new(Mutex::new(journal));
@@ -476,28 +478,8 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         dir.clone(),
         journal.clone(),
         backlog,
+        clock.clone(),
     );
-
-    let open = replay.last_event.and_then(|(layer, phase)| {
-        let lights: Vec<Light> = config.views.lights.clone();
-        let done: BTreeSet<Light> = lights
-            .iter()
-            .copied()
-            .filter(|&light| {
-                replay.is_done(&Shot {
-                    layer,
-                    phase,
-                    light,
-                })
-            })
-            .collect();
-        (done.len() < lights.len()).then(|| OpenEvent {
-            layer,
-            phase,
-            at: Utc::now(),
-            done,
-        })
-    });
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut sequencer = Sequencer {
         lights_order: config.views.lights.clone(),
@@ -507,7 +489,7 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
         lights,
         camera,
         policy: RetryPolicy::from_config(&config.capture),
-        open,
+        open: interrupted_event(config, &replay, &clock),
         queue: Some(queue),
         live: LiveStatus {
             pid: std::process::id(),
@@ -519,29 +501,53 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
             ..RunSummary::default()
         },
         heartbeat: heartbeat.clone(),
-        epoch: Instant::now(),
-        world: world.clone(),
+        clock: clock.clone(),
         before: replay,
     };
     sequencer.write_live("running");
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
-    let mut events = crate::trigger::spawn(trigger);
+    let events = crate::hardware::trigger::spawn(trigger);
+    let (sequencer, reason) =
+        event_loop(sequencer, events, only_phases, heartbeat, &options).await?;
+    if options.notify_systemd {
+        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
+    }
+    let drain = options.drain_at_end && reason == "the trigger ended";
+    let summary = tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
+        .await
+        .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
+    info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
+    Ok(summary)
+}
+
+/// Feeds layer signals to the sequencer (one event at a time, on a blocking thread) until the
+/// trigger ends or a signal stops the daemon; pings the systemd watchdog while capture lives.
+/// Returns the idle sequencer and why the loop stopped.
+async fn event_loop(
+    sequencer: Sequencer,
+    mut events: tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>>,
+    only_phases: BTreeSet<Phase>,
+    heartbeat: Arc<AtomicU64>,
+    options: &RunOptions,
+) -> Result<(Sequencer, String), AcquisitionError> {
+    let clock = options.clock.clone();
     let watchdog = watchdog_period(options.notify_systemd);
     if options.notify_systemd {
         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Ready]);
     }
     let mut tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(5)));
-    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .map_err(|e| AcquisitionError::Runtime(format!("cannot watch SIGTERM: {e}")))?;
-    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())
-        .map_err(|e| AcquisitionError::Runtime(format!("cannot watch SIGINT: {e}")))?;
+    let signal = |kind| {
+        tokio::signal::unix::signal(kind)
+            .map_err(|e| AcquisitionError::Runtime(format!("cannot watch signal {kind:?}: {e}")))
+    };
+    let mut sigterm = signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = signal(tokio::signal::unix::SignalKind::interrupt())?;
 
     let mut idle = Some(sequencer);
     let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> =
         None;
     let mut stop: Option<String> = None;
-    let epoch = Instant::now();
     loop {
         if stop.is_some() && running.is_none() {
             break;
@@ -585,40 +591,28 @@ pub async fn run(config: &Config, mut options: RunOptions) -> Result<RunSummary,
                 if let Some(period) = watchdog {
                     // Ping only while the capture path shows signs of life.
                     let last = Duration::from_millis(heartbeat.load(Ordering::SeqCst));
-                    if running.is_none() || epoch.elapsed().saturating_sub(last) < period * 2 {
+                    if running.is_none() || clock.elapsed().saturating_sub(last) < period * 2 {
                         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Watchdog]);
                     }
                 }
             }
         }
     }
-    if options.notify_systemd {
-        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
-    }
-    let reason = stop.unwrap_or_default();
-    let drain = options.drain_at_end && reason == "the trigger ended";
-    let Some(sequencer) = idle else {
-        return Err(AcquisitionError::Runtime("capture task lost".into()));
-    };
-    let summary = tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
-        .await
-        .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
-    info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
-    Ok(summary)
+    let sequencer = idle.ok_or_else(|| AcquisitionError::Runtime("capture task lost".into()))?;
+    Ok((sequencer, stop.unwrap_or_default()))
 }
 
 /// Leaves the configuration in force (`config.toml`) and a copy of the calibration
 /// (`calibration.toml`) in the build directory, so export and locate know how the build was made.
 fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), AcquisitionError> {
     let dir = storage.root();
-    let text = toml::to_string(config)
-        .map_err(|e| AcquisitionError::Runtime(format!("cannot record the configuration: {e}")))?;
-    storage.write_atomic(&dir.join(status::CONFIG_SNAPSHOT), text.as_bytes())?;
+    let text = toml::to_string(config)?;
+    storage.write_atomic(&dir.join(build_dir::CONFIG_SNAPSHOT), text.as_bytes())?;
     if let Some(calibration) = &config.calibration.file {
-        let target = dir.join(status::CALIBRATION_COPY);
+        let target = dir.join(build_dir::CALIBRATION_COPY);
         let same = std::fs::canonicalize(calibration).ok() == std::fs::canonicalize(&target).ok();
         if !same {
-            let bytes = std::fs::read(calibration).map_err(|source| StorageError {
+            let bytes = std::fs::read(calibration).map_err(|source| WriteError {
                 path: calibration.clone(),
                 source,
             })?;
@@ -635,14 +629,12 @@ fn default_processor(
 ) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
     let Some(path) = &config.calibration.file else {
         warn!("no calibration.file: frames are kept but not rectified; run `layerwise register images` and set it");
-        return Ok(Arc::new(processing::KeepOriginals));
+        return Ok(Arc::new(KeepOriginals));
     };
-    let calibration = crate::rectify::Calibration::load(path)
-        .map_err(|e| AcquisitionError::Runtime(e.to_string()))?;
-    let settings =
-        series::SeriesSettings::from_config(config).map_err(AcquisitionError::Runtime)?;
-    let live = series::LiveSeries::new(manifest, &config.views.all(), &calibration, settings)
-        .map_err(AcquisitionError::Runtime)?;
+    let calibration = crate::rectify::Calibration::load(path)?;
+    let settings = crate::series::SeriesSettings::from_config(config)?;
+    let live =
+        crate::series::LiveSeries::new(manifest, &config.views.all(), &calibration, settings)?;
     Ok(Arc::new(live))
 }
 

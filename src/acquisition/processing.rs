@@ -2,9 +2,10 @@
 //! Capture never waits for it: when the queue is full, frames simply wait on disk and the worker
 //! finds them again from the journal once it has caught up.
 
-use super::journal::{Journal, Record};
-use crate::view::Shot;
-use chrono::Utc;
+use crate::build_dir::{Journal, Record};
+pub use crate::series::{FrameProcessor, KeepOriginals};
+use crate::shot::Shot;
+use crate::clock::SharedClock;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -13,21 +14,6 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 use tracing::{error, info};
-
-/// Work done on each stored original after capture.
-pub trait FrameProcessor: Send + Sync {
-    /// `original` is the stored file; errors are recorded in the journal and do not stop the build.
-    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), String>;
-}
-
-/// Keeps originals only.
-pub struct KeepOriginals;
-
-impl FrameProcessor for KeepOriginals {
-    fn process(&self, _build_dir: &Path, _shot: Shot, _original: &Path) -> Result<(), String> {
-        Ok(())
-    }
-}
 
 struct Shared {
     depth: AtomicUsize,
@@ -49,6 +35,7 @@ impl ProcessingQueue {
         build_dir: PathBuf,
         journal: Arc<Mutex<Journal>>,
         backlog: Vec<(Shot, PathBuf)>,
+        clock: SharedClock,
     ) -> ProcessingQueue {
         let (sender, receiver) = std::sync::mpsc::sync_channel(capacity);
         let shared = Arc::new(Shared {
@@ -67,6 +54,7 @@ impl ProcessingQueue {
                     build_dir,
                     journal,
                     backlog,
+                    clock,
                 )
             })
             .map_err(
@@ -122,6 +110,7 @@ fn worker_loop(
     build_dir: PathBuf,
     journal: Arc<Mutex<Journal>>,
     backlog: Vec<(Shot, PathBuf)>,
+    clock: SharedClock,
 ) {
     let run = |shot: Shot, original: &Path| {
         let record = match processor.process(&build_dir, shot, original) {
@@ -129,16 +118,17 @@ fn worker_loop(
                 layer: shot.layer,
                 phase: shot.phase,
                 light: shot.light,
-                at: Utc::now(),
+                at: clock.now(),
             },
             Err(reason) => {
+                let reason = reason.to_string();
                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
                 Record::ProcessingFailed {
                     layer: shot.layer,
                     phase: shot.phase,
                     light: shot.light,
                     reason,
-                    at: Utc::now(),
+                    at: clock.now(),
                 }
             }
         };

@@ -2,39 +2,13 @@
 //! each written to a temporary file, fsynced and renamed, so a crash leaves either the whole file
 //! or nothing under the final name.
 
-use crate::camera::Frame;
-use crate::view::Shot;
+use crate::hardware::camera::Frame;
+use crate::build_dir::Sidecar;
+use crate::fsutil::{is_temporary, sha256_hex, write_atomic, write_atomic_all, WriteError};
+use crate::shot::Shot;
 use chrono::{DateTime, Utc};
-use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::Write;
 use std::path::{Path, PathBuf};
-
-#[derive(Debug, thiserror::Error)]
-#[error("{path}: {source} (is the disk full or read-only?)")]
-pub struct StorageError {
-    pub path: PathBuf,
-    pub source: std::io::Error,
-}
-
-/// What the sidecar next to each original says.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Sidecar {
-    pub layer: u32,
-    pub phase: crate::view::Phase,
-    pub light: crate::view::Light,
-    pub file: String,
-    pub bytes: u64,
-    pub sha256: String,
-    pub event_at: DateTime<Utc>,
-    pub captured_at: DateTime<Utc>,
-    pub capture_ms: f64,
-    pub download_ms: f64,
-    pub attempts: u32,
-    pub camera: BTreeMap<String, String>,
-}
 
 pub struct Storage {
     root: PathBuf,
@@ -42,19 +16,10 @@ pub struct Storage {
     fsync: bool,
 }
 
-pub fn sha256_hex(data: &[u8]) -> String {
-    let digest = Sha256::digest(data);
-    let mut out = String::with_capacity(64);
-    for b in digest {
-        out.push_str(&format!("{b:02x}"));
-    }
-    out
-}
-
 impl Storage {
-    pub fn open(root: &Path, fsync: bool) -> Result<Storage, StorageError> {
+    pub fn open(root: &Path, fsync: bool) -> Result<Storage, WriteError> {
         let raw = root.join("raw");
-        std::fs::create_dir_all(&raw).map_err(|source| StorageError {
+        std::fs::create_dir_all(&raw).map_err(|source| WriteError {
             path: raw.clone(),
             source,
         })?;
@@ -70,7 +35,7 @@ impl Storage {
     }
 
     /// Writes `data` under `path` atomically (temp file, fsync, rename, fsync of the directory).
-    pub fn write_atomic(&self, path: &Path, data: &[u8]) -> Result<(), StorageError> {
+    pub fn write_atomic(&self, path: &Path, data: &[u8]) -> Result<(), WriteError> {
         write_atomic(path, data, self.fsync)
     }
 
@@ -80,9 +45,10 @@ impl Storage {
         shot: &Shot,
         frame: &Frame,
         event_at: DateTime<Utc>,
+        captured_at: DateTime<Utc>,
         attempts: u32,
         camera: &BTreeMap<String, String>,
-    ) -> Result<Sidecar, StorageError> {
+    ) -> Result<Sidecar, WriteError> {
         let name = format!("{}.{}", shot.stem(), frame.extension);
         let sidecar = Sidecar {
             layer: shot.layer,
@@ -92,14 +58,14 @@ impl Storage {
             bytes: frame.data.len() as u64,
             sha256: sha256_hex(&frame.data),
             event_at,
-            captured_at: Utc::now(),
+            captured_at,
             capture_ms: frame.capture_ms,
             download_ms: frame.download_ms,
             attempts,
             camera: camera.clone(),
         };
         let sidecar_path = self.raw.join(format!("{}.json", shot.stem()));
-        let json = serde_json::to_vec_pretty(&sidecar).map_err(|e| StorageError {
+        let json = serde_json::to_vec_pretty(&sidecar).map_err(|e| WriteError {
             path: sidecar_path.clone(),
             source: std::io::Error::other(e),
         })?;
@@ -112,9 +78,9 @@ impl Storage {
         Ok(sidecar)
     }
 
-    fn write_sidecar(&self, shot: &Shot, sidecar: &Sidecar) -> Result<(), StorageError> {
+    fn write_sidecar(&self, shot: &Shot, sidecar: &Sidecar) -> Result<(), WriteError> {
         let path = self.raw.join(format!("{}.json", shot.stem()));
-        let json = serde_json::to_vec_pretty(sidecar).map_err(|e| StorageError {
+        let json = serde_json::to_vec_pretty(sidecar).map_err(|e| WriteError {
             path: path.clone(),
             source: std::io::Error::other(e),
         })?;
@@ -123,8 +89,8 @@ impl Storage {
 
     /// After a crash: removes temporary files and returns the originals on disk whose shots the
     /// journal does not know (`known`), with sidecars (rebuilt from the file if missing).
-    pub fn recover(&self, known: impl Fn(&Shot) -> bool) -> Result<Vec<Sidecar>, StorageError> {
-        let io = |source| StorageError {
+    pub fn recover(&self, known: impl Fn(&Shot) -> bool) -> Result<Vec<Sidecar>, WriteError> {
+        let io = |source| WriteError {
             path: self.raw.clone(),
             source,
         };
@@ -132,7 +98,7 @@ impl Storage {
         for entry in std::fs::read_dir(&self.raw).map_err(io)? {
             let entry = entry.map_err(io)?;
             let name = entry.file_name().to_string_lossy().into_owned();
-            if name.starts_with('.') && name.ends_with(".tmp") {
+            if is_temporary(&name) {
                 std::fs::remove_file(entry.path()).map_err(io)?;
                 continue;
             }
@@ -147,7 +113,7 @@ impl Storage {
             if ext == "json" || known(&shot) {
                 continue;
             }
-            let data = std::fs::read(&path).map_err(|source| StorageError {
+            let data = std::fs::read(&path).map_err(|source| WriteError {
                 path: path.clone(),
                 source,
             })?;
@@ -192,66 +158,10 @@ impl Storage {
     }
 }
 
-pub fn write_atomic(path: &Path, data: &[u8], fsync: bool) -> Result<(), StorageError> {
-    write_atomic_all(&[(path, data)], fsync)
-}
-
-/// The directory a file is in; "." for a bare file name (whose `parent()` is the empty path,
-/// which cannot be opened to fsync).
-fn parent_dir(path: &Path) -> &Path {
-    match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => dir,
-        _ => Path::new("."),
-    }
-}
-
-/// Writes files of one directory atomically, renaming them in the order given, with a single
-/// fsync of the directory for all the renames (it is the slowest part of the capture path).
-fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), StorageError> {
-    let mut renames = Vec::with_capacity(files.len());
-    for (path, data) in files {
-        let err = |source| StorageError {
-            path: path.to_path_buf(),
-            source,
-        };
-        let dir = parent_dir(path);
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = dir.join(format!(".{name}.tmp"));
-        let mut file = File::create(&tmp).map_err(err)?;
-        file.write_all(data).map_err(err)?;
-        if fsync {
-            file.sync_data().map_err(err)?;
-        }
-        renames.push((tmp, *path));
-    }
-    for (tmp, path) in &renames {
-        std::fs::rename(tmp, path).map_err(|source| StorageError {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    }
-    if fsync {
-        let mut dirs: Vec<&Path> = renames.iter().map(|(_, p)| parent_dir(p)).collect();
-        dirs.dedup();
-        for dir in dirs {
-            File::open(dir)
-                .and_then(|d| d.sync_all())
-                .map_err(|source| StorageError {
-                    path: dir.to_path_buf(),
-                    source,
-                })?;
-        }
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::view::{Light, Phase};
+    use crate::shot::{Light, Phase};
 
     #[test]
     fn recover_adopts_orphans_and_drops_temps() {

@@ -30,7 +30,6 @@
 //! Even-odd remains available for files whose inner contours are not reversed.
 
 mod draw;
-mod grid;
 mod scan;
 mod stdfilt;
 
@@ -41,7 +40,7 @@ use std::str::FromStr;
 use image::{GrayImage, ImageFormat, Rgb, RgbImage};
 use rayon::prelude::*;
 
-pub use grid::{Grid, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM};
+pub use crate::geometry::{Grid, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM};
 pub use stdfilt::{std_filter, F32Image};
 
 pub(crate) use scan::is_closed;
@@ -148,7 +147,7 @@ impl fmt::Display for RasterKind {
 #[derive(Debug, thiserror::Error)]
 pub enum RasterError {
     #[error("invalid grid: {0}")]
-    InvalidGrid(String),
+    InvalidGrid(#[from] crate::geometry::GridError),
     #[error("standard deviation window must be odd and positive, got {0}")]
     InvalidWindow(usize),
     #[error("buffer of {len} values does not hold {width} x {height} pixels")]
@@ -193,13 +192,13 @@ fn render(
     s: usize,
     binary: bool,
 ) -> Result<GrayImage, RasterError> {
-    grid.check_raster()?;
+    grid.validate()?;
     let (w, h) = (grid.columns(), grid.rows());
     let mut buf = vec![0u8; w * h];
     scan::Scene::new(layer, grid, opts).render(s, binary, &mut buf);
     // validate() keeps both sides within u32.
     GrayImage::from_raw(w as u32, h as u32, buf)
-        .ok_or_else(|| RasterError::InvalidGrid(format!("{w} x {h}")))
+        .ok_or_else(|| RasterError::InvalidGrid(crate::geometry::GridError(format!("{w} x {h}"))))
 }
 
 /// The filled mask as bytes (0/255, row-major, pixel centers) without the image wrapper, for
@@ -320,7 +319,7 @@ pub fn file_bbox(file: &VectorFile, part: Option<i64>) -> Option<[f64; 4]> {
 pub fn default_grid(file: &VectorFile, part: Option<i64>) -> Result<Grid, RasterError> {
     let bb = file_bbox(file, part).ok_or(RasterError::NoGeometry { part })?;
     let grid = Grid::on_plate_lattice(bb, DEFAULT_MARGIN_MM, DEFAULT_PIXEL_MM);
-    grid.check_raster()?;
+    grid.validate()?;
     Ok(grid)
 }
 

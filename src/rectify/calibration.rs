@@ -3,7 +3,8 @@
 //! a `[distortion]` table it maps undistorted pixels.
 
 use super::{Grid, RadialDistortion};
-use crate::config::{parse_toml, ConfigError};
+use crate::fsutil::{parse_toml, TomlError};
+use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -16,6 +17,24 @@ pub struct DistortionTable {
     pub focal_px: f64,
     pub k1: f64,
     pub k2: f64,
+}
+
+/// A calibration file that could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Parse(#[from] TomlError),
+    #[error("{file}: key `{key}`: {message}")]
+    Invalid {
+        file: PathBuf,
+        key: String,
+        message: String,
+    },
 }
 
 /// The calibration file as stored.
@@ -42,17 +61,17 @@ pub struct Calibration {
 }
 
 impl Calibration {
-    pub fn load(path: &Path) -> Result<Calibration, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    pub fn load(path: &Path) -> Result<Calibration, CalibrationError> {
+        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Read {
             file: path.to_path_buf(),
             source,
         })?;
         Calibration::parse(&text, path)
     }
 
-    pub fn parse(text: &str, file: &Path) -> Result<Calibration, ConfigError> {
+    pub fn parse(text: &str, file: &Path) -> Result<Calibration, CalibrationError> {
         let stored: CalibrationFile = parse_toml(text, file)?;
-        let invalid = |key: &str, message: &str| ConfigError::Invalid {
+        let invalid = |key: &str, message: &str| CalibrationError::Invalid {
             file: file.to_path_buf(),
             key: key.to_string(),
             message: message.to_string(),

@@ -8,7 +8,7 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum RectifyFileError {
     #[error(transparent)]
-    Calibration(#[from] crate::config::ConfigError),
+    Calibration(#[from] super::CalibrationError),
     #[error("{path}: {message}")]
     Image { path: String, message: String },
     #[error("{0}")]
@@ -64,7 +64,7 @@ pub fn rectify_file(
             let (window, derivation) = (rectified.window(), rectified.derivation());
             let pixels = rectified.into_u16();
             let now = chrono::Utc::now();
-            let study_uid = crate::acquisition::status::new_uid();
+            let study_uid = crate::dicom::new_uid();
             let study = Study {
                 frame_of_reference_uid: dicom::derived_uid(&study_uid, "frame-of-reference"),
                 study_instance_uid: study_uid,

@@ -33,13 +33,9 @@
 //! Output buffers are fresh per call unless the `*_into` variants are used.
 
 pub mod calibration;
-mod crop;
 mod decode;
-mod distortion;
 mod file;
 mod frame;
-mod grid;
-mod homography;
 mod luma_decode;
 mod os;
 #[cfg(feature = "nef")]
@@ -52,13 +48,12 @@ mod warp;
 
 use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 
-pub use calibration::Calibration;
+pub use crate::geometry::mat3::homography_from_points;
+pub use crate::geometry::{Grid, RadialDistortion};
+pub use calibration::{Calibration, CalibrationError};
 pub use decode::{decode_jpeg, luma};
-pub use distortion::RadialDistortion;
 pub use file::{rectify_file, RectifyFileError};
 pub use frame::{decode_frame, decode_frame_luma, FrameLuma};
-pub use grid::Grid;
-pub use homography::homography_from_points;
 pub use luma_decode::decode_jpeg_luma;
 pub use warp::{Rectifier, MAX_SOURCE_SIDE};
 
@@ -90,11 +85,9 @@ pub enum RectifyError {
     )]
     SingularHomography(f64),
     #[error("invalid grid: {0}")]
-    InvalidGrid(String),
+    InvalidGrid(#[from] crate::geometry::GridError),
     #[error("invalid lens distortion: {0}")]
-    InvalidDistortion(String),
-    #[error("point correspondences are degenerate (three collinear or repeated points)")]
-    DegenerateCorrespondences,
+    InvalidDistortion(#[from] crate::geometry::DistortionError),
     #[error("camera raw frame: {0}")]
     Raw(String),
     #[error("cannot read the picture: {0}")]

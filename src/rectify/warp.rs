@@ -34,9 +34,8 @@ use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 
-use super::distortion::RadialDistortion;
-use super::grid::Grid;
-use super::homography::{self, Mat3};
+use crate::geometry::{Grid, RadialDistortion};
+use crate::geometry::mat3::{self as homography, Mat3};
 use super::{Interpolation, RectifyError};
 
 /// Fraction bits of the fixed-point source position (and bilinear weights).

@@ -306,7 +306,7 @@ pub fn build_with(
         .and_then(|v| v.checked_mul(nz))
         .filter(|&v| v <= MAX_VOXELS)
         .ok_or(TsdfError::TooLarge { dims })?;
-    xy.check_raster()?;
+    xy.validate().map_err(raster::RasterError::from)?;
     let origin = [xy.x_min + 0.5 * h, xy.y_min + 0.5 * h, z_bottom + 0.5 * h];
 
     let zmodel = ZModel::new(&slabs, origin[2], h, nz);

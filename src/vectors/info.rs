@@ -63,6 +63,11 @@ pub fn info(path: &Path) -> Result<Info, VectorError> {
 }
 
 impl Info {
+    /// The extent [x_min, y_min, x_max, y_max] of part `id`, when it has geometry.
+    pub fn part_bbox(&self, id: i64) -> Option<[f64; 4]> {
+        self.parts.iter().find(|p| p.id == id).and_then(|p| p.bbox)
+    }
+
     /// Summarises a file already in memory (the same figures as [`info`]).
     pub fn of(file: &VectorFile) -> Info {
         let mut acc = Accumulator::new(&file.header);

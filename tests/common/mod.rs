@@ -1,7 +1,7 @@
 //! Shared helpers for the integration tests: configurations derived from the embedded demo.
 #![allow(dead_code)]
 
-use layerwise::acquisition::journal::{Journal, Record};
+use layerwise::build_dir::journal::{Journal, Record};
 use layerwise::config::{CameraConfig, Config, MockFaultConfig, TriggerConfig, DEMO_CONFIG};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -104,14 +104,14 @@ pub fn assert_sidecars_match(dir: &Path) {
                 .expect("sidecar json");
         assert_eq!(
             sidecar["sha256"],
-            layerwise::acquisition::storage::sha256_hex(&data),
+            layerwise::fsutil::sha256_hex(&data),
             "{file}"
         );
         assert_eq!(sidecar["bytes"], data.len() as u64, "{file}");
     }
 }
 
-pub fn replay(dir: &Path) -> layerwise::acquisition::journal::Replay {
+pub fn replay(dir: &Path) -> layerwise::build_dir::journal::Replay {
     Journal::read(&dir.join("journal.jsonl")).expect("journal replays")
 }
 

@@ -109,7 +109,7 @@ pub fn std_filter_footprint(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registration::exemplar::std_filter;
+    use crate::calibrate::exemplar::std_filter;
 
     fn noise(w: usize, h: usize) -> Vec<f32> {
         let mut x = 0x1234_5678_9abc_def1u64;

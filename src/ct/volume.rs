@@ -68,10 +68,10 @@ impl Voxel for f32 {
 macro_rules! with_voxels {
     ($data:expr, $v:ident => $body:expr) => {
         match $data {
-            $crate::registration::ct::volume::VoxelData::U8($v) => $body,
-            $crate::registration::ct::volume::VoxelData::U16($v) => $body,
-            $crate::registration::ct::volume::VoxelData::I16($v) => $body,
-            $crate::registration::ct::volume::VoxelData::F32($v) => $body,
+            $crate::ct::volume::VoxelData::U8($v) => $body,
+            $crate::ct::volume::VoxelData::U16($v) => $body,
+            $crate::ct::volume::VoxelData::I16($v) => $body,
+            $crate::ct::volume::VoxelData::F32($v) => $body,
         }
     };
 }

@@ -1,6 +1,10 @@
 //! Radial (Brown, k1/k2) lens distortion.
 
-use super::RectifyError;
+
+/// Lens distortion parameters that cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct DistortionError(pub String);
 
 /// Radial lens distortion about `center`.
 ///
@@ -119,7 +123,7 @@ impl RadialDistortion {
             .fold(f64::INFINITY, f64::min)
     }
 
-    pub(crate) fn validate(&self) -> Result<(), RectifyError> {
+    pub fn validate(&self) -> Result<(), DistortionError> {
         let all = [
             self.center[0],
             self.center[1],
@@ -128,12 +132,12 @@ impl RadialDistortion {
             self.k2,
         ];
         if all.iter().any(|v| !v.is_finite()) {
-            return Err(RectifyError::InvalidDistortion(format!(
+            return Err(DistortionError(format!(
                 "non-finite value in {self:?}"
             )));
         }
         if self.focal_px <= 0.0 {
-            return Err(RectifyError::InvalidDistortion(format!(
+            return Err(DistortionError(format!(
                 "focal_px must be > 0, got {}",
                 self.focal_px
             )));

@@ -1,77 +1,16 @@
-//! What the daemon tells operators: `status.json`, rewritten after every frame, and the build
-//! manifest `build.json`, written once when the build starts (its UIDs survive restarts).
+//! What the daemon tells operators: `status.json`, rewritten after every frame, and the report
+//! `layerwise status` makes of a build directory.
 
 use super::journal::Journal;
-use super::storage::{write_atomic, StorageError};
-use crate::view::Phase;
+use super::manifest::BuildManifest;
+use super::{JOURNAL, MANIFEST, STATUS};
+use crate::fsutil::{write_atomic, WriteError};
+use crate::shot::Phase;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
-
-pub const MANIFEST: &str = "build.json";
-pub const STATUS: &str = "status.json";
-pub const JOURNAL: &str = "journal.jsonl";
-/// The configuration the daemon last ran with.
-pub const CONFIG_SNAPSHOT: &str = "config.toml";
-/// The calibration the daemon last ran with.
-pub const CALIBRATION_COPY: &str = "calibration.toml";
-
-/// Facts of a build fixed at its start: one study, one frame of reference, one StudyDate/Time.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct BuildManifest {
-    pub name: String,
-    pub id: String,
-    pub created_at: DateTime<Utc>,
-    pub layers_expected: Option<u32>,
-    pub views: Vec<String>,
-    pub study_instance_uid: String,
-    pub frame_of_reference_uid: String,
-    pub software_version: String,
-}
-
-/// A DICOM UID under the 2.25 root (ISO/IEC 9834-8): a random 128-bit number in decimal.
-pub fn new_uid() -> String {
-    let mut bytes = [0u8; 16];
-    let random = std::fs::File::open("/dev/urandom")
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut bytes));
-    if random.is_err() {
-        // Without /dev/urandom: time and pid still make collisions vanishingly unlikely here.
-        let nanos = Utc::now().timestamp_nanos_opt().unwrap_or_default() as u128;
-        bytes = (nanos ^ ((std::process::id() as u128) << 64)).to_le_bytes();
-    }
-    format!("2.25.{}", u128::from_le_bytes(bytes))
-}
-
-impl BuildManifest {
-    /// Reads the manifest, or creates it for a new build.
-    pub fn load_or_create(
-        dir: &Path,
-        make: impl FnOnce() -> BuildManifest,
-    ) -> Result<BuildManifest, StorageError> {
-        let path = dir.join(MANIFEST);
-        match std::fs::read(&path) {
-            Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| StorageError {
-                path: path.clone(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::InvalidData,
-                    format!("not a build manifest: {e}"),
-                ),
-            }),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                let manifest = make();
-                let json = serde_json::to_vec_pretty(&manifest).map_err(|e| StorageError {
-                    path: path.clone(),
-                    source: std::io::Error::other(e),
-                })?;
-                write_atomic(&path, &json, true)?;
-                Ok(manifest)
-            }
-            Err(source) => Err(StorageError { path, source }),
-        }
-    }
-}
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LastFrame {
@@ -93,9 +32,9 @@ pub struct LiveStatus {
 }
 
 impl LiveStatus {
-    pub fn write(&self, dir: &Path) -> Result<(), StorageError> {
+    pub fn write(&self, dir: &Path) -> Result<(), WriteError> {
         let path = dir.join(STATUS);
-        let json = serde_json::to_vec_pretty(self).map_err(|e| StorageError {
+        let json = serde_json::to_vec_pretty(self).map_err(|e| WriteError {
             path: path.clone(),
             source: std::io::Error::other(e),
         })?;

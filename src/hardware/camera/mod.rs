@@ -1,14 +1,15 @@
-//! The camera: a trait with the real libgphoto2 backend and the mock, driven through an actor that
-//! owns the camera on a dedicated thread (libgphoto2 calls block, and must never stall tokio), with
-//! every call bounded by a timeout.
+//! The camera: a trait with the real libgphoto2 backend (the simulated one lives in `sim`), driven
+//! through an actor that owns the camera on a dedicated thread (libgphoto2 calls block, and must
+//! never stall tokio), with every call bounded by a timeout measured on the [`Clock`].
 
 #[cfg(feature = "gphoto")]
 pub mod gphoto;
-pub mod mock;
 
+use crate::clock::SharedClock;
 use crate::config::CaptureConfig;
+use crate::shot::Shot;
 use std::collections::BTreeMap;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tracing::{info, warn};
 
 /// One frame as downloaded from the camera, untouched.
@@ -43,9 +44,9 @@ pub enum CameraError {
 
 /// A camera body. Implementations need not be `Send`: the actor creates and keeps them on one thread.
 pub trait Camera {
-    /// Fires the shutter and downloads the frame, serialised: the next capture starts only after
-    /// this frame is downloaded (Nikon bodies answer busy otherwise).
-    fn capture(&mut self) -> Result<Frame, CameraError>;
+    /// Fires the shutter for `shot` and downloads the frame, serialised: the next capture starts
+    /// only after this frame is downloaded (Nikon bodies answer busy otherwise).
+    fn capture(&mut self, shot: &Shot) -> Result<Frame, CameraError>;
     /// Closes and opens the device again after it dropped off USB.
     fn reopen(&mut self) -> Result<(), CameraError>;
     /// The settings in force, for the frame sidecars.
@@ -55,7 +56,7 @@ pub trait Camera {
 }
 
 enum Command {
-    Capture(crossbeam_channel::Sender<Result<Frame, CameraError>>),
+    Capture(Shot, crossbeam_channel::Sender<Result<Frame, CameraError>>),
     Reopen(crossbeam_channel::Sender<Result<(), CameraError>>),
 }
 
@@ -63,18 +64,21 @@ enum Command {
 pub struct CameraActor {
     commands: crossbeam_channel::Sender<Command>,
     timeout: Duration,
+    clock: SharedClock,
     description: String,
     settings: BTreeMap<String, String>,
 }
 
 impl CameraActor {
-    /// Opens the camera with `open` on a new thread.
-    pub fn spawn<F>(open: F, timeout: Duration) -> Result<CameraActor, CameraError>
+    /// Opens the camera with `open` on a new thread; every call (opening too) is bounded by
+    /// `timeout` on `clock`.
+    pub fn spawn<F>(open: F, timeout: Duration, clock: SharedClock) -> Result<CameraActor, CameraError>
     where
         F: FnOnce() -> Result<Box<dyn Camera>, CameraError> + Send + 'static,
     {
         let (commands, inbox) = crossbeam_channel::bounded::<Command>(1);
         let (opened_tx, opened_rx) = crossbeam_channel::bounded(1);
+        let deadline = clock.after(timeout);
         std::thread::Builder::new()
             .name("camera".into())
             .spawn(move || {
@@ -90,8 +94,8 @@ impl CameraActor {
                 };
                 for command in inbox {
                     match command {
-                        Command::Capture(reply) => {
-                            let _ = reply.send(camera.capture());
+                        Command::Capture(shot, reply) => {
+                            let _ = reply.send(camera.capture(&shot));
                         }
                         Command::Reopen(reply) => {
                             let _ = reply.send(camera.reopen());
@@ -100,12 +104,10 @@ impl CameraActor {
                 }
             })
             .map_err(|e| CameraError::Failed(format!("cannot start the camera thread: {e}")))?;
-        let (description, settings) = match opened_rx.recv_timeout(timeout) {
-            Ok(result) => result?,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
-                return Err(CameraError::Hung(timeout))
-            }
-            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => {
+        let (description, settings) = match wait(&opened_rx, deadline) {
+            Waited::Answer(result) => result?,
+            Waited::TimedOut => return Err(CameraError::Hung(timeout)),
+            Waited::Gone => {
                 return Err(CameraError::Failed(
                     "the camera thread ended while opening".into(),
                 ))
@@ -114,6 +116,7 @@ impl CameraActor {
         Ok(CameraActor {
             commands,
             timeout,
+            clock,
             description,
             settings,
         })
@@ -124,22 +127,21 @@ impl CameraActor {
         make: impl FnOnce(crossbeam_channel::Sender<Result<T, CameraError>>) -> Command,
     ) -> Result<T, CameraError> {
         let (tx, rx) = crossbeam_channel::bounded(1);
+        // The deadline runs from before the camera thread can see the command.
+        let deadline = self.clock.after(self.timeout);
         self.commands
             .send_timeout(make(tx), self.timeout)
             .map_err(|_| CameraError::Hung(self.timeout))?;
-        match rx.recv_timeout(self.timeout) {
-            Ok(result) => result,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
-                Err(CameraError::Hung(self.timeout))
-            }
-            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => {
-                Err(CameraError::Failed("the camera thread ended".into()))
-            }
+        match wait(&rx, deadline) {
+            Waited::Answer(result) => result,
+            Waited::TimedOut => Err(CameraError::Hung(self.timeout)),
+            Waited::Gone => Err(CameraError::Failed("the camera thread ended".into())),
         }
     }
 
-    pub fn capture(&self) -> Result<Frame, CameraError> {
-        self.call(Command::Capture)
+    pub fn capture(&self, shot: &Shot) -> Result<Frame, CameraError> {
+        let shot = *shot;
+        self.call(move |reply| Command::Capture(shot, reply))
     }
     pub fn reopen(&self) -> Result<(), CameraError> {
         self.call(Command::Reopen)
@@ -149,6 +151,30 @@ impl CameraActor {
     }
     pub fn settings(&self) -> &BTreeMap<String, String> {
         &self.settings
+    }
+    /// The clock the actor measures its timeouts on.
+    pub fn clock(&self) -> &SharedClock {
+        &self.clock
+    }
+}
+
+enum Waited<T> {
+    Answer(T),
+    TimedOut,
+    Gone,
+}
+
+/// Waits for the camera thread's answer until `deadline` fires.
+fn wait<T>(
+    rx: &crossbeam_channel::Receiver<T>,
+    deadline: crossbeam_channel::Receiver<std::time::Instant>,
+) -> Waited<T> {
+    crossbeam_channel::select! {
+        recv(rx) -> answer => match answer {
+            Ok(answer) => Waited::Answer(answer),
+            Err(_) => Waited::Gone,
+        },
+        recv(deadline) -> _ => Waited::TimedOut,
     }
 }
 
@@ -187,12 +213,13 @@ pub enum CaptureFailure {
 pub fn capture_with_retries(
     actor: &CameraActor,
     policy: &RetryPolicy,
+    shot: &Shot,
 ) -> Result<(Frame, u32), CaptureFailure> {
     let mut backoff = policy.backoff[0];
     let mut attempts = 0;
     loop {
         attempts += 1;
-        let error = match actor.capture() {
+        let error = match actor.capture(shot) {
             Ok(frame) => return Ok((frame, attempts)),
             Err(e @ CameraError::Hung(_)) => return Err(CaptureFailure::Hung(e)),
             Err(e) => e,
@@ -210,7 +237,7 @@ pub fn capture_with_retries(
                 last => CaptureFailure::Missing { attempts, last },
             })?;
         } else {
-            std::thread::sleep(backoff);
+            actor.clock().sleep(backoff);
             backoff = (backoff * 2).min(policy.backoff[1]);
         }
     }
@@ -223,14 +250,14 @@ fn reopen(
 ) -> Result<(), CameraError> {
     let mut last = CameraError::Disconnected("not reopened".into());
     for attempt in 1..=policy.reopen_attempts.max(1) {
-        std::thread::sleep(*backoff);
+        actor.clock().sleep(*backoff);
         *backoff = (*backoff * 2).min(policy.backoff[1]);
-        let started = Instant::now();
+        let started = actor.clock().elapsed();
         match actor.reopen() {
             Ok(()) => {
                 info!(
                     attempt,
-                    ms = started.elapsed().as_millis() as u64,
+                    ms = actor.clock().elapsed().saturating_sub(started).as_millis() as u64,
                     camera = actor.describe(),
                     "camera: reopened"
                 );
@@ -249,20 +276,25 @@ fn reopen(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::clock::ManualClock;
+    use crate::shot::{Light, Phase};
     use std::sync::atomic::{AtomicU32, Ordering};
     use std::sync::Arc;
 
-    /// A scripted body: answers from a list, then succeeds.
+    /// A scripted body: answers from a list, then succeeds; `hang` makes every capture block
+    /// until the body is dropped (a driver stuck in a USB call).
     struct Scripted {
         answers: Vec<Result<(), CameraError>>,
         calls: Arc<AtomicU32>,
-        sleep: Duration,
+        hang: Option<crossbeam_channel::Receiver<()>>,
     }
 
     impl Camera for Scripted {
-        fn capture(&mut self) -> Result<Frame, CameraError> {
+        fn capture(&mut self, _shot: &Shot) -> Result<Frame, CameraError> {
             self.calls.fetch_add(1, Ordering::SeqCst);
-            std::thread::sleep(self.sleep);
+            if let Some(hang) = &self.hang {
+                let _ = hang.recv();
+            }
             if !self.answers.is_empty() {
                 self.answers.remove(0)?;
             }
@@ -284,10 +316,17 @@ mod tests {
         }
     }
 
+    const SHOT: Shot = Shot {
+        layer: 1,
+        phase: Phase::Post,
+        light: Light::Top,
+    };
+
     fn actor(
         answers: Vec<Result<(), CameraError>>,
-        sleep: Duration,
+        hang: Option<crossbeam_channel::Receiver<()>>,
         timeout: Duration,
+        clock: &ManualClock,
     ) -> (CameraActor, Arc<AtomicU32>) {
         let calls = Arc::new(AtomicU32::new(0));
         let c = calls.clone();
@@ -296,10 +335,11 @@ mod tests {
                 Ok(Box::new(Scripted {
                     answers,
                     calls: c,
-                    sleep,
+                    hang,
                 }) as Box<dyn Camera>)
             },
             timeout,
+            Arc::new(clock.clone()),
         )
         .unwrap();
         (actor, calls)
@@ -308,30 +348,31 @@ mod tests {
     fn policy(retries: u32) -> RetryPolicy {
         RetryPolicy {
             retries,
-            backoff: [Duration::from_millis(1), Duration::from_millis(4)],
+            backoff: [Duration::from_millis(100), Duration::from_millis(400)],
             reopen_attempts: 2,
         }
     }
 
     #[test]
-    fn busy_is_retried() {
+    fn busy_is_retried_with_backoff() {
+        let clock = ManualClock::new();
         let busy = || Err(CameraError::Busy("0x2019".into()));
-        let (actor, calls) = actor(
-            vec![busy(), busy(), busy()],
-            Duration::ZERO,
-            Duration::from_secs(5),
-        );
-        let (_, attempts) = capture_with_retries(&actor, &policy(5)).unwrap();
+        let answers = vec![busy(), busy(), busy()];
+        let (actor, calls) = actor(answers, None, Duration::from_secs(5), &clock);
+        let (_, attempts) = capture_with_retries(&actor, &policy(5), &SHOT).unwrap();
         assert_eq!((attempts, calls.load(Ordering::SeqCst)), (4, 4));
+        // 100 + 200 + 400 ms of backoff, on the clock and not on the wall.
+        assert_eq!(clock.elapsed(), Duration::from_millis(700));
     }
 
     #[test]
     fn retries_run_out_into_missing() {
+        let clock = ManualClock::new();
         let answers = (0..10)
             .map(|_| Err(CameraError::Failed("x".into())))
             .collect();
-        let (actor, _) = actor(answers, Duration::ZERO, Duration::from_secs(5));
-        match capture_with_retries(&actor, &policy(2)) {
+        let (actor, _) = actor(answers, None, Duration::from_secs(5), &clock);
+        match capture_with_retries(&actor, &policy(2), &SHOT) {
             Err(CaptureFailure::Missing { attempts: 3, .. }) => {}
             other => panic!("{other:?}"),
         }
@@ -339,20 +380,25 @@ mod tests {
 
     #[test]
     fn a_hanging_call_is_reported_hung() {
-        let (actor, _) = actor(
-            vec![],
-            Duration::from_millis(500),
-            Duration::from_millis(50),
-        );
-        let started = Instant::now();
-        match capture_with_retries(&actor, &policy(5)) {
-            Err(CaptureFailure::Hung(CameraError::Hung(_))) => {}
+        let clock = ManualClock::new();
+        let (_release, hang) = crossbeam_channel::bounded::<()>(0);
+        let timeout = Duration::from_secs(30);
+        let (actor, calls) = actor(vec![], Some(hang), timeout, &clock);
+        // Once the body is stuck in the call, 30 s go by in an instant.
+        let driver = {
+            let clock = clock.clone();
+            std::thread::spawn(move || {
+                while calls.load(Ordering::SeqCst) == 0 {
+                    std::thread::yield_now();
+                }
+                clock.advance(timeout);
+            })
+        };
+        match capture_with_retries(&actor, &policy(5), &SHOT) {
+            Err(CaptureFailure::Hung(CameraError::Hung(t))) => assert_eq!(t, timeout),
             other => panic!("{other:?}"),
         }
-        assert!(
-            started.elapsed() < Duration::from_millis(400),
-            "the caller must not wait for the hung call"
-        );
+        driver.join().unwrap();
     }
 
     #[test]
@@ -360,6 +406,7 @@ mod tests {
         let result = CameraActor::spawn(
             || Err(CameraError::Disconnected("no camera on usb:".into())),
             Duration::from_secs(1),
+            Arc::new(ManualClock::new()),
         );
         assert!(matches!(result, Err(CameraError::Disconnected(_))));
     }

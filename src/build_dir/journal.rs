@@ -1,7 +1,7 @@
 //! The append-only journal of a build: every signal, frame, missing frame and processing result,
 //! one JSON object per line, fsynced. Replaying it after a crash restores where the build stands.
 
-use crate::view::{Light, Phase, Shot};
+use crate::shot::{Light, Phase, Shot};
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};

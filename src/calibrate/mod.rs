@@ -21,7 +21,6 @@
 // 8x8/10x10 normal matrices and power tables read like the formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
-pub mod ct;
 pub mod exemplar;
 pub mod filter;
 pub mod homography;
@@ -42,8 +41,7 @@ pub use homography::{align, Alignment, LevelReport, LmOptions, Pair, PairFit, Te
 pub use overlay::{draw_overlay, Mapping};
 pub use points::{homography_dlt, parse_points, read_points, Correspondence};
 
-/// Row-major 3x3 matrix.
-pub type Mat3 = [[f64; 3]; 3];
+pub use crate::geometry::mat3::{grid_matrix, mat_inv, mat_mul, normalise_h, project, singularity, Mat3};
 
 /// Half the side of the ProX320 plate, mm (the default output grid spans it).
 const PLATE_HALF_MM: f64 = 137.5;
@@ -737,16 +735,6 @@ fn box_downsample(img: &F32Image, s: usize) -> F32Image {
     }
 }
 
-/// The grid's pixel → build map: (c, r, 1) ↦ (x, y, 1) (docs/frames.md).
-pub fn grid_matrix(grid: &Grid) -> Mat3 {
-    let p = grid.pixel_mm;
-    [
-        [p, 0.0, grid.x_min + 0.5 * p],
-        [0.0, -p, grid.y_max - 0.5 * p],
-        [0.0, 0.0, 1.0],
-    ]
-}
-
 /// A grid of whole `pixel_mm` pixels covering `bb` plus `margin` on every side.
 fn grid_around(bb: [f64; 4], margin: f64, pixel_mm: f64) -> Result<Grid, RegistrationError> {
     let cols = ((bb[2] - bb[0] + 2.0 * margin) / pixel_mm).ceil();
@@ -879,82 +867,6 @@ fn round_sig(x: f64, digits: i32) -> f64 {
     }
     let scale = 10f64.powi(digits - 1 - x.abs().log10().floor() as i32);
     (x * scale).round() / scale
-}
-
-/// Applies a homography to (u, v); `None` where w ≤ 0 (beyond the horizon) or not finite.
-pub fn project(m: &Mat3, u: f64, v: f64) -> Option<(f64, f64)> {
-    let w = m[2][0] * u + m[2][1] * v + m[2][2];
-    if !(w.abs() > 0.0) {
-        return None;
-    }
-    let x = (m[0][0] * u + m[0][1] * v + m[0][2]) / w;
-    let y = (m[1][0] * u + m[1][1] * v + m[1][2]) / w;
-    (w > 0.0 && x.is_finite() && y.is_finite()).then_some((x, y))
-}
-
-/// `a · b`.
-pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
-    let mut m = [[0.0; 3]; 3];
-    for (i, row) in m.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = (0..3).map(|k| a[i][k] * b[k][j]).sum();
-        }
-    }
-    m
-}
-
-/// Inverse through the adjugate; `None` when singular (see [`singularity`]) or not finite.
-pub fn mat_inv(h: &Mat3) -> Option<Mat3> {
-    let c =
-        |r0: usize, r1: usize, c0: usize, c1: usize| h[r0][c0] * h[r1][c1] - h[r0][c1] * h[r1][c0];
-    let adj = [
-        [c(1, 2, 1, 2), -c(0, 2, 1, 2), c(0, 1, 1, 2)],
-        [-c(1, 2, 0, 2), c(0, 2, 0, 2), -c(0, 1, 0, 2)],
-        [c(1, 2, 0, 1), -c(0, 2, 0, 1), c(0, 1, 0, 1)],
-    ];
-    let det = h[0][0] * adj[0][0] + h[0][1] * adj[1][0] + h[0][2] * adj[2][0];
-    if !(singularity(h) > 1e-15) {
-        return None;
-    }
-    let mut inv = [[0.0; 3]; 3];
-    for (i, row) in inv.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = adj[i][j] / det;
-        }
-    }
-    inv.iter().flatten().all(|v| v.is_finite()).then_some(inv)
-}
-
-/// Scale-free singularity measure |det| / (|row0|·|row1|·|row2|) in [0, 1] (as the
-/// rectifier's): 0 for singular matrices, NaN-safe (NaN compares false).
-pub fn singularity(h: &Mat3) -> f64 {
-    let det = h[0][0] * (h[1][1] * h[2][2] - h[1][2] * h[2][1])
-        - h[0][1] * (h[1][0] * h[2][2] - h[1][2] * h[2][0])
-        + h[0][2] * (h[1][0] * h[2][1] - h[1][1] * h[2][0]);
-    let norms: f64 = h
-        .iter()
-        .map(|r| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt())
-        .product();
-    if norms > 0.0 {
-        (det / norms).abs()
-    } else {
-        0.0
-    }
-}
-
-/// Scales H so that H[2][2] = 1 (docs/frames.md).
-fn normalise_h(h: &Mat3) -> Option<Mat3> {
-    let s = h[2][2];
-    let scale = h.iter().flatten().fold(0.0f64, |a, v| a.max(v.abs()));
-    if !(s.abs() > 1e-12 * scale) {
-        return None;
-    }
-    let mut out = *h;
-    for v in out.iter_mut().flatten() {
-        *v /= s;
-    }
-    out[2][2] = 1.0;
-    out.iter().flatten().all(|v| v.is_finite()).then_some(out)
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RegistrationError> {

@@ -1,58 +1,16 @@
-//! The mock camera: `mock_camera` renders the plate through a known homography; this adapts it to
-//! [`Camera`]. A [`MockWorld`] is the simulated machine: the mock trigger sets the layer and phase,
-//! the mock lights switch the lamps, and the camera photographs whatever that world looks like.
+//! The simulated camera: `mock_camera` renders the plate through a known homography; this adapts
+//! it to [`Camera`]. It photographs the layer and phase it is asked for, lit by whichever lamps
+//! the simulated lights left on in the [`MockWorld`].
 
-use super::{Camera, CameraError, Frame};
+use super::MockWorld;
 use crate::config::{MockCameraConfig, MockFrameFormat};
-use crate::view::{Light, Phase};
+use crate::hardware::camera::{Camera, CameraError, Frame};
+use crate::shot::{Light, Phase, Shot};
 use mock_camera::{
     Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey,
 };
-use std::collections::{BTreeMap, BTreeSet};
-use std::sync::{Arc, Mutex};
+use std::collections::BTreeMap;
 use std::time::Instant;
-
-#[derive(Clone, Debug, Default)]
-struct WorldState {
-    layer: u32,
-    phase: Option<Phase>,
-    lit: BTreeSet<Light>,
-}
-
-/// Shared state of the simulated machine.
-#[derive(Clone, Debug, Default)]
-pub struct MockWorld {
-    state: Arc<Mutex<WorldState>>,
-}
-
-impl MockWorld {
-    pub fn new() -> MockWorld {
-        MockWorld::default()
-    }
-    pub fn set_layer(&self, layer: u32, phase: Phase) {
-        if let Ok(mut s) = self.state.lock() {
-            s.layer = layer;
-            s.phase = Some(phase);
-        }
-    }
-    pub fn set_light(&self, light: Light, on: bool) {
-        if let Ok(mut s) = self.state.lock() {
-            if on {
-                s.lit.insert(light);
-            } else {
-                s.lit.remove(&light);
-            }
-        }
-    }
-    pub fn all_lights_off(&self) {
-        if let Ok(mut s) = self.state.lock() {
-            s.lit.clear();
-        }
-    }
-    fn snapshot(&self) -> WorldState {
-        self.state.lock().map(|s| s.clone()).unwrap_or_default()
-    }
-}
 
 /// The schedule of faults from the configuration's plain entries.
 pub fn fault_schedule(config: &MockCameraConfig) -> FaultSchedule {
@@ -125,11 +83,11 @@ fn map_error(e: MockError) -> CameraError {
 }
 
 impl Camera for MockCameraBody {
-    fn capture(&mut self) -> Result<Frame, CameraError> {
-        let world = self.world.snapshot();
-        let phase = world.phase.unwrap_or(Phase::Pre);
+    fn capture(&mut self, shot: &Shot) -> Result<Frame, CameraError> {
+        let lit = self.world.lit();
+        let (layer, phase) = (shot.layer, shot.phase);
         // Exactly one lamp on is how the daemon lights a frame; anything else is rendered honestly.
-        let (illumination, light_name) = match world.lit.iter().collect::<Vec<_>>().as_slice() {
+        let (illumination, light_name) = match lit.iter().collect::<Vec<_>>().as_slice() {
             [] => (Illumination::Dark, "none".to_string()),
             [one] => (
                 match one {
@@ -141,15 +99,15 @@ impl Camera for MockCameraBody {
             ),
             _ => (Illumination::Top, "several".to_string()),
         };
-        let fused = mock_camera::demo_parts(world.layer);
+        let fused = mock_camera::demo_parts(layer);
         let scene = Scene {
-            layer: world.layer,
+            layer,
             fused: &fused,
             scanned: phase == Phase::Post,
             illumination,
         };
         let key = ShotKey {
-            layer: world.layer,
+            layer,
             phase: phase.to_string(),
             light: light_name,
         };

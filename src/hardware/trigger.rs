@@ -1,14 +1,15 @@
-//! Layer signals from the printer: a serial line, GPIO lines, or a mock. Every trigger runs on
-//! its own thread (reads block) and yields [`LayerEvent`]s.
+//! Layer signals from the printer: a serial line or GPIO lines (the simulated printer lives in
+//! `sim`). Every trigger runs on its own thread (reads block) and yields [`LayerEvent`]s.
 
-use crate::config::{Edge, GpioMode, GpioTriggerConfig, MockTriggerConfig, SerialTriggerConfig};
-use crate::view::Phase;
+use crate::clock::{Backoff, SharedClock};
+use crate::config::{Edge, GpioMode, GpioTriggerConfig, SerialTriggerConfig};
+use crate::shot::Phase;
 use chrono::{DateTime, Utc};
 use regex::Regex;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 use tracing::{info, warn};
 
@@ -30,6 +31,8 @@ pub enum TriggerError {
     Gpio { chip: PathBuf, message: String },
     #[error("trigger channel closed")]
     Closed,
+    #[error("trigger: kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure serial or gpio")]
+    Simulated,
 }
 
 /// A source of layer signals. `Ok(None)` means the source has ended (a finished mock script);
@@ -124,6 +127,7 @@ fn events_from_lines(
     protocol: &LineProtocol,
     lines: &mut VecDeque<String>,
     source: &str,
+    clock: &SharedClock,
 ) -> Option<LayerEvent> {
     while let Some(line) = lines.pop_front() {
         match protocol.parse(&line) {
@@ -131,7 +135,7 @@ fn events_from_lines(
                 return Some(LayerEvent {
                     layer,
                     phase,
-                    at: Utc::now(),
+                    at: clock.now(),
                 })
             }
             None => {
@@ -150,13 +154,18 @@ pub struct SerialTrigger {
     port: Option<Box<dyn serialport::SerialPort>>,
     splitter: LineSplitter,
     lines: VecDeque<String>,
-    backoff: Duration,
+    backoff: Backoff,
+    clock: SharedClock,
 }
 
 impl SerialTrigger {
-    pub fn new(config: SerialTriggerConfig) -> Result<SerialTrigger, TriggerError> {
+    /// The trigger on `config.port`; reopen back-offs and event times come from `clock`.
+    pub fn new(config: SerialTriggerConfig, clock: SharedClock) -> Result<SerialTrigger, TriggerError> {
         let protocol = LineProtocol::new(&config.pattern, &config.pre, &config.post)?;
-        let backoff = Duration::from_millis(config.reopen_backoff_ms[0]);
+        let backoff = Backoff::new(
+            Duration::from_millis(config.reopen_backoff_ms[0]),
+            Duration::from_millis(config.reopen_backoff_ms[1]),
+        );
         Ok(SerialTrigger {
             config,
             protocol,
@@ -164,6 +173,7 @@ impl SerialTrigger {
             splitter: LineSplitter::default(),
             lines: VecDeque::new(),
             backoff,
+            clock,
         })
     }
 
@@ -176,14 +186,12 @@ impl SerialTrigger {
                 Ok(port) => {
                     info!(port = %self.config.port, baud = self.config.baud, "trigger: serial port open");
                     self.port = Some(port);
-                    self.backoff = Duration::from_millis(self.config.reopen_backoff_ms[0]);
+                    self.backoff.reset();
                 }
                 Err(e) => {
-                    warn!(port = %self.config.port, error = %e, retry_in_ms = self.backoff.as_millis() as u64,
+                    warn!(port = %self.config.port, error = %e, retry_in_ms = self.backoff.current().as_millis() as u64,
                         "trigger: cannot open the serial port; check the cable and that the service user is in the dialout group");
-                    std::thread::sleep(self.backoff);
-                    let max = Duration::from_millis(self.config.reopen_backoff_ms[1]);
-                    self.backoff = (self.backoff * 2).min(max);
+                    self.backoff.wait(self.clock.as_ref());
                 }
             }
         }
@@ -195,7 +203,7 @@ impl Trigger for SerialTrigger {
         let mut chunk = [0u8; 512];
         loop {
             if let Some(event) =
-                events_from_lines(&self.protocol, &mut self.lines, &self.config.port)
+                events_from_lines(&self.protocol, &mut self.lines, &self.config.port, &self.clock)
             {
                 return Ok(Some(event));
             }
@@ -215,7 +223,7 @@ impl Trigger for SerialTrigger {
                 Err(e) => {
                     warn!(port = %self.config.port, error = %e, "trigger: serial port vanished; reopening");
                     self.port = None;
-                    std::thread::sleep(self.backoff);
+                    self.clock.sleep(self.backoff.current());
                 }
             }
         }
@@ -276,10 +284,12 @@ pub struct GpioTrigger {
     config: GpioTriggerConfig,
     request: gpiocdev::Request,
     counter: PulseCounter,
+    clock: SharedClock,
 }
 
 impl GpioTrigger {
-    pub fn open(config: GpioTriggerConfig) -> Result<GpioTrigger, TriggerError> {
+    /// Requests the configured lines; event times come from `clock`.
+    pub fn open(config: GpioTriggerConfig, clock: SharedClock) -> Result<GpioTrigger, TriggerError> {
         let offsets: Vec<u32> = match config.mode {
             GpioMode::PerPhase => config
                 .pre_line
@@ -313,6 +323,7 @@ impl GpioTrigger {
             config,
             request,
             counter,
+            clock,
         })
     }
 }
@@ -336,7 +347,7 @@ impl Trigger for GpioTrigger {
                 return Ok(Some(LayerEvent {
                     layer,
                     phase,
-                    at: Utc::now(),
+                    at: self.clock.now(),
                 }));
             }
         }
@@ -344,108 +355,6 @@ impl Trigger for GpioTrigger {
 
     fn resume_after(&mut self, last: Option<(u32, Phase)>) {
         self.counter.resume_after(last);
-    }
-}
-
-/// One step of a mock script.
-#[derive(Clone, Debug, PartialEq)]
-pub enum ScriptStep {
-    Signal(u32, Phase),
-    Wait(Duration),
-}
-
-/// Events from a script, a generated sequence or an in-process channel.
-pub struct MockTrigger {
-    steps: VecDeque<ScriptStep>,
-    interval: Duration,
-    channel: Option<crossbeam_channel::Receiver<LayerEvent>>,
-}
-
-impl MockTrigger {
-    pub fn from_config(config: &MockTriggerConfig) -> Result<MockTrigger, TriggerError> {
-        let steps = match &config.script {
-            Some(path) => parse_script(path)?,
-            None => (config.first_layer..config.first_layer.saturating_add(config.layers))
-                .flat_map(|layer| {
-                    [
-                        ScriptStep::Signal(layer, Phase::Pre),
-                        ScriptStep::Signal(layer, Phase::Post),
-                    ]
-                })
-                .collect(),
-        };
-        Ok(MockTrigger {
-            steps,
-            interval: Duration::from_millis(config.interval_ms),
-            channel: None,
-        })
-    }
-
-    /// Events sent by the test itself.
-    pub fn from_channel(receiver: crossbeam_channel::Receiver<LayerEvent>) -> MockTrigger {
-        MockTrigger {
-            steps: VecDeque::new(),
-            interval: Duration::ZERO,
-            channel: Some(receiver),
-        }
-    }
-}
-
-fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TriggerError::Script {
-        path: path.to_path_buf(),
-        message: format!("cannot read: {e}"),
-    })?;
-    let protocol = LineProtocol::default_protocol();
-    let mut steps = VecDeque::new();
-    for (n, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        if let Some(ms) = line.strip_prefix("WAIT ") {
-            let ms: u64 = ms.trim().parse().map_err(|_| TriggerError::Script {
-                path: path.to_path_buf(),
-                message: format!(
-                    "line {}: expected `WAIT <milliseconds>`, found {line:?}",
-                    n + 1
-                ),
-            })?;
-            steps.push_back(ScriptStep::Wait(Duration::from_millis(ms)));
-        } else if let Some((layer, phase)) = protocol.parse(line) {
-            steps.push_back(ScriptStep::Signal(layer, phase));
-        } else {
-            return Err(TriggerError::Script {
-                path: path.to_path_buf(),
-                message: format!(
-                    "line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}",
-                    n + 1
-                ),
-            });
-        }
-    }
-    Ok(steps)
-}
-
-impl Trigger for MockTrigger {
-    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
-        if let Some(rx) = &self.channel {
-            return Ok(rx.recv().ok());
-        }
-        loop {
-            match self.steps.pop_front() {
-                None => return Ok(None),
-                Some(ScriptStep::Wait(d)) => std::thread::sleep(d),
-                Some(ScriptStep::Signal(layer, phase)) => {
-                    std::thread::sleep(self.interval);
-                    return Ok(Some(LayerEvent {
-                        layer,
-                        phase,
-                        at: Utc::now(),
-                    }));
-                }
-            }
-        }
     }
 }
 
@@ -531,17 +440,5 @@ mod tests {
         let mut resumed = PulseCounter::new(GpioMode::Alternating, 1);
         resumed.resume_after(Some((6, Phase::Post)));
         assert_eq!(resumed.on_pulse(Pulse::Line), Some((7, Phase::Pre)));
-    }
-
-    #[test]
-    fn script_errors_name_file_and_line() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("script.txt");
-        std::fs::write(&path, "LAYER 1 PRE\nWAIT 5\nbogus\n").unwrap();
-        let err = parse_script(&path).unwrap_err().to_string();
-        assert!(
-            err.contains("script.txt") && err.contains("line 3"),
-            "{err}"
-        );
     }
 }

@@ -22,6 +22,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod align;
+pub mod frame;
 pub mod ply;
 pub mod surface;
 pub mod synth;
@@ -33,6 +34,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 pub use align::{horn, read_points_file, PointPair};
+pub use frame::{CtFrame, CtLocation};
 pub use surface::{PartShape, Threshold};
 pub use volume::{read_volume, RawDtype, RawSpec, Volume, VolumeSource, VoxelData};
 

@@ -2,17 +2,18 @@
 //! choice: it carries the Image Plane module), in the build frame of docs/frames.md. One study and
 //! one frame of reference per build; one series per view; one file per layer.
 
-use crate::acquisition::status::BuildManifest;
-use crate::acquisition::storage::write_atomic;
+use crate::fsutil::write_atomic;
 use dicom_core::value::{PrimitiveValue, C};
 use dicom_core::{DataElement, Tag, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::{FileMetaTableBuilder, InMemDicomObject, OpenFileOptions};
 use dicom_pixeldata::Transcode;
 use dicom_transfer_syntax_registry::TransferSyntaxIndex;
-use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+pub mod uid;
+pub use uid::{derived_uid, new_uid};
 
 /// CT Image Storage.
 pub const CT_IMAGE_STORAGE: &str = "1.2.840.10008.5.1.4.1.1.2";
@@ -59,31 +60,9 @@ pub struct Study {
     pub description: String,
 }
 
-impl Study {
-    pub fn of_build(manifest: &BuildManifest) -> Study {
-        let start = manifest.created_at;
-        // StudyID is a short string (SH, 16 chars): the build id, cut to fit.
-        let study_id: String = manifest.id.chars().take(16).collect();
-        Study {
-            study_instance_uid: manifest.study_instance_uid.clone(),
-            frame_of_reference_uid: manifest.frame_of_reference_uid.clone(),
-            date: start.format("%Y%m%d").to_string(),
-            time: start.format("%H%M%S").to_string(),
-            patient_name: person_name(&manifest.name),
-            patient_id: manifest.id.chars().take(64).collect(),
-            study_id: if study_id.is_empty() {
-                "1".into()
-            } else {
-                study_id
-            },
-            description: format!("layerwise build {}", manifest.name),
-        }
-    }
-}
-
 /// The build's name as a DICOM person name: the family-name component, explicitly delimited
 /// (a bare single component is the retired PN form validators warn about).
-fn person_name(name: &str) -> String {
+pub fn person_name(name: &str) -> String {
     let clean: String = name
         .chars()
         .map(|c| {
@@ -116,17 +95,6 @@ impl Series {
             description: name.to_string(),
         }
     }
-}
-
-/// A UID under 2.25 from a name-based hash (like a version-5 UUID): stable for the same inputs.
-pub fn derived_uid(parent: &str, name: &str) -> String {
-    let digest = Sha256::digest(format!("{parent}/{name}").as_bytes());
-    let mut bytes = [0u8; 16];
-    bytes.copy_from_slice(&digest[..16]);
-    // Set the UUID version (5) and variant bits so the number is a well-formed UUID.
-    bytes[6] = (bytes[6] & 0x0f) | 0x50;
-    bytes[8] = (bytes[8] & 0x3f) | 0x80;
-    format!("2.25.{}", u128::from_be_bytes(bytes))
 }
 
 /// Where one slice sits in the build frame.

@@ -688,7 +688,7 @@ mod tests {
 
     #[test]
     fn points_file() {
-        let d = crate::registration::ct::volume::tests::scratch("points");
+        let d = crate::ct::volume::tests::scratch("points");
         let p = d.join("POINTS.txt");
         std::fs::write(
             &p,

@@ -167,8 +167,8 @@ fn sample(volume: &Volume, p: [f64; 3]) -> Option<f64> {
 
 /// The study of a build (its build.json).
 pub fn build_study(dir: &Path) -> Result<Study, String> {
-    let manifest: crate::acquisition::status::BuildManifest =
-        std::fs::read(dir.join(crate::acquisition::status::MANIFEST))
+    let manifest: crate::build_dir::BuildManifest =
+        std::fs::read(dir.join(crate::build_dir::MANIFEST))
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok())
             .ok_or_else(|| {
@@ -177,11 +177,11 @@ pub fn build_study(dir: &Path) -> Result<Study, String> {
                     dir.display()
                 )
             })?;
-    Ok(Study::of_build(&manifest))
+    Ok(manifest.study())
 }
 
 fn standalone_study() -> Study {
-    let uid = crate::acquisition::status::new_uid();
+    let uid = crate::dicom::new_uid();
     let now = chrono::Utc::now();
     Study {
         frame_of_reference_uid: dicom::derived_uid(&uid, "frame-of-reference"),

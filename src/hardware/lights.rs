@@ -1,12 +1,11 @@
-//! The front, side and top lights: a serial relay board, GPIO lines, none, or a mock. Whatever
-//! happens, the lights end up off: [`LightsGuard`] switches them off when it is dropped.
+//! The front, side and top lights: a serial relay board, GPIO lines or none (the simulated ones
+//! live in `sim`). Whatever happens, the lights end up off: [`LightsGuard`] switches them off when
+//! it is dropped.
 
-use crate::camera::mock::MockWorld;
 use crate::config::{GpioLightsConfig, LightsConfig, SerialRelayConfig};
-use crate::view::Light;
+use crate::shot::Light;
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tracing::warn;
 
@@ -18,8 +17,8 @@ pub enum LightsError {
     Gpio { chip: String, message: String },
     #[error("lights: bad command string {key}: {message}")]
     Command { key: String, message: String },
-    #[error("lights: {0}")]
-    Mock(String),
+    #[error("lights: kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure serial-relay, gpio or none")]
+    Simulated,
 }
 
 pub trait Lights: Send {
@@ -53,22 +52,17 @@ impl Drop for LightsGuard {
     }
 }
 
-pub fn open(
-    config: &LightsConfig,
-    world: Option<MockWorld>,
-) -> Result<(Box<dyn Lights>, Option<MockLightsLog>), LightsError> {
+/// Opens the configured lights; `kind = "mock"` is the simulated machine's (see `sim`).
+pub fn open(config: &LightsConfig) -> Result<Box<dyn Lights>, LightsError> {
     Ok(match config {
-        LightsConfig::None => (Box::new(NoLights), None),
-        LightsConfig::SerialRelay(relay) => (Box::new(SerialRelayLights::open(relay)?), None),
-        LightsConfig::Gpio(gpio) => (Box::new(GpioLights::open(gpio)?), None),
-        LightsConfig::Mock => {
-            let lights = MockLights::new(world);
-            let log = lights.log();
-            (Box::new(lights), Some(log))
-        }
+        LightsConfig::None => Box::new(NoLights),
+        LightsConfig::SerialRelay(relay) => Box::new(SerialRelayLights::open(relay)?),
+        LightsConfig::Gpio(gpio) => Box::new(GpioLights::open(gpio)?),
+        LightsConfig::Mock => return Err(LightsError::Simulated),
     })
 }
 
+/// Lights that are not switched (a constant lamp, or none).
 pub struct NoLights;
 
 impl Lights for NoLights {
@@ -241,81 +235,6 @@ impl Lights for GpioLights {
     }
 }
 
-/// What the mock lights were told, in order; `None` light means "all off".
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct LightSwitch {
-    pub light: Option<Light>,
-    pub on: bool,
-}
-
-/// Shared view of the mock lights' history and state, for tests.
-#[derive(Clone, Default)]
-pub struct MockLightsLog {
-    inner: Arc<Mutex<LogState>>,
-}
-
-/// History of switches, and which lights are on now.
-type LogState = (Vec<LightSwitch>, BTreeMap<Light, bool>);
-
-impl MockLightsLog {
-    pub fn history(&self) -> Vec<LightSwitch> {
-        self.inner.lock().map(|g| g.0.clone()).unwrap_or_default()
-    }
-    /// Lights currently on.
-    pub fn lit(&self) -> Vec<Light> {
-        self.inner
-            .lock()
-            .map(|g| g.1.iter().filter(|(_, on)| **on).map(|(l, _)| *l).collect())
-            .unwrap_or_default()
-    }
-    fn record(&self, light: Option<Light>, on: bool) {
-        if let Ok(mut g) = self.inner.lock() {
-            g.0.push(LightSwitch { light, on });
-            match light {
-                Some(l) => {
-                    g.1.insert(l, on);
-                }
-                None => g.1.clear(),
-            }
-        }
-    }
-}
-
-/// Lights that only record, and light the simulated plate for the mock camera.
-pub struct MockLights {
-    log: MockLightsLog,
-    world: Option<MockWorld>,
-}
-
-impl MockLights {
-    pub fn new(world: Option<MockWorld>) -> MockLights {
-        MockLights {
-            log: MockLightsLog::default(),
-            world,
-        }
-    }
-    pub fn log(&self) -> MockLightsLog {
-        self.log.clone()
-    }
-}
-
-impl Lights for MockLights {
-    fn switch(&mut self, light: Light, on: bool) -> Result<(), LightsError> {
-        self.log.record(Some(light), on);
-        if let Some(world) = &self.world {
-            world.set_light(light, on);
-        }
-        Ok(())
-    }
-    fn all_off(&mut self) -> Result<(), LightsError> {
-        self.log.record(None, false);
-        if let Some(world) = &self.world {
-            world.all_lights_off();
-        }
-        Ok(())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -327,24 +246,5 @@ mod tests {
         let err = decode_command("front_on", r"\xZZ").unwrap_err().to_string();
         assert!(err.contains("front_on"), "{err}");
         assert!(decode_command("k", r"\q").is_err());
-    }
-
-    #[test]
-    fn guard_switches_off_on_drop() {
-        let lights = MockLights::new(None);
-        let log = lights.log();
-        {
-            let mut guard = LightsGuard::new(Box::new(lights));
-            guard.switch(Light::Top, true).unwrap();
-            assert_eq!(log.lit(), vec![Light::Top]);
-        }
-        assert!(log.lit().is_empty());
-        assert_eq!(
-            log.history().last(),
-            Some(&LightSwitch {
-                light: None,
-                on: false
-            })
-        );
     }
 }

@@ -666,7 +666,7 @@ pub fn solid_shape(volume: &Volume, seg: &Segmentation) -> PartShape {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::registration::ct::VoxelData;
+    use crate::ct::VoxelData;
 
     /// A 20³ u8 volume: a 10³ cube (value 200) with a 2³ void (value 10), plus a 1-voxel speck.
     fn cube() -> Volume {

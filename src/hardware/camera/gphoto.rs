@@ -1,6 +1,7 @@
 //! The real camera through libgphoto2 (the `gphoto2` crate). Only the camera actor's thread
 //! touches it. Settings are applied at open: capture target RAM, format, exposure, manual focus.
 
+use crate::shot::Shot;
 use super::{Camera, CameraError, Frame};
 use crate::config::Gphoto2Config;
 use gphoto2::error::ErrorKind;
@@ -202,7 +203,8 @@ fn frame_extension(camera_name: &str) -> String {
 }
 
 impl Camera for GphotoCamera {
-    fn capture(&mut self) -> Result<Frame, CameraError> {
+    fn capture(&mut self, shot: &Shot) -> Result<Frame, CameraError> {
+        tracing::debug!(layer = shot.layer, phase = %shot.phase, light = %shot.light, "gphoto2: capture");
         let started = Instant::now();
         let path = self.camera.capture_image().wait().map_err(map)?;
         let captured = Instant::now();

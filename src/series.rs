@@ -2,15 +2,62 @@
 //! MONOCHROME2; colour stays in the original), rectified onto the build grid through the
 //! calibration and written as the slice of its layer in its view's series.
 
-use super::processing::FrameProcessor;
-use super::status::BuildManifest;
-use crate::config::Config;
-use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
-use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier};
-use crate::vectors::LayerIndex;
-use crate::view::{Shot, View};
+use crate::build_dir::{BuildManifest, Sidecar};
+use crate::config::{Config, ConfigError};
+use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, Study};
+use crate::rectify::{self, Calibration, CalibrationError, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
+use crate::shot::{Shot, View};
+use crate::vectors::{LayerIndex, VectorError};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// Why a frame could not be processed, for the journal (the build goes on).
+pub type ProcessError = Box<dyn std::error::Error + Send + Sync>;
+
+/// Work done on each stored original after capture.
+pub trait FrameProcessor: Send + Sync {
+    /// `original` is the stored file; errors are recorded in the journal and do not stop the build.
+    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError>;
+}
+
+/// Keeps originals only.
+pub struct KeepOriginals;
+
+impl FrameProcessor for KeepOriginals {
+    fn process(&self, _build_dir: &Path, _shot: Shot, _original: &Path) -> Result<(), ProcessError> {
+        Ok(())
+    }
+}
+
+/// Why a series (or a build's record of how its series were made) could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum SeriesError {
+    #[error(
+        "{0}: not a layerwise build directory ({1} missing); pass the daemon's build.output_dir"
+    )]
+    NotABuild(PathBuf, &'static str),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    #[error(transparent)]
+    Vectors(#[from] VectorError),
+    #[error("calibration: {0}")]
+    Rectifier(RectifyError),
+    #[error(transparent)]
+    Decode(#[from] RectifyError),
+    #[error(transparent)]
+    Dicom(#[from] DicomError),
+    #[error("{path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("calibration.crop_part: {file} has no part {part} with geometry")]
+    NoSuchPart { file: PathBuf, part: i64 },
+    #[error("view {0} is not configured")]
+    UnknownView(View),
+}
 
 /// Where layer k sits in z: the k-th layer of the vector file, or k x the layer thickness.
 #[derive(Clone, Debug)]
@@ -20,11 +67,11 @@ pub struct LayerHeights {
 }
 
 impl LayerHeights {
-    pub fn from_config(config: &Config) -> Result<LayerHeights, String> {
+    pub fn from_config(config: &Config) -> Result<LayerHeights, SeriesError> {
         let thickness_mm = config.build.layer_thickness_mm;
         let z_mm = match &config.build.vectors {
             Some(path) => {
-                let index = LayerIndex::build(path).map_err(|e| e.to_string())?;
+                let index = LayerIndex::build(path)?;
                 Some((0..index.len()).filter_map(|k| index.z_mm(k)).collect())
             }
             None => None,
@@ -95,21 +142,14 @@ pub struct SeriesSettings {
 impl SeriesSettings {
     /// From the daemon's configuration: the grid (cropped around `calibration.crop_part` when
     /// set), layer heights, transfer syntax and interpolation.
-    pub fn from_config(config: &Config) -> Result<SeriesSettings, String> {
+    pub fn from_config(config: &Config) -> Result<SeriesSettings, SeriesError> {
         let grid = match (config.calibration.crop_part, &config.build.vectors) {
             (Some(part), Some(vectors)) => {
-                let info = crate::vectors::info(vectors).map_err(|e| e.to_string())?;
-                let bbox = info
-                    .parts
-                    .iter()
-                    .find(|p| p.id == part)
-                    .and_then(|p| p.bbox)
-                    .ok_or_else(|| {
-                        format!(
-                            "calibration.crop_part: {} has no part {part} with geometry",
-                            vectors.display()
-                        )
-                    })?;
+                let info = crate::vectors::info(vectors)?;
+                let bbox = info.part_bbox(part).ok_or_else(|| SeriesError::NoSuchPart {
+                    file: vectors.clone(),
+                    part,
+                })?;
                 config
                     .rectify
                     .around(bbox, config.calibration.crop_margin_mm)
@@ -148,7 +188,7 @@ impl LiveSeries {
         views: &[View],
         calibration: &Calibration,
         settings: SeriesSettings,
-    ) -> Result<LiveSeries, String> {
+    ) -> Result<LiveSeries, SeriesError> {
         let SeriesSettings {
             grid,
             heights,
@@ -156,7 +196,7 @@ impl LiveSeries {
             interpolation,
             fill,
         } = settings;
-        let study = Study::of_build(manifest);
+        let study = manifest.study();
         let series = views
             .iter()
             .enumerate()
@@ -174,7 +214,7 @@ impl LiveSeries {
             interpolation,
             fill,
         )
-        .map_err(|e| format!("calibration: {e}"))?;
+        .map_err(SeriesError::Rectifier)?;
         Ok(LiveSeries {
             root: None,
             study,
@@ -187,8 +227,8 @@ impl LiveSeries {
 
     /// The rectified luma of an original, as the slice will hold it: 8-bit luma of a JPEG, or
     /// linear 16-bit luminance of a raw frame.
-    pub fn rectified_luma(&self, original: &[u8]) -> Result<FrameLuma, String> {
-        let luma = rectify::decode_frame_luma(original).map_err(|e| e.to_string())?;
+    pub fn rectified_luma(&self, original: &[u8]) -> Result<FrameLuma, SeriesError> {
+        let luma = rectify::decode_frame_luma(original)?;
         Ok(luma.rectified(&self.rectifier))
     }
 
@@ -234,11 +274,11 @@ impl LiveSeries {
         shot: Shot,
         original: &[u8],
         acquired: Option<chrono::DateTime<chrono::Utc>>,
-    ) -> Result<PathBuf, String> {
+    ) -> Result<PathBuf, SeriesError> {
         let series = self
             .series
             .get(&shot.view())
-            .ok_or_else(|| format!("view {} is not configured", shot.view()))?;
+            .ok_or(SeriesError::UnknownView(shot.view()))?;
         let rectified = self.rectified_luma(original)?;
         let (window, derivation) = (rectified.window(), rectified.derivation());
         let pixels = rectified.into_u16();
@@ -263,20 +303,72 @@ impl LiveSeries {
             derivation,
         };
         let path = self.slice_path(build_dir, shot);
-        dicom::write_slice(&path, &self.study, series, &slice, self.compression)
-            .map_err(|e| e.to_string())?;
+        dicom::write_slice(&path, &self.study, series, &slice, self.compression)?;
         Ok(path)
     }
 }
 
-impl FrameProcessor for LiveSeries {
-    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), String> {
-        let bytes = std::fs::read(original).map_err(|e| format!("{}: {e}", original.display()))?;
+impl LiveSeries {
+    /// Writes the slice of a stored original (its sidecar gives the acquisition time).
+    pub fn write_original(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        original: &Path,
+    ) -> Result<PathBuf, SeriesError> {
+        let bytes = std::fs::read(original).map_err(|source| SeriesError::Read {
+            path: original.to_path_buf(),
+            source,
+        })?;
         let sidecar = original.with_extension("json");
         let acquired = std::fs::read(&sidecar)
             .ok()
-            .and_then(|b| serde_json::from_slice::<super::storage::Sidecar>(&b).ok())
+            .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
             .map(|s| s.captured_at);
-        self.write(build_dir, shot, &bytes, acquired).map(|_| ())
+        self.write(build_dir, shot, &bytes, acquired)
     }
 }
+
+impl FrameProcessor for LiveSeries {
+    fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
+        self.write_original(build_dir, shot, original)?;
+        Ok(())
+    }
+}
+
+/// Everything known about a build after the fact: its configuration, calibration and grid.
+pub struct BuildRecord {
+    pub dir: PathBuf,
+    pub config: Config,
+    pub calibration: Option<Calibration>,
+    pub grid: Grid,
+    pub heights: LayerHeights,
+}
+
+impl BuildRecord {
+    pub fn open(dir: &Path) -> Result<BuildRecord, SeriesError> {
+        let config_path = dir.join(crate::build_dir::CONFIG_SNAPSHOT);
+        if !config_path.exists() {
+            return Err(SeriesError::NotABuild(
+                dir.to_path_buf(),
+                crate::build_dir::CONFIG_SNAPSHOT,
+            ));
+        }
+        let config = Config::load(&config_path)?;
+        let calibration_path = dir.join(crate::build_dir::CALIBRATION_COPY);
+        let calibration = if calibration_path.exists() {
+            Some(Calibration::load(&calibration_path)?)
+        } else {
+            None
+        };
+        let settings = SeriesSettings::from_config(&config)?;
+        Ok(BuildRecord {
+            dir: dir.to_path_buf(),
+            config,
+            calibration,
+            grid: settings.grid,
+            heights: settings.heights,
+        })
+    }
+}
+

@@ -1,0 +1,42 @@
+//! The build directory: its layout (docs/frames.md names every file), the manifest fixed at the
+//! build's start, the append-only journal and the live status. The daemon writes it; `status`,
+//! export, locate and registration read it.
+
+pub mod journal;
+pub mod manifest;
+pub mod status;
+
+pub use journal::{Journal, JournalError, Record, Replay};
+pub use manifest::BuildManifest;
+
+use chrono::{DateTime, Utc};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+pub const MANIFEST: &str = "build.json";
+pub const STATUS: &str = "status.json";
+pub const JOURNAL: &str = "journal.jsonl";
+/// The configuration the daemon last ran with.
+pub const CONFIG_SNAPSHOT: &str = "config.toml";
+/// The calibration the daemon last ran with.
+pub const CALIBRATION_COPY: &str = "calibration.toml";
+
+/// Originals and their sidecars.
+pub const RAW_DIR: &str = "raw";
+
+/// What the sidecar next to each original says.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Sidecar {
+    pub layer: u32,
+    pub phase: crate::shot::Phase,
+    pub light: crate::shot::Light,
+    pub file: String,
+    pub bytes: u64,
+    pub sha256: String,
+    pub event_at: DateTime<Utc>,
+    pub captured_at: DateTime<Utc>,
+    pub capture_ms: f64,
+    pub download_ms: f64,
+    pub attempts: u32,
+    pub camera: BTreeMap<String, String>,
+}

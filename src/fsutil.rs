@@ -1,0 +1,230 @@
+//! File-system helpers every writer and reader of the library shares: atomic writes (a crash
+//! leaves the whole file or nothing under the final name), SHA-256 of file contents, and TOML
+//! files parsed with errors that name the file, the line and the key.
+
+use sha2::{Digest, Sha256};
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// A file could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {source} (is the disk full or read-only?)")]
+pub struct WriteError {
+    pub path: PathBuf,
+    pub source: std::io::Error,
+}
+
+/// A TOML file could not be parsed into what it should hold.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct TomlError {
+    pub file: PathBuf,
+    /// Where (line, column, key) and what went wrong.
+    pub message: String,
+}
+
+/// Lower-case hexadecimal SHA-256 of `data`.
+pub fn sha256_hex(data: &[u8]) -> String {
+    let digest = Sha256::digest(data);
+    let mut out = String::with_capacity(64);
+    for b in digest {
+        out.push_str(&format!("{b:02x}"));
+    }
+    out
+}
+
+/// Writes `data` under `path` atomically: a fresh temporary file in the same directory, fsync
+/// (when `fsync`), rename, fsync of the directory.
+pub fn write_atomic(path: &Path, data: &[u8], fsync: bool) -> Result<(), WriteError> {
+    write_atomic_all(&[(path, data)], fsync)
+}
+
+/// The directory a file is in; "." for a bare file name (whose `parent()` is the empty path,
+/// which cannot be opened to fsync).
+pub fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    }
+}
+
+/// Whether a directory entry is one of our temporary files (`.NAME.*.tmp`), left by a crash.
+pub fn is_temporary(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
+/// Creates a new temporary file next to `path`: `.NAME.PID.N.tmp`, opened with `O_EXCL` and
+/// `O_NOFOLLOW`, so a file or symlink planted under that name is never written through.
+fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let dir = parent_dir(path);
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    loop {
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(".{name}.{}.{n}.tmp", std::process::id()));
+        match OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o644)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
+            .open(&tmp)
+        {
+            Ok(file) => return Ok((tmp, file)),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Writes files of one directory atomically, renaming them in the order given, with a single
+/// fsync of the directory for all the renames (it is the slowest part of the capture path).
+pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), WriteError> {
+    let mut renames = Vec::with_capacity(files.len());
+    let cleanup = |renames: &[(PathBuf, &Path)]| {
+        for (tmp, _) in renames {
+            let _ = std::fs::remove_file(tmp);
+        }
+    };
+    for (path, data) in files {
+        let err = |source| WriteError {
+            path: path.to_path_buf(),
+            source,
+        };
+        let written = create_temporary(path).and_then(|(tmp, mut file)| {
+            let result = file
+                .write_all(data)
+                .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
+            match result {
+                Ok(()) => Ok(tmp),
+                Err(e) => {
+                    let _ = std::fs::remove_file(&tmp);
+                    Err(e)
+                }
+            }
+        });
+        match written {
+            Ok(tmp) => renames.push((tmp, *path)),
+            Err(e) => {
+                cleanup(&renames);
+                return Err(err(e));
+            }
+        }
+    }
+    for (i, (tmp, path)) in renames.iter().enumerate() {
+        if let Err(source) = std::fs::rename(tmp, path) {
+            cleanup(&renames[i..]);
+            return Err(WriteError {
+                path: path.to_path_buf(),
+                source,
+            });
+        }
+    }
+    if fsync {
+        let mut dirs: Vec<&Path> = renames.iter().map(|(_, p)| parent_dir(p)).collect();
+        dirs.dedup();
+        for dir in dirs {
+            File::open(dir)
+                .and_then(|d| d.sync_all())
+                .map_err(|source| WriteError {
+                    path: dir.to_path_buf(),
+                    source,
+                })?;
+        }
+    }
+    Ok(())
+}
+
+/// Parses TOML text into `T`; the error names the file, the line and column, and the key.
+pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, file: &Path) -> Result<T, TomlError> {
+    let deserializer = toml::Deserializer::new(text);
+    serde_path_to_error::deserialize(deserializer).map_err(|err| {
+        let key = err.path().to_string();
+        let inner = err.into_inner();
+        let message = inner.message().trim().to_string();
+        let place = match inner.span() {
+            Some(span) => {
+                let (line, column) = line_column(text, span.start);
+                format!("line {line}, column {column}: ")
+            }
+            None => String::new(),
+        };
+        let key = if key == "." || key.is_empty() {
+            String::new()
+        } else {
+            format!("key `{key}`: ")
+        };
+        TomlError {
+            file: file.to_path_buf(),
+            message: format!("{place}{key}{message}"),
+        }
+    })
+}
+
+/// 1-based line and column of byte `offset` in `text`.
+pub fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let column = before
+        .rfind('\n')
+        .map_or(before.len(), |nl| before.len() - nl - 1)
+        + 1;
+    (line, column)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn atomic_write_replaces_and_leaves_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.txt");
+        write_atomic(&path, b"one", true).unwrap();
+        write_atomic(&path, b"two", false).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"two");
+        let names: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, ["a.txt"]);
+    }
+
+    #[test]
+    fn a_planted_symlink_is_not_written_through() {
+        let dir = tempfile::tempdir().unwrap();
+        let outside = dir.path().join("outside");
+        let path = dir.path().join("b.txt");
+        let trap = dir.path().join(".b.txt.tmp");
+        std::os::unix::fs::symlink(&outside, &trap).unwrap();
+        write_atomic(&path, b"data", false).unwrap();
+        assert!(!outside.exists(), "wrote through a planted symlink");
+        assert_eq!(std::fs::read(&path).unwrap(), b"data");
+    }
+
+    #[test]
+    fn toml_errors_name_line_and_key() {
+        #[derive(serde::Deserialize, Debug)]
+        #[serde(deny_unknown_fields)]
+        #[allow(dead_code)]
+        struct T {
+            a: u32,
+        }
+        let err = parse_toml::<T>("a = 1\nb = 2\n", Path::new("t.toml")).unwrap_err();
+        let text = err.to_string();
+        assert!(text.starts_with("t.toml: line 2"), "{text}");
+    }
+
+    #[test]
+    fn sha256_of_nothing() {
+        assert_eq!(
+            sha256_hex(b""),
+            "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
+    }
+}

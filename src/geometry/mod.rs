@@ -1,0 +1,11 @@
+//! Geometry shared by every layer above: the build frame's grids, plane projective maps, lens
+//! distortion and 3D rigid/affine transforms (docs/frames.md). Transforms are named by their
+//! frames (`build_from_image` maps image pixels to build mm).
+
+pub mod distortion;
+pub mod grid;
+pub mod mat3;
+
+pub use distortion::{DistortionError, RadialDistortion};
+pub use grid::{Grid, GridError, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM};
+pub use mat3::Mat3;

@@ -1,0 +1,265 @@
+//! After the build: where one point of the build frame is in every modality: its layer, its pixel
+//! in each rectified view and original frame, and its voxel in the registered CT; `mark` draws it
+//! side by side (the paper's Fig. 9).
+
+use crate::ct::CtLocation;
+use crate::rectify::Rectifier;
+use crate::series::{series_dir, BuildRecord};
+use crate::shot::{Shot, View};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum LocateError {
+    #[error("{0}")]
+    Invalid(String),
+    #[error("{path}: {message}")]
+    Io { path: PathBuf, message: String },
+}
+
+/// Where a build point is in one view.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewLocation {
+    pub view: String,
+    /// Pixel (row, column) in the rectified series, when the point is on its grid.
+    pub rectified_pixel: Option<[f64; 2]>,
+    pub dicom: Option<PathBuf>,
+    /// Pixel (u, v) in the original camera frame (through the homography and distortion).
+    pub image_pixel: Option<[f64; 2]>,
+    pub original: Option<PathBuf>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Location {
+    /// The point in the build frame, mm.
+    pub build_mm: [f64; 3],
+    pub ct: Option<CtLocation>,
+    pub layer: Option<u32>,
+    pub layer_z_mm: Option<f64>,
+    pub views: Vec<ViewLocation>,
+}
+
+/// Where `point` (build mm) is in the layer stack, the rectified views and the original frames.
+pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateError> {
+    let layer = record.heights.layer_at(point[2]);
+    let rectifier = match &record.calibration {
+        Some(c) => Some(
+            Rectifier::new(
+                c.homography,
+                record.grid,
+                c.distortion,
+                Default::default(),
+                0,
+            )
+            .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?,
+        ),
+        None => None,
+    };
+    let (row, col) = record.grid.pixel_of(point[0], point[1]);
+    let on_grid = row >= -0.5
+        && col >= -0.5
+        && row <= record.grid.rows() as f64 - 0.5
+        && col <= record.grid.columns() as f64 - 0.5;
+    let views = record
+        .config
+        .views
+        .all()
+        .into_iter()
+        .map(|view: View| {
+            let shot = layer.map(|layer| Shot {
+                layer,
+                phase: view.phase,
+                light: view.light,
+            });
+            let dicom = shot
+                .map(|s| series_dir(&record.dir, view).join(format!("L{:05}.dcm", s.layer)))
+                .filter(|p| p.exists());
+            let original = shot.and_then(|s| find_original(&record.dir, &s));
+            ViewLocation {
+                view: view.to_string(),
+                rectified_pixel: on_grid.then_some([row, col]),
+                dicom,
+                image_pixel: rectifier
+                    .as_ref()
+                    .and_then(|r| r.image_point(point[0], point[1]))
+                    .map(|(u, v)| [u, v]),
+                original,
+            }
+        })
+        .collect();
+    Ok(Location {
+        ct: None,
+        build_mm: point,
+        layer,
+        layer_z_mm: layer.map(|k| record.heights.z(k)),
+        views,
+    })
+}
+
+fn find_original(dir: &Path, shot: &Shot) -> Option<PathBuf> {
+    ["jpg", "jpeg", "nef", "png", "tif"]
+        .iter()
+        .map(|ext| dir.join(format!("raw/{}.{ext}", shot.stem())))
+        .find(|p| p.exists())
+}
+
+impl std::fmt::Display for Location {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [x, y, z] = self.build_mm;
+        writeln!(f, "build point   ({x}, {y}, {z}) mm")?;
+        match (self.layer, self.layer_z_mm) {
+            (Some(k), Some(zk)) => writeln!(f, "layer         {k} (top at z = {zk} mm)")?,
+            _ => writeln!(f, "layer         none: z is outside the build")?,
+        }
+        if let Some(ct) = &self.ct {
+            let [a, b, c] = ct.ct_mm;
+            write!(f, "ct            ({a:.3}, {b:.3}, {c:.3}) mm")?;
+            match ct.voxel {
+                Some([i, j, k]) => writeln!(f, ", voxel ({i:.1}, {j:.1}, {k:.1})")?,
+                None => writeln!(f)?,
+            }
+        }
+        for v in &self.views {
+            let rect = v
+                .rectified_pixel
+                .map_or("off the grid".to_string(), |[r, c]| {
+                    format!("row {r:.1}, column {c:.1}")
+                });
+            let img = v.image_pixel.map_or("not in view".to_string(), |[u, v]| {
+                format!("u {u:.1}, v {v:.1}")
+            });
+            writeln!(
+                f,
+                "{:<10}    rectified {rect}{}",
+                v.view,
+                v.dicom
+                    .as_ref()
+                    .map(|p| format!(" in {}", p.display()))
+                    .unwrap_or_default()
+            )?;
+            writeln!(
+                f,
+                "              original  {img}{}",
+                v.original
+                    .as_ref()
+                    .map(|p| format!(" in {}", p.display()))
+                    .unwrap_or_default()
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// Draws the point in each view, side by side: the rectified view (re-rectified from the original,
+/// the same pixels as its DICOM slice) and the original frame, cropped around the point, with a
+/// green marker (the paper's Fig. 9).
+pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(), LocateError> {
+    const HALF: i64 = 80;
+    let calibration = record
+        .calibration
+        .as_ref()
+        .ok_or_else(|| LocateError::Invalid("the build has no calibration.toml".into()))?;
+    let rectifier = Rectifier::new(
+        calibration.homography,
+        record.grid,
+        calibration.distortion,
+        Default::default(),
+        0,
+    )
+    .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?;
+    let mut tiles: Vec<image::RgbImage> = Vec::new();
+    let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
+    // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.
+    if let (Some(path), Some(k), Some([r, c])) = (
+        &record.config.build.vectors,
+        location.layer,
+        location.views.first().and_then(|v| v.rectified_pixel),
+    ) {
+        let file = crate::vectors::read(path).map_err(|e| LocateError::Invalid(e.to_string()))?;
+        if let Some(layer) = file.layers.get(k as usize - 1) {
+            let picture = crate::raster::rgb(
+                layer,
+                &record.grid,
+                &crate::raster::RasterOptions::default(),
+            )
+            .map_err(|e| LocateError::Invalid(e.to_string()))?;
+            tiles.push(crop_with_marker(&picture, r, c, HALF));
+        }
+    }
+    for v in &location.views {
+        let Some(original) = &v.original else {
+            continue;
+        };
+        let bytes = std::fs::read(original).map_err(|e| LocateError::Io {
+            path: original.clone(),
+            message: e.to_string(),
+        })?;
+        let luma = crate::rectify::decode_frame_luma(&bytes).map_err(|e| LocateError::Io {
+            path: original.clone(),
+            message: e.to_string(),
+        })?;
+        if let Some([r, c]) = v.rectified_pixel {
+            let rect = luma.rectified(&rectifier).to_display8();
+            tiles.push(crop_with_marker(&rgb(rect), r, c, HALF));
+        }
+        if let Some([u, vv]) = v.image_pixel {
+            tiles.push(crop_with_marker(&rgb(luma.to_display8()), vv, u, HALF));
+        }
+    }
+    if tiles.is_empty() {
+        return Err(LocateError::Invalid(
+            "nothing to draw: no frame of that layer holds the point".into(),
+        ));
+    }
+    let side = (2 * HALF + 1) as u32;
+    let mut sheet = image::RgbImage::from_pixel(
+        side * tiles.len() as u32 + 4 * (tiles.len() as u32 - 1),
+        side,
+        image::Rgb([255, 255, 255]),
+    );
+    for (i, tile) in tiles.iter().enumerate() {
+        image::imageops::replace(&mut sheet, tile, (i as u32 * (side + 4)) as i64, 0);
+    }
+    sheet.save(out).map_err(|e| LocateError::Io {
+        path: out.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// A (2·half + 1)² crop centred on (row, col) with a green cross; outside the image is black.
+fn crop_with_marker(img: &image::RgbImage, row: f64, col: f64, half: i64) -> image::RgbImage {
+    let (r0, c0) = (row.round() as i64, col.round() as i64);
+    let side = (2 * half + 1) as u32;
+    let mut tile = image::RgbImage::new(side, side);
+    for dy in -half..=half {
+        for dx in -half..=half {
+            let (r, c) = (r0 + dy, c0 + dx);
+            if r >= 0 && c >= 0 && (r as u32) < img.height() && (c as u32) < img.width() {
+                tile.put_pixel(
+                    (dx + half) as u32,
+                    (dy + half) as u32,
+                    *img.get_pixel(c as u32, r as u32),
+                );
+            }
+        }
+    }
+    for d in -6i64..=6 {
+        if d.abs() < 2 {
+            continue;
+        }
+        for t in [-1i64, 0, 1] {
+            tile.put_pixel(
+                (half + d) as u32,
+                (half + t) as u32,
+                image::Rgb([0, 255, 0]),
+            );
+            tile.put_pixel(
+                (half + t) as u32,
+                (half + d) as u32,
+                image::Rgb([0, 255, 0]),
+            );
+        }
+    }
+    tile
+}
+

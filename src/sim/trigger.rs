@@ -1,0 +1,136 @@
+//! The simulated printer's layer signals: a script (`LAYER n PRE|POST`, `WAIT ms`), a generated
+//! sequence of layers, or events a test sends itself.
+
+use crate::clock::{SharedClock, SystemClock};
+use crate::config::MockTriggerConfig;
+use crate::hardware::trigger::{LayerEvent, LineProtocol, Trigger, TriggerError};
+use crate::shot::Phase;
+use std::collections::VecDeque;
+use std::path::Path;
+use std::time::Duration;
+
+/// One step of a mock script.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScriptStep {
+    Signal(u32, Phase),
+    Wait(Duration),
+}
+
+/// Events from a script, a generated sequence or an in-process channel.
+pub struct MockTrigger {
+    steps: VecDeque<ScriptStep>,
+    interval: Duration,
+    channel: Option<crossbeam_channel::Receiver<LayerEvent>>,
+    clock: SharedClock,
+}
+
+impl MockTrigger {
+    /// The configured script, or `layers` layers from `first_layer`, paced on `clock`.
+    pub fn from_config(
+        config: &MockTriggerConfig,
+        clock: SharedClock,
+    ) -> Result<MockTrigger, TriggerError> {
+        let steps = match &config.script {
+            Some(path) => parse_script(path)?,
+            None => (config.first_layer..config.first_layer.saturating_add(config.layers))
+                .flat_map(|layer| {
+                    [
+                        ScriptStep::Signal(layer, Phase::Pre),
+                        ScriptStep::Signal(layer, Phase::Post),
+                    ]
+                })
+                .collect(),
+        };
+        Ok(MockTrigger {
+            steps,
+            interval: Duration::from_millis(config.interval_ms),
+            channel: None,
+            clock,
+        })
+    }
+
+    /// Events sent by the test itself.
+    pub fn from_channel(receiver: crossbeam_channel::Receiver<LayerEvent>) -> MockTrigger {
+        MockTrigger {
+            steps: VecDeque::new(),
+            interval: Duration::ZERO,
+            channel: Some(receiver),
+            clock: SystemClock::shared(),
+        }
+    }
+}
+
+fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
+    let text = std::fs::read_to_string(path).map_err(|e| TriggerError::Script {
+        path: path.to_path_buf(),
+        message: format!("cannot read: {e}"),
+    })?;
+    let protocol = LineProtocol::default_protocol();
+    let mut steps = VecDeque::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if let Some(ms) = line.strip_prefix("WAIT ") {
+            let ms: u64 = ms.trim().parse().map_err(|_| TriggerError::Script {
+                path: path.to_path_buf(),
+                message: format!(
+                    "line {}: expected `WAIT <milliseconds>`, found {line:?}",
+                    n + 1
+                ),
+            })?;
+            steps.push_back(ScriptStep::Wait(Duration::from_millis(ms)));
+        } else if let Some((layer, phase)) = protocol.parse(line) {
+            steps.push_back(ScriptStep::Signal(layer, phase));
+        } else {
+            return Err(TriggerError::Script {
+                path: path.to_path_buf(),
+                message: format!(
+                    "line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}",
+                    n + 1
+                ),
+            });
+        }
+    }
+    Ok(steps)
+}
+
+impl Trigger for MockTrigger {
+    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+        if let Some(rx) = &self.channel {
+            return Ok(rx.recv().ok());
+        }
+        loop {
+            match self.steps.pop_front() {
+                None => return Ok(None),
+                Some(ScriptStep::Wait(d)) => self.clock.sleep(d),
+                Some(ScriptStep::Signal(layer, phase)) => {
+                    self.clock.sleep(self.interval);
+                    return Ok(Some(LayerEvent {
+                        layer,
+                        phase,
+                        at: self.clock.now(),
+                    }));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn script_errors_name_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("script.txt");
+        std::fs::write(&path, "LAYER 1 PRE\nWAIT 5\nbogus\n").unwrap();
+        let err = parse_script(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("script.txt") && err.contains("line 3"),
+            "{err}"
+        );
+    }
+}
