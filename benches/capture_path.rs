@@ -6,10 +6,10 @@
 //! 2. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
 
-use layerwise::build_dir::journal::Record;
 use layerwise::acquisition::{run, RunOptions};
-use layerwise::hardware::camera::{Camera, CameraError, Frame};
+use layerwise::build_dir::journal::Record;
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
+use layerwise::hardware::camera::{Camera, CameraError, Frame};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 struct Prerecorded(Vec<u8>);
 
 impl Camera for Prerecorded {
-    fn capture(&mut self) -> Result<Frame, CameraError> {
+    fn capture(&mut self, _shot: &layerwise::shot::Shot) -> Result<Frame, CameraError> {
         Ok(Frame {
             data: self.0.clone(),
             extension: "jpg".into(),
@@ -65,16 +65,18 @@ fn mock_frame(width: u32, height: u32) -> Vec<u8> {
 }
 
 fn build(config: &Config, frame: Vec<u8>) {
-    let mut options = RunOptions::new();
-    options.camera = Some(Box::new(move || {
-        Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>)
-    }));
+    let options = RunOptions::new();
+    let (mut machine, _simulation) =
+        layerwise::sim::open(config, options.clock.clone()).expect("simulated machine");
+    machine.camera = Box::new(move || Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>));
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .expect("runtime");
-    runtime.block_on(run(config, options)).expect("mock build");
+    runtime
+        .block_on(run(config, machine, options))
+        .expect("mock build");
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {

@@ -4,10 +4,10 @@
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 
 use layerwise::acquisition::processing::FrameProcessor;
-use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
 use layerwise::rectify::{Calibration, Grid, Interpolation};
+use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
 use rayon::prelude::*;
 use std::time::Instant;

@@ -6,11 +6,11 @@
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use layerwise::rectify::Grid;
 use layerwise::calibrate::{
     align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, render_exemplar,
     Correspondence, LmOptions, Pair,
 };
+use layerwise::rectify::Grid;
 use layerwise::vectors::{Direction, Layer, Polyline};
 use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
 
@@ -81,8 +81,7 @@ fn bench(c: &mut Criterion) {
     let lum = luma_f32(&frame);
     let (exemplar, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED);
     let (image, _) = filter_frame(&lum, &h0, &grid, extent, true).expect("filter");
-    let start =
-        layerwise::calibrate::mat_mul(&mat_inv(&h0).expect("regular"), &grid_matrix(&grid));
+    let start = layerwise::calibrate::mat_mul(&mat_inv(&h0).expect("regular"), &grid_matrix(&grid));
     let pair = [Pair {
         image: &image,
         exemplar: &exemplar,

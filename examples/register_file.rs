@@ -16,11 +16,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
-use layerwise::rectify::Grid;
 use layerwise::calibrate::{
     align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, mat_mul, project,
     render_exemplar, Correspondence, F32Image, LmOptions, Mat3, Pair,
 };
+use layerwise::rectify::Grid;
 use layerwise::vectors::{Direction, Layer, Polyline};
 use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
 

@@ -7,9 +7,9 @@ use crate::fsutil::WriteError;
 use crate::raster::RasterError;
 use crate::rectify::Grid;
 use crate::series::{BuildRecord, LayerHeights, SeriesError, SeriesSettings};
-use serde::Serialize;
 use crate::shot::{Shot, View};
 use crate::vectors::VectorError;
+use serde::Serialize;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -80,6 +80,24 @@ pub struct ExportSummary {
     pub unchanged: usize,
 }
 
+impl std::fmt::Display for ExportSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (name, slices) in &self.series {
+            writeln!(f, "{name:<24} {slices} slices")?;
+        }
+        writeln!(
+            f,
+            "{} x {} px at {} mm; {} written, {} already there, in {}",
+            self.columns,
+            self.rows,
+            self.grid[4],
+            self.written,
+            self.unchanged,
+            self.out.display()
+        )
+    }
+}
+
 /// The originals of a build, per view, in layer order.
 fn originals_by_view(
     dir: &Path,
@@ -119,13 +137,14 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
             request.build.display()
         ))
     })?;
-    let manifest: crate::build_dir::BuildManifest = std::fs::read(request.build.join(crate::build_dir::MANIFEST))
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok())
-        .ok_or(ExportError::NotABuild(
-            request.build.clone(),
-            crate::build_dir::MANIFEST,
-        ))?;
+    let manifest: crate::build_dir::BuildManifest =
+        std::fs::read(request.build.join(crate::build_dir::MANIFEST))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok())
+            .ok_or(ExportError::NotABuild(
+                request.build.clone(),
+                crate::build_dir::MANIFEST,
+            ))?;
     let mut settings = SeriesSettings::from_config(&record.config)?;
     let label = match request.part {
         Some(part) => {
@@ -137,11 +156,11 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
             })?;
             let info = crate::vectors::info(vectors)?;
             let bbox = info.part_bbox(part).ok_or_else(|| {
-                    ExportError::Invalid(format!(
-                        "{}: no part {part} with geometry",
-                        vectors.display()
-                    ))
-                })?;
+                ExportError::Invalid(format!(
+                    "{}: no part {part} with geometry",
+                    vectors.display()
+                ))
+            })?;
             settings.grid = record.config.rectify.around(bbox, request.margin_mm);
             format!("part {part}")
         }
@@ -197,7 +216,8 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                     if live.slice_path(&request.build, *shot).exists() {
                         summary.unchanged += 1;
                     } else {
-                        live.write_original(&request.build, *shot, path).map_err(frame)?;
+                        live.write_original(&request.build, *shot, path)
+                            .map_err(frame)?;
                         summary.written += 1;
                     }
                 }

@@ -97,9 +97,9 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
             source,
         };
         let written = create_temporary(path).and_then(|(tmp, mut file)| {
-            let result = file
-                .write_all(data)
-                .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
+            let result =
+                file.write_all(data)
+                    .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
             match result {
                 Ok(()) => Ok(tmp),
                 Err(e) => {

@@ -262,4 +262,3 @@ fn crop_with_marker(img: &image::RgbImage, row: f64, col: f64, half: i64) -> ima
     }
     tile
 }
-

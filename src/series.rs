@@ -5,7 +5,9 @@
 use crate::build_dir::{BuildManifest, Sidecar};
 use crate::config::{Config, ConfigError};
 use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, Study};
-use crate::rectify::{self, Calibration, CalibrationError, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
+use crate::rectify::{
+    self, Calibration, CalibrationError, FrameLuma, Grid, Interpolation, Rectifier, RectifyError,
+};
 use crate::shot::{Shot, View};
 use crate::vectors::{LayerIndex, VectorError};
 use std::collections::BTreeMap;
@@ -24,7 +26,12 @@ pub trait FrameProcessor: Send + Sync {
 pub struct KeepOriginals;
 
 impl FrameProcessor for KeepOriginals {
-    fn process(&self, _build_dir: &Path, _shot: Shot, _original: &Path) -> Result<(), ProcessError> {
+    fn process(
+        &self,
+        _build_dir: &Path,
+        _shot: Shot,
+        _original: &Path,
+    ) -> Result<(), ProcessError> {
         Ok(())
     }
 }
@@ -146,10 +153,12 @@ impl SeriesSettings {
         let grid = match (config.calibration.crop_part, &config.build.vectors) {
             (Some(part), Some(vectors)) => {
                 let info = crate::vectors::info(vectors)?;
-                let bbox = info.part_bbox(part).ok_or_else(|| SeriesError::NoSuchPart {
-                    file: vectors.clone(),
-                    part,
-                })?;
+                let bbox = info
+                    .part_bbox(part)
+                    .ok_or_else(|| SeriesError::NoSuchPart {
+                        file: vectors.clone(),
+                        part,
+                    })?;
                 config
                     .rectify
                     .around(bbox, config.calibration.crop_margin_mm)
@@ -371,4 +380,3 @@ impl BuildRecord {
         })
     }
 }
-

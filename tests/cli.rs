@@ -207,10 +207,7 @@ fn status_warns_when_the_disk_will_not_last() {
     let dir = tempfile::tempdir().unwrap();
     let config = demo_config(dir.path(), 2);
     runtime()
-        .block_on(layerwise::acquisition::run(
-            &config,
-            layerwise::acquisition::RunOptions::new(),
-        ))
+        .block_on(run(&config, layerwise::acquisition::RunOptions::new()))
         .unwrap();
     // Pretend the build has a million layers still to come.
     let manifest_path = dir.path().join("build.json");

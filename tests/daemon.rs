@@ -3,10 +3,10 @@
 mod common;
 
 use common::*;
-use layerwise::acquisition::processing::FrameProcessor;
-use layerwise::acquisition::{run, AcquisitionError, RunOptions};
-use layerwise::hardware::lights::{LightSwitch, MockLightsLog};
+use layerwise::acquisition::{AcquisitionError, RunOptions};
+use layerwise::series::{FrameProcessor, ProcessError};
 use layerwise::shot::{Light, Phase, Shot};
+use layerwise::sim::{LightSwitch, MockLightsLog};
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
@@ -16,8 +16,19 @@ fn options_with_log() -> (RunOptions, Arc<Mutex<Option<MockLightsLog>>>) {
     let mut options = RunOptions::new();
     options.drain_at_end = true;
     let slot = Arc::new(Mutex::new(None));
-    options.lights_log = Some(slot.clone());
     (options, slot)
+}
+
+/// Runs the simulated build, keeping the mock lights' log in `slot`.
+async fn run_logged(
+    config: &layerwise::config::Config,
+    options: RunOptions,
+    slot: &Arc<Mutex<Option<MockLightsLog>>>,
+) -> Result<layerwise::acquisition::RunSummary, AcquisitionError> {
+    run_with(config, options, |_, sim| {
+        *slot.lock().unwrap() = sim.lights_log.clone();
+    })
+    .await
 }
 
 fn log_of(slot: &Arc<Mutex<Option<MockLightsLog>>>) -> MockLightsLog {
@@ -37,7 +48,9 @@ fn a_clean_build_stores_every_view_lit_and_turns_lights_off() {
     let dir = tempfile::tempdir().unwrap();
     let config = demo_config(dir.path(), 3);
     let (options, slot) = options_with_log();
-    let summary = runtime().block_on(run(&config, options)).unwrap();
+    let summary = runtime()
+        .block_on(run_logged(&config, options, &slot))
+        .unwrap();
     assert_eq!((summary.stored, summary.missing), (18, 0));
     assert_eq!(originals(dir.path()), expected_originals(3));
     assert!(frame_records(dir.path()).values().all(|&n| n == 1));
@@ -75,7 +88,9 @@ fn busy_disconnect_and_a_dead_frame_are_survived() {
     add_fault(&mut config, "disconnect", 3, "pre", "front", 0, 0);
     add_fault(&mut config, "fail", 3, "post", "side", 0, 0);
     let (options, slot) = options_with_log();
-    let summary = runtime().block_on(run(&config, options)).unwrap();
+    let summary = runtime()
+        .block_on(run_logged(&config, options, &slot))
+        .unwrap();
     assert_eq!((summary.stored, summary.missing), (23, 1));
 
     let sidecar = |stem: &str| -> serde_json::Value {
@@ -132,7 +147,7 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
     add_fault(&mut config, "hang", 2, "pre", "side", 0, 4000);
     let (options, slot) = options_with_log();
     let started = Instant::now();
-    let result = runtime().block_on(run(&config, options));
+    let result = runtime().block_on(run_logged(&config, options, &slot));
     assert!(
         matches!(result, Err(AcquisitionError::CameraHung(_))),
         "{result:?}"
@@ -182,13 +197,13 @@ struct GatedProcessor {
 }
 
 impl FrameProcessor for GatedProcessor {
-    fn process(&self, _dir: &Path, _shot: Shot, original: &Path) -> Result<(), String> {
+    fn process(&self, _dir: &Path, _shot: Shot, original: &Path) -> Result<(), ProcessError> {
         let (lock, cvar) = &*self.open;
         let mut open = lock.lock().map_err(|e| e.to_string())?;
         while !*open {
             open = cvar.wait(open).map_err(|e| e.to_string())?;
         }
-        std::fs::metadata(original).map_err(|e| e.to_string())?;
+        std::fs::metadata(original)?;
         self.processed.fetch_add(1, Ordering::SeqCst);
         Ok(())
     }
@@ -249,7 +264,7 @@ fn bad_trigger_script_fails_with_its_line() {
     }
     let (options, slot) = options_with_log();
     let err = runtime()
-        .block_on(run(&config, options))
+        .block_on(run_logged(&config, options, &slot))
         .unwrap_err()
         .to_string();
     assert!(

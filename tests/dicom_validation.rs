@@ -5,11 +5,11 @@
 mod common;
 
 use common::*;
-use layerwise::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
-use layerwise::acquisition::{run, RunOptions};
+use layerwise::acquisition::RunOptions;
 use layerwise::config::Config;
 use layerwise::dicom::Compression;
 use layerwise::rectify::Calibration;
+use layerwise::series::{series_dir, LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
 use std::path::{Path, PathBuf};
 use std::process::Command;

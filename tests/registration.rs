@@ -10,11 +10,11 @@ use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 
 use image::{DynamicImage, RgbImage};
-use layerwise::rectify::{calibration::Calibration, Interpolation, RadialDistortion, Rectifier};
 use layerwise::calibrate::{
     self, register_images, DistortionChoice, ImageRegistration, ImageRegistrationReport, Mapping,
     RegistrationImage, RegistrationOptions,
 };
+use layerwise::rectify::{calibration::Calibration, Interpolation, RadialDistortion, Rectifier};
 use layerwise::vectors::{self, Direction, Format, Header, Layer, Polyline, VectorFile};
 use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
 
@@ -657,11 +657,10 @@ fn register_frames_in_memory_matches_the_file_path() {
     let parts = parts();
     let layer = layer_of(0, &parts);
     let img = DynamicImage::ImageRgb8(render(truth, 1, &parts, true));
-    let pts =
-        registration::parse_points(&points_text(&truth, None, (0.0, 0.0)), Path::new("inline"))
-            .expect("points");
-    let report = registration::register_frames(
-        &[registration::Frame {
+    let pts = calibrate::parse_points(&points_text(&truth, None, (0.0, 0.0)), Path::new("inline"))
+        .expect("points");
+    let report = calibrate::register_frames(
+        &[calibrate::Frame {
             name: "inline frame",
             image: &img,
             layer: &layer,

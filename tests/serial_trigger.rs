@@ -73,13 +73,19 @@ fn serial_config(port: &Path) -> SerialTriggerConfig {
 fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     let dir = tempfile::tempdir().unwrap();
     let pair = PtyPair::start(dir.path());
-    let trigger = SerialTrigger::new(serial_config(&pair.daemon)).unwrap();
+    let trigger = SerialTrigger::new(
+        serial_config(&pair.daemon),
+        layerwise::clock::SystemClock::shared(),
+    )
+    .unwrap();
     let mut events = layerwise::hardware::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>);
     let next = |events: &mut tokio::sync::mpsc::Receiver<_>| -> (u32, Phase) {
         let deadline = Instant::now() + Duration::from_secs(10);
         loop {
             match events.try_recv() {
-                Ok(Ok(e @ layerwise::hardware::trigger::LayerEvent { .. })) => return (e.layer, e.phase),
+                Ok(Ok(e @ layerwise::hardware::trigger::LayerEvent { .. })) => {
+                    return (e.layer, e.phase)
+                }
                 Ok(Err(e)) => panic!("trigger error: {e}"),
                 Err(_) => {
                     assert!(Instant::now() < deadline, "no event");

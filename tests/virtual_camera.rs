@@ -108,8 +108,7 @@ fn captures_and_downloads_through_real_libgphoto2() {
     assert_eq!(originals(&build), expected_originals(2));
     assert_sidecars_match(&build);
     for file in originals(&build) {
-        let sha =
-            layerwise::fsutil::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
+        let sha = layerwise::fsutil::sha256_hex(&std::fs::read(build.join(&file)).unwrap());
         assert!(
             served.contains(&sha),
             "{file} is not a frame the camera holds"

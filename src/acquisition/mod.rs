@@ -9,7 +9,10 @@ use crate::build_dir::status::{LastFrame, LiveStatus};
 use crate::build_dir::{self, BuildManifest, Journal, JournalError, Record, Replay};
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
-use crate::hardware::camera::{capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy};
+use crate::fsutil::WriteError;
+use crate::hardware::camera::{
+    capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy,
+};
 use crate::hardware::lights::{LightsError, LightsGuard};
 use crate::hardware::trigger::{LayerEvent, TriggerError};
 use crate::hardware::Machine;
@@ -23,7 +26,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use storage::Storage;
-use crate::fsutil::WriteError;
 use tracing::{error, info, warn};
 
 #[derive(Debug, thiserror::Error)]
@@ -40,6 +42,8 @@ pub enum AcquisitionError {
     Trigger(#[from] TriggerError),
     #[error(transparent)]
     Lights(#[from] LightsError),
+    #[error(transparent)]
+    Hardware(#[from] crate::hardware::HardwareError),
     #[error(transparent)]
     Calibration(#[from] crate::rectify::CalibrationError),
     #[error(transparent)]
@@ -229,7 +233,10 @@ impl Sequencer {
 
     fn take(&mut self, shot: Shot) -> Result<(), AcquisitionError> {
         self.beat();
-        let event_at = self.open.as_ref().map_or_else(|| self.clock.now(), |o| o.at);
+        let event_at = self
+            .open
+            .as_ref()
+            .map_or_else(|| self.clock.now(), |o| o.at);
         if let Err(e) = self.lights.switch(shot.light, true) {
             self.lights.all_off_logged();
             return self.record_missing(

@@ -3,9 +3,9 @@
 //! finds them again from the journal once it has caught up.
 
 use crate::build_dir::{Journal, Record};
+use crate::clock::SharedClock;
 pub use crate::series::{FrameProcessor, KeepOriginals};
 use crate::shot::Shot;
-use crate::clock::SharedClock;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};

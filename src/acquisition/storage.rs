@@ -2,9 +2,9 @@
 //! each written to a temporary file, fsynced and renamed, so a crash leaves either the whole file
 //! or nothing under the final name.
 
-use crate::hardware::camera::Frame;
 use crate::build_dir::Sidecar;
 use crate::fsutil::{is_temporary, sha256_hex, write_atomic, write_atomic_all, WriteError};
+use crate::hardware::camera::Frame;
 use crate::shot::Shot;
 use chrono::{DateTime, Utc};
 use std::collections::BTreeMap;

@@ -41,7 +41,9 @@ pub use homography::{align, Alignment, LevelReport, LmOptions, Pair, PairFit, Te
 pub use overlay::{draw_overlay, Mapping};
 pub use points::{homography_dlt, parse_points, read_points, Correspondence};
 
-pub use crate::geometry::mat3::{grid_matrix, mat_inv, mat_mul, normalise_h, project, singularity, Mat3};
+pub use crate::geometry::mat3::{
+    grid_matrix, mat_inv, mat_mul, normalise_h, project, singularity, Mat3,
+};
 
 /// Half the side of the ProX320 plate, mm (the default output grid spans it).
 const PLATE_HALF_MM: f64 = 137.5;

@@ -26,4 +26,3 @@ pub fn derived_uid(parent: &str, name: &str) -> String {
     bytes[8] = (bytes[8] & 0x3f) | 0x80;
     format!("2.25.{}", u128::from_be_bytes(bytes))
 }
-

@@ -1,6 +1,5 @@
 //! Radial (Brown, k1/k2) lens distortion.
 
-
 /// Lens distortion parameters that cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]
@@ -132,9 +131,7 @@ impl RadialDistortion {
             self.k2,
         ];
         if all.iter().any(|v| !v.is_finite()) {
-            return Err(DistortionError(format!(
-                "non-finite value in {self:?}"
-            )));
+            return Err(DistortionError(format!("non-finite value in {self:?}")));
         }
         if self.focal_px <= 0.0 {
             return Err(DistortionError(format!(

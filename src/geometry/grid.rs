@@ -1,7 +1,6 @@
 //! The rectified (top-down) grid of docs/frames.md, in build-plate millimetres: one type for the
 //! rectifier, the rasterizer, the distance fields, the series and the configuration.
 
-
 /// Half the side of the build plate in mm: the plate spans −137.5..137.5 in x and y.
 pub const PLATE_HALF_MM: f64 = 137.5;
 /// Default pixel size in mm (the camera's resolution at the plate center).

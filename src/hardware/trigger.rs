@@ -160,7 +160,10 @@ pub struct SerialTrigger {
 
 impl SerialTrigger {
     /// The trigger on `config.port`; reopen back-offs and event times come from `clock`.
-    pub fn new(config: SerialTriggerConfig, clock: SharedClock) -> Result<SerialTrigger, TriggerError> {
+    pub fn new(
+        config: SerialTriggerConfig,
+        clock: SharedClock,
+    ) -> Result<SerialTrigger, TriggerError> {
         let protocol = LineProtocol::new(&config.pattern, &config.pre, &config.post)?;
         let backoff = Backoff::new(
             Duration::from_millis(config.reopen_backoff_ms[0]),
@@ -202,9 +205,12 @@ impl Trigger for SerialTrigger {
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
         let mut chunk = [0u8; 512];
         loop {
-            if let Some(event) =
-                events_from_lines(&self.protocol, &mut self.lines, &self.config.port, &self.clock)
-            {
+            if let Some(event) = events_from_lines(
+                &self.protocol,
+                &mut self.lines,
+                &self.config.port,
+                &self.clock,
+            ) {
                 return Ok(Some(event));
             }
             self.ensure_open();
@@ -289,7 +295,10 @@ pub struct GpioTrigger {
 
 impl GpioTrigger {
     /// Requests the configured lines; event times come from `clock`.
-    pub fn open(config: GpioTriggerConfig, clock: SharedClock) -> Result<GpioTrigger, TriggerError> {
+    pub fn open(
+        config: GpioTriggerConfig,
+        clock: SharedClock,
+    ) -> Result<GpioTrigger, TriggerError> {
         let offsets: Vec<u32> = match config.mode {
             GpioMode::PerPhase => config
                 .pre_line

@@ -4,9 +4,9 @@
 
 use super::{Grid, RadialDistortion};
 use crate::fsutil::{parse_toml, TomlError};
-use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::path::PathBuf;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -34,9 +34,9 @@ use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 
-use crate::geometry::{Grid, RadialDistortion};
-use crate::geometry::mat3::{self as homography, Mat3};
 use super::{Interpolation, RectifyError};
+use crate::geometry::mat3::{self as homography, Mat3};
+use crate::geometry::{Grid, RadialDistortion};
 
 /// Fraction bits of the fixed-point source position (and bilinear weights).
 ///

@@ -3,6 +3,26 @@
 
 use layerwise::build_dir::journal::{Journal, Record};
 use layerwise::config::{CameraConfig, Config, MockFaultConfig, TriggerConfig, DEMO_CONFIG};
+
+/// Runs the daemon on the simulated machine the configuration describes.
+pub async fn run(
+    config: &Config,
+    options: layerwise::acquisition::RunOptions,
+) -> Result<layerwise::acquisition::RunSummary, layerwise::acquisition::AcquisitionError> {
+    run_with(config, options, |_, _| {}).await
+}
+
+/// As [`run`], letting the test change the machine (a scripted camera, its own trigger) and see
+/// the simulation (the mock lights' log) before the daemon starts.
+pub async fn run_with(
+    config: &Config,
+    options: layerwise::acquisition::RunOptions,
+    adjust: impl FnOnce(&mut layerwise::hardware::Machine, &layerwise::sim::Simulation),
+) -> Result<layerwise::acquisition::RunSummary, layerwise::acquisition::AcquisitionError> {
+    let (mut machine, simulation) = layerwise::sim::open(config, options.clock.clone())?;
+    adjust(&mut machine, &simulation);
+    layerwise::acquisition::run(config, machine, options).await
+}
 use std::collections::BTreeMap;
 use std::path::Path;
 

@@ -1,9 +1,9 @@
 //! The real camera through libgphoto2 (the `gphoto2` crate). Only the camera actor's thread
 //! touches it. Settings are applied at open: capture target RAM, format, exposure, manual focus.
 
-use crate::shot::Shot;
 use super::{Camera, CameraError, Frame};
 use crate::config::Gphoto2Config;
+use crate::shot::Shot;
 use gphoto2::error::ErrorKind;
 use gphoto2::widget::Widget;
 use std::collections::BTreeMap;

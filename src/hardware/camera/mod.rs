@@ -72,7 +72,11 @@ pub struct CameraActor {
 impl CameraActor {
     /// Opens the camera with `open` on a new thread; every call (opening too) is bounded by
     /// `timeout` on `clock`.
-    pub fn spawn<F>(open: F, timeout: Duration, clock: SharedClock) -> Result<CameraActor, CameraError>
+    pub fn spawn<F>(
+        open: F,
+        timeout: Duration,
+        clock: SharedClock,
+    ) -> Result<CameraActor, CameraError>
     where
         F: FnOnce() -> Result<Box<dyn Camera>, CameraError> + Send + 'static,
     {
@@ -276,7 +280,7 @@ fn reopen(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::ManualClock;
+    use crate::clock::{Clock, ManualClock};
     use crate::shot::{Light, Phase};
     use std::sync::atomic::{AtomicU32, Ordering};
     use std::sync::Arc;

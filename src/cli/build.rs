@@ -1,0 +1,107 @@
+//! Commands on a finished build: `export` and `locate`.
+
+use anyhow::{anyhow, Result};
+use clap::Args;
+use layerwise::ct::CtFrame;
+use layerwise::series::BuildRecord;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct ExportArgs {
+    /// The build directory (the daemon's build.output_dir).
+    #[arg(long)]
+    build: PathBuf,
+    /// Where to write the study (created; re-running rewrites nothing already there).
+    #[arg(long)]
+    out: PathBuf,
+    /// Crop every series to this part (needs the build's vector file) plus --margin-mm.
+    #[arg(long)]
+    part: Option<i64>,
+    /// Margin around the part, with --part.
+    #[arg(long, default_value_t = 5.0)]
+    margin_mm: f64,
+    /// DICOM series, or NRRD volumes for 3D Slicer / napari.
+    #[arg(long, value_enum, default_value = "dicom")]
+    format: layerwise::export::ExportFormat,
+    /// ct.toml from `layerwise register ct`: the CT joins the study, resampled onto the grid.
+    #[arg(long)]
+    ct: Option<PathBuf>,
+}
+
+impl ExportArgs {
+    pub fn run(self) -> Result<()> {
+        let request = layerwise::export::ExportRequest {
+            build: self.build,
+            out: self.out,
+            part: self.part,
+            margin_mm: self.margin_mm,
+            format: self.format,
+            ct: self.ct,
+            progress: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        };
+        let summary = layerwise::export::export(&request)?;
+        print!("{summary}");
+        Ok(())
+    }
+}
+
+#[derive(Args)]
+pub struct LocateArgs {
+    /// The build directory (the daemon's build.output_dir).
+    #[arg(long)]
+    build: PathBuf,
+    /// x,y,z in build mm.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        required_unless_present = "ct_point"
+    )]
+    point: Vec<f64>,
+    /// x,y,z in CT mm (needs --ct).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        conflicts_with = "point",
+        requires = "ct"
+    )]
+    ct_point: Vec<f64>,
+    /// ct.toml from `layerwise register ct`: also where the point is in the CT.
+    #[arg(long)]
+    ct: Option<PathBuf>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Draw the point in each view, side by side (PNG).
+    #[arg(long)]
+    mark: Option<PathBuf>,
+}
+
+impl LocateArgs {
+    pub fn run(self) -> Result<()> {
+        let three = |v: Vec<f64>, flag: &str| -> Result<[f64; 3]> {
+            v.try_into()
+                .map_err(|_| anyhow!("{flag} takes x,y,z in mm"))
+        };
+        let frame = self.ct.as_deref().map(CtFrame::open).transpose()?;
+        let point = match &frame {
+            Some(frame) if !self.ct_point.is_empty() => {
+                frame.to_build(three(self.ct_point, "--ct-point")?)
+            }
+            _ => three(self.point, "--point")?,
+        };
+        let record = BuildRecord::open(&self.build)?;
+        let mut location = layerwise::locate::locate(&record, point)?;
+        location.ct = frame.map(|f| f.locate(point));
+        if let Some(out) = &self.mark {
+            layerwise::locate::mark(&record, &location, out)?;
+        }
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&location)?);
+        } else {
+            print!("{location}");
+        }
+        Ok(())
+    }
+}

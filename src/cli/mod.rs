@@ -1,0 +1,102 @@
+//! The command line: one `#[derive(Args)]` struct per command, each turned into the library's
+//! request and run; reports print through their `Display`. Errors get their context here, at the
+//! binary's edge, and are printed once with their causes.
+
+mod build;
+mod daemon;
+mod files;
+mod register;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "layerwise",
+    version,
+    about = "Layer-wise imaging of powder bed fusion builds, registered to the laser vectors and CT"
+)]
+pub struct Cli {
+    /// More log detail.
+    #[arg(short, long, global = true)]
+    pub verbose: bool,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Run the acquisition daemon (what the systemd service runs).
+    Run(daemon::RunArgs),
+    /// Validate a configuration file without touching any hardware.
+    CheckConfig(daemon::CheckConfigArgs),
+    /// Where a build stands: layer, frames, missing frames, processing, disk.
+    Status(daemon::StatusArgs),
+    /// Laser scan vector files (CLI, ASCII or binary).
+    Vectors {
+        #[command(subcommand)]
+        command: files::VectorsCommand,
+    },
+    /// Rectify one camera frame to the top-down build grid through a calibration.
+    Rectify(files::RectifyArgs),
+    /// Plan the camera: magnification, resolution, depth of field (paper eq. 1-4) and the
+    /// Scheimpflug lens tilt that puts the plane of focus on the plate.
+    Optics(files::OpticsArgs),
+    /// Export a build as series of one study on one grid (DICOM, or NRRD for 3D Slicer / napari).
+    Export(build::ExportArgs),
+    /// Where a build point is: its layer, its pixel in each rectified view and in each original frame.
+    Locate(build::LocateArgs),
+    /// DICOM series of a build.
+    Dicom {
+        #[command(subcommand)]
+        command: files::DicomCommand,
+    },
+    /// Registration of build images and of a CT to the laser vectors.
+    Register {
+        #[command(subcommand)]
+        command: register::RegisterCommand,
+    },
+    /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
+    Demo(daemon::DemoArgs),
+}
+
+impl Command {
+    pub fn run(self) -> Result<()> {
+        match self {
+            Command::Run(args) => args.run(),
+            Command::CheckConfig(args) => args.run(),
+            Command::Status(args) => args.run(),
+            Command::Vectors { command } => command.run(),
+            Command::Rectify(args) => args.run(),
+            Command::Optics(args) => args.run(),
+            Command::Export(args) => args.run(),
+            Command::Locate(args) => args.run(),
+            Command::Dicom { command } => command.run(),
+            Command::Register { command } => command.run(),
+            Command::Demo(args) => args.run(),
+        }
+    }
+}
+
+/// The tokio runtime of the daemon.
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
+}
+
+/// An error with its causes, each said once: a cause whose text the message already contains
+/// (library errors often name their source inline) is not repeated.
+pub fn report(error: &anyhow::Error) -> String {
+    let mut out = error.to_string();
+    for cause in error.chain().skip(1) {
+        let text = cause.to_string();
+        if !text.is_empty() && !out.contains(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+    }
+    out
+}

@@ -1,0 +1,240 @@
+//! `register images` (camera → build plate, paper §3.1) and `register ct` (CT → build, §3.2).
+
+use anyhow::{anyhow, bail, Result};
+use clap::{Args, Subcommand, ValueEnum};
+use layerwise::calibrate::{
+    register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
+};
+use std::path::PathBuf;
+
+#[derive(Subcommand)]
+pub enum RegisterCommand {
+    /// Register a post-build CT volume to the laser vectors (paper §3.2) and write ct.toml
+    /// (CT physical mm → build mm) with the Table 2 error figures.
+    Ct(CtArgs),
+    /// Refine the camera → build-plate homography against the laser vectors (paper §3.1) and
+    /// write the calibration the daemon reads.
+    Images(ImagesArgs),
+}
+
+impl RegisterCommand {
+    pub fn run(self) -> Result<()> {
+        match self {
+            RegisterCommand::Ct(args) => args.run(),
+            RegisterCommand::Images(args) => args.run(),
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct CtArgs {
+    /// The laser scan vector file (CLI).
+    #[arg(long)]
+    vectors: PathBuf,
+    /// A DICOM series folder, a phoenix .pcr/.vol, a VGStudio .vgi, a raw volume (with --size,
+    /// --dtype, --voxel-mm) or a TIFF stack folder (with --voxel-mm).
+    #[arg(long)]
+    ct: PathBuf,
+    /// Register to this part of the vector file only.
+    #[arg(long)]
+    part: Option<i64>,
+    /// Start from ≥ 3 point pairs `cx cy cz bx by bz`; default: centroids with R = I.
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Where to write ct.toml.
+    #[arg(long)]
+    out: PathBuf,
+    /// The CT surface points coloured by signed distance (blue subtractive, red additive).
+    #[arg(long)]
+    surface_ply: Option<PathBuf>,
+    /// The CT resampled onto the build grid as a DICOM series.
+    #[arg(long)]
+    resample_dicom: Option<PathBuf>,
+    /// The build whose study the resampled series joins.
+    #[arg(long)]
+    build: Option<PathBuf>,
+    /// Voxel size in mm (raw volumes and TIFF stacks).
+    #[arg(long)]
+    voxel_mm: Option<f64>,
+    /// Raw volumes: X,Y,Z voxels.
+    #[arg(long)]
+    size: Option<String>,
+    /// Raw volumes: u8, u16 or f32.
+    #[arg(long)]
+    dtype: Option<String>,
+    /// A fixed threshold (physical units); default Otsu.
+    #[arg(long)]
+    threshold: Option<f64>,
+    /// Huber loss with this k (mm), against CT reflections.
+    #[arg(long)]
+    huber_mm: Option<f64>,
+    /// Voxel size of the vectors' signed distance volume.
+    #[arg(long, default_value_t = 0.05)]
+    tsdf_voxel_mm: f64,
+}
+
+impl CtArgs {
+    fn run(self) -> Result<()> {
+        use layerwise::ct;
+        let source = match (&self.size, &self.dtype) {
+            (Some(size), Some(dtype)) => {
+                let voxel = self
+                    .voxel_mm
+                    .ok_or_else(|| anyhow!("a raw volume needs --voxel-mm"))?;
+                ct::volume::VolumeSource::Raw(
+                    self.ct.clone(),
+                    ct::volume::RawSpec::from_args(size, voxel, dtype)?,
+                )
+            }
+            (None, None) => ct::volume::VolumeSource::detect(&self.ct, self.voxel_mm)?,
+            _ => bail!("--size and --dtype go together (a raw volume)"),
+        };
+        let volume = ct::volume::read_volume(&source)?;
+        let mut params = ct::CtParams::default();
+        if let Some(v) = self.threshold {
+            params.threshold = ct::surface::Threshold::Value(v);
+        }
+        params.huber_k_mm = self.huber_mm;
+        let init = match &self.init {
+            Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(points)?),
+            None => ct::InitialTransform::Centroid,
+        };
+        let recorded = ct::CtSource {
+            path: std::fs::canonicalize(&self.ct)
+                .unwrap_or(self.ct.clone())
+                .display()
+                .to_string(),
+            voxel_mm: self.voxel_mm,
+            size: self.size,
+            dtype: self.dtype,
+        };
+        let out = self.out.clone();
+        let request = ct::vectors_field::CtRequest {
+            source: recorded,
+            vectors: self.vectors,
+            part: self.part,
+            init,
+            out: self.out,
+            surface_ply: self.surface_ply,
+            resample_dicom: self.resample_dicom,
+            build: self.build,
+            tsdf_voxel_mm: self.tsdf_voxel_mm,
+            params,
+        };
+        let started = std::time::Instant::now();
+        let result =
+            ct::vectors_field::register_ct(&request, &volume).map_err(anyhow::Error::msg)?;
+        print!("{}", result.to_toml_string());
+        println!(
+            "wrote {} in {:.1} s",
+            out.display(),
+            started.elapsed().as_secs_f64()
+        );
+        Ok(())
+    }
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Lens {
+    /// A homography only.
+    None,
+    /// Radial k1, k2 about the image center, fitted with the homography.
+    Radial,
+}
+
+#[derive(Args)]
+pub struct ImagesArgs {
+    /// The laser scan vector file (CLI).
+    #[arg(long)]
+    vectors: PathBuf,
+    /// Layer shown by the image (0-based index in the file); one for all images or one per
+    /// --image, in order.
+    #[arg(long, required = true)]
+    layer: Vec<usize>,
+    /// Post-scan frame(s) from the camera pose to calibrate; several are fitted jointly.
+    #[arg(long, required = true)]
+    image: Vec<PathBuf>,
+    /// Start points: lines `u v x y` (image px, build mm), at least 4.
+    #[arg(long)]
+    init: PathBuf,
+    /// Where to write calibration.toml.
+    #[arg(long)]
+    out: PathBuf,
+    /// Also draw the contours through the start (red) and result (blue) on the first image.
+    #[arg(long)]
+    overlay: Option<PathBuf>,
+    /// Lens model fitted with the homography.
+    #[arg(long, value_enum, default_value = "none")]
+    distortion: Lens,
+    /// Focal length in pixels for --distortion radial (default 1.25 x image width).
+    #[arg(long)]
+    focal_px: Option<f64>,
+    /// Pyramid levels (default from the exemplar size).
+    #[arg(long)]
+    levels: Option<usize>,
+    /// Std filter window of the exemplar, pixels (odd).
+    #[arg(long, default_value_t = 11)]
+    std_window: usize,
+}
+
+impl ImagesArgs {
+    fn run(self) -> Result<()> {
+        let layers = match (self.layer.len(), self.image.len()) {
+            (1, n) => vec![self.layer[0]; n],
+            (a, b) if a == b => self.layer,
+            (a, b) => bail!("{a} --layer for {b} --image: give one, or one per image"),
+        };
+        let mut options = RegistrationOptions {
+            std_window: self.std_window,
+            ..RegistrationOptions::default()
+        };
+        options.lm.levels = self.levels;
+        let out = self.out.clone();
+        let request = ImageRegistration {
+            vectors: self.vectors,
+            images: self
+                .image
+                .into_iter()
+                .zip(layers)
+                .map(|(path, layer)| RegistrationImage { path, layer })
+                .collect(),
+            init_points: self.init,
+            out: Some(self.out),
+            overlay: self.overlay,
+            distortion: match self.distortion {
+                Lens::None => DistortionChoice::None,
+                Lens::Radial => DistortionChoice::Radial {
+                    focal_px: self.focal_px,
+                },
+            },
+            options,
+        };
+        let report = register_images(&request)?;
+        for l in &report.levels {
+            println!(
+                "level {} ({}x{}): {} iterations, cost {:.4e} -> {:.4e}, last step {:.1e} px, {}",
+                l.level,
+                l.width,
+                l.height,
+                l.iterations,
+                l.initial_cost,
+                l.final_cost,
+                l.last_step_px,
+                l.termination.name()
+            );
+        }
+        for i in &report.images {
+            println!(
+                "{} (layer {}): correlation {:.4} (start {:.4})",
+                i.name, i.layer, i.fit.correlation, i.fit.initial_correlation
+            );
+        }
+        let h = report.calibration.homography;
+        println!("homography = {h:?}");
+        if let Some(d) = report.calibration.distortion {
+            println!("distortion: k1 = {:.6}, k2 = {:.6}", d.k1, d.k2);
+        }
+        println!("wrote {} in {:.2} s", out.display(), report.seconds);
+        Ok(())
+    }
+}
