@@ -1,4 +1,4 @@
-//! The raw path on its own, for bench/nef_vs_rawpy.py.
+//! The raw path on its own, for benches/peers/nef_vs_rawpy.py.
 //!
 //! Usage:
 //! - `nef_luminance write OUT.nef`: a full-size D810 NEF (7380 x 4928 photosites, lossless

@@ -1,4 +1,4 @@
-//! Our side of bench/ecc_vs_ours.py: the IC-LM core on files both sides read.
+//! Our side of benches/peers/ecc_vs_ours.py: the IC-LM core on files both sides read.
 //!
 //! `register_file make DIR [--size N]` renders a mock post-scan frame (N x N, mock_camera's
 //! oblique view, five parts) and writes, as .npy: `image.npy` (I_B, the std-filtered frame,

@@ -459,6 +459,13 @@ impl Config {
         Ok(config)
     }
 
+    /// Whether any part of the machine is the simulated one (`kind = "mock"`).
+    pub fn is_simulated(&self) -> bool {
+        matches!(self.trigger, TriggerConfig::Mock(_))
+            || matches!(self.lights, LightsConfig::Mock)
+            || matches!(self.camera, CameraConfig::Mock(_))
+    }
+
     fn validate(&self, file: &Path) -> Result<(), ConfigError> {
         let invalid = |key: &str, message: String| ConfigError::Invalid {
             file: file.to_path_buf(),

@@ -102,7 +102,7 @@ impl std::fmt::Display for ExportSummary {
 fn originals_by_view(
     dir: &Path,
 ) -> Result<std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>, ExportError> {
-    let raw = dir.join("raw");
+    let raw = dir.join(crate::build_dir::RAW_DIR);
     let entries = std::fs::read_dir(&raw).map_err(|source| ExportError::Io {
         path: raw.clone(),
         source,

@@ -186,10 +186,7 @@ pub struct LiveSeries {
     compression: Compression,
 }
 
-/// The series folder of a view: `dicom/<phase>_<light>/`.
-pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
-    build_dir.join("dicom").join(view.to_string())
-}
+pub use crate::build_dir::series_dir;
 
 impl LiveSeries {
     pub fn new(

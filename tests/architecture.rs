@@ -36,7 +36,12 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// The top-level module a library file belongs to (`src/ct/volume/raw.rs` → `ct`).
 fn module_of(src: &Path, file: &Path) -> Option<String> {
     let rel = file.strip_prefix(src).ok()?;
-    let first = rel.components().next()?.as_os_str().to_string_lossy().into_owned();
+    let first = rel
+        .components()
+        .next()?
+        .as_os_str()
+        .to_string_lossy()
+        .into_owned();
     let name = first.strip_suffix(".rs").unwrap_or(&first).to_string();
     (!matches!(name.as_str(), "main" | "cli" | "lib")).then_some(name)
 }
@@ -172,7 +177,11 @@ fn top_level_modules_form_no_circle() {
     let mut done = BTreeSet::new();
     for module in deps.keys() {
         let circle = visit(module, &deps, &mut Vec::new(), &mut done);
-        assert!(circle.is_none(), "import circle: {}", circle.unwrap().join(" -> "));
+        assert!(
+            circle.is_none(),
+            "import circle: {}",
+            circle.unwrap().join(" -> ")
+        );
     }
 }
 

@@ -34,7 +34,7 @@ pub enum AcquisitionError {
     Storage(#[from] WriteError),
     #[error(transparent)]
     Journal(#[from] JournalError),
-    #[error("camera: {0}")]
+    #[error(transparent)]
     CameraOpen(CameraError),
     #[error("camera hung ({0}); exiting so that systemd restarts the service")]
     CameraHung(CameraError),

@@ -18,7 +18,7 @@ pub struct Storage {
 
 impl Storage {
     pub fn open(root: &Path, fsync: bool) -> Result<Storage, WriteError> {
-        let raw = root.join("raw");
+        let raw = root.join(crate::build_dir::RAW_DIR);
         std::fs::create_dir_all(&raw).map_err(|source| WriteError {
             path: raw.clone(),
             source,

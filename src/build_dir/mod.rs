@@ -9,9 +9,11 @@ pub mod status;
 pub use journal::{Journal, JournalError, Record, Replay};
 pub use manifest::BuildManifest;
 
+use crate::shot::View;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
 pub const MANIFEST: &str = "build.json";
 pub const STATUS: &str = "status.json";
@@ -21,8 +23,15 @@ pub const CONFIG_SNAPSHOT: &str = "config.toml";
 /// The calibration the daemon last ran with.
 pub const CALIBRATION_COPY: &str = "calibration.toml";
 
-/// Originals and their sidecars.
+/// Originals and their sidecars: `raw/L{layer:05}_{phase}_{light}.{ext}` and `.json`.
 pub const RAW_DIR: &str = "raw";
+/// The live series, one folder per view.
+pub const DICOM_DIR: &str = "dicom";
+
+/// The series folder of a view: `dicom/<phase>_<light>/` (docs/frames.md).
+pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
+    build_dir.join(DICOM_DIR).join(view.to_string())
+}
 
 /// What the sidecar next to each original says.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

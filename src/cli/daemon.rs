@@ -32,9 +32,14 @@ impl RunArgs {
     }
 }
 
-/// Opens the machine the configuration describes and runs the daemon on it.
+/// Opens the machine the configuration describes and runs the daemon on it: the real hardware,
+/// or the simulated machine where a part says `kind = "mock"`.
 fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
-    let (machine, _simulation) = layerwise::sim::open(config, options.clock.clone())?;
+    let machine = if config.is_simulated() {
+        layerwise::sim::open(config, options.clock.clone())?.0
+    } else {
+        layerwise::hardware::open(config, options.clock.clone())?
+    };
     Ok(runtime()?.block_on(acquisition::run(config, machine, options))?)
 }
 

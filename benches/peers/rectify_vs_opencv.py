@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Side-by-side: layerwise's rectifier vs OpenCV warpPerspective.
 
-Creates bench/.venv (opencv-python-headless, numpy) on first use and re-runs
+Creates benches/peers/.venv (opencv-python-headless, numpy) on first use and re-runs
 itself inside it. Generates a synthetic textured 7360 x 4912 frame and the
 oblique homography of the bench (plate corners -> image trapezoid), warps it
 onto the 4400 x 4400 plate grid with
@@ -17,7 +17,7 @@ Two modes: "alloc" (each call allocates its output: cv2 without dst, our
 rectify_dynamic) and "reuse" (output buffer reused: cv2 with dst=, our
 rectify_*_into).
 
-Usage: python3 bench/rectify_vs_opencv.py [--keep] [--rounds N]
+Usage: python3 benches/peers/rectify_vs_opencv.py [--keep] [--rounds N]
 (from the crate root; honours CARGO_TARGET_DIR)
 """
 import json
@@ -28,7 +28,7 @@ import sys
 from benchenv import ensure_venv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-CRATE = os.path.dirname(HERE)
+CRATE = os.path.dirname(os.path.dirname(HERE))
 VENV = os.path.join(HERE, ".venv")
 
 

@@ -2,12 +2,12 @@
 """Signed distance of the same voxelised solid: ours (layerwise tsdf) vs SciPy vs scikit-fmm.
 
 Usage (from the crate root):
-    LAYERWISE_TSDF_ONESHOT=exact LAYERWISE_TSDF_WRITE=bench/out cargo bench --bench tsdf
-    python3 bench/sdf_vs_scipy.py [--out bench/out] [--skfmm-step N] [--skip-skfmm]
+    LAYERWISE_TSDF_ONESHOT=exact LAYERWISE_TSDF_WRITE=benches/peers/out cargo bench --bench tsdf
+    python3 benches/peers/sdf_vs_scipy.py [--out benches/peers/out] [--skfmm-step N] [--skip-skfmm]
 
-The Rust bench writes bench/out/solid.u8 (1 inside, 0 outside, x fastest), solid.json (dims,
+The Rust bench writes benches/peers/out/solid.u8 (1 inside, 0 outside, x fastest), solid.json (dims,
 voxel size) and ours_<mode>.json (seconds, peak RSS of a fresh process). This script creates
-bench/.venv (numpy, scipy, scikit-fmm) on first use, then runs each method in a fresh
+benches/peers/.venv (numpy, scipy, scikit-fmm) on first use, then runs each method in a fresh
 subprocess so that ru_maxrss is that method's own peak:
   - scipy:  scipy.ndimage.distance_transform_edt of the outside and of the inside (two EDTs),
             signed = outside distance - inside distance, in mm (sampling = voxel size);
@@ -32,7 +32,7 @@ VENV_PY = os.path.join(VENV, "bin", "python")
 
 
 def ensure_venv():
-    """Re-executes this script inside bench/.venv, creating it when missing."""
+    """Re-executes this script inside benches/peers/.venv, creating it when missing."""
     if os.path.realpath(sys.prefix) == os.path.realpath(VENV):
         return
     if not os.path.exists(VENV_PY):

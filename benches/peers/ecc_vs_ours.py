@@ -3,8 +3,8 @@
 (examples/register_file.rs) on the same std-filtered frame, exemplar, pyramid and start warp.
 
 Usage (from the crate root):
-    python3 -m venv bench/.venv && bench/.venv/bin/pip install opencv-python-headless numpy
-    bench/.venv/bin/python bench/ecc_vs_ours.py [--size 4400] [--levels 4] [--data DIR]
+    python3 -m venv benches/peers/.venv && benches/peers/.venv/bin/pip install opencv-python-headless numpy
+    benches/peers/.venv/bin/python benches/peers/ecc_vs_ours.py [--size 4400] [--levels 4] [--data DIR]
 
 The data (I_B, I_E, start and true warps, the parts' contour points) are made once by
 `cargo run --release --example register_file -- make DIR --size N`. Both sides:
@@ -27,7 +27,7 @@ import time
 import cv2
 import numpy as np
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def scale(level):

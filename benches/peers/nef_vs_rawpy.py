@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Side-by-side: layerwise's NEF path vs LibRaw (rawpy) on the same D810 NEF.
 
-Creates bench/.venv-raw (rawpy, numpy) on first use and re-runs itself inside it.
+Creates benches/peers/.venv-raw (rawpy, numpy) on first use and re-runs itself inside it.
 examples/nef_luminance.rs writes a full-size D810 NEF of the demo plate (7380 x 4928,
 lossless compressed) and times what the view series need of it: decode, then linear
 luminance on the default crop. LibRaw does the same job its way: unpack, then
@@ -15,7 +15,7 @@ Agreement: LibRaw keeps the whole sensor, so its luminance is cropped to the D81
 default crop (12, 8, 7360 x 4912) and compared by the best single gain (least
 squares; 1 when both scale by the same white level) and the mean residual after it.
 
-Usage: python3 bench/nef_vs_rawpy.py [--rounds N]   (from the crate root)
+Usage: python3 benches/peers/nef_vs_rawpy.py [--rounds N]   (from the crate root)
 """
 import os
 import subprocess
@@ -25,7 +25,7 @@ import tempfile
 from benchenv import ensure_venv
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-CRATE = os.path.dirname(HERE)
+CRATE = os.path.dirname(os.path.dirname(HERE))
 VENV = os.path.join(HERE, ".venv-raw")
 
 

@@ -3,13 +3,13 @@
 vs SimpleITK (Euler3DTransform, mean squares against the rasterised vectors, multi-resolution).
 
 Usage (from the crate root):
-    cargo run --release --example ct_bench_export -- bench/out      # writes the case
-    python3 bench/ct_vs_simpleitk.py [--out bench/out] [--sampling 0.02]
+    cargo run --release --example ct_bench_export -- benches/peers/out      # writes the case
+    python3 benches/peers/ct_vs_simpleitk.py [--out benches/peers/out] [--sampling 0.02]
 
-The Rust example writes bench/out/ct.mha (the synthetic CT, u16, CT physical mm),
-bench/out/nominal.mha (binary raster of the nominal part in build mm, the "vectors as a
+The Rust example writes benches/peers/out/ct.mha (the synthetic CT, u16, CT physical mm),
+benches/peers/out/nominal.mha (binary raster of the nominal part in build mm, the "vectors as a
 volume"), and case.json (truth, the 3-point start, our time and errors). This script creates
-bench/.venv (SimpleITK, numpy) on first use and registers CT (moving) to the raster (fixed):
+benches/peers/.venv (SimpleITK, numpy) on first use and registers CT (moving) to the raster (fixed):
   - intensities: the CT is mapped to 0..1 with the means of its two Otsu classes, so that mean
     squares against the 0/1 raster is meaningful (timed: it is part of the method);
   - Euler3DTransform centred on the part, started from the same 3-point Horn transform
