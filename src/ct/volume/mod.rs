@@ -1,6 +1,6 @@
-//! CT volumes and their readers: GE phoenix `.vol` + `.pcr` ([`phoenix`]), VGStudio `.vgi`
-//! ([`vgi`]), explicit raw ([`raw`]), TIFF stacks ([`tiff`]) and (feature-free) DICOM series
-//! ([`dicom`]).
+//! CT volumes and their readers: GE phoenix `.vol` + `.pcr` ([`read_phoenix`]), VGStudio `.vgi`
+//! ([`read_vgi`]), explicit raw ([`read_raw`]), TIFF stacks ([`read_tiff_stack`]) and
+//! (feature-free) DICOM series ([`read_dicom_series`]).
 //!
 //! Voxels keep their stored type (a 1024³ u16 volume is 2 GiB, not 4 as f32) and raw files are
 //! read slice by slice, so peak memory is the volume plus one slice.
