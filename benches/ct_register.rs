@@ -22,7 +22,7 @@ fn bench(c: &mut Criterion) {
     let field = synth::GridField::from_sdf(|p| part.sdf(p), lo, hi, f64::min(voxel, 0.1), 1.0);
     let nominal = synth::nominal_shape(&part, 0.1);
     let pairs = synth::landmark_pairs(&scan, 3, 0.3, 7);
-    let start = ct::horn(&pairs).expect("horn");
+    let start = *ct::horn(&pairs).expect("horn").matrix();
     let params = CtParams::default();
     let seg = ct::surface::segment(&scan.volume, &Threshold::Otsu, 0.1).expect("segment");
     let points = ct::surface::surface_points(&scan.volume, &seg);

@@ -90,7 +90,7 @@ fn main() {
     let field = synth::GridField::from_sdf(|p| part.sdf(p), lo, hi, voxel.min(0.1), 1.0);
     let nominal = synth::nominal_shape(&part, 0.1);
     let pairs = synth::landmark_pairs(&scan, 3, 0.3, 7);
-    let start = ct::horn(&pairs).expect("horn");
+    let start = *ct::horn(&pairs).expect("horn").matrix();
     let center_build = [40.0, -25.0, 5.0];
     let r = scan.ct_to_build;
     let center_ct: [f64; 3] = {
@@ -115,7 +115,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let reg = last.expect("ran");
     let (a0, d0) = synth::transform_error(&start, &scan.ct_to_build, center_ct);
-    let (a, d) = synth::transform_error(&reg.transform, &scan.ct_to_build, center_ct);
+    let (a, d) = synth::transform_error(reg.build_from_ct.matrix(), &scan.ct_to_build, center_ct);
     eprintln!(
         "ours: {:.2} s (median of 3), rotation error {a:.5}°, displacement {:.3} µm",
         times[1],

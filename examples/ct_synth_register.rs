@@ -39,8 +39,11 @@ fn main() {
     match res {
         Ok(r) => {
             let reg = &r.registration;
-            let (ang, disp) =
-                synth::transform_error(&reg.transform, &ct.ct_to_build, ct_centroid(&ct));
+            let (ang, disp) = synth::transform_error(
+                reg.build_from_ct.matrix(),
+                &ct.ct_to_build,
+                ct_centroid(&ct),
+            );
             println!("{}", reg.to_toml_string());
             println!(
                 "rotation error {:.5} deg, displacement at centroid {:.3} um",

@@ -451,7 +451,7 @@ fn export_ct(
     let planes: Vec<(u32, f64, f64)> = match &record.config.build.vectors {
         Some(path) => {
             let file = crate::vectors::read(path)?;
-            ct::vectors_field::layer_planes(&file)
+            ct::resample::layer_planes(&file)
         }
         None => {
             let layers: std::collections::BTreeSet<u32> =
@@ -469,8 +469,7 @@ fn export_ct(
     };
     if request.format == ExportFormat::Nrrd {
         let slices =
-            ct::vectors_field::resample_slices(&volume, &registration.transform, grid, &planes)
-                .map_err(ExportError::Invalid)?;
+            ct::resample::resample_slices(&volume, &registration.build_from_ct, grid, &planes)?;
         let zs: Vec<f64> = slices.iter().map(|s| s.z_mm).collect();
         let voxels: Vec<u16> = slices
             .iter()
@@ -484,14 +483,14 @@ fn export_ct(
     }
     let series = crate::dicom::Series::named(live.study(), 8, &name);
     let dir = request.out.join(name.replace(' ', "_"));
-    ct::vectors_field::resample_to_dicom(
+    ct::resample::resample_to_dicom(
         &volume,
-        &registration.transform,
+        &registration.build_from_ct,
         grid,
         &planes,
         live.study(),
         &series,
         &dir,
     )
-    .map_err(ExportError::Invalid)
+    .map_err(ExportError::from)
 }

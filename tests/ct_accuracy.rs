@@ -12,6 +12,7 @@ use std::sync::OnceLock;
 use layerwise::ct::{
     self, synth, CtError, CtParams, DistanceField, InitialTransform, PartShape, Threshold,
 };
+use layerwise::geometry::Rigid3;
 
 const ROT_TOL_DEG: f64 = 0.05;
 const DISP_TOL_MM: f64 = 0.005;
@@ -93,7 +94,7 @@ fn check(
     let reg = ct::register(&ct.volume, &n.field, &n.shape, init, params)
         .unwrap_or_else(|e| panic!("{name}: {e}"))
         .registration;
-    let (a, d) = synth::transform_error(&reg.transform, &ct.ct_to_build, at);
+    let (a, d) = synth::transform_error(reg.build_from_ct.matrix(), &ct.ct_to_build, at);
     println!(
         "{name}: voxel {} mm, start {a0:.3}° / {:.1} µm → rotation error {a:.5}°, displacement \
          {:.3} µm; {} iterations ({}), mean |Ψ| {:.2} µm, p95 {:.2} µm, {} points used, {} plate",
@@ -138,7 +139,7 @@ fn three_point_starts_with_clicking_error() {
     };
     for &seed in seeds {
         let pairs = synth::landmark_pairs(ct, 3, 0.3, seed);
-        let start = ct::horn(&pairs).expect("horn");
+        let start = *ct::horn(&pairs).expect("horn").matrix();
         check(
             &format!("3-point start (seed {seed})"),
             ct,
@@ -176,7 +177,7 @@ fn iso50_threshold_and_huber_against_reflections() {
     // (k = 50 µm) keeps them from pulling the fit.
     let ct = scan(25.0, [1.0, 2.0, 3.0], true);
     let pairs = synth::landmark_pairs(&ct, 3, 0.3, 5);
-    let start = ct::horn(&pairs).expect("horn");
+    let start = *ct::horn(&pairs).expect("horn").matrix();
     let params = CtParams {
         threshold: Threshold::Iso50,
         huber_k_mm: Some(0.05),
@@ -218,7 +219,7 @@ fn outputs_ct_toml_and_ply() {
     let toml_path = dir.join("ct.toml");
     r.registration.write_toml(&toml_path).expect("write toml");
     let back = ct::CtRegistration::read_toml(&toml_path).expect("read toml");
-    assert_eq!(back.transform, r.registration.transform);
+    assert_eq!(back.build_from_ct, r.registration.build_from_ct);
     assert_eq!(back.points.used, r.registration.points_used);
     let text = std::fs::read_to_string(&toml_path).expect("toml text");
     for key in [
@@ -320,7 +321,7 @@ fn non_convergence_and_no_overlap_are_errors() {
         &ct.volume,
         &n.field,
         &n.shape,
-        &InitialTransform::Matrix(far),
+        &InitialTransform::Matrix(Rigid3::from_matrix(far).expect("rigid")),
         &CtParams::default(),
     )
     .expect_err("no overlap");
@@ -357,7 +358,7 @@ fn basin_of_the_centroid_start() {
             match r {
                 Ok(r) => {
                     let (a, d) = synth::transform_error(
-                        &r.registration.transform,
+                        r.registration.build_from_ct.matrix(),
                         &ct.ct_to_build,
                         part_center_ct(&ct),
                     );

@@ -295,7 +295,7 @@ fn registration_through_an_oblique_dicom_series() {
         let p = r.transpose() * (c - t);
         [p.x, p.y, p.z]
     };
-    let (a, d) = synth::transform_error(&reg.transform, &truth, center);
+    let (a, d) = synth::transform_error(reg.build_from_ct.matrix(), &truth, center);
     println!(
         "DICOM oblique: rotation error {a:.5}°, displacement {:.3} µm, mean |Ψ| {:.2} µm",
         d * 1e3,

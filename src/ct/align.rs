@@ -6,6 +6,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Matrix4, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
 
+use crate::geometry::Rigid3;
+
 use super::{
     io_err, CtError, CtParams, CtRegistration, DistanceField, Registered, Result, Termination,
 };
@@ -63,7 +65,7 @@ pub fn read_points_file(path: &Path) -> Result<Vec<PointPair>> {
 
 /// Horn's closed-form absolute orientation with unit quaternions (Horn 1987): the rigid
 /// transform (CT → build) minimising Σ |R·ct + t − build|².
-pub fn horn(pairs: &[PointPair]) -> Result<[[f64; 4]; 4]> {
+pub fn horn(pairs: &[PointPair]) -> Result<Rigid3> {
     if pairs.len() < 3 {
         return Err(CtError::TooFewPoints(pairs.len()));
     }
@@ -122,7 +124,7 @@ pub fn horn(pairs: &[PointPair]) -> Result<[[f64; 4]; 4]> {
         2.0*(z*x - w*y),       2.0*(z*y + w*x),       w*w - x*x - y*y + z*z,
     );
     let t = cb - r * ca;
-    Ok(to_array(&r, &t))
+    Ok(Rigid3::from_matrix_unchecked(to_array(&r, &t)))
 }
 
 pub(crate) fn to_array(r: &Matrix3<f64>, t: &Vector3<f64>) -> [[f64; 4]; 4] {
@@ -489,7 +491,7 @@ pub fn register_points(
         }
     }
     let registration = CtRegistration {
-        transform: to_array(&r, &t),
+        build_from_ct: Rigid3::from_matrix_unchecked(to_array(&r, &t)),
         iterations,
         termination,
         threshold,
@@ -582,7 +584,7 @@ mod tests {
             })
             .collect();
         for n in [3, 4] {
-            let est = horn(&pairs[..n]).expect("horn");
+            let est = *horn(&pairs[..n]).expect("horn").matrix();
             for i in 0..3 {
                 for j in 0..4 {
                     assert!(

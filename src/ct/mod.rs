@@ -16,25 +16,34 @@
 //! 6. the error of Table 2: mean |Ψ| over the CT surface points, in µm, plus percentiles.
 //!
 //! The distance field is abstract ([`DistanceField`]): the lead implements it for `tsdf::Tsdf`;
-//! the tests use the analytic or voxelised SDF of the synthetic part in [`synth`].
+//! the tests use the analytic or voxelised SDF of the synthetic part in `synth` (cargo feature
+//! `testkit`).
 
 // Loops over the 3 axes index several arrays at once; they read like the equations.
 #![allow(clippy::needless_range_loop)]
 
 pub mod align;
+mod ct_toml;
+mod error;
 pub mod frame;
 pub mod ply;
+pub mod register;
+pub mod resample;
 pub mod surface;
+#[cfg(any(test, feature = "testkit"))]
 pub mod synth;
-pub mod vectors_field;
 pub mod volume;
-
-use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::Rigid3;
+
 pub use align::{horn, read_points_file, PointPair};
+pub use ct_toml::{CtSource, CtToml, Percentiles, PointCounts};
+pub(crate) use error::{io_err, write_err};
+pub use error::{CtError, Result};
 pub use frame::{CtFrame, CtLocation};
+pub use register::{register_ct, CtRequest};
 pub use surface::{PartShape, Threshold};
 pub use volume::{read_volume, RawDtype, RawSpec, Volume, VolumeSource, VoxelData};
 
@@ -47,130 +56,6 @@ pub trait DistanceField: Sync {
     fn truncation_mm(&self) -> f64;
 }
 
-/// Everything that can go wrong, with the file or the number that explains it.
-#[derive(Debug, thiserror::Error)]
-pub enum CtError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: missing key `{key}`{}", section_note(.section))]
-    MissingKey {
-        path: PathBuf,
-        section: String,
-        key: String,
-    },
-    #[error("{path}: bad value {value:?} for `{key}`: {reason}")]
-    BadValue {
-        path: PathBuf,
-        key: String,
-        value: String,
-        reason: String,
-    },
-    #[error("{path}: unknown voxel data type {dtype:?} (expected {expected})")]
-    UnknownDtype {
-        path: PathBuf,
-        dtype: String,
-        expected: &'static str,
-    },
-    #[error(
-        "{path}: the raw file is {actual} bytes but {dims:?} voxels of {bytes_per_voxel} byte(s) \
-         (plus a {header}-byte header) need {expected} bytes"
-    )]
-    SizeMismatch {
-        path: PathBuf,
-        dims: [usize; 3],
-        bytes_per_voxel: usize,
-        header: u64,
-        expected: u64,
-        actual: u64,
-    },
-    #[error("{path}: {message}")]
-    Format { path: PathBuf, message: String },
-    #[error("invalid input: {0}")]
-    Invalid(String),
-    #[error(
-        "empty threshold: no voxel is at or above {threshold} (the volume's values span \
-         {min}..{max}): lower the threshold"
-    )]
-    EmptyThreshold { threshold: f64, min: f64, max: f64 },
-    #[error(
-        "threshold {threshold} selects every voxel (the volume's values span {min}..{max}): \
-         there is no background to find a surface against"
-    )]
-    FullThreshold { threshold: f64, min: f64, max: f64 },
-    #[error("the thresholded part has no surface inside the volume")]
-    NoSurface,
-    #[error("the initial transform needs at least 3 point pairs, got {0}")]
-    TooFewPoints(usize),
-    #[error(
-        "the {which} points of the point pairs are (nearly) collinear: the rotation about their \
-         line is undetermined; pick 3 points that span a triangle"
-    )]
-    CollinearPoints { which: &'static str },
-    #[error("{path}:{line}: {message}")]
-    PointsFile {
-        path: PathBuf,
-        line: usize,
-        message: String,
-    },
-    #[error(
-        "the CT part is {ratio:.2}x the size of the vectors: check the voxel size \
-         (CT principal extents {ct:.3?} mm, vectors {vectors:.3?} mm)"
-    )]
-    ScaleMismatch {
-        ratio: f64,
-        ct: [f64; 3],
-        vectors: [f64; 3],
-    },
-    #[error(
-        "only {used} of {total} CT surface points fall inside the distance field's truncation \
-         band (±{truncation_mm} mm) after the initial transform: check the initial transform \
-         (point pairs) or the field's extent"
-    )]
-    NoOverlap {
-        used: usize,
-        total: usize,
-        truncation_mm: f64,
-    },
-    #[error(
-        "the registration converged to a poor fit: {outside_pct:.1}% of the surface points lie \
-         beyond the distance field's truncation band and the mean |Ψ| is {mean_abs_um:.1} µm; \
-         likely a wrong local minimum (e.g. a rotation by a symmetry of the part): start from \
-         point pairs"
-    )]
-    PoorFit { outside_pct: f64, mean_abs_um: f64 },
-    #[error(
-        "the registration did not converge in {iterations} iterations (last step {rotation_rad:.3e} \
-         rad, {translation_mm:.3e} mm; rms Ψ {rms_um:.2} µm): check the initial transform \
-         or raise max_iterations"
-    )]
-    NotConverged {
-        iterations: usize,
-        rotation_rad: f64,
-        translation_mm: f64,
-        rms_um: f64,
-    },
-}
-
-fn section_note(section: &str) -> String {
-    if section.is_empty() {
-        String::new()
-    } else {
-        format!(" in [{section}]")
-    }
-}
-
-pub type Result<T, E = CtError> = std::result::Result<T, E>;
-
-pub(crate) fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> CtError + '_ {
-    move |source| CtError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
-
 /// How the registration starts.
 #[derive(Debug, Clone)]
 pub enum InitialTransform {
@@ -180,8 +65,8 @@ pub enum InitialTransform {
     Centroid,
     /// Horn's absolute orientation from ≥ 3 point pairs (CT mm, build mm), e.g. POINTS.txt.
     Points(Vec<PointPair>),
-    /// A known transform (e.g. the result of an earlier registration).
-    Matrix([[f64; 4]; 4]),
+    /// A known transform, CT mm → build mm (e.g. the result of an earlier registration).
+    Matrix(Rigid3),
 }
 
 /// Tuning knobs; [`CtParams::default`] is what the paper does.
@@ -253,8 +138,9 @@ impl std::fmt::Display for Termination {
 /// The result: the transform and the error figures of Table 2 (all distances in µm).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CtRegistration {
-    /// CT physical mm → build mm.
-    pub transform: [[f64; 4]; 4],
+    /// CT physical mm → build mm (`transform` in ct.toml).
+    #[serde(rename = "transform")]
+    pub build_from_ct: Rigid3,
     /// Levenberg-Marquardt iterations (linear solves), over all plate-exclusion rounds.
     pub iterations: usize,
     pub termination: Termination,
@@ -313,8 +199,8 @@ pub fn register(
             }
             t
         }
-        InitialTransform::Points(pairs) => horn(pairs)?,
-        InitialTransform::Matrix(m) => *m,
+        InitialTransform::Points(pairs) => *horn(pairs)?.matrix(),
+        InitialTransform::Matrix(m) => *m.matrix(),
     };
     align::register_points(&points, t0, field, params, seg.threshold)
 }
@@ -330,109 +216,4 @@ pub fn check_scale(ct: &PartShape, vectors: &PartShape, tolerance: f64) -> Resul
         });
     }
     Ok(ratio)
-}
-
-/// The on-disk layout of `ct.toml`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CtToml {
-    /// 4x4, CT physical mm → build mm.
-    pub transform: [[f64; 4]; 4],
-    pub iterations: usize,
-    pub termination: Termination,
-    pub threshold: f64,
-    pub mean_abs_distance_um: f64,
-    pub rms_distance_um: f64,
-    pub percentiles: Percentiles,
-    pub points: PointCounts,
-    /// Where the CT came from, so `layerwise export --ct ct.toml` can resample it again.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<CtSource>,
-}
-
-/// How to read the registered CT volume again.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CtSource {
-    pub path: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub voxel_mm: Option<f64>,
-    /// Raw volumes only: `X,Y,Z` voxels and the sample type.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub size: Option<String>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub dtype: Option<String>,
-}
-
-impl CtSource {
-    /// Reads the volume it names.
-    pub fn read(&self) -> Result<Volume> {
-        let path = std::path::PathBuf::from(&self.path);
-        let source = match (&self.size, &self.dtype, self.voxel_mm) {
-            (Some(size), Some(dtype), Some(voxel)) => {
-                VolumeSource::Raw(path, RawSpec::from_args(size, voxel, dtype)?)
-            }
-            _ => VolumeSource::detect(&path, self.voxel_mm)?,
-        };
-        read_volume(&source)
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Percentiles {
-    pub p50_um: f64,
-    pub p95_um: f64,
-    pub max_um: f64,
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PointCounts {
-    pub used: usize,
-    pub total: usize,
-    pub excluded_plate: usize,
-    pub outside_field: usize,
-}
-
-impl CtRegistration {
-    pub fn to_toml_string(&self) -> String {
-        self.to_toml_string_with(None)
-    }
-
-    /// `ct.toml` text, recording where the CT came from.
-    pub fn to_toml_string_with(&self, source: Option<CtSource>) -> String {
-        let file = CtToml {
-            transform: self.transform,
-            iterations: self.iterations,
-            termination: self.termination,
-            threshold: self.threshold,
-            mean_abs_distance_um: self.mean_abs_um,
-            rms_distance_um: self.rms_um,
-            percentiles: Percentiles {
-                p50_um: self.median_abs_um,
-                p95_um: self.p95_abs_um,
-                max_um: self.max_abs_um,
-            },
-            points: PointCounts {
-                used: self.points_used,
-                total: self.points_total,
-                excluded_plate: self.points_excluded_plate,
-                outside_field: self.points_outside,
-            },
-            source,
-        };
-        // Serialising plain numbers and tables cannot fail.
-        toml::to_string(&file).unwrap_or_default()
-    }
-
-    /// Write `ct.toml`.
-    pub fn write_toml(&self, path: &Path) -> Result<()> {
-        std::fs::write(path, self.to_toml_string()).map_err(io_err(path))
-    }
-
-    /// Read a `ct.toml` back (e.g. to apply the transform).
-    pub fn read_toml(path: &Path) -> Result<CtToml> {
-        let text = std::fs::read_to_string(path).map_err(io_err(path))?;
-        toml::from_str(&text).map_err(|e| CtError::Format {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })
-    }
 }

@@ -5,7 +5,7 @@
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
-use super::{io_err, Result};
+use super::{write_err, Result};
 
 /// Colour of a signed distance `d` (mm) on a scale saturating at ±`range_mm`.
 pub fn color(d: f64, range_mm: f64) -> [u8; 3] {
@@ -31,11 +31,11 @@ pub fn write_ply(
     distances_mm: &[f64],
     range_mm: f64,
 ) -> Result<()> {
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let file = std::fs::File::create(path).map_err(write_err(path))?;
     let mut w = BufWriter::new(file);
     write_ply_to(&mut w, points, distances_mm, range_mm)
         .and_then(|_| w.flush())
-        .map_err(io_err(path))
+        .map_err(write_err(path))
 }
 
 pub fn write_ply_to(

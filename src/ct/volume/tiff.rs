@@ -1,0 +1,100 @@
+//! Folders of TIFF slices.
+
+use std::path::{Path, PathBuf};
+
+use super::{io_err, CtError, Result, Volume, VoxelData};
+
+/// Read a folder of `.tif`/`.tiff` slices sorted by name (slice k at z = k × voxel).
+pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3]) -> Result<Volume> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io_err(dir))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(CtError::Format {
+            path: dir.to_path_buf(),
+            message: "no .tif/.tiff files in the folder".into(),
+        });
+    }
+    let mut data: Option<VoxelData> = None;
+    let mut wh = (0u32, 0u32);
+    for (k, f) in files.iter().enumerate() {
+        let img = image::ImageReader::open(f)
+            .map_err(io_err(f))?
+            .with_guessed_format()
+            .map_err(io_err(f))?
+            .decode()
+            .map_err(|e| CtError::Decode {
+                path: f.clone(),
+                what: "decode the TIFF slice",
+                source: Box::new(e),
+            })?;
+        let size = (img.width(), img.height());
+        if k == 0 {
+            wh = size;
+            let n = size.0 as usize * size.1 as usize * files.len();
+            data = Some(match &img {
+                image::DynamicImage::ImageLuma8(_) => VoxelData::U8(Vec::with_capacity(n)),
+                image::DynamicImage::ImageLuma16(_) => VoxelData::U16(Vec::with_capacity(n)),
+                _ => VoxelData::F32(Vec::with_capacity(n)),
+            });
+        } else if size != wh {
+            return Err(CtError::Format {
+                path: f.clone(),
+                message: format!(
+                    "slice is {}x{} but the first slice is {}x{}",
+                    size.0, size.1, wh.0, wh.1
+                ),
+            });
+        }
+        match data.as_mut() {
+            Some(VoxelData::U8(v)) => v.extend_from_slice(img.to_luma8().as_raw()),
+            Some(VoxelData::U16(v)) => v.extend_from_slice(img.to_luma16().as_raw()),
+            Some(VoxelData::F32(v)) => v.extend_from_slice(img.to_luma32f().as_raw()),
+            _ => {}
+        }
+    }
+    let data = data.unwrap_or(VoxelData::U8(Vec::new()));
+    Volume::new_scaled([wh.0 as usize, wh.1 as usize, files.len()], voxel_mm, data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ct::volume::tests::scratch;
+
+    #[test]
+    fn tiff_stack_sorted_by_name() {
+        let d = scratch("tiff");
+        for (k, name) in [
+            (1u16, "slice_002.tif"),
+            (0, "slice_001.tif"),
+            (2, "slice_010.tif"),
+        ] {
+            let img = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(5, 4, |x, y| {
+                image::Luma([1000 * k + 10 * y as u16 + x as u16])
+            });
+            img.save(d.join(name)).expect("tiff");
+        }
+        std::fs::write(d.join("notes.txt"), "ignored").expect("txt");
+        let vol = read_tiff_stack(&d, [0.05; 3]).expect("stack");
+        assert_eq!(vol.dims, [5, 4, 3]);
+        assert!(matches!(vol.data, VoxelData::U16(_)));
+        // Voxel (3, 2, 2) comes from slice_010.tif.
+        assert_eq!(vol.value(3 + 5 * 2 + 20 * 2), 2023.0);
+        let small = image::ImageBuffer::<image::Luma<u16>, _>::new(3, 3);
+        small.save(d.join("slice_011.tif")).expect("tiff");
+        let msg = read_tiff_stack(&d, [0.05; 3])
+            .expect_err("size")
+            .to_string();
+        assert!(
+            msg.contains("slice_011.tif") && msg.contains("3x3"),
+            "{msg}"
+        );
+    }
+}
