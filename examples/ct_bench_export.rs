@@ -1,4 +1,4 @@
-//! The 50 µm benchmark case for bench/ct_vs_simpleitk.py: renders the synthetic parameter
+//! The 50 µm benchmark case for benches/peers/ct_vs_simpleitk.py: renders the synthetic parameter
 //! cylinder, writes the CT and the rasterised nominal part (the vectors as a volume) as .mha,
 //! runs our registration from the 3-point start and writes everything to case.json.
 //!
@@ -33,7 +33,7 @@ fn write_mha(
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let out = Path::new(args.get(1).map(String::as_str).unwrap_or("bench/out")).to_path_buf();
+    let out = Path::new(args.get(1).map(String::as_str).unwrap_or("benches/peers/out")).to_path_buf();
     let voxel: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(0.05);
     std::fs::create_dir_all(&out).expect("out dir");
 

@@ -109,7 +109,7 @@ impl CtArgs {
             dtype: self.dtype,
         };
         let out = self.out.clone();
-        let request = ct::vectors_field::CtRequest {
+        let request = ct::CtRequest {
             source: recorded,
             vectors: self.vectors,
             part: self.part,
@@ -122,8 +122,7 @@ impl CtArgs {
             params,
         };
         let started = std::time::Instant::now();
-        let result =
-            ct::vectors_field::register_ct(&request, &volume).map_err(anyhow::Error::msg)?;
+        let result = ct::register_ct(&request, &volume)?;
         print!("{}", result.to_toml_string());
         println!(
             "wrote {} in {:.1} s",
