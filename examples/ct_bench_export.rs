@@ -33,7 +33,12 @@ fn write_mha(
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let out = Path::new(args.get(1).map(String::as_str).unwrap_or("benches/peers/out")).to_path_buf();
+    let out = Path::new(
+        args.get(1)
+            .map(String::as_str)
+            .unwrap_or("benches/peers/out"),
+    )
+    .to_path_buf();
     let voxel: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(0.05);
     std::fs::create_dir_all(&out).expect("out dir");
 
