@@ -39,7 +39,7 @@ pub struct Config {
     pub views: ViewsConfig,
     /// The rectified grid of docs/frames.md.
     #[serde(default)]
-    pub rectify: crate::rectify::Grid,
+    pub rectify: crate::geometry::Grid,
     #[serde(default)]
     pub calibration: CalibrationConfig,
     #[serde(default)]
@@ -322,7 +322,7 @@ pub struct CalibrationConfig {
     pub file: Option<PathBuf>,
     /// bilinear (default) or bicubic.
     #[serde(default)]
-    pub interpolation: crate::rectify::Interpolation,
+    pub interpolation: crate::geometry::Interpolation,
     /// Grey level of grid pixels that fall outside the camera frame.
     #[serde(default)]
     pub fill: u16,
@@ -736,7 +736,7 @@ kind = "mock"
 
     #[test]
     fn grid_defaults_to_whole_plate() {
-        let grid = crate::rectify::Grid::default();
+        let grid = crate::geometry::Grid::default();
         assert_eq!((grid.columns(), grid.rows()), (4400, 4400));
     }
 }

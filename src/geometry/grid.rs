@@ -10,6 +10,18 @@ pub const MAX_SIDE: usize = 1 << 17;
 /// Largest grid accepted, in pixels (4 GiB of u8 would not be an image anyone wants).
 pub const MAX_PIXELS: usize = 1 << 31;
 
+/// Resampling kernel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Interpolation {
+    #[default]
+    /// 2x2 bilinear, exact fixed point with 11-bit position fractions.
+    Bilinear,
+    /// 4x4 Keys cubic convolution with A = −0.75 (OpenCV's INTER_CUBIC),
+    /// rounded and clamped to the sample range.
+    Bicubic,
+}
+
 /// A grid that describes no raster that can be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]

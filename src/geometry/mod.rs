@@ -8,6 +8,8 @@ pub mod mat3;
 pub mod rigid;
 
 pub use distortion::{DistortionError, RadialDistortion};
-pub use grid::{Grid, GridError, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM};
+pub use grid::{
+    Grid, GridError, Interpolation, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM,
+};
 pub use mat3::Mat3;
 pub use rigid::{Affine3, Rigid3};

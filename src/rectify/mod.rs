@@ -62,17 +62,8 @@ pub type Gray16Image = ImageBuffer<Luma<u16>, Vec<u16>>;
 /// 16-bit RGB image.
 pub type Rgb16Image = ImageBuffer<Rgb<u16>, Vec<u16>>;
 
-/// Resampling kernel.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Interpolation {
-    #[default]
-    /// 2x2 bilinear, exact fixed point with 11-bit position fractions.
-    Bilinear,
-    /// 4x4 Keys cubic convolution with A = −0.75 (OpenCV's INTER_CUBIC),
-    /// rounded and clamped to the sample range.
-    Bicubic,
-}
+/// Resampling kernel (defined with the grid it samples onto).
+pub use crate::geometry::Interpolation;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RectifyError {
