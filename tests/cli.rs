@@ -5,18 +5,13 @@ mod common;
 use common::*;
 use layerwise::config::TriggerConfig;
 use std::process::Stdio;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 #[test]
 fn check_config_accepts_the_examples() {
     for file in ["config/layerwise.toml", "config/demo.toml"] {
-        let out = layerwise().args(["check-config", file]).output().unwrap();
-        assert!(
-            out.status.success(),
-            "{file}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        assert!(String::from_utf8_lossy(&out.stdout).contains("valid"));
+        let out = layerwise().args(["check-config", file]).stdout_ok();
+        assert!(out.contains("valid"), "{file}: {out}");
     }
 }
 
@@ -58,32 +53,18 @@ fn check_config_names_file_key_and_expectation() {
         );
         let path = dir.path().join(name);
         std::fs::write(&path, text).unwrap();
-        let out = layerwise().arg("check-config").arg(&path).output().unwrap();
-        assert_eq!(out.status.code(), Some(1), "{name} must be refused");
-        let err = String::from_utf8_lossy(&out.stderr);
+        let err = layerwise().arg("check-config").arg(&path).fails();
         for word in expect {
             assert!(err.contains(word), "{name}: {word:?} not in {err}");
         }
     }
-    let out = layerwise()
+    let err = layerwise()
         .args(["check-config", "/nonexistent/layerwise.toml"])
-        .output()
-        .unwrap();
+        .fails();
     assert!(
-        String::from_utf8_lossy(&out.stderr).contains("/nonexistent/layerwise.toml: cannot read")
+        err.contains("/nonexistent/layerwise.toml: cannot read"),
+        "{err}"
     );
-}
-
-fn wait_for_originals(dir: &std::path::Path, at_least: usize, timeout: Duration) {
-    let deadline = Instant::now() + timeout;
-    while originals(dir).len() < at_least {
-        assert!(
-            Instant::now() < deadline,
-            "only {} frames after {timeout:?}",
-            originals(dir).len()
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
 }
 
 #[test]
@@ -99,13 +80,7 @@ fn kill_9_mid_build_then_restart_keeps_every_frame_once() {
     write_config(&config, &config_path);
 
     for kill_at in [10, 29] {
-        let mut child = layerwise()
-            .arg("run")
-            .arg("--config")
-            .arg(&config_path)
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
+        let mut child = spawn_build(&config_path, Stdio::null());
         wait_for_originals(&build, kill_at, Duration::from_secs(60));
         child.kill().unwrap(); // SIGKILL
         child.wait().unwrap();
@@ -129,10 +104,7 @@ fn kill_9_mid_build_then_restart_keeps_every_frame_once() {
     let status = layerwise()
         .args(["status", "--json", "--build"])
         .arg(&build)
-        .output()
-        .unwrap();
-    assert!(status.status.success());
-    let status: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+        .json_ok();
     assert_eq!(status["frames"], 48);
     assert_eq!(status["frames_missing"], 0);
     assert_eq!(status["layer"], 8);
@@ -150,25 +122,9 @@ fn sigterm_stores_the_frame_in_hand_and_stops_cleanly() {
     }
     let config_path = dir.path().join("layerwise.toml");
     write_config(&config, &config_path);
-    let child = layerwise()
-        .arg("run")
-        .arg("--config")
-        .arg(&config_path)
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_build(&config_path, Stdio::piped());
     wait_for_originals(&build, 8, Duration::from_secs(60));
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(child.id() as i32),
-        nix::sys::signal::Signal::SIGTERM,
-    )
-    .unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&terminate(child));
     assert!(temporaries(&build).is_empty());
     let stored = originals(&build).len();
     assert!(stored < 300, "stopped early");
@@ -177,12 +133,10 @@ fn sigterm_stores_the_frame_in_hand_and_stops_cleanly() {
         stored,
         "every stored frame is journaled"
     );
-    let status = layerwise()
+    let text = layerwise()
         .args(["status", "--build"])
         .arg(&build)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&status.stdout);
+        .stdout_ok();
     assert!(text.contains("daemon     stopped"), "{text}");
     assert!(
         text.contains(&format!("frames     {stored} stored")),
@@ -193,13 +147,11 @@ fn sigterm_stores_the_frame_in_hand_and_stops_cleanly() {
 #[test]
 fn status_of_a_directory_that_is_not_a_build() {
     let dir = tempfile::tempdir().unwrap();
-    let out = layerwise()
+    let err = layerwise()
         .args(["status", "--build"])
         .arg(dir.path())
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("not a layerwise build directory"));
+        .fails();
+    assert!(err.contains("not a layerwise build directory"), "{err}");
 }
 
 #[test]
@@ -211,16 +163,13 @@ fn status_warns_when_the_disk_will_not_last() {
         .unwrap();
     // Pretend the build has a million layers still to come.
     let manifest_path = dir.path().join("build.json");
-    let mut manifest: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&manifest_path).unwrap()).unwrap();
+    let mut manifest = read_json(&manifest_path);
     manifest["layers_expected"] = serde_json::json!(100_000_000u64);
     std::fs::write(&manifest_path, serde_json::to_vec(&manifest).unwrap()).unwrap();
-    let out = layerwise()
+    let text = layerwise()
         .args(["status", "--build"])
         .arg(dir.path())
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
+        .stdout_ok();
     assert!(
         text.contains("WARNING") && text.contains("needs about"),
         "{text}"
@@ -234,24 +183,14 @@ fn demo_runs_on_the_embedded_config() {
     let out = layerwise()
         .args(["demo", "--layers", "2", "--out"])
         .arg(&out_dir)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .stdout_ok();
     assert_eq!(originals(&out_dir), expected_originals(2));
-    assert!(String::from_utf8_lossy(&out.stdout).contains("12 frames stored"));
+    assert!(out.contains("12 frames stored"), "{out}");
 }
 
 #[test]
 fn vectors_info_json_agrees_with_each_real_file_header() {
-    let dir = std::env::var_os("LAYERWISE_SHARED_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| {
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli")
-        });
+    let dir = shared_cli_dir();
     let mut seen = 0;
     for entry in std::fs::read_dir(&dir).expect("shared/data/cli beside the checkout") {
         let path = entry.unwrap().path();
@@ -259,29 +198,11 @@ fn vectors_info_json_agrees_with_each_real_file_header() {
             continue;
         }
         seen += 1;
-        let out = layerwise()
+        let info = layerwise()
             .args(["vectors", "info", "--json"])
             .arg(&path)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}: {}",
-            path.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        for key in [
-            "format",
-            "units",
-            "layers",
-            "z_min",
-            "z_max",
-            "polylines",
-            "points",
-            "hatches",
-            "parts",
-        ] {
+            .json_ok();
+        for key in VECTORS_INFO_KEYS {
             assert!(info.get(key).is_some(), "{}: no `{key}`", path.display());
         }
         assert_eq!(
@@ -306,13 +227,7 @@ fn vectors_info_json_agrees_with_each_real_file_header() {
     let dir = tempfile::tempdir().unwrap();
     let broken = dir.path().join("broken.cli");
     std::fs::write(&broken, "$$HEADERSTART\n$$ASCII\n$$UNITS/1\n$$HEADEREND\n$$GEOMETRYSTART\n$$LAYER/0.1\n$$POLYLINE/1,1,3,0,0,x,1\n").unwrap();
-    let out = layerwise()
-        .args(["vectors", "info"])
-        .arg(&broken)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = layerwise().args(["vectors", "info"]).arg(&broken).fails();
     assert!(
         err.contains("broken.cli") && err.contains("line 7"),
         "{err}"
@@ -327,47 +242,37 @@ fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
     std::fs::write(&frame, view.jpeg()).unwrap();
     for out in ["top.png", "top.dcm"] {
         let out = dir.path().join(out);
-        let run = view.rectify(&frame, &out);
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+        assert_success(&view.rectify(&frame, &out));
         assert!(std::fs::metadata(&out).unwrap().len() > 1000);
     }
     // A bare file name writes into the working directory.
-    let run = layerwise()
+    layerwise()
         .current_dir(dir.path())
         .arg("rectify")
         .arg("--calibration")
         .arg(&view.calibration)
         .args(["--image", "frame.jpg", "--out", "here.dcm"])
-        .output()
-        .unwrap();
-    assert_success(&run);
+        .succeeds();
     assert!(dir.path().join("here.dcm").is_file());
     let png = image::open(dir.path().join("top.png")).unwrap();
     assert_eq!((png.width(), png.height()), (550, 550));
-    let info = layerwise()
+    let series = layerwise()
         .args(["dicom", "info", "--json"])
         .arg(dir.path())
-        .output()
-        .unwrap();
-    let series: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+        .json_ok();
     assert_eq!(series[0]["rows"], 550);
     assert_eq!(series[0]["first_position"][0], -137.25);
     let bad = dir.path().join("bad.jpg");
     std::fs::write(&bad, b"\xff\xd8not a jpeg at all").unwrap();
-    let run = view.rectify(&bad, &dir.path().join("x.png"));
-    assert_eq!(run.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&run.stderr).contains("bad.jpg"));
+    let err = assert_exit_1(&view.rectify(&bad, &dir.path().join("x.png")));
+    assert!(err.contains("bad.jpg"), "{err}");
 }
 
 #[test]
 fn optics_json_keys_and_values_for_the_paper_setup() {
     let dir = tempfile::tempdir().unwrap();
     let svg = dir.path().join("dof.svg");
-    let out = layerwise()
+    let r = layerwise()
         .args([
             "optics",
             "--focal-mm",
@@ -390,14 +295,7 @@ fn optics_json_keys_and_values_for_the_paper_setup() {
             "--plot",
         ])
         .arg(&svg)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        .json_ok();
     // By hand from eq. 1-4: M = 45/455; d/M; H = (45/32)·45/0.00488 + 45; near/far from eq. 3, 4.
     let m = 45.0 / 455.0;
     let h = (45.0 / 32.0) * 45.0 / 0.00488 + 45.0;
@@ -424,49 +322,30 @@ fn optics_json_keys_and_values_for_the_paper_setup() {
     let text = std::fs::read_to_string(&svg).unwrap();
     assert!(text.starts_with("<svg") && text.contains("Scheimpflug"));
     // Beyond the hyperfocal distance the far limit is infinite: null.
-    let out = layerwise()
+    let r = layerwise()
         .args(["optics", "--distance-mm", "20000", "--json"])
-        .output()
-        .unwrap();
-    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        .json_ok();
     assert!(r["far_mm"].is_null());
-    let out = layerwise()
-        .args(["optics", "--distance-mm", "30"])
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("focal length"));
+    let err = layerwise().args(["optics", "--distance-mm", "30"]).fails();
+    assert!(err.contains("focal length"), "{err}");
 }
 
 #[test]
 fn locate_finds_a_point_in_every_view_and_marks_it() {
     let dir = tempfile::tempdir().unwrap();
     let build = dir.path().join("demo");
-    let out = layerwise()
+    layerwise()
         .args(["demo", "--layers", "2", "--out"])
         .arg(&build)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .succeeds();
     // The cylinder's center of mock_camera::demo_parts, in layer 2 (z in (0.03, 0.06]).
     let mark = dir.path().join("mark.png");
-    let out = layerwise()
+    let loc = layerwise()
         .args(["locate", "--json", "--point", "-60,40,0.05", "--build"])
         .arg(&build)
         .arg("--mark")
         .arg(&mark)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let loc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        .json_ok();
     assert_eq!(loc["layer"], 2);
     let views = loc["views"].as_array().unwrap();
     assert_eq!(views.len(), 6);
@@ -494,39 +373,29 @@ fn locate_finds_a_point_in_every_view_and_marks_it() {
         sheet.pixels().any(|p| p.0 == [0, 255, 0]),
         "no marker drawn"
     );
-    let bad = layerwise()
+    layerwise()
         .args(["locate", "--point", "1,2", "--build"])
         .arg(&build)
-        .output()
-        .unwrap();
-    assert_eq!(bad.status.code(), Some(1));
-    let not_build = layerwise()
+        .fails();
+    let err = layerwise()
         .args(["locate", "--point", "1,2,3", "--build"])
         .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(String::from_utf8_lossy(&not_build.stderr).contains("not a layerwise build directory"));
+        .fails();
+    assert!(err.contains("not a layerwise build directory"), "{err}");
 }
 
 #[test]
 fn vectors_raster_writes_each_kind_and_names_bad_input() {
     let dir = tempfile::tempdir().unwrap();
-    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/cli/frustrum_ASCII.cli");
+    let file = shared_cli("frustrum_ASCII.cli");
     for (kind, channels) in [("mask", 1u8), ("rgb", 3), ("exemplar", 1)] {
         let out = dir.path().join(format!("{kind}.png"));
-        let run = layerwise()
+        layerwise()
             .args(["vectors", "raster"])
             .arg(&file)
             .args(["--layer", "10", "--kind", kind, "--out"])
             .arg(&out)
-            .output()
-            .unwrap();
-        assert!(
-            run.status.success(),
-            "{kind}: {}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+            .succeeds();
         let img = image::open(&out).unwrap();
         assert_eq!(img.color().channel_count(), channels, "{kind}");
         // The frustum's layer 10 is about 20 x 20 mm: on the 62.5 µm grid with a 2 mm margin.
@@ -544,12 +413,11 @@ fn vectors_raster_writes_each_kind_and_names_bad_input() {
         mask.pixels().filter(|p| p.0[0] == 255).count() > 10_000,
         "the layer is filled"
     );
-    let run = layerwise()
+    let err = layerwise()
         .args(["vectors", "raster"])
         .arg(&file)
         .args(["--layer", "100", "--out"])
         .arg(dir.path().join("x.png"))
-        .output()
-        .unwrap();
-    assert!(String::from_utf8_lossy(&run.stderr).contains("no layer 100"));
+        .fails();
+    assert!(err.contains("no layer 100"), "{err}");
 }

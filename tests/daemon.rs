@@ -93,10 +93,7 @@ fn busy_disconnect_and_a_dead_frame_are_survived() {
         .unwrap();
     assert_eq!((summary.stored, summary.missing), (23, 1));
 
-    let sidecar = |stem: &str| -> serde_json::Value {
-        serde_json::from_slice(&std::fs::read(dir.path().join(format!("raw/{stem}.json"))).unwrap())
-            .unwrap()
-    };
+    let sidecar = |stem: &str| read_json(&dir.path().join(format!("raw/{stem}.json")));
     assert_eq!(
         sidecar("L00002_post_top")["attempts"],
         4,
@@ -134,9 +131,10 @@ fn busy_disconnect_and_a_dead_frame_are_survived() {
     }));
     assert!(!dir.path().join("raw/L00003_post_side.jpg").exists());
     assert!(log_of(&slot).lit().is_empty());
-    let status: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("status.json")).unwrap()).unwrap();
-    assert_eq!(status["state"], "stopped");
+    assert_eq!(
+        read_json(&dir.path().join("status.json"))["state"],
+        "stopped"
+    );
 }
 
 #[test]
@@ -172,9 +170,10 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
         "layer 1 and layer 2 pre front were stored"
     );
     assert!(replay.missing.values().any(|r| r.contains("hung")));
-    let status: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("status.json")).unwrap()).unwrap();
-    assert_eq!(status["state"], "failed");
+    assert_eq!(
+        read_json(&dir.path().join("status.json"))["state"],
+        "failed"
+    );
 }
 
 #[test]
@@ -224,15 +223,9 @@ fn capture_never_waits_for_processing() {
     options.drain_at_end = true;
     let build = dir.path().to_path_buf();
     let daemon = std::thread::spawn(move || runtime().block_on(run(&config, options)));
-    // All 24 frames reach the disk while processing is stuck on the first one.
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while originals(&build).len() < 24 {
-        assert!(
-            Instant::now() < deadline,
-            "capture was blocked by processing"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    // All 24 frames reach the disk while processing is stuck on the first one (a timeout here:
+    // capture was blocked by processing).
+    wait_for_originals(&build, 24, Duration::from_secs(60));
     assert_eq!(processor.processed.load(Ordering::SeqCst), 0);
     {
         let (lock, cvar) = &*gate;

@@ -15,16 +15,40 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn tool(name: &str) -> Command {
-    let probe = Command::new("sh")
-        .arg("-c")
-        .arg(format!("command -v {name}"))
-        .output()
-        .unwrap();
+    let path = std::env::var_os("PATH").unwrap_or_default();
     assert!(
-        probe.status.success(),
+        std::env::split_paths(&path).any(|dir| dir.join(name).is_file()),
         "{name} is needed: the README's test command installs dicom3tools and dcmtk"
     );
     Command::new(name)
+}
+
+/// What a dicom3tools program printed, stderr then stdout (they report on either).
+fn tool_text(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout)
+}
+
+/// dcentvfy finds no error across `files`: one patient, study, series and frame of reference
+/// where they should be, no duplicate SOP instance.
+fn assert_dcentvfy_clean(files: &[PathBuf]) {
+    let text = tool_text(&tool("dcentvfy").args(files).output().unwrap());
+    assert!(
+        !text.lines().any(|l| l.starts_with("Error")),
+        "dcentvfy: {text}"
+    );
+}
+
+/// dcmtk's copy of `file` in explicit VR little endian (dciodvfy cannot read deflated data sets).
+fn explicit_vr_copy(file: &Path, back: &Path) {
+    tool("dcmconv").arg("+te").arg(file).arg(back).succeeds();
+}
+
+/// What a Python snippet run in the test venv printed; `arg` is its `sys.argv[1]`.
+fn python_says(script: &str, arg: &Path) -> String {
+    Command::new(python())
+        .args(["-c", script])
+        .arg(arg)
+        .stdout_ok()
 }
 
 fn python() -> PathBuf {
@@ -47,10 +71,11 @@ fn drained() -> RunOptions {
     options
 }
 
-fn all_dcm(dir: &Path) -> Vec<PathBuf> {
+/// The files one folder down: the instances of every series in `dir`.
+fn series_files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
-    for view in std::fs::read_dir(dir.join("dicom")).unwrap() {
-        for f in std::fs::read_dir(view.unwrap().path()).unwrap() {
+    for series in std::fs::read_dir(dir).unwrap() {
+        for f in std::fs::read_dir(series.unwrap().path()).unwrap() {
             out.push(f.unwrap().path());
         }
     }
@@ -58,10 +83,13 @@ fn all_dcm(dir: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// Every live series instance of a build.
+fn all_dcm(build: &Path) -> Vec<PathBuf> {
+    series_files(&build.join("dicom"))
+}
+
 fn dciodvfy_errors(file: &Path) -> Vec<String> {
-    let out = tool("dciodvfy").arg("-new").arg(file).output().unwrap();
-    let text =
-        String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout);
+    let text = tool_text(&tool("dciodvfy").arg("-new").arg(file).output().unwrap());
     text.lines()
         .filter(|l| l.starts_with("Error"))
         .map(String::from)
@@ -124,33 +152,19 @@ fn live_series_pass_dicom3tools_dcmtk_pydicom_and_simpleitk_and_survive_a_restar
             "dcmftest: {}",
             file.display()
         );
-        let dump = tool("dcmdump").arg(file).output().unwrap();
-        assert!(dump.status.success(), "dcmdump: {}", file.display());
+        tool("dcmdump").arg(file).succeeds();
     }
     // One study: dcentvfy checks patient, study, series and frame of reference consistency and
     // finds duplicate SOP instances.
-    let ent = tool("dcentvfy").args(&files).output().unwrap();
-    let text =
-        String::from_utf8_lossy(&ent.stderr).to_string() + &String::from_utf8_lossy(&ent.stdout);
-    assert!(
-        !text.lines().any(|l| l.starts_with("Error")),
-        "dcentvfy: {text}"
-    );
+    assert_dcentvfy_clean(&files);
 
     let expected = dir.path().join("expected");
     write_expectations(&build, &config, 4, &expected);
-    let out = Command::new(python())
+    Command::new(python())
         .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/dicom_check.py"))
         .arg(build.join("dicom"))
         .arg(&expected)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+        .succeeds();
 
     // Look at it the way a person would: dcmj2pnm renders a post-scan slice with its window;
     // fused metal (speckle) sits where the demo parts are, powder elsewhere.
@@ -163,17 +177,11 @@ fn live_series_pass_dicom3tools_dcmtk_pydicom_and_simpleitk_and_survive_a_restar
         },
     )
     .join("L00004.dcm");
-    let render = tool("dcmj2pnm")
+    tool("dcmj2pnm")
         .args(["+Wi", "1", "+on"])
         .arg(&slice)
         .arg(&png)
-        .output()
-        .unwrap();
-    assert!(
-        render.status.success(),
-        "{}",
-        String::from_utf8_lossy(&render.stderr)
-    );
+        .succeeds();
     let img = image::open(&png).unwrap().to_luma8();
     let grid = config.rectify;
     let patch_std = |x: f64, y: f64| {
@@ -208,17 +216,9 @@ fn compressed_series_decode_to_the_same_pixels() {
     runtime().block_on(run(&plain, drained())).unwrap();
     let reference = plain_build.join("dicom/post_top/L00001.dcm");
     let pixels_of = |file: &Path| {
-        let out = Command::new(python())
-            .args(["-c", "import sys, pydicom, hashlib; print(hashlib.sha256(pydicom.dcmread(sys.argv[1]).pixel_array.tobytes()).hexdigest())"])
-            .arg(file)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        String::from_utf8_lossy(&out.stdout).trim().to_string()
+        python_says("import sys, pydicom, hashlib; print(hashlib.sha256(pydicom.dcmread(sys.argv[1]).pixel_array.tobytes()).hexdigest())", file)
+            .trim()
+            .to_string()
     };
     let want = pixels_of(&reference);
     for compression in variants {
@@ -234,17 +234,7 @@ fn compressed_series_decode_to_the_same_pixels() {
         // dciodvfy cannot read deflated data sets; dcmtk converts back to explicit VR LE first.
         let checked = if compression == Compression::Deflate {
             let back = dir.path().join("back.dcm");
-            let conv = tool("dcmconv")
-                .arg("+te")
-                .arg(&file)
-                .arg(&back)
-                .output()
-                .unwrap();
-            assert!(
-                conv.status.success(),
-                "dcmconv: {}",
-                String::from_utf8_lossy(&conv.stderr)
-            );
+            explicit_vr_copy(&file, &back);
             back
         } else {
             file.clone()
@@ -267,13 +257,10 @@ fn a_truncated_file_is_named_by_dicom_info() {
     let file = build.join("dicom/pre_front/L00001.dcm");
     let bytes = std::fs::read(&file).unwrap();
     std::fs::write(&file, &bytes[..300]).unwrap();
-    let out = layerwise()
+    let err = layerwise()
         .args(["dicom", "info"])
         .arg(build.join("dicom"))
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+        .fails();
     assert!(
         err.contains("pre_front/L00001.dcm") && err.contains("not a readable DICOM file"),
         "{err}"
@@ -311,28 +298,28 @@ fn box_vectors(path: &Path, layers: usize) {
     layerwise::vectors::write_ascii(&file, &mut out).unwrap();
 }
 
+/// `dir/build`, and its uncompressed calibrated configuration of `layers` layers whose vectors
+/// are [`box_vectors`] in `dir/build.cli`.
+fn box_build(dir: &Path, layers: u32) -> (PathBuf, Config) {
+    let build = dir.join("build");
+    let mut config = calibrated_config(&build, layers, Compression::None);
+    let vectors = dir.join("build.cli");
+    box_vectors(&vectors, layers as usize);
+    config.build.vectors = Some(vectors);
+    (build, config)
+}
+
 #[test]
 fn a_part_crop_and_vector_layer_heights_shape_the_series() {
     let dir = tempfile::tempdir().unwrap();
-    let build = dir.path().join("build");
-    let mut config = calibrated_config(&build, 3, Compression::None);
-    let vectors = dir.path().join("build.cli");
-    box_vectors(&vectors, 3);
-    config.build.vectors = Some(vectors);
+    let (build, mut config) = box_build(dir.path(), 3);
     config.calibration.crop_part = Some(7);
     config.calibration.crop_margin_mm = 5.0;
     runtime().block_on(run(&config, drained())).unwrap();
-    let out = layerwise()
+    let series = layerwise()
         .args(["dicom", "info", "--json"])
         .arg(build.join("dicom/post_top"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let series: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        .json_ok();
     // 30 x 22 mm at 0.5 mm around the box, on the plate's pixel lattice.
     assert_eq!(
         (series[0]["columns"].as_u64(), series[0]["rows"].as_u64()),
@@ -349,12 +336,7 @@ fn a_part_crop_and_vector_layer_heights_shape_the_series() {
         assert!(dciodvfy_errors(&file).is_empty(), "{}", file.display());
     }
     // The crop shows the box: its center is fused metal, its margin powder.
-    let dump = Command::new(python())
-        .args(["-c", "import sys, pydicom; a = pydicom.dcmread(sys.argv[1]).pixel_array.astype(float); print(a[17:27, 25:35].std(), a[0:6, 0:6].std())"])
-        .arg(build.join("dicom/post_top/L00003.dcm"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&dump.stdout);
+    let text = python_says("import sys, pydicom; a = pydicom.dcmread(sys.argv[1]).pixel_array.astype(float); print(a[17:27, 25:35].std(), a[0:6, 0:6].std())", &build.join("dicom/post_top/L00003.dcm"));
     let stds: Vec<f64> = text
         .split_whitespace()
         .filter_map(|v| v.parse().ok())
@@ -368,24 +350,17 @@ fn a_part_crop_and_vector_layer_heights_shape_the_series() {
 #[test]
 fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
     let dir = tempfile::tempdir().unwrap();
-    let build = dir.path().join("build");
-    let mut config = calibrated_config(&build, 2, Compression::None);
-    let vectors = dir.path().join("build.cli");
-    box_vectors(&vectors, 2);
-    config.build.vectors = Some(vectors);
+    let (build, config) = box_build(dir.path(), 2);
     runtime().block_on(run(&config, drained())).unwrap();
     let out = dir.path().join("export");
     let export = |extra: &[&str]| {
-        let o = layerwise()
+        layerwise()
             .args(["export", "--build"])
             .arg(&build)
             .arg("--out")
             .arg(&out)
             .args(extra)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        String::from_utf8_lossy(&o.stdout).to_string()
+            .stdout_ok()
     };
     // Six views of two layers, and the two layers of the rasterized vectors.
     assert!(export(&[]).contains("14 written, 0 already there"));
@@ -394,12 +369,7 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
         "re-running is idempotent"
     );
     assert!(export(&["--part", "7", "--margin-mm", "5"]).contains("60 x 44 px"));
-    let mut files: Vec<PathBuf> = Vec::new();
-    for series in std::fs::read_dir(&out).unwrap() {
-        for f in std::fs::read_dir(series.unwrap().path()).unwrap() {
-            files.push(f.unwrap().path());
-        }
-    }
+    let files = series_files(&out);
     assert_eq!(files.len(), 28);
     // Exports are deflated: dicom3tools read the explicit VR copies dcmtk converts them to.
     let plain = dir.path().join("plain");
@@ -407,69 +377,42 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
     let mut converted = Vec::new();
     for (i, file) in files.iter().enumerate() {
         let back = plain.join(format!("{i}.dcm"));
-        let conv = tool("dcmconv")
-            .arg("+te")
-            .arg(file)
-            .arg(&back)
-            .output()
-            .unwrap();
-        assert!(conv.status.success());
+        explicit_vr_copy(file, &back);
         assert!(dciodvfy_errors(&back).is_empty(), "{}", file.display());
         converted.push(back);
     }
     // The live series and both exports: one study, one frame of reference, no duplicate instance.
     let mut study = converted;
     study.extend(all_dcm(&build));
-    let ent = tool("dcentvfy").args(&study).output().unwrap();
-    let text =
-        String::from_utf8_lossy(&ent.stderr).to_string() + &String::from_utf8_lossy(&ent.stdout);
-    assert!(
-        !text.lines().any(|l| l.starts_with("Error")),
-        "dcentvfy: {text}"
-    );
+    assert_dcentvfy_clean(&study);
 
     let nrrd = dir.path().join("nrrd");
-    let o = layerwise()
+    layerwise()
         .args(["export", "--format", "nrrd", "--build"])
         .arg(&build)
         .arg("--out")
         .arg(&nrrd)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let check = Command::new(python())
-        .args(["-c", "import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 1)))"])
-        .arg(nrrd.join("post_top.nrrd"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&check.stdout);
+        .succeeds();
+    let text = python_says("import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 1)))", &nrrd.join("post_top.nrrd"));
     assert!(
         text.contains("(550, 550, 2)") && text.contains("(-137.25, 137.25, 0.08"),
         "{text}"
     );
     // SimpleITK stacks an exported DICOM series in the build frame too.
-    let check = Command::new(python())
-        .args(["-c", "import sys, SimpleITK as s; r = s.ImageSeriesReader(); r.SetFileNames(r.GetGDCMSeriesFileNames(sys.argv[1])); im = r.Execute(); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 0)), im.TransformIndexToPhysicalPoint((1, 1, 1)))"])
-        .arg(out.join("post_top_export"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&check.stdout);
+    let text = python_says("import sys, SimpleITK as s; r = s.ImageSeriesReader(); r.SetFileNames(r.GetGDCMSeriesFileNames(sys.argv[1])); im = r.Execute(); print(im.GetSize(), im.TransformIndexToPhysicalPoint((0, 0, 0)), im.TransformIndexToPhysicalPoint((1, 1, 1)))", &out.join("post_top_export"));
     assert!(
         text.contains("(550, 550, 2) (-137.25, 137.25, 0.0")
             && text.contains("(-136.75, 136.75, 0.0"),
-        "{text}{}",
-        String::from_utf8_lossy(&check.stderr)
+        "{text}"
     );
     // locate --mark draws the vectors first (Fig. 9): blue contour pixels in the first tile.
     let mark = dir.path().join("mark.png");
-    let o = layerwise()
+    layerwise()
         .args(["locate", "--point", "40,50,0.08", "--build"])
         .arg(&build)
         .arg("--mark")
         .arg(&mark)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        .succeeds();
     let sheet = image::open(&mark).unwrap().to_rgb8();
     assert_eq!(
         sheet.width(),
@@ -481,15 +424,6 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
         .any(|(x, y)| sheet.get_pixel(x, y).0 == [0, 0, 255]);
     assert!(first_tile_blue, "the vectors tile shows the box's contour");
     // The vectors keep their colours in NRRD: contours blue where the box's outline is.
-    let check = Command::new(python())
-        .args(["-c", "import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetNumberOfComponentsPerPixel(), im.GetSize(), im.GetPixel(im.TransformPhysicalPointToIndex((40.0, 50.0, 0.04))))"])
-        .arg(nrrd.join("vectors.nrrd"))
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&check.stdout);
-    assert!(
-        text.starts_with("3 (550, 550, 2) (0, 0, 255)"),
-        "{text}{}",
-        String::from_utf8_lossy(&check.stderr)
-    );
+    let text = python_says("import sys, SimpleITK as s; im = s.ReadImage(sys.argv[1]); print(im.GetNumberOfComponentsPerPixel(), im.GetSize(), im.GetPixel(im.TransformPhysicalPointToIndex((40.0, 50.0, 0.04))))", &nrrd.join("vectors.nrrd"));
+    assert!(text.starts_with("3 (550, 550, 2) (0, 0, 255)"), "{text}");
 }

@@ -39,6 +39,11 @@ fn layer_of(polylines: Vec<Polyline>, hatches: Vec<Hatches>) -> Layer {
     l
 }
 
+/// The area (mm²) a coverage image covers: the sum of its fractions times the pixel area.
+fn covered_area(cov: &image::GrayImage, grid: &Grid) -> f64 {
+    cov.as_raw().iter().map(|&v| v as f64 / 255.0).sum::<f64>() * grid.pixel_mm.powi(2)
+}
+
 fn count_set(img: &image::GrayImage) -> usize {
     img.as_raw().iter().filter(|&&v| v != 0).count()
 }
@@ -89,8 +94,7 @@ fn annulus_area_within_half_a_percent() {
     assert_eq!(m.get_pixel(c.round() as u32, r.round() as u32).0[0], 255);
     // Coverage: the sum of fractions is the area, closer than the mask's.
     let cov = coverage(&layer, &grid, &opts).unwrap();
-    let sum: f64 = cov.as_raw().iter().map(|&v| v as f64 / 255.0).sum();
-    let area_cov = sum * px;
+    let area_cov = covered_area(&cov, &grid);
     assert!(
         (area_cov / analytic - 1.0).abs() < 0.001,
         "coverage area {area_cov} vs {analytic}"
@@ -220,8 +224,7 @@ fn hatch_spot_width_selects_pixel_centers_within_half_width() {
         ..RasterOptions::default()
     };
     let cov = coverage(&long, &grid, &opts).unwrap();
-    let area: f64 =
-        cov.as_raw().iter().map(|&v| v as f64 / 255.0).sum::<f64>() * grid.pixel_mm.powi(2);
+    let area = covered_area(&cov, &grid);
     let analytic = 10.0 * w + PI * w * w / 4.0;
     assert!((area / analytic - 1.0).abs() < 0.01, "{area} vs {analytic}");
 }
@@ -298,8 +301,7 @@ fn contours_stroked_when_asked() {
         ..RasterOptions::default()
     };
     let cov = coverage(&layer, &grid, &opts).unwrap();
-    let area: f64 =
-        cov.as_raw().iter().map(|&v| v as f64 / 255.0).sum::<f64>() * grid.pixel_mm.powi(2);
+    let area = covered_area(&cov, &grid);
     let r: f64 = 0.25;
     let analytic = 4.0 * 4.0 + 4.0 * 4.0 * r + PI * r * r;
     assert!(
@@ -333,8 +335,7 @@ fn coverage_sums_to_area() {
             ..RasterOptions::default()
         };
         let cov = coverage(&layer, &grid, &opts).unwrap();
-        let area: f64 =
-            cov.as_raw().iter().map(|&v| v as f64 / 255.0).sum::<f64>() * grid.pixel_mm.powi(2);
+        let area = covered_area(&cov, &grid);
         let tol = if s == 1 { 0.01 } else { 0.002 };
         assert!(
             (area / analytic - 1.0).abs() < tol,

@@ -112,12 +112,7 @@ fn rectify_takes_a_nef_and_names_a_broken_one() {
     std::fs::write(&frame, &nef).unwrap();
     let rectify = |image: &Path, out: &str| view.rectify(image, &dir.path().join(out));
     for out in ["top.png", "top.dcm"] {
-        let run = rectify(&frame, out);
-        assert!(
-            run.status.success(),
-            "{}",
-            String::from_utf8_lossy(&run.stderr)
-        );
+        assert_success(&rectify(&frame, out));
     }
     // The picture: 16-bit colour on the grid, and the plate where the JPEG path puts it.
     let png = image::open(dir.path().join("top.png")).unwrap();
@@ -125,7 +120,7 @@ fn rectify_takes_a_nef_and_names_a_broken_one() {
     assert_eq!((png.width(), png.height()), (550, 550));
     let jpeg_frame = dir.path().join("frame.jpg");
     std::fs::write(&jpeg_frame, view.jpeg()).unwrap();
-    assert!(rectify(&jpeg_frame, "top_jpeg.png").status.success());
+    assert_success(&rectify(&jpeg_frame, "top_jpeg.png"));
     let from_jpeg = image::open(dir.path().join("top_jpeg.png"))
         .unwrap()
         .to_luma8();
@@ -149,9 +144,7 @@ fn rectify_takes_a_nef_and_names_a_broken_one() {
     // A NEF cut short: exit 1, the file named, nothing written.
     let broken = dir.path().join("broken.nef");
     std::fs::write(&broken, &nef[..nef.len() / 3]).unwrap();
-    let run = rectify(&broken, "broken.png");
-    assert_eq!(run.status.code(), Some(1));
-    let stderr = String::from_utf8_lossy(&run.stderr);
+    let stderr = assert_exit_1(&rectify(&broken, "broken.png"));
     assert!(
         stderr.contains("broken.nef") && stderr.contains("raw"),
         "{stderr}"

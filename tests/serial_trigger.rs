@@ -132,30 +132,15 @@ fn the_daemon_captures_on_serial_signals() {
     config.trigger = TriggerConfig::Serial(serial_config(&pair.daemon));
     let config_path = dir.path().join("layerwise.toml");
     write_config(&config, &config_path);
-    let child = layerwise()
-        .arg("run")
-        .arg("--config")
-        .arg(&config_path)
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = spawn_build(&config_path, Stdio::piped());
     std::thread::sleep(Duration::from_millis(500));
     for line in ["LAYER 1 PRE\n", "hello printer\n", "LAYER 1 POST\n"] {
         pair.send(line.as_bytes());
         std::thread::sleep(Duration::from_millis(150));
     }
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while originals(&build).len() < 6 {
-        assert!(Instant::now() < deadline, "frames: {:?}", originals(&build));
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(child.id() as i32),
-        nix::sys::signal::Signal::SIGTERM,
-    )
-    .unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(out.status.success());
+    wait_for_originals(&build, 6, Duration::from_secs(30));
+    let out = terminate(child);
+    assert_success(&out);
     let log = String::from_utf8_lossy(&out.stderr);
     assert!(
         log.contains("does not match the protocol") && log.contains("hello printer"),

@@ -1,5 +1,9 @@
 //! The shipped unit passes `systemd-analyze verify` (with ExecStart pointing at this build).
 
+mod common;
+
+use common::assert_success;
+
 #[test]
 fn unit_passes_systemd_analyze_verify() {
     let unit = std::fs::read_to_string(concat!(
@@ -29,11 +33,8 @@ fn unit_passes_systemd_analyze_verify() {
         .arg(&path)
         .output()
         .expect("systemd-analyze is needed: the README's test command installs systemd");
+    assert_success(&out);
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        out.status.success(),
-        "systemd-analyze verify failed: {stderr}"
-    );
     assert!(
         !stderr.contains("layerwise.service"),
         "warnings about the unit: {stderr}"

@@ -65,6 +65,46 @@ fn stacked(n: usize, t: f64, f: impl Fn(usize) -> Vec<Polyline>) -> VectorFile {
     )
 }
 
+/// Layers of rectangles `(lo, hi, [x0, y0, x1, y1]...)`, layer k at z = hi (the layers of
+/// [`stacked`] with the thickness `hi - lo`): counter-clockwise contours, as [`layered_rects`]
+/// measures them.
+fn stacked_rects(layers: &[(f64, f64, Vec<[f64; 4]>)]) -> VectorFile {
+    file_of(
+        layers
+            .iter()
+            .enumerate()
+            .map(|(k, (_, hi, rs))| {
+                let mut l = Layer::new(k, *hi);
+                l.polylines = rs
+                    .iter()
+                    .map(|r| {
+                        contour(
+                            rect(r[0], r[1], r[2], r[3], true),
+                            Direction::CounterClockwise,
+                        )
+                    })
+                    .collect();
+                l
+            })
+            .collect(),
+    )
+}
+
+/// The 45° wall: n layers of thickness t, a 1 x 6 mm rectangle shifted by t in x each layer,
+/// starting at x = x0.
+fn wall_45(n: usize, t: f64, x0: f64) -> Vec<(f64, f64, Vec<[f64; 4]>)> {
+    (0..n)
+        .map(|k| {
+            let a = x0 + t * k as f64;
+            (
+                t * k as f64,
+                t * (k + 1) as f64,
+                vec![[a, -3.0, a + 1.0, 3.0]],
+            )
+        })
+        .collect()
+}
+
 /// Largest |tsdf − reference| over the voxels where the reference is within the truncation
 /// band (less half a voxel, where clamping starts to differ), and the mean.
 fn compare(t: &Tsdf, reference: impl Fn([f64; 3]) -> f64) -> (f64, f64, usize) {
@@ -147,13 +187,7 @@ fn wall_at_45_degrees() {
     // layer: its faces are the planes x − z = x0 − t/2 and x0 + 1 − t/2 (the staircase's
     // mean), 60 layers of 0.05 mm.
     let (t, x0) = (0.05, -2.0);
-    let file = stacked(60, t, |k| {
-        let a = x0 + t * k as f64;
-        vec![contour(
-            rect(a, -3.0, a + 1.0, 3.0, true),
-            Direction::CounterClockwise,
-        )]
-    });
+    let file = stacked_rects(&wall_45(60, t, x0));
     let params = TsdfParams {
         voxel_mm: 0.1,
         margin_mm: 0.8,
@@ -202,14 +236,8 @@ fn wall_matches_brute_force_over_layers_when_voxels_are_thicker_than_layers() {
     // The same 45° wall, voxel = 2 layers: every layer counts, sampled by a voxel center or
     // not. Reference: the distance to the union of the layer boxes, brute force over layers.
     let (t, x0) = (0.05, -2.0);
-    let n = 60;
-    let file = stacked(n, t, |k| {
-        let a = x0 + t * k as f64;
-        vec![contour(
-            rect(a, -3.0, a + 1.0, 3.0, true),
-            Direction::CounterClockwise,
-        )]
-    });
+    let layers = wall_45(60, t, x0);
+    let file = stacked_rects(&layers);
     let params = TsdfParams {
         voxel_mm: 0.1,
         margin_mm: 0.5,
@@ -218,39 +246,7 @@ fn wall_matches_brute_force_over_layers_when_voxels_are_thicker_than_layers() {
         layer_thickness_mm: None,
     };
     let tsdf = tsdf::build(&file, &params).unwrap();
-    // Signed 2D distance to a rectangle (negative inside).
-    let rect_sd = |x: f64, y: f64, r: [f64; 4]| {
-        let dx = (r[0] - x).max(x - r[2]);
-        let dy = (r[1] - y).max(y - r[3]);
-        if dx > 0.0 || dy > 0.0 {
-            (dx.max(0.0).powi(2) + dy.max(0.0).powi(2)).sqrt()
-        } else {
-            dx.max(dy)
-        }
-    };
-    let reference = |p: [f64; 3]| -> f64 {
-        let mut inside = false;
-        let (mut d_out, mut d_in) = (f64::INFINITY, f64::INFINITY);
-        for k in 0..n {
-            let a = x0 + t * k as f64;
-            let (lo, hi) = (t * k as f64, t * (k + 1) as f64);
-            let sd = rect_sd(p[0], p[1], [a, -3.0, a + 1.0, 3.0]);
-            let dz = (lo - p[2]).max(p[2] - hi).max(0.0);
-            if dz == 0.0 && sd < 0.0 && p[2] > lo {
-                inside = true;
-            }
-            d_out = d_out.min((sd.max(0.0).powi(2) + dz * dz).sqrt());
-            d_in = d_in.min(((-sd).max(0.0).powi(2) + dz * dz).sqrt());
-        }
-        // Below the first and above the last layer is outside too.
-        d_in = d_in.min(p[2].abs()).min((p[2] - t * n as f64).abs());
-        if inside {
-            -d_in
-        } else {
-            d_out
-        }
-    };
-    let (worst, mean, count) = compare(&tsdf, reference);
+    let (worst, mean, count) = compare(&tsdf, |p| layered_rects(p, &layers));
     println!(
         "wall, voxel = 2 layers: worst {worst:.2e} mm, mean {mean:.2e} mm over {count} voxels"
     );
@@ -310,19 +306,6 @@ fn a_layer_no_voxel_center_samples_still_counts() {
     let n = 30;
     let block = [0.0, 0.0, 1.0, 1.0];
     let patch = [2.5, -0.5, 4.0, 1.0];
-    let file = stacked(n, t, |k| {
-        let mut v = vec![contour(
-            rect(block[0], block[1], block[2], block[3], true),
-            Direction::CounterClockwise,
-        )];
-        if k == 13 {
-            v.push(contour(
-                rect(patch[0], patch[1], patch[2], patch[3], true),
-                Direction::CounterClockwise,
-            ));
-        }
-        v
-    });
     let layers: Vec<(f64, f64, Vec<[f64; 4]>)> = (0..n)
         .map(|k| {
             let rs = if k == 13 {
@@ -333,6 +316,7 @@ fn a_layer_no_voxel_center_samples_still_counts() {
             (t * k as f64, t * (k + 1) as f64, rs)
         })
         .collect();
+    let file = stacked_rects(&layers);
     let params = TsdfParams {
         voxel_mm: 0.1,
         margin_mm: 0.4,

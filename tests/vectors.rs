@@ -2,7 +2,7 @@
 //! generated and deliberately broken input.
 
 mod common;
-use common::shared_cli;
+use common::{shared_cli, VECTORS_INFO_KEYS};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -75,6 +75,11 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 fn assert_same_geometry(a: &VectorFile, b: &VectorFile, tol: impl Fn(f64) -> f64, params: bool) {
     assert_eq!(a.layers.len(), b.layers.len(), "layer count");
     for (la, lb) in a.layers.iter().zip(&b.layers) {
+        let same_coordinates = |p: &[f64], q: &[f64]| {
+            for (u, v) in p.iter().zip(q) {
+                assert!(close(*u, *v, tol(*u)), "layer {}: {u} vs {v}", la.index);
+            }
+        };
         assert_eq!(la.index, lb.index);
         assert!(
             close(la.z_mm, lb.z_mm, tol(la.z_mm)),
@@ -93,9 +98,7 @@ fn assert_same_geometry(a: &VectorFile, b: &VectorFile, tol: impl Fn(f64) -> f64
             assert_eq!(pa.direction, pb.direction);
             assert_eq!(pa.points.len(), pb.points.len());
             for (qa, qb) in pa.points.iter().zip(&pb.points) {
-                for (u, v) in qa.iter().zip(qb) {
-                    assert!(close(*u, *v, tol(*u)), "layer {}: {u} vs {v}", la.index);
-                }
+                same_coordinates(qa, qb);
             }
         }
         assert_eq!(
@@ -108,9 +111,7 @@ fn assert_same_geometry(a: &VectorFile, b: &VectorFile, tol: impl Fn(f64) -> f64
             assert_eq!(ha.part, hb.part);
             assert_eq!(ha.segments.len(), hb.segments.len());
             for (sa, sb) in ha.segments.iter().zip(&hb.segments) {
-                for (u, v) in sa.iter().zip(sb) {
-                    assert!(close(*u, *v, tol(*u)), "layer {}: {u} vs {v}", la.index);
-                }
+                same_coordinates(sa, sb);
             }
         }
         if params {
@@ -848,20 +849,7 @@ fn info_json_and_display() {
     let path = shared_cli("s_Cylinder_ex.cli");
     let info = vectors::info(&path).unwrap();
     let v: serde_json::Value = serde_json::from_str(&info.to_json()).unwrap();
-    for key in [
-        "format",
-        "units",
-        "layers",
-        "z_min",
-        "z_max",
-        "layer_thickness",
-        "polylines",
-        "points",
-        "hatches",
-        "parts",
-        "declared_layers",
-        "declared_dimension_mm",
-    ] {
+    for key in VECTORS_INFO_KEYS {
         assert!(v.get(key).is_some(), "missing key {key}");
     }
     assert_eq!(v["format"], "binary");

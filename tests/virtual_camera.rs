@@ -41,10 +41,7 @@ fn run_with_virtual_camera(config: &Config, dir: &Path, frames_dir: &Path) -> Ou
     let lib = vcam_libdir();
     let config_path = dir.join("layerwise.toml");
     write_config(config, &config_path);
-    layerwise()
-        .arg("run")
-        .arg("--config")
-        .arg(&config_path)
+    run_command(&config_path)
         .env("LD_LIBRARY_PATH", &lib)
         .env("CAMLIBS", lib.join("camlibs"))
         .env("IOLIBS", lib.join("vusb"))
@@ -99,12 +96,11 @@ fn captures_and_downloads_through_real_libgphoto2() {
         &[("capturetarget", "Internal RAM"), ("f-number", "f/2.8")],
         "",
     );
-    let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&run_with_virtual_camera(
+        &config,
+        dir.path(),
+        &dir.path().join("vcam"),
+    ));
     assert_eq!(originals(&build), expected_originals(2));
     assert_sidecars_match(&build);
     for file in originals(&build) {
@@ -113,10 +109,7 @@ fn captures_and_downloads_through_real_libgphoto2() {
             served.contains(&sha),
             "{file} is not a frame the camera holds"
         );
-        let sidecar: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(build.join(file.replace(".jpg", ".json"))).unwrap(),
-        )
-        .unwrap();
+        let sidecar = read_json(&build.join(file.replace(".jpg", ".json")));
         assert_eq!(sidecar["camera"]["capturetarget"], "Internal RAM");
         assert!(
             sidecar["camera"]["model"]
@@ -128,14 +121,22 @@ fn captures_and_downloads_through_real_libgphoto2() {
     }
 }
 
-#[test]
-fn an_unknown_setting_is_named() {
+/// A one-layer build on the virtual camera with these settings and model: its stderr, after
+/// checking that it was refused (exit 1).
+fn refused(settings: &[(&str, &str)], model: &str) -> String {
     let dir = tempfile::tempdir().unwrap();
     camera_frames(&dir.path().join("vcam"));
-    let config = gphoto_config(&dir.path().join("build"), 1, &[("isospeed", "100")], "");
-    let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let config = gphoto_config(&dir.path().join("build"), 1, settings, model);
+    assert_exit_1(&run_with_virtual_camera(
+        &config,
+        dir.path(),
+        &dir.path().join("vcam"),
+    ))
+}
+
+#[test]
+fn an_unknown_setting_is_named() {
+    let err = refused(&[("isospeed", "100")], "");
     assert!(
         err.contains("isospeed") && err.contains("--list-config"),
         "{err}"
@@ -144,12 +145,7 @@ fn an_unknown_setting_is_named() {
 
 #[test]
 fn a_bad_choice_lists_the_choices() {
-    let dir = tempfile::tempdir().unwrap();
-    camera_frames(&dir.path().join("vcam"));
-    let config = gphoto_config(&dir.path().join("build"), 1, &[("f-number", "f/99")], "");
-    let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&[("f-number", "f/99")], "");
     assert!(
         err.contains("f-number") && err.contains("choices") && err.contains("f/2.8"),
         "{err}"
@@ -158,12 +154,7 @@ fn a_bad_choice_lists_the_choices() {
 
 #[test]
 fn a_missing_model_says_what_libgphoto2_sees() {
-    let dir = tempfile::tempdir().unwrap();
-    camera_frames(&dir.path().join("vcam"));
-    let config = gphoto_config(&dir.path().join("build"), 1, &[], "Nikon DSC D810");
-    let out = run_with_virtual_camera(&config, dir.path(), &dir.path().join("vcam"));
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = refused(&[], "Nikon DSC D810");
     assert!(
         err.contains("Nikon DSC D810") && err.contains("libgphoto2 sees") && err.contains("D750"),
         "{err}"

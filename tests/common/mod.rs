@@ -118,10 +118,7 @@ pub fn temporaries(dir: &Path) -> Vec<String> {
 pub fn assert_sidecars_match(dir: &Path) {
     for file in originals(dir) {
         let data = std::fs::read(dir.join(&file)).expect("original");
-        let sidecar_path = dir.join(&file).with_extension("json");
-        let sidecar: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(&sidecar_path).expect("sidecar"))
-                .expect("sidecar json");
+        let sidecar = read_json(&dir.join(&file).with_extension("json"));
         assert_eq!(
             sidecar["sha256"],
             layerwise::fsutil::sha256_hex(&data),
@@ -159,6 +156,22 @@ pub fn layerwise() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_layerwise"))
 }
 
+/// Keys every `layerwise vectors info --json` summary has.
+pub const VECTORS_INFO_KEYS: [&str; 12] = [
+    "format",
+    "units",
+    "layers",
+    "z_min",
+    "z_max",
+    "layer_thickness",
+    "polylines",
+    "points",
+    "hatches",
+    "parts",
+    "declared_layers",
+    "declared_dimension_mm",
+];
+
 /// The four real CLI files of shared/data/cli.
 pub const REAL_CLI_FILES: [&str; 4] = [
     "s_Cylinder_ex.cli",
@@ -167,14 +180,19 @@ pub const REAL_CLI_FILES: [&str; 4] = [
     "Box_support_solid_ascii_with_params.cli",
 ];
 
+/// The folder of the real CLI files: `$LAYERWISE_SHARED_DATA` when that variable is set, else
+/// `<CARGO_MANIFEST_DIR>/../shared/data/cli`.
+pub fn shared_cli_dir() -> std::path::PathBuf {
+    match std::env::var_os("LAYERWISE_SHARED_DATA") {
+        Some(d) => std::path::PathBuf::from(d),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli"),
+    }
+}
+
 /// A real CLI file from shared/data/cli: `$LAYERWISE_SHARED_DATA/<name>` when that variable is
 /// set, else `<CARGO_MANIFEST_DIR>/../shared/data/cli/<name>`. Fails when the file is missing.
 pub fn shared_cli(name: &str) -> std::path::PathBuf {
-    let dir = match std::env::var_os("LAYERWISE_SHARED_DATA") {
-        Some(d) => std::path::PathBuf::from(d),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/cli"),
-    };
-    let path = dir.join(name);
+    let path = shared_cli_dir().join(name);
     assert!(
         path.is_file(),
         "test data {} is missing: put shared/ beside the checkout or set LAYERWISE_SHARED_DATA",
@@ -276,24 +294,111 @@ impl SmallView {
     }
 }
 
-/// Checks that a command exited 0, showing its stderr if not.
-pub fn assert_success(out: &std::process::Output) {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
+/// What a finished command said, for failure messages: its exit code, stdout and stderr.
+pub fn report(out: &std::process::Output) -> String {
+    format!(
+        "exit {:?}\n--- stdout\n{}\n--- stderr\n{}",
         out.status.code(),
+        String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
-    );
+    )
+}
+
+/// Checks that a command exited 0, showing its output if not.
+pub fn assert_success(out: &std::process::Output) {
+    assert!(out.status.success(), "{}", report(out));
+}
+
+/// Checks that a command exited 1 (a refusal, not a crash or a success) and returns its stderr.
+pub fn assert_exit_1(out: &std::process::Output) -> String {
+    assert_eq!(out.status.code(), Some(1), "{}", report(out));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Running a command to its end and checking how it ended; failures name the command line.
+pub trait Run {
+    /// Runs to the end, checks it exited 0 and returns the output.
+    fn succeeds(&mut self) -> std::process::Output;
+    /// Runs to the end, checks it exited 0 and returns its stdout as text.
+    fn stdout_ok(&mut self) -> String {
+        String::from_utf8_lossy(&self.succeeds().stdout).into_owned()
+    }
+    /// Runs to the end, checks it exited 0 and returns its stdout parsed as JSON.
+    fn json_ok(&mut self) -> serde_json::Value {
+        let out = self.succeeds();
+        serde_json::from_slice(&out.stdout)
+            .unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", report(&out)))
+    }
+    /// Runs to the end, checks it exited 1 and returns its stderr.
+    fn fails(&mut self) -> String;
+}
+
+fn output_of(command: &mut std::process::Command) -> std::process::Output {
+    command
+        .output()
+        .unwrap_or_else(|e| panic!("{command:?} did not start: {e}"))
+}
+
+impl Run for std::process::Command {
+    fn succeeds(&mut self) -> std::process::Output {
+        let out = output_of(self);
+        assert!(out.status.success(), "{self:?}: {}", report(&out));
+        out
+    }
+
+    fn fails(&mut self) -> String {
+        let out = output_of(self);
+        assert_eq!(out.status.code(), Some(1), "{self:?}: {}", report(&out));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    }
+}
+
+/// `layerwise run --config FILE`, not started.
+pub fn run_command(config_path: &Path) -> std::process::Command {
+    let mut command = layerwise();
+    command.arg("run").arg("--config").arg(config_path);
+    command
 }
 
 /// Runs `layerwise run --config FILE` to its end and checks it succeeded.
 pub fn run_build(config_path: &Path) -> std::process::Output {
-    let out = layerwise()
-        .arg("run")
-        .arg("--config")
-        .arg(config_path)
-        .output()
-        .unwrap();
-    assert_success(&out);
-    out
+    run_command(config_path).succeeds()
+}
+
+/// Starts `layerwise run --config FILE` in the background, its stderr going to `stderr`.
+pub fn spawn_build(config_path: &Path, stderr: std::process::Stdio) -> std::process::Child {
+    run_command(config_path)
+        .stderr(stderr)
+        .spawn()
+        .expect("layerwise run starts")
+}
+
+/// Sends SIGTERM to a running `layerwise` and waits for it to end.
+pub fn terminate(child: std::process::Child) -> std::process::Output {
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(child.id() as i32),
+        nix::sys::signal::Signal::SIGTERM,
+    )
+    .unwrap();
+    child.wait_with_output().unwrap()
+}
+
+/// Waits until `dir/raw` holds at least `at_least` originals, failing after `timeout`.
+pub fn wait_for_originals(dir: &Path, at_least: usize, timeout: std::time::Duration) {
+    let deadline = std::time::Instant::now() + timeout;
+    while originals(dir).len() < at_least {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "only {} frames after {timeout:?}: {:?}",
+            originals(dir).len(),
+            originals(dir)
+        );
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
+/// A JSON file (a sidecar, a manifest, status.json) parsed.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
