@@ -493,10 +493,10 @@ impl Config {
                 ));
             }
         }
-        if !(self.build.layer_thickness_mm > 0.0 && self.build.layer_thickness_mm.is_finite()) {
+        if !(self.build.layer_thickness_mm > 0.0 && self.build.layer_thickness_mm <= 10.0) {
             return Err(invalid(
                 "build.layer_thickness_mm",
-                "must be a positive number of mm".into(),
+                "must be a positive number of mm, at most 10 (a powder layer is about 0.03)".into(),
             ));
         }
         if self.build.output_dir.as_os_str().is_empty() {
@@ -843,5 +843,105 @@ kind = "mock"
     fn grid_defaults_to_whole_plate() {
         let grid = crate::geometry::Grid::default();
         assert_eq!((grid.columns(), grid.rows()), (4400, 4400));
+    }
+
+    /// The demo configuration with `from` replaced by `to` (which must occur).
+    fn demo_with(from: &str, to: &str) -> Result<Config, ConfigError> {
+        assert!(DEMO_CONFIG.contains(from), "{from}");
+        parse(&DEMO_CONFIG.replacen(from, to, 1))
+    }
+
+    fn refused(result: Result<Config, ConfigError>, key: &str) {
+        let err = result.err().expect("must be refused").to_string();
+        assert!(err.contains("test.toml") && err.contains(key), "{err}");
+    }
+
+    #[test]
+    fn config_zero_backoffs_are_refused() {
+        refused(
+            demo_with("retry_backoff_ms = [5, 50]", "retry_backoff_ms = [0, 0]"),
+            "capture.retry_backoff_ms",
+        );
+        let serial = DEMO_CONFIG.replacen(
+            "[trigger]\nkind = \"mock\"",
+            "[trigger]\nkind = \"serial\"\nport = \"/dev/ttyUSB0\"\nreopen_backoff_ms = [0, 0]",
+            1,
+        );
+        let serial = serial.replacen("layers = 20\nfirst_layer = 1\ninterval_ms = 0\n", "", 1);
+        refused(parse(&serial), "trigger.reopen_backoff_ms");
+    }
+
+    #[test]
+    fn config_huge_queue_grid_and_mock_sensor_are_refused() {
+        refused(
+            demo_with("queue_capacity = 16", "queue_capacity = 1000000000000"),
+            "storage.queue_capacity",
+        );
+        refused(
+            demo_with("pixel_mm = 0.25", "pixel_mm = 0.0000001"),
+            "rectify",
+        );
+        refused(
+            demo_with("width = 1472", "width = 4000000000"),
+            "camera.width",
+        );
+    }
+
+    #[test]
+    fn config_duplicate_views_are_refused() {
+        refused(
+            demo_with(
+                "phases = [\"pre\", \"post\"]",
+                "phases = [\"post\", \"post\"]",
+            ),
+            "views.phases",
+        );
+        refused(
+            demo_with(
+                "lights = [\"front\", \"side\", \"top\"]",
+                "lights = [\"top\", \"side\", \"top\"]",
+            ),
+            "views.lights",
+        );
+    }
+
+    #[test]
+    fn config_out_of_range_layers_and_thickness_are_refused() {
+        refused(
+            demo_with("first_layer = 1", "first_layer = 4294967295"),
+            "trigger.first_layer",
+        );
+        refused(
+            demo_with("first_layer = 1", "first_layer = 0"),
+            "trigger.first_layer",
+        );
+        refused(
+            demo_with("layer_thickness_mm = 0.03", "layer_thickness_mm = 1e308"),
+            "build.layer_thickness_mm",
+        );
+    }
+
+    #[test]
+    fn config_control_characters_in_the_build_name_are_refused() {
+        refused(
+            demo_with("name = \"demo-build\"", "name = \"demo\\u0000build\""),
+            "build.name",
+        );
+        refused(
+            demo_with("name = \"demo-build\"", "name = \"demo\\nbuild\""),
+            "build.name",
+        );
+    }
+
+    #[cfg(not(feature = "gphoto"))]
+    #[test]
+    fn config_gphoto2_without_the_feature_is_refused_by_check_config() {
+        let text = DEMO_CONFIG.replacen(
+            "[camera]\nkind = \"mock\"\nwidth = 1472\nheight = 982\njpeg_quality = 90\nseed = 7",
+            "[camera]\nkind = \"gphoto2\"",
+            1,
+        );
+        assert_ne!(text, DEMO_CONFIG);
+        refused(parse(&text), "gphoto");
     }
 }
