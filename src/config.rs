@@ -445,9 +445,11 @@ fn default_dicom_compression() -> crate::dicom::Compression {
 impl Config {
     /// Reads and validates a configuration file.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            file: path.to_path_buf(),
-            source,
+        let text = crate::fsutil::read_text_bounded(path, MAX_CONFIG_BYTES).map_err(|source| {
+            ConfigError::Read {
+                file: path.to_path_buf(),
+                source,
+            }
         })?;
         Config::parse(&text, path)
     }
@@ -475,10 +477,26 @@ impl Config {
         if self.build.name.trim().is_empty() {
             return Err(invalid("build.name", "must not be empty".into()));
         }
-        if !(self.build.layer_thickness_mm > 0.0 && self.build.layer_thickness_mm.is_finite()) {
+        if self.build.name.chars().any(char::is_control) {
+            return Err(invalid(
+                "build.name",
+                "must not contain control characters (newline, NUL, …): it goes into the DICOM \
+                 PatientName and the logs"
+                    .into(),
+            ));
+        }
+        if let Some(layers) = self.build.layers {
+            if layers == 0 || layers > MAX_LAYER {
+                return Err(invalid(
+                    "build.layers",
+                    format!("must be 1 to {MAX_LAYER} (file names hold 5 digits)"),
+                ));
+            }
+        }
+        if !(self.build.layer_thickness_mm > 0.0 && self.build.layer_thickness_mm <= 10.0) {
             return Err(invalid(
                 "build.layer_thickness_mm",
-                "must be a positive number of mm".into(),
+                "must be a positive number of mm, at most 10 (a powder layer is about 0.03)".into(),
             ));
         }
         if self.build.output_dir.as_os_str().is_empty() {
@@ -506,6 +524,14 @@ impl Config {
                         "must be a positive baud rate such as 9600".into(),
                     ));
                 }
+                check_backoff("trigger.reopen_backoff_ms", serial.reopen_backoff_ms)
+                    .map_err(|m| invalid("trigger.reopen_backoff_ms", m))?;
+            }
+            TriggerConfig::Gpio(gpio) if gpio.first_layer == 0 || gpio.first_layer > MAX_LAYER => {
+                return Err(invalid(
+                    "trigger.first_layer",
+                    format!("must be 1 to {MAX_LAYER}: printers count layers from 1"),
+                ))
             }
             TriggerConfig::Gpio(gpio) => match gpio.mode {
                 GpioMode::PerPhase if gpio.pre_line.is_none() || gpio.post_line.is_none() => {
@@ -527,6 +553,16 @@ impl Config {
                     return Err(invalid(
                         "trigger.layers",
                         "must be at least 1 without a script".into(),
+                    ));
+                }
+                let last = u64::from(mock.first_layer) + u64::from(mock.layers);
+                if mock.first_layer == 0 || last > u64::from(MAX_LAYER) + 1 {
+                    return Err(invalid(
+                        "trigger.first_layer",
+                        format!(
+                            "first_layer {} and layers {} must stay within 1 to {MAX_LAYER}",
+                            mock.first_layer, mock.layers
+                        ),
                     ));
                 }
             }
@@ -563,6 +599,12 @@ impl Config {
                     "the mock sensor must be at least 16 x 16 pixels".into(),
                 ));
             }
+            if mock.width > MAX_MOCK_SIDE || mock.height > MAX_MOCK_SIDE {
+                return Err(invalid(
+                    "camera.width",
+                    format!("the mock sensor is at most {MAX_MOCK_SIDE} x {MAX_MOCK_SIDE} pixels (a D810 is 7360 x 4912)"),
+                ));
+            }
             for (i, fault) in mock.faults.iter().enumerate() {
                 if !["busy", "disconnect", "slow", "fail", "hang"].contains(&fault.fault.as_str()) {
                     return Err(invalid(
@@ -574,6 +616,16 @@ impl Config {
                     ));
                 }
             }
+        }
+        #[cfg(not(feature = "gphoto"))]
+        if let CameraConfig::Gphoto2(_) = &self.camera {
+            return Err(invalid(
+                "camera.kind",
+                "\"gphoto2\" needs a layerwise built with the `gphoto` feature (cargo build \
+                 --release --features gphoto, with libgphoto2-dev installed); this one was built \
+                 without it"
+                    .into(),
+            ));
         }
         if let CameraConfig::Gphoto2(camera) = &self.camera {
             // One shot must give one file: the daemon downloads the file the capture names, so
@@ -602,11 +654,21 @@ impl Config {
                 "must be at least 1 second".into(),
             ));
         }
+        check_backoff("capture.retry_backoff_ms", self.capture.retry_backoff_ms)
+            .map_err(|m| invalid("capture.retry_backoff_ms", m))?;
         if self.views.phases.is_empty() || self.views.lights.is_empty() {
             return Err(invalid(
                 "views",
                 "needs at least one phase and one light".into(),
             ));
+        }
+        for (key, twice) in [
+            ("views.phases", has_duplicates(&self.views.phases)),
+            ("views.lights", has_duplicates(&self.views.lights)),
+        ] {
+            if twice {
+                return Err(invalid(key, "names an entry twice".into()));
+            }
         }
         let g = &self.rectify;
         if !(g.pixel_mm > 0.0 && g.x_max > g.x_min && g.y_max > g.y_min) {
@@ -615,16 +677,35 @@ impl Config {
                 "needs x_min < x_max, y_min < y_max and pixel_mm > 0".into(),
             ));
         }
+        g.validate().map_err(|e| {
+            invalid(
+                "rectify",
+                format!("{e}: use a larger pixel_mm or a smaller extent"),
+            )
+        })?;
+        if !(self.calibration.crop_margin_mm.is_finite() && self.calibration.crop_margin_mm >= 0.0)
+        {
+            return Err(invalid(
+                "calibration.crop_margin_mm",
+                "must be a finite number of mm, 0 or more".into(),
+            ));
+        }
+        if !(self.storage.min_free_gb.is_finite() && self.storage.min_free_gb >= 0.0) {
+            return Err(invalid(
+                "storage.min_free_gb",
+                "must be a finite number of GB, 0 or more".into(),
+            ));
+        }
         if self.calibration.crop_part.is_some() && self.build.vectors.is_none() {
             return Err(invalid(
                 "calibration.crop_part",
                 "needs build.vectors: the part's outline comes from the vector file".into(),
             ));
         }
-        if self.storage.queue_capacity == 0 {
+        if self.storage.queue_capacity == 0 || self.storage.queue_capacity > MAX_QUEUE {
             return Err(invalid(
                 "storage.queue_capacity",
-                "must be at least 1".into(),
+                format!("must be 1 to {MAX_QUEUE} (frames wait on disk when the queue is full)"),
             ));
         }
         Ok(())
@@ -634,6 +715,30 @@ impl Config {
     pub fn build_id(&self) -> &str {
         self.build.id.as_deref().unwrap_or(&self.build.name)
     }
+}
+
+/// Highest layer number: file names hold five digits (`L{layer:05}`).
+pub const MAX_LAYER: u32 = 99_999;
+/// Largest processing queue: it holds references, but a bound keeps a typo from reserving memory.
+pub const MAX_QUEUE: usize = 100_000;
+/// Largest simulated sensor side.
+pub const MAX_MOCK_SIDE: u32 = 16_384;
+/// Largest configuration file read.
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// A back-off `[first, max]` in ms: both positive, first ≤ max (a zero back-off spins).
+fn check_backoff(key: &str, [first, max]: [u64; 2]) -> Result<(), String> {
+    if first == 0 || max < first {
+        return Err(format!(
+            "[{first}, {max}]: {key} needs 0 < first ≤ max, e.g. [250, 5000]"
+        ));
+    }
+    Ok(())
+}
+
+fn has_duplicates<T: Ord>(items: &[T]) -> bool {
+    let mut seen = std::collections::BTreeSet::new();
+    !items.iter().all(|i| seen.insert(i))
 }
 
 /// The demo's configuration, embedded so `layerwise demo` runs with no files around.
@@ -738,5 +843,105 @@ kind = "mock"
     fn grid_defaults_to_whole_plate() {
         let grid = crate::geometry::Grid::default();
         assert_eq!((grid.columns(), grid.rows()), (4400, 4400));
+    }
+
+    /// The demo configuration with `from` replaced by `to` (which must occur).
+    fn demo_with(from: &str, to: &str) -> Result<Config, ConfigError> {
+        assert!(DEMO_CONFIG.contains(from), "{from}");
+        parse(&DEMO_CONFIG.replacen(from, to, 1))
+    }
+
+    fn refused(result: Result<Config, ConfigError>, key: &str) {
+        let err = result.err().expect("must be refused").to_string();
+        assert!(err.contains("test.toml") && err.contains(key), "{err}");
+    }
+
+    #[test]
+    fn config_zero_backoffs_are_refused() {
+        refused(
+            demo_with("retry_backoff_ms = [5, 50]", "retry_backoff_ms = [0, 0]"),
+            "capture.retry_backoff_ms",
+        );
+        let serial = DEMO_CONFIG.replacen(
+            "[trigger]\nkind = \"mock\"",
+            "[trigger]\nkind = \"serial\"\nport = \"/dev/ttyUSB0\"\nreopen_backoff_ms = [0, 0]",
+            1,
+        );
+        let serial = serial.replacen("layers = 20\nfirst_layer = 1\ninterval_ms = 0\n", "", 1);
+        refused(parse(&serial), "trigger.reopen_backoff_ms");
+    }
+
+    #[test]
+    fn config_huge_queue_grid_and_mock_sensor_are_refused() {
+        refused(
+            demo_with("queue_capacity = 16", "queue_capacity = 1000000000000"),
+            "storage.queue_capacity",
+        );
+        refused(
+            demo_with("pixel_mm = 0.25", "pixel_mm = 0.0000001"),
+            "rectify",
+        );
+        refused(
+            demo_with("width = 1472", "width = 4000000000"),
+            "camera.width",
+        );
+    }
+
+    #[test]
+    fn config_duplicate_views_are_refused() {
+        refused(
+            demo_with(
+                "phases = [\"pre\", \"post\"]",
+                "phases = [\"post\", \"post\"]",
+            ),
+            "views.phases",
+        );
+        refused(
+            demo_with(
+                "lights = [\"front\", \"side\", \"top\"]",
+                "lights = [\"top\", \"side\", \"top\"]",
+            ),
+            "views.lights",
+        );
+    }
+
+    #[test]
+    fn config_out_of_range_layers_and_thickness_are_refused() {
+        refused(
+            demo_with("first_layer = 1", "first_layer = 4294967295"),
+            "trigger.first_layer",
+        );
+        refused(
+            demo_with("first_layer = 1", "first_layer = 0"),
+            "trigger.first_layer",
+        );
+        refused(
+            demo_with("layer_thickness_mm = 0.03", "layer_thickness_mm = 1e308"),
+            "build.layer_thickness_mm",
+        );
+    }
+
+    #[test]
+    fn config_control_characters_in_the_build_name_are_refused() {
+        refused(
+            demo_with("name = \"demo-build\"", "name = \"demo\\u0000build\""),
+            "build.name",
+        );
+        refused(
+            demo_with("name = \"demo-build\"", "name = \"demo\\nbuild\""),
+            "build.name",
+        );
+    }
+
+    #[cfg(not(feature = "gphoto"))]
+    #[test]
+    fn config_gphoto2_without_the_feature_is_refused_by_check_config() {
+        let text = DEMO_CONFIG.replacen(
+            "[camera]\nkind = \"mock\"\nwidth = 1472\nheight = 982\njpeg_quality = 90\nseed = 7",
+            "[camera]\nkind = \"gphoto2\"",
+            1,
+        );
+        assert_ne!(text, DEMO_CONFIG);
+        refused(parse(&text), "gphoto");
     }
 }

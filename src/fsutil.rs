@@ -140,6 +140,38 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
     Ok(())
 }
 
+/// Reads a small text file (a configuration, a calibration, a points file) whole: refused unless
+/// it is a regular file (a FIFO would block, `/dev/zero` never ends) of at most `max_bytes`.
+pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
+    use std::io::Read;
+    // O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused just below.
+    let file = OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_CLOEXEC)
+        .open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a FIFO, device or directory cannot be read as a file)",
+        ));
+    }
+    let mut bytes = Vec::new();
+    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("larger than {max_bytes} bytes: not a file of this kind"),
+        ));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("not UTF-8 text: {e}"),
+        )
+    })
+}
+
 /// Parses TOML text into `T`; the error names the file, the line and column, and the key.
 pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, file: &Path) -> Result<T, TomlError> {
     let deserializer = toml::Deserializer::new(text);
@@ -218,6 +250,31 @@ mod tests {
         let err = parse_toml::<T>("a = 1\nb = 2\n", Path::new("t.toml")).unwrap_err();
         let text = err.to_string();
         assert!(text.starts_with("t.toml: line 2"), "{text}");
+    }
+
+    #[test]
+    fn bounded_reads_refuse_devices_fifos_and_huge_files() {
+        let dir = tempfile::tempdir().unwrap();
+        for device in ["/dev/zero", "/dev/null"] {
+            let err = read_text_bounded(Path::new(device), 1024).unwrap_err();
+            assert!(err.to_string().contains("not a regular file"), "{err}");
+        }
+        let fifo = dir.path().join("fifo");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        assert!(
+            read_text_bounded(&fifo, 1024).is_err(),
+            "a FIFO must not block"
+        );
+        let big = dir.path().join("big.toml");
+        std::fs::write(&big, vec![b'#'; 2048]).unwrap();
+        assert!(read_text_bounded(&big, 1024)
+            .unwrap_err()
+            .to_string()
+            .contains("larger than 1024"));
+        std::fs::write(&big, "a = 1\n").unwrap();
+        assert_eq!(read_text_bounded(&big, 1024).unwrap(), "a = 1\n");
     }
 
     #[test]

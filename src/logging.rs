@@ -18,9 +18,11 @@ pub fn init(verbose: bool) {
             return;
         }
     }
+    // Colour only for a person at a terminal: never escape codes in a pipe or a log file.
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
 }

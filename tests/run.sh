@@ -37,7 +37,8 @@ if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
 cargo test --workspace --all-features
-# The build without raw support (`--no-default-features`): how it treats a NEF.
-cargo test --no-default-features --lib rectify::frame
+# The build without optional features (`--no-default-features`): how it treats a NEF, and
+# check-config refusing a gphoto2 camera it cannot drive.
+cargo test --no-default-features --lib -- rectify::frame config::
 # Benchmarks are run by hand (cargo bench); here they only have to build.
 cargo bench --workspace --all-features --no-run

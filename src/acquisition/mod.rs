@@ -183,6 +183,7 @@ impl Sequencer {
 
     fn on_event(&mut self, event: LayerEvent) -> Result<(), AcquisitionError> {
         self.beat();
+        info!(layer = event.layer, phase = %event.phase, "layer signal");
         self.journal(&Record::Event {
             layer: event.layer,
             phase: event.phase,
@@ -220,6 +221,8 @@ impl Sequencer {
         }
         self.live.layer = Some(event.layer);
         self.live.phase = Some(event.phase);
+        let started = self.clock.elapsed();
+        let (stored, missing) = (self.summary.stored, self.summary.missing);
         for shot in shots {
             if self.is_done(&shot) {
                 self.summary.skipped += 1;
@@ -228,6 +231,16 @@ impl Sequencer {
             self.take(shot)?;
         }
         self.open = None;
+        let backlog = self.queue.as_ref().map_or(0, ProcessingQueue::depth);
+        info!(
+            layer = event.layer,
+            phase = %event.phase,
+            frames = self.summary.stored - stored,
+            missing = self.summary.missing - missing,
+            capture_ms = self.clock.elapsed().saturating_sub(started).as_millis() as u64,
+            backlog,
+            "layer done"
+        );
         Ok(())
     }
 

@@ -6,7 +6,7 @@ use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Seek, SeekFrom, Write};
+use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use tracing::warn;
 
@@ -65,9 +65,15 @@ pub enum JournalError {
         path: PathBuf,
         source: std::io::Error,
     },
-    #[error("{path}: line {line}: not a journal record ({message}); move the file aside to start a new build, or fix that line")]
+    #[error(
+        "{path}: damaged at byte {offset} (line {line}), before its last record: {message}. Frames \
+         recorded after it could be lost, so nothing is cut: keep a copy of the file, then repair or \
+         remove that line (or restore the journal from a backup) and start again"
+    )]
     Corrupt {
         path: PathBuf,
+        /// Byte offset of the start of the damaged line.
+        offset: u64,
         line: usize,
         message: String,
     },
@@ -198,20 +204,21 @@ impl Journal {
         ))
     }
 
-    /// Replays a journal without opening it for writing (for `layerwise status`).
+    /// Replays a journal without opening it for writing (for `layerwise status`): the same
+    /// records the daemon would replay, a torn last record ignored as the daemon would cut it.
     pub fn read(path: &Path) -> Result<Replay, JournalError> {
         let mut file = File::open(path).map_err(|source| JournalError::Io {
             path: path.to_path_buf(),
             source,
         })?;
         let mut replay = Replay::default();
-        Self::scan(path, &mut file, |r| replay.apply(&r), false)?;
+        Self::scan(path, &mut file, |r| replay.apply(&r))?;
         Ok(replay)
     }
 
     fn replay_file(path: &Path, file: &mut File) -> Result<Replay, JournalError> {
         let mut replay = Replay::default();
-        let good_end = Self::scan(path, file, |r| replay.apply(&r), true)?;
+        let good_end = Self::scan(path, file, |r| replay.apply(&r))?;
         let len = file
             .metadata()
             .map_err(|source| JournalError::Io {
@@ -220,7 +227,7 @@ impl Journal {
             })?
             .len();
         if good_end < len {
-            warn!(journal = %path.display(), bytes = len - good_end, "journal: cutting off a torn last record left by a crash");
+            warn!(journal = %path.display(), offset = good_end, bytes = len - good_end, "journal: cutting off a torn last record left by a crash");
             file.set_len(good_end).map_err(|source| JournalError::Io {
                 path: path.to_path_buf(),
                 source,
@@ -229,59 +236,51 @@ impl Journal {
         Ok(replay)
     }
 
-    /// Calls `each` for every record; returns the byte offset after the last good line.
+    /// Calls `each` for every record and returns the byte offset after the last good one. Only
+    /// the last line may be damaged (a write torn by a crash: cut short, or garbage after the last
+    /// newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped.
     fn scan(
         path: &Path,
         file: &mut File,
         mut each: impl FnMut(Record),
-        tolerate_torn_tail: bool,
     ) -> Result<u64, JournalError> {
         let io = |source| JournalError::Io {
             path: path.to_path_buf(),
             source,
         };
         file.seek(SeekFrom::Start(0)).map_err(io)?;
-        let mut reader = BufReader::new(&mut *file);
-        let mut line = String::new();
-        let mut offset = 0u64;
+        let mut data = Vec::new();
+        file.read_to_end(&mut data).map_err(io)?;
+        let mut offset = 0usize;
         let mut number = 0usize;
-        loop {
-            line.clear();
-            let n = match reader.read_line(&mut line) {
-                Ok(n) => n,
-                // Invalid UTF-8 in the last line is a torn write too.
-                Err(e) if e.kind() == std::io::ErrorKind::InvalidData && tolerate_torn_tail => {
-                    return Ok(offset)
-                }
-                Err(e) => return Err(io(e)),
-            };
-            if n == 0 {
-                return Ok(offset);
-            }
+        while offset < data.len() {
             number += 1;
-            let complete = line.ends_with('\n');
-            match serde_json::from_str::<Record>(line.trim_end()) {
-                Ok(record) if complete || !tolerate_torn_tail => {
-                    each(record);
-                    offset += n as u64;
-                }
-                Ok(_) => return Ok(offset),
-                Err(e) => {
-                    let at_end = {
-                        let mut rest = String::new();
-                        matches!(reader.read_line(&mut rest), Ok(0))
-                    };
-                    if at_end && tolerate_torn_tail {
-                        return Ok(offset);
-                    }
+            let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
+                Some(i) => (offset + i, true),
+                None => (data.len(), false),
+            };
+            let next = if complete { end + 1 } else { end };
+            let last = next >= data.len();
+            let parsed = std::str::from_utf8(&data[offset..end])
+                .map_err(|e| format!("invalid UTF-8 ({e})"))
+                .and_then(|text| serde_json::from_str::<Record>(text).map_err(|e| e.to_string()));
+            match parsed {
+                Ok(record) if complete => each(record),
+                // A last line without its newline was torn even when it parses.
+                Ok(_) => return Ok(offset as u64),
+                Err(_) if last => return Ok(offset as u64),
+                Err(message) => {
                     return Err(JournalError::Corrupt {
                         path: path.to_path_buf(),
+                        offset: offset as u64,
                         line: number,
-                        message: e.to_string(),
-                    });
+                        message,
+                    })
                 }
             }
+            offset = next;
         }
+        Ok(offset as u64)
     }
 
     pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
@@ -370,6 +369,55 @@ mod tests {
             3,
             "nothing was cut"
         );
+    }
+
+    #[test]
+    fn journal_invalid_utf8_in_the_middle_is_an_error_with_its_byte_offset() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("journal.jsonl");
+        let good = serde_json::to_string(&frame(1)).unwrap();
+        let missing = serde_json::to_string(&Record::Missing {
+            layer: 2,
+            phase: Phase::Post,
+            light: Light::Top,
+            reason: "camera failed".into(),
+            at: Utc::now(),
+        })
+        .unwrap();
+        let mut bytes = format!("{good}\n{good}\n{missing}\n").into_bytes();
+        let second = good.len() + 1;
+        bytes[second + 5] = 0xFF; // one invalid byte inside the second record
+        std::fs::write(&path, &bytes).unwrap();
+        let err = Journal::open(&path, false).err().unwrap().to_string();
+        assert!(
+            err.contains(&format!("byte {second}")) && err.contains("line 2"),
+            "{err}"
+        );
+        assert_eq!(std::fs::read(&path).unwrap(), bytes, "nothing was cut");
+        // `status` reads the journal the same way: the same error, not a silent partial replay.
+        let status = Journal::read(&path).err().unwrap().to_string();
+        assert!(status.contains(&format!("byte {second}")), "{status}");
+    }
+
+    #[test]
+    fn journal_torn_tail_is_the_same_for_the_daemon_and_status() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("journal.jsonl");
+        let good = serde_json::to_string(&frame(1)).unwrap();
+        for tail in [
+            &b"{\"kind\":\"fra"[..],
+            &b"\xFF\xFE garbage"[..],
+            &b"garbage\n"[..],
+        ] {
+            let mut bytes = format!("{good}\n").into_bytes();
+            bytes.extend_from_slice(tail);
+            std::fs::write(&path, &bytes).unwrap();
+            let status = Journal::read(&path).unwrap();
+            let (_, daemon) = Journal::open(&path, false).unwrap();
+            assert_eq!(status.frames.len(), 1);
+            assert_eq!(daemon.frames, status.frames);
+            assert_eq!(std::fs::read(&path).unwrap().len(), good.len() + 1);
+        }
     }
 
     #[test]

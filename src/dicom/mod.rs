@@ -22,16 +22,44 @@ pub const IMPLEMENTATION_CLASS_UID: &str = "2.25.3023781462123774041517867163849
 const EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1";
 const JPEG_LS_LOSSLESS: &str = "1.2.840.10008.1.2.4.80";
 
+/// Why a slice could not be encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    #[error("{rows} x {columns} pixels cannot be a DICOM image (1 to 65535 each way)")]
+    Size { rows: usize, columns: usize },
+    #[error("{len} pixels for a {rows} x {columns} image")]
+    PixelCount {
+        len: usize,
+        rows: usize,
+        columns: usize,
+    },
+    #[error("{what}: {source}")]
+    Encoder {
+        what: &'static str,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    #[error("this layerwise was built without JPEG-LS; rebuild with `--features jpegls` (needs cmake and g++) or choose deflate")]
+    NoJpegLs,
+}
+
+impl EncodeError {
+    fn encoder(
+        what: &'static str,
+    ) -> impl FnOnce(Box<dyn std::error::Error + Send + Sync>) -> EncodeError {
+        move |source| EncodeError::Encoder { what, source }
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum DicomError {
-    #[error("{path}: {message}")]
-    Write { path: PathBuf, message: String },
+    #[error("{path}: {source}")]
+    Encode { path: PathBuf, source: EncodeError },
+    #[error(transparent)]
+    Write(#[from] crate::fsutil::WriteError),
     #[error("{path}: not a readable DICOM file ({message}); if it was cut short by a crash, delete it and re-run")]
     Read { path: PathBuf, message: String },
     #[error("{path}: {message}")]
     Geometry { path: PathBuf, message: String },
-    #[error("this layerwise was built without JPEG-LS; rebuild with `--features jpegls` (needs cmake and g++) or choose deflate")]
-    NoJpegLs,
 }
 
 /// How pixel data is stored.
@@ -347,22 +375,21 @@ pub fn encode_slice(
     series: &Series,
     slice: &Slice,
     compression: Compression,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<u8>, EncodeError> {
     let p = slice.plane;
     if p.rows == 0 || p.columns == 0 || p.rows > u16::MAX as usize || p.columns > u16::MAX as usize
     {
-        return Err(format!(
-            "{} x {} pixels cannot be a DICOM image (1 to 65535 each way)",
-            p.rows, p.columns
-        ));
+        return Err(EncodeError::Size {
+            rows: p.rows,
+            columns: p.columns,
+        });
     }
     if slice.pixels.len() != p.rows * p.columns {
-        return Err(format!(
-            "{} pixels for a {} x {} image",
-            slice.pixels.len(),
-            p.rows,
-            p.columns
-        ));
+        return Err(EncodeError::PixelCount {
+            len: slice.pixels.len(),
+            rows: p.rows,
+            columns: p.columns,
+        });
     }
     let sop_instance_uid = instance_uid(series, slice.layer);
     let object = slice_object(study, series, slice, &sop_instance_uid);
@@ -372,7 +399,9 @@ pub fn encode_slice(
         .transfer_syntax(EXPLICIT_VR_LE)
         .implementation_class_uid(IMPLEMENTATION_CLASS_UID)
         .implementation_version_name(concat!("LAYERWISE_", env!("CARGO_PKG_VERSION")));
-    let mut file = object.with_meta(meta).map_err(|e| e.to_string())?;
+    let mut file = object
+        .with_meta(meta)
+        .map_err(|e| EncodeError::encoder("file meta")(Box::new(e)))?;
     match compression {
         Compression::None => {}
         Compression::Deflate => {
@@ -383,32 +412,35 @@ pub fn encode_slice(
             );
             let mut out = vec![0u8; 128];
             out.extend_from_slice(b"DICM");
-            file.meta().write(&mut out).map_err(|e| e.to_string())?;
+            file.meta()
+                .write(&mut out)
+                .map_err(|e| EncodeError::encoder("file meta")(Box::new(e)))?;
             let mut plain = Vec::with_capacity(2 * slice.pixels.len() + 4096);
             file.write_dataset_with_ts(
                 &mut plain,
                 &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
             )
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| EncodeError::encoder("data set")(Box::new(e)))?;
             out.extend_from_slice(&deflate_parallel(&plain));
             return Ok(out);
         }
         Compression::JpegLs => {
             if cfg!(not(feature = "jpegls")) {
-                return Err(DicomError::NoJpegLs.to_string());
+                return Err(EncodeError::NoJpegLs);
             }
             let ts = dicom_transfer_syntax_registry::TransferSyntaxRegistry
                 .get(JPEG_LS_LOSSLESS)
-                .ok_or_else(|| DicomError::NoJpegLs.to_string())?;
+                .ok_or(EncodeError::NoJpegLs)?;
             file.transcode(ts)
-                .map_err(|e| format!("JPEG-LS encoding: {e}"))?;
+                .map_err(|e| EncodeError::encoder("JPEG-LS encoding")(Box::new(e)))?;
             // The encoder adds attributes the (single-frame) CT Image IOD does not have.
             file.remove_element(tags::NUMBER_OF_FRAMES);
             file.remove_element(Tag(0x7FE0, 0x0003));
         }
     }
     let mut bytes = Vec::new();
-    file.write_all(&mut bytes).map_err(|e| e.to_string())?;
+    file.write_all(&mut bytes)
+        .map_err(|e| EncodeError::encoder("data set")(Box::new(e)))?;
     Ok(bytes)
 }
 
@@ -464,15 +496,18 @@ pub fn write_slice(
     slice: &Slice,
     compression: Compression,
 ) -> Result<(), DicomError> {
-    let err = |message: String| DicomError::Write {
-        path: path.to_path_buf(),
-        message,
-    };
-    let bytes = encode_slice(study, series, slice, compression).map_err(err)?;
+    let bytes =
+        encode_slice(study, series, slice, compression).map_err(|source| DicomError::Encode {
+            path: path.to_path_buf(),
+            source,
+        })?;
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
+        std::fs::create_dir_all(dir).map_err(|source| crate::fsutil::WriteError {
+            path: dir.to_path_buf(),
+            source,
+        })?;
     }
-    write_atomic(path, &bytes, true).map_err(|e| err(e.source.to_string()))
+    Ok(write_atomic(path, &bytes, true)?)
 }
 
 /// What `layerwise dicom info` reports of one series.

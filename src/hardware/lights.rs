@@ -36,10 +36,12 @@ impl LightsGuard {
         LightsGuard { lights }
     }
     pub fn switch(&mut self, light: Light, on: bool) -> Result<(), LightsError> {
+        tracing::debug!(light = %light, on, "lights: switch");
         self.lights.switch(light, on)
     }
     /// All off, logging rather than failing: used on error paths.
     pub fn all_off_logged(&mut self) {
+        tracing::debug!("lights: all off");
         if let Err(e) = self.lights.all_off() {
             warn!(error = %e, "lights: could not switch all lights off");
         }

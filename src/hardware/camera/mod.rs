@@ -145,9 +145,21 @@ impl CameraActor {
 
     pub fn capture(&self, shot: &Shot) -> Result<Frame, CameraError> {
         let shot = *shot;
-        self.call(move |reply| Command::Capture(shot, reply))
+        tracing::debug!(layer = shot.layer, phase = %shot.phase, light = %shot.light, camera = %self.description, "camera: capture");
+        let result = self.call(move |reply| Command::Capture(shot, reply));
+        match &result {
+            Ok(frame) => tracing::debug!(
+                bytes = frame.data.len(),
+                capture_ms = frame.capture_ms,
+                download_ms = frame.download_ms,
+                "camera: frame downloaded"
+            ),
+            Err(e) => tracing::debug!(error = %e, "camera: capture failed"),
+        }
+        result
     }
     pub fn reopen(&self) -> Result<(), CameraError> {
+        tracing::debug!(camera = %self.description, "camera: reopen");
         self.call(Command::Reopen)
     }
     pub fn describe(&self) -> &str {
