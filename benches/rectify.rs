@@ -8,9 +8,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use image::{DynamicImage, GrayImage, ImageFormat, Rgb, RgbImage};
-use layerwise::rectify::{
-    decode_jpeg, homography_from_points, luma, Grid, Interpolation, RadialDistortion, Rectifier,
-};
+use layerwise::geometry::{homography_from_points, CameraModel, Homography};
+use layerwise::rectify::{decode_jpeg, luma, Grid, Interpolation, RadialDistortion, Rectifier};
 
 const W: u32 = 7360;
 const H: u32 = 4912;
@@ -41,7 +40,7 @@ fn frame() -> RgbImage {
 }
 
 /// The oblique 30° view: plate corners → image trapezoid, by DLT.
-fn oblique() -> [[f64; 3]; 3] {
+fn oblique() -> Homography {
     homography_from_points(
         [
             [1400.0, 600.0],
@@ -63,7 +62,9 @@ fn bench_rectify(c: &mut Criterion) {
     let rgb = frame();
     let gray = luma(&rgb);
     let h = oblique();
-    let plain = |interp| Rectifier::new(h, Grid::plate(), None, interp, 0).expect("rectifier");
+    let plain = |interp| {
+        Rectifier::new(&CameraModel::pinhole(h), Grid::plate(), interp, 0).expect("rectifier")
+    };
     let lens = RadialDistortion {
         center: [3680.0, 2456.0],
         focal_px: 9000.0,
@@ -72,8 +73,9 @@ fn bench_rectify(c: &mut Criterion) {
     };
     let bilinear = plain(Interpolation::Bilinear);
     let bicubic = plain(Interpolation::Bicubic);
-    let distorted = Rectifier::new(h, Grid::plate(), Some(lens), Interpolation::Bilinear, 0)
-        .expect("rectifier");
+    let camera = CameraModel::new(h, Some(lens));
+    let distorted =
+        Rectifier::new(&camera, Grid::plate(), Interpolation::Bilinear, 0).expect("rectifier");
 
     let mut g = c.benchmark_group("rectify_7360x4912_to_4400");
     g.sample_size(10)

@@ -7,10 +7,10 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use layerwise::calibrate::{
-    align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, render_exemplar,
-    Correspondence, LmOptions, Pair,
+    align, dlt_build_from_image, filter_frame, luma_f32, render_exemplar, Correspondence,
+    LmOptions, Pair,
 };
-use layerwise::rectify::Grid;
+use layerwise::geometry::{BuildPoint, Grid, Homography, ImagePoint};
 use layerwise::vectors::{Direction, Layer, Polyline};
 use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
 
@@ -21,7 +21,7 @@ fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<(f64, f64)> {
     vec![(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
 }
 
-fn setup() -> (image::DynamicImage, Layer, [[f64; 3]; 3], Grid) {
+fn setup() -> (image::DynamicImage, Layer, Homography, Grid) {
     let truth = Homography::oblique_view(W, H);
     let rings = [
         rect(40.0, 40.0, 70.0, 62.0),
@@ -59,13 +59,13 @@ fn setup() -> (image::DynamicImage, Layer, [[f64; 3]; 3], Grid) {
         .map(|(&(x, y), (du, dv))| {
             let (u, v) = inv.apply(x, y).expect("in view");
             Correspondence {
-                image: [u + du, v + dv],
-                build: [x, y],
+                image: ImagePoint::new(u + du, v + dv),
+                build: BuildPoint::new(x, y),
                 line: 0,
             }
         })
         .collect();
-    let h0 = homography_dlt(&clicks, Path::new("bench")).expect("clicks");
+    let build_from_image0 = dlt_build_from_image(&clicks, Path::new("bench")).expect("clicks");
     let grid = Grid {
         x_min: -105.0,
         x_max: 105.0,
@@ -73,15 +73,23 @@ fn setup() -> (image::DynamicImage, Layer, [[f64; 3]; 3], Grid) {
         y_max: 80.0,
         pixel_mm: 0.3,
     };
-    (image::DynamicImage::ImageRgb8(frame), layer, h0, grid)
+    (
+        image::DynamicImage::ImageRgb8(frame),
+        layer,
+        build_from_image0,
+        grid,
+    )
 }
 
 fn bench(c: &mut Criterion) {
-    let (frame, layer, h0, grid) = setup();
+    let (frame, layer, build_from_image0, grid) = setup();
     let lum = luma_f32(&frame);
-    let (exemplar, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED);
-    let (image, _) = filter_frame(&lum, &h0, &grid, extent, true).expect("filter");
-    let start = layerwise::calibrate::mat_mul(&mat_inv(&h0).expect("regular"), &grid_matrix(&grid));
+    let (exemplar, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED).expect("exemplar");
+    let (image, _) = filter_frame(&lum, &build_from_image0, &grid, extent, true).expect("filter");
+    let start = build_from_image0
+        .inverse()
+        .expect("regular")
+        .compose(&Homography::build_from_grid(&grid));
     let pair = [Pair {
         image: &image,
         exemplar: &exemplar,
@@ -94,8 +102,8 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("prepare_exemplar_and_filter", |b| {
         b.iter(|| {
-            let (e, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED);
-            let f = filter_frame(&lum, &h0, &grid, extent, true).expect("filter");
+            let (e, extent) = render_exemplar(&layer, &grid, 11, 2, 0x5EED).expect("exemplar");
+            let f = filter_frame(&lum, &build_from_image0, &grid, extent, true).expect("filter");
             (e.data.len(), f.0.data.len())
         })
     });

@@ -13,6 +13,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use image::DynamicImage;
+use layerwise::geometry::{CameraModel, Homography};
 use layerwise::rectify::{Grid, Interpolation, Rectifier};
 
 fn main() -> ExitCode {
@@ -33,8 +34,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         _ => return Err("usage: rectify_file in.png H.json out.png [--reuse]".into()),
     };
     let src = image::open(input)?;
-    let h = parse_homography(&std::fs::read_to_string(h_path)?)?;
-    let rect = Rectifier::new(h, Grid::plate(), None, Interpolation::Bilinear, 0)?;
+    let build_from_image = parse_homography(&std::fs::read_to_string(h_path)?)?;
+    let camera = CameraModel::pinhole(Homography::from_matrix(build_from_image));
+    let rect = Rectifier::new(&camera, Grid::plate(), Interpolation::Bilinear, 0)?;
 
     let mut times = Vec::new();
     let mut out = None;

@@ -1,4 +1,4 @@
-//! Our side of benches/peers/ecc_vs_ours.py: the IC-LM core on files both sides read.
+//! Our side of bench/ecc_vs_ours.py: the IC-LM core on files both sides read.
 //!
 //! `register_file make DIR [--size N]` renders a mock post-scan frame (N x N, mock_camera's
 //! oblique view, five parts) and writes, as .npy: `image.npy` (I_B, the std-filtered frame,
@@ -17,12 +17,12 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use layerwise::calibrate::{
-    align, filter_frame, grid_matrix, homography_dlt, luma_f32, mat_inv, mat_mul, project,
-    render_exemplar, Correspondence, F32Image, LmOptions, Mat3, Pair,
+    align, dlt_build_from_image, filter_frame, luma_f32, render_exemplar, Correspondence, F32Image,
+    LmOptions, Pair,
 };
-use layerwise::rectify::Grid;
+use layerwise::geometry::{BuildPoint, Grid, Homography, ImagePoint, Mat3};
 use layerwise::vectors::{Direction, Layer, Polyline};
-use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
+use mock_camera::{Illumination, Renderer, Scene, Shape};
 
 fn main() {
     if let Err(e) = run() {
@@ -144,7 +144,7 @@ fn layer(parts: &[Part]) -> Layer {
 
 fn make(dir: &Path, size: u32, half_mm: f64) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
-    let truth = Homography::oblique_view(size, size);
+    let truth = mock_camera::Homography::oblique_view(size, size);
     let truth_inv = truth.inverse().ok_or_else(|| anyhow!("singular truth"))?;
     let parts = parts();
     let shapes: Vec<Shape> = parts.iter().map(|p| p.0.clone()).collect();
@@ -173,12 +173,12 @@ fn make(dir: &Path, size: u32, half_mm: f64) -> Result<()> {
             .apply(x, y)
             .ok_or_else(|| anyhow!("corner beyond the horizon"))?;
         clicks.push(Correspondence {
-            image: [u + du, v + dv],
-            build: [x, y],
+            image: ImagePoint::new(u + du, v + dv),
+            build: BuildPoint::new(x, y),
             line: 0,
         });
     }
-    let h0 = homography_dlt(&clicks, Path::new("clicks"))?;
+    let build_from_image0 = dlt_build_from_image(&clicks, Path::new("clicks"))?;
     let grid = Grid {
         x_min: -half_mm,
         x_max: half_mm,
@@ -186,15 +186,18 @@ fn make(dir: &Path, size: u32, half_mm: f64) -> Result<()> {
         y_max: half_mm,
         pixel_mm: 0.0625,
     };
-    let g = grid_matrix(&grid);
-    let start = mat_mul(&mat_inv(&h0).ok_or_else(|| anyhow!("singular start"))?, &g);
-    let truth_warp = mat_mul(&truth_inv.m, &g);
+    let build_from_grid = Homography::build_from_grid(&grid);
+    let start = build_from_image0
+        .inverse()
+        .ok_or_else(|| anyhow!("singular start"))?
+        .compose(&build_from_grid);
+    let truth_warp = Homography::from_matrix(truth_inv.m).compose(&build_from_grid);
     let t = Instant::now();
     let l = layer(&parts);
-    let (exemplar, extent_mm) = render_exemplar(&l, &grid, 11, 2, 0x5EED);
+    let (exemplar, extent_mm) = render_exemplar(&l, &grid, 11, 2, 0x5EED)?;
     let (image, window) = filter_frame(
         &luma_f32(&image::DynamicImage::ImageRgb8(frame)),
-        &h0,
+        &build_from_image0,
         &grid,
         extent_mm,
         true,
@@ -225,8 +228,8 @@ fn make(dir: &Path, size: u32, half_mm: f64) -> Result<()> {
     write_npy_f32(&dir.join("image.npy"), &image)?;
     write_npy_f32(&dir.join("exemplar.npy"), &exemplar)?;
     write_npy_f64(&dir.join("contour.npy"), &contour, contour.len() / 2, 2)?;
-    write_matrix(&dir.join("start.txt"), &start)?;
-    write_matrix(&dir.join("truth.txt"), &truth_warp)?;
+    write_matrix(&dir.join("start.txt"), &start.matrix())?;
+    write_matrix(&dir.join("truth.txt"), &truth_warp.matrix())?;
     eprintln!("wrote {}", dir.display());
     Ok(())
 }
@@ -235,8 +238,8 @@ fn align_files(dir: &Path, levels: usize, repeat: usize, all_pixels: bool) -> Re
     let image = read_npy_f32(&dir.join("image.npy"))?;
     let exemplar = read_npy_f32(&dir.join("exemplar.npy"))?;
     let contour = read_npy_f64(&dir.join("contour.npy"))?;
-    let start = read_matrix(&dir.join("start.txt"))?;
-    let truth = read_matrix(&dir.join("truth.txt"))?;
+    let start = Homography::from_matrix(read_matrix(&dir.join("start.txt"))?);
+    let truth = Homography::from_matrix(read_matrix(&dir.join("truth.txt"))?);
     let mut opts = LmOptions {
         levels: Some(levels),
         ..LmOptions::default()
@@ -258,7 +261,7 @@ fn align_files(dir: &Path, levels: usize, repeat: usize, all_pixels: bool) -> Re
         result = Some(a);
     }
     let a = result.ok_or_else(|| anyhow!("no run"))?;
-    let (mean, max) = warp_error(&a.warp, &truth, &contour)?;
+    let (mean, max) = warp_error(&a.image_from_exemplar, &truth, &contour)?;
     let (mean0, max0) = warp_error(&start, &truth, &contour)?;
     let levels_json: Vec<String> = a
         .levels
@@ -278,16 +281,20 @@ fn align_files(dir: &Path, levels: usize, repeat: usize, all_pixels: bool) -> Re
          \"levels\": [{}], \"warp\": {:?}}}",
         rayon::current_num_threads(),
         levels_json.join(", "),
-        a.warp
+        a.image_from_exemplar.matrix()
     );
     Ok(())
 }
 
-fn warp_error(est: &Mat3, truth: &Mat3, contour: &[f64]) -> Result<(f64, f64)> {
+fn warp_error(est: &Homography, truth: &Homography, contour: &[f64]) -> Result<(f64, f64)> {
     let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0usize);
     for p in contour.chunks_exact(2) {
-        let a = project(est, p[0], p[1]).ok_or_else(|| anyhow!("point beyond the horizon"))?;
-        let b = project(truth, p[0], p[1]).ok_or_else(|| anyhow!("point beyond the horizon"))?;
+        let a = est
+            .apply(p[0], p[1])
+            .ok_or_else(|| anyhow!("point beyond the horizon"))?;
+        let b = truth
+            .apply(p[0], p[1])
+            .ok_or_else(|| anyhow!("point beyond the horizon"))?;
         let d = (a.0 - b.0).hypot(a.1 - b.1);
         sum += d;
         max = max.max(d);

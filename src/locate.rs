@@ -3,6 +3,7 @@
 //! side by side (the paper's Fig. 9).
 
 use crate::ct::CtLocation;
+use crate::geometry::BuildPoint;
 use crate::rectify::Rectifier;
 use crate::series::{series_dir, BuildRecord};
 use crate::shot::{Shot, View};
@@ -44,14 +45,8 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
     let layer = record.heights.layer_at(point[2]);
     let rectifier = match &record.calibration {
         Some(c) => Some(
-            Rectifier::new(
-                c.homography,
-                record.grid,
-                c.distortion,
-                Default::default(),
-                0,
-            )
-            .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?,
+            Rectifier::new(&c.camera(), record.grid, Default::default(), 0)
+                .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?,
         ),
         None => None,
     };
@@ -81,8 +76,8 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
                 dicom,
                 image_pixel: rectifier
                     .as_ref()
-                    .and_then(|r| r.image_point(point[0], point[1]))
-                    .map(|(u, v)| [u, v]),
+                    .and_then(|r| r.image_point(BuildPoint::new(point[0], point[1])))
+                    .map(|p| [p.u, p.v]),
                 original,
             }
         })
@@ -159,14 +154,8 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
         .calibration
         .as_ref()
         .ok_or_else(|| LocateError::Invalid("the build has no calibration.toml".into()))?;
-    let rectifier = Rectifier::new(
-        calibration.homography,
-        record.grid,
-        calibration.distortion,
-        Default::default(),
-        0,
-    )
-    .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?;
+    let rectifier = Rectifier::new(&calibration.camera(), record.grid, Default::default(), 0)
+        .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?;
     let mut tiles: Vec<image::RgbImage> = Vec::new();
     let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
     // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.

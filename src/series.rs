@@ -213,13 +213,7 @@ impl LiveSeries {
                 )
             })
             .collect();
-        let rectifier = Rectifier::new(
-            calibration.homography,
-            grid,
-            calibration.distortion,
-            interpolation,
-            fill,
-        )
+        let rectifier = Rectifier::new(&calibration.camera(), grid, interpolation, fill)
         .map_err(SeriesError::Rectifier)?;
         Ok(LiveSeries {
             root: None,

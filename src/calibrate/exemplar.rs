@@ -2,9 +2,9 @@
 //! polylines stroked a melt track wide) with its ones replaced by white noise, then the same
 //! local standard deviation filter as the build images.
 
+use crate::geometry::Grid;
 pub use crate::raster::F32Image;
-use crate::raster::{self, RasterOptions};
-use crate::rectify::Grid;
+use crate::raster::{self, RasterError, RasterOptions};
 use crate::vectors::Layer;
 
 /// Spot width of hatches and open polylines in mm (a typical melt track).
@@ -27,16 +27,13 @@ fn options() -> RasterOptions {
 }
 
 /// The exemplar of `layer` on `grid`: mask ones → white noise, zeros → 0, then the std filter.
-/// An empty image when the grid cannot be rasterized (the caller then finds no fused area).
-pub fn exemplar(layer: &Layer, grid: &Grid, window: usize, seed: u64) -> F32Image {
-    raster::exemplar(layer, grid, &options(), window, seed).unwrap_or_else(|_| F32Image {
-        width: grid.columns(),
-        height: grid.rows(),
-        data: vec![0.0; grid.columns() * grid.rows()],
-    })
-}
-
-/// The local standard deviation filter (box sums, window clipped at the borders).
-pub fn std_filter(data: &[f32], width: usize, height: usize, window: usize) -> Vec<f32> {
-    raster::std_filter(data, width, height, window).unwrap_or_else(|_| vec![0.0; data.len()])
+/// Errors when the grid cannot be rasterized (too large, invalid) or the window is unusable:
+/// the cause is reported as it is, not as an empty exemplar.
+pub fn exemplar(
+    layer: &Layer,
+    grid: &Grid,
+    window: usize,
+    seed: u64,
+) -> Result<F32Image, RasterError> {
+    raster::exemplar(layer, grid, &options(), window, seed)
 }

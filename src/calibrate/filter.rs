@@ -109,7 +109,7 @@ pub fn std_filter_footprint(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibrate::exemplar::std_filter;
+    use crate::raster::std_filter;
 
     fn noise(w: usize, h: usize) -> Vec<f32> {
         let mut x = 0x1234_5678_9abc_def1u64;
@@ -128,7 +128,7 @@ mod tests {
         let (w, h) = (53, 149);
         let data = noise(w, h);
         for win in [1usize, 3, 11] {
-            let a = std_filter(&data, w, h, win);
+            let a = std_filter(&data, w, h, win).expect("valid window");
             let wf = win as f64;
             let b = std_filter_footprint(&data, w, h, [0, h, 0, w], 64.0, |_, _| (wf, wf));
             for (x, y) in a.iter().zip(&b) {

@@ -3,66 +3,29 @@
 
 use image::{DynamicImage, Rgb, RgbImage};
 
-use super::Mat3;
-use crate::rectify::RadialDistortion;
+use crate::geometry::{BuildPoint, CameraModel, ImagePoint};
 use crate::vectors::{Direction, Layer};
 
 pub const INITIAL_COLOR: Rgb<u8> = Rgb([255, 0, 0]);
 pub const FINAL_COLOR: Rgb<u8> = Rgb([0, 0, 255]);
 
-/// One mapping build mm → recorded image pixel: H⁻¹, then the lens distortion if any.
-#[derive(Clone, Copy, Debug)]
-pub struct Mapping<'a> {
-    /// Image → build homography (docs/frames.md).
-    pub homography: &'a Mat3,
-    pub distortion: Option<&'a RadialDistortion>,
-}
-
-impl Mapping<'_> {
-    /// Where build point (x, y) lands in the recorded image; `None` beyond the horizon or when
-    /// the homography is singular.
-    pub fn image_point(&self, x: f64, y: f64) -> Option<(f64, f64)> {
-        let hi = super::mat_inv(self.homography)?;
-        image_point_with(&hi, self.distortion, x, y)
-    }
-}
-
-fn image_point_with(
-    h_inv: &Mat3,
-    distortion: Option<&RadialDistortion>,
-    x: f64,
-    y: f64,
-) -> Option<(f64, f64)> {
-    let w = h_inv[2][0] * x + h_inv[2][1] * y + h_inv[2][2];
-    if !(w > 0.0) {
-        return None;
-    }
-    let u = (h_inv[0][0] * x + h_inv[0][1] * y + h_inv[0][2]) / w;
-    let v = (h_inv[1][0] * x + h_inv[1][1] * y + h_inv[1][2]) / w;
-    Some(match distortion {
-        Some(d) => d.distort(u, v),
-        None => (u, v),
-    })
-}
-
-/// The frame (as RGB) with `layer`'s contours and open polylines drawn through `initial` in red,
-/// then through `refined` in blue, about 2 px wide.
+/// The frame (as RGB) with `layer`'s contours and open polylines drawn through the `initial`
+/// camera in red, then through the `refined` one in blue, about 2 px wide. Points a camera does
+/// not see ([`CameraModel::image_point`]: beyond the horizon, past the lens model's fold) break
+/// the lines.
 pub fn draw_overlay(
     image: &DynamicImage,
     layer: &Layer,
-    initial: Mapping,
-    refined: Mapping,
+    initial: &CameraModel,
+    refined: &CameraModel,
 ) -> RgbImage {
     let mut out = image.to_rgb8();
-    for (mapping, color) in [(initial, INITIAL_COLOR), (refined, FINAL_COLOR)] {
-        let Some(h_inv) = super::mat_inv(mapping.homography) else {
-            continue;
-        };
+    for (camera, color) in [(initial, INITIAL_COLOR), (refined, FINAL_COLOR)] {
         for p in &layer.polylines {
-            let mut pts: Vec<Option<(f64, f64)>> = p
+            let mut pts: Vec<Option<ImagePoint>> = p
                 .points
                 .iter()
-                .map(|q| image_point_with(&h_inv, mapping.distortion, q[0], q[1]))
+                .map(|q| camera.image_point(BuildPoint::new(q[0], q[1])))
                 .collect();
             if p.direction != Direction::Open {
                 if let Some(&first) = pts.first() {
@@ -80,7 +43,8 @@ pub fn draw_overlay(
 }
 
 /// A segment about 2 px wide: 2x2 stamps every half pixel along it.
-fn draw_segment(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), color: Rgb<u8>) {
+fn draw_segment(img: &mut RgbImage, a: ImagePoint, b: ImagePoint, color: Rgb<u8>) {
+    let (a, b) = ((a.u, a.v), (b.u, b.v));
     let (w, h) = (f64::from(img.width()), f64::from(img.height()));
     // Skip what is far off the frame (a wild mapping must not make this loop forever).
     let off = |p: (f64, f64)| p.0 < -w || p.0 > 2.0 * w || p.1 < -h || p.1 > 2.0 * h;
@@ -105,6 +69,7 @@ fn draw_segment(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), color: Rgb<u8>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Homography;
     use crate::vectors::Polyline;
 
     #[test]
@@ -117,20 +82,13 @@ mod tests {
             points: vec![[10.0, 10.0], [60.0, 10.0], [60.0, 50.0], [10.0, 50.0]],
         });
         // Identity: build mm = image px; the refined one shifted by 5 px in u.
-        let id = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let shifted = [[1.0, 0.0, 5.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let out = draw_overlay(
-            &img,
-            &layer,
-            Mapping {
-                homography: &id,
-                distortion: None,
-            },
-            Mapping {
-                homography: &shifted,
-                distortion: None,
-            },
-        );
+        let id = CameraModel::pinhole(Homography::IDENTITY);
+        let shifted = CameraModel::pinhole(Homography::from_matrix([
+            [1.0, 0.0, 5.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+        ]));
+        let out = draw_overlay(&img, &layer, &id, &shifted);
         // The closing edge x = 10: image u = 10 (initial) and u = 5 (refined).
         assert_eq!(*out.get_pixel(10, 30), INITIAL_COLOR);
         assert_eq!(*out.get_pixel(5, 30), FINAL_COLOR);

@@ -1,23 +1,8 @@
 //! Unit tests of the registration glue (the accuracy tests are in tests/registration.rs).
 
+use super::pipeline::{grid_around, plate_grid, round_sig};
 use super::*;
-
-#[test]
-fn grid_matrix_follows_the_frame_contract() {
-    let grid = Grid {
-        x_min: -10.0,
-        x_max: 10.0,
-        y_min: -5.0,
-        y_max: 5.0,
-        pixel_mm: 0.5,
-    };
-    let g = grid_matrix(&grid);
-    for (r, c) in [(0.0, 0.0), (3.0, 7.0), (19.0, 39.0)] {
-        let (x, y) = project(&g, c, r).expect("affine");
-        let (ex, ey) = grid.center_of(r, c);
-        assert!((x - ex).abs() < 1e-12 && (y - ey).abs() < 1e-12);
-    }
-}
+use crate::vectors::{Direction, Polyline};
 
 #[test]
 fn grid_around_covers_the_box_with_whole_pixels() {
@@ -32,7 +17,7 @@ fn grid_around_covers_the_box_with_whole_pixels() {
 #[test]
 fn plate_grid_uses_the_center_resolution() {
     // 0.2 mm per pixel, image center at build (0, 0).
-    let h = [[0.2, 0.0, -100.0], [0.0, -0.2, 80.0], [0.0, 0.0, 1.0]];
+    let h = Homography::from_matrix([[0.2, 0.0, -100.0], [0.0, -0.2, 80.0], [0.0, 0.0, 1.0]]);
     let g = plate_grid(&h).expect("regular");
     assert_eq!((g.x_min, g.x_max), (-137.5, 137.5));
     assert!((g.pixel_mm - 0.2).abs() < 1e-3, "{g:?}");
@@ -40,18 +25,44 @@ fn plate_grid_uses_the_center_resolution() {
 }
 
 #[test]
-fn matrix_helpers() {
-    let m = [[2.0, 0.1, 3.0], [0.2, 1.5, -1.0], [1e-3, 2e-3, 1.0]];
-    let inv = mat_inv(&m).expect("regular");
-    let id = mat_mul(&m, &inv);
-    for (i, row) in id.iter().enumerate() {
-        for (j, v) in row.iter().enumerate() {
-            assert!((v - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
-        }
-    }
-    assert!(mat_inv(&[[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]]).is_none());
-    let n = normalise_h(&[[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 4.0]]).expect("ok");
-    assert_eq!(n[2][2], 1.0);
-    assert_eq!(n[0][0], 0.5);
+fn round_sig_keeps_significant_digits() {
     assert_eq!(round_sig(0.062_468_3, 4), 0.062_47);
+    assert_eq!(round_sig(0.0, 4), 0.0);
+}
+
+/// A grid the raster refuses reaches the caller as that raster error, not as "no fused area".
+#[test]
+fn an_unrenderable_exemplar_reports_the_raster_error() {
+    let mut layer = Layer::new(0, 0.03);
+    layer.polylines.push(Polyline {
+        part: 1,
+        direction: Direction::CounterClockwise,
+        points: vec![
+            [0.0, 0.0],
+            [10.0, 0.0],
+            [10.0, 10.0],
+            [0.0, 10.0],
+            [0.0, 0.0],
+        ],
+    });
+    let huge = Grid {
+        x_min: -1000.0,
+        x_max: 1000.0,
+        y_min: -1000.0,
+        y_max: 1000.0,
+        pixel_mm: 0.001,
+    };
+    let err = render_exemplar(&layer, &huge, 11, 2, 1).unwrap_err();
+    assert!(matches!(err, RegistrationError::Raster(_)), "{err}");
+    assert!(err.to_string().contains("exemplar"), "{err}");
+    let ok = Grid {
+        x_min: -5.0,
+        x_max: 15.0,
+        y_min: -5.0,
+        y_max: 15.0,
+        pixel_mm: 0.5,
+    };
+    let (ex, extent) = render_exemplar(&layer, &ok, 11, 2, 1).expect("renders");
+    assert_eq!((ex.width, ex.height), (40, 40));
+    assert!(ex.data.iter().any(|&v| v > 0.0) && extent > 0.0);
 }

@@ -32,6 +32,17 @@ impl RadialDistortion {
         (cu + du * k, cv + dv * k)
     }
 
+    /// [`RadialDistortion::distort`] where the model is monotonic; `None` at or past the
+    /// radius where the polynomial folds back ([`RadialDistortion::max_r2`]), where points far
+    /// outside the image would land inside it.
+    pub fn distort_within_fold(&self, u: f64, v: f64) -> Option<(f64, f64)> {
+        let [cu, cv] = self.center;
+        let (du, dv) = (u - cu, v - cv);
+        let r2 = (du * du + dv * dv) / (self.focal_px * self.focal_px);
+        // NaN r2 fails the comparison.
+        (r2 < self.max_r2()).then(|| self.distort(u, v))
+    }
+
     /// Recorded (distorted) pixel → undistorted pixel, to ~1e-9 px.
     ///
     /// Solves the radial equation `r·(1 + k1·r² + k2·r⁴) = r_d` by safeguarded
@@ -140,5 +151,86 @@ impl RadialDistortion {
             )));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lens() -> RadialDistortion {
+        RadialDistortion {
+            center: [410.0, 290.0],
+            focal_px: 700.0,
+            k1: -0.12,
+            k2: 0.03,
+        }
+    }
+
+    #[test]
+    fn distort_undistort_round_trip() {
+        for d in [
+            lens(),
+            RadialDistortion {
+                k1: 0.08,
+                k2: 0.01,
+                ..lens()
+            },
+            RadialDistortion {
+                k1: -0.2,
+                k2: 0.0,
+                ..lens()
+            },
+        ] {
+            for u in (-100..=900).step_by(37) {
+                for v in (-80..=680).step_by(41) {
+                    let (u, v) = (u as f64, v as f64);
+                    let (du, dv) = d.distort(u, v);
+                    let (uu, vu) = d.undistort(du, dv);
+                    assert!(
+                        (uu - u).abs() < 1e-6 && (vu - v).abs() < 1e-6,
+                        "{d:?} {u},{v}"
+                    );
+                    let (ru, rv) = d.undistort(u, v);
+                    if ru.is_nan() {
+                        // Only a folding model has recorded points it cannot produce.
+                        assert!(d.max_r2().is_finite() && d.k1 == -0.2, "{d:?} {u},{v}");
+                        continue;
+                    }
+                    let (bu, bv) = d.distort(ru, rv);
+                    assert!(
+                        (bu - u).abs() < 1e-6 && (bv - v).abs() < 1e-6,
+                        "{d:?} {u},{v}"
+                    );
+                }
+            }
+        }
+        // Strong barrel folds back: past the fold undistort reports NaN.
+        let fold = RadialDistortion {
+            k1: -0.5,
+            k2: 0.0,
+            ..lens()
+        };
+        assert!(fold.max_r2().is_finite());
+        assert!(fold.undistort(410.0 + 5000.0, 290.0).0.is_nan());
+    }
+
+    #[test]
+    fn distort_within_fold_refuses_the_folded_side() {
+        let fold = RadialDistortion {
+            k1: -0.5,
+            k2: 0.0,
+            ..lens()
+        };
+        // Normalised r² at the fold: 1/(3·0.5); the radius in pixels is 700·√(2/3) ≈ 571.5.
+        assert_eq!(
+            fold.distort_within_fold(410.0 + 500.0, 290.0),
+            Some(fold.distort(910.0, 290.0))
+        );
+        assert_eq!(fold.distort_within_fold(410.0 + 600.0, 290.0), None);
+        assert_eq!(fold.distort_within_fold(f64::NAN, 290.0), None);
+        // A model that never folds accepts any radius.
+        assert!(lens().max_r2().is_infinite());
+        assert!(lens().distort_within_fold(1e5, 0.0).is_some());
     }
 }

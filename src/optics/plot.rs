@@ -5,6 +5,7 @@
 //! renderers (ImageMagick's) draw the same picture as browsers.
 
 use super::{OpticsInput, OpticsReport, SideView};
+use crate::geometry::clip_segment;
 use std::fmt::Write;
 
 const PANEL_W: f64 = 640.0;
@@ -44,35 +45,6 @@ fn text_at(out: &mut String, x: f64, y: f64, anchor: &str, extra: &str, text: &s
         "<text x=\"{x:.1}\" y=\"{y:.1}\" text-anchor=\"{anchor}\"{extra}>{}</text>",
         esc(text)
     );
-}
-
-/// Liang-Barsky: the part of segment `a b` inside `[x0, y0, x1, y1]`.
-fn clip_line(a: [f64; 2], b: [f64; 2], r: [f64; 4]) -> Option<([f64; 2], [f64; 2])> {
-    let d = [b[0] - a[0], b[1] - a[1]];
-    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
-    for (p, q) in [
-        (-d[0], a[0] - r[0]),
-        (d[0], r[2] - a[0]),
-        (-d[1], a[1] - r[1]),
-        (d[1], r[3] - a[1]),
-    ] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return None;
-            }
-        } else {
-            let t = q / p;
-            if p < 0.0 {
-                t0 = t0.max(t);
-            } else {
-                t1 = t1.min(t);
-            }
-        }
-    }
-    (t0 <= t1).then(|| {
-        let at = |t: f64| [a[0] + t * d[0], a[1] + t * d[1]];
-        (at(t0), at(t1))
-    })
 }
 
 /// Sutherland-Hodgman: the polygon clipped to `[x0, y0, x1, y1]`.
@@ -194,7 +166,7 @@ impl Panel {
         if !finite(a) || !finite(b) {
             return;
         }
-        if let Some((a, b)) = clip_line(a, b, self.rect) {
+        if let Some((a, b)) = clip_segment(a, b, self.rect) {
             let _ = writeln!(
                 self.svg,
                 "<line x1=\"{:.1}\" y1=\"{:.1}\" x2=\"{:.1}\" y2=\"{:.1}\" {style}/>",

@@ -3,6 +3,7 @@
 use image::{Rgb, RgbImage};
 
 use super::Grid;
+use crate::geometry::clip_segment;
 
 /// Draws the segment a–b (build mm) one pixel wide: one pixel per step along the major axis,
 /// the pixel whose center is nearest the line, clipped to the image first so that a segment
@@ -14,33 +15,12 @@ pub(crate) fn line(img: &mut RgbImage, grid: &Grid, a: [f64; 2], b: [f64; 2], co
     if ![r0, c0, r1, c1].iter().all(|v| v.is_finite()) {
         return;
     }
-    // Liang–Barsky against the pixel area [-0.5, w − 0.5] x [-0.5, h − 0.5].
-    let (dc, dr) = (c1 - c0, r1 - r0);
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for (p, q) in [
-        (-dc, c0 + 0.5),
-        (dc, w - 0.5 - c0),
-        (-dr, r0 + 0.5),
-        (dr, h - 0.5 - r0),
-    ] {
-        if p == 0.0 {
-            if q < 0.0 {
-                return;
-            }
-        } else {
-            let t = q / p;
-            if p < 0.0 {
-                t0 = t0.max(t);
-            } else {
-                t1 = t1.min(t);
-            }
-        }
-    }
-    if t0 > t1 {
+    // Clip against the pixel area [-0.5, w − 0.5] x [-0.5, h − 0.5] (c along x, r along y).
+    let Some(([ca, ra], [cb, rb])) =
+        clip_segment([c0, r0], [c1, r1], [-0.5, -0.5, w - 0.5, h - 0.5])
+    else {
         return;
-    }
-    let (ca, ra) = (c0 + t0 * dc, r0 + t0 * dr);
-    let (cb, rb) = (c0 + t1 * dc, r0 + t1 * dr);
+    };
     let (iw, ih) = (img.width() as i64, img.height() as i64);
     let mut put = |c: f64, r: f64| {
         let (c, r) = (c.round() as i64, r.round() as i64);

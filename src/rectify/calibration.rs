@@ -1,12 +1,12 @@
 //! The calibration file: what `layerwise register images` writes and the rectifier reads.
-//! `homography` maps image (u, v, 1) to build (x, y, 1) in mm, `H[2][2] = 1` (docs/frames.md); with
-//! a `[distortion]` table it maps undistorted pixels.
+//! Its `homography` key holds `build_from_image`: image (u, v, 1) to build (x, y, 1) in mm,
+//! `H[2][2] = 1` (docs/frames.md); with a `[distortion]` table it maps undistorted pixels.
 
 use super::{Grid, RadialDistortion};
 use crate::fsutil::{parse_toml, TomlError};
+use crate::geometry::{CameraModel, Homography, Mat3};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -37,11 +37,14 @@ pub enum CalibrationError {
     },
 }
 
-/// The calibration file as stored.
+/// The calibration file as stored. The keys are the file format (docs/frames.md): they do not
+/// change with the names in code.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationFile {
-    pub homography: [[f64; 3]; 3],
+    /// Image → build, `H[2][2] = 1`.
+    #[serde(rename = "homography")]
+    pub build_from_image: Mat3,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grid: Option<Grid>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -54,13 +57,20 @@ pub struct CalibrationFile {
 /// A usable calibration.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Calibration {
-    pub homography: [[f64; 3]; 3],
+    /// Undistorted image pixel → build mm, `H[2][2] = 1` (stored as `homography`).
+    pub build_from_image: Homography,
+    /// Where the camera records an undistorted pixel (stored as `[distortion]`).
     pub distortion: Option<RadialDistortion>,
     pub grid: Option<Grid>,
     pub fit: Option<toml::Table>,
 }
 
 impl Calibration {
+    /// The camera this calibration describes: homography and lens.
+    pub fn camera(&self) -> CameraModel {
+        CameraModel::new(self.build_from_image, self.distortion)
+    }
+
     pub fn load(path: &Path) -> Result<Calibration, CalibrationError> {
         let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Read {
             file: path.to_path_buf(),
@@ -76,7 +86,7 @@ impl Calibration {
             key: key.to_string(),
             message: message.to_string(),
         };
-        let h = stored.homography;
+        let h = stored.build_from_image;
         if h.iter().flatten().any(|v| !v.is_finite()) {
             return Err(invalid("homography", "has a non-finite entry"));
         }
@@ -107,7 +117,7 @@ impl Calibration {
             }
         };
         Ok(Calibration {
-            homography: h,
+            build_from_image: Homography::from_matrix(h),
             distortion,
             grid: stored.grid,
             fit: stored.fit,
@@ -116,7 +126,7 @@ impl Calibration {
 
     pub fn to_toml(&self) -> String {
         let stored = CalibrationFile {
-            homography: self.homography,
+            build_from_image: self.build_from_image.matrix(),
             grid: self.grid,
             distortion: self.distortion.map(|d| DistortionTable {
                 model: "radial".into(),
@@ -138,7 +148,11 @@ mod tests {
     #[test]
     fn round_trip_and_contract_checks() {
         let cal = Calibration {
-            homography: [[0.1, 0.0, -100.0], [0.0, -0.1, 80.0], [1e-6, 2e-5, 1.0]],
+            build_from_image: Homography::from_matrix([
+                [0.1, 0.0, -100.0],
+                [0.0, -0.1, 80.0],
+                [1e-6, 2e-5, 1.0],
+            ]),
             distortion: Some(RadialDistortion {
                 center: [3680.0, 2456.0],
                 focal_px: 9200.0,
@@ -167,5 +181,66 @@ mod tests {
             err.contains("c.toml") && err.contains("homography"),
             "{err}"
         );
+    }
+
+    /// A file as the code before the frame-named fields wrote it (the stored struct of commit
+    /// 925044f, serialised here) loads unchanged, and is written back byte for byte.
+    #[test]
+    fn loads_calibrations_written_by_the_previous_layout() {
+        #[derive(Serialize)]
+        struct PreviousFile {
+            homography: [[f64; 3]; 3],
+            #[serde(skip_serializing_if = "Option::is_none")]
+            grid: Option<Grid>,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            distortion: Option<DistortionTable>,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            fit: Option<toml::Table>,
+        }
+        let h = [
+            [0.0412, -0.0031, -151.25],
+            [0.0007, -0.0468, 119.5],
+            [2.5e-7, -9.75e-6, 1.0],
+        ];
+        let mut fit = toml::Table::new();
+        fit.insert("method".into(), toml::Value::String("clicks".into()));
+        let old = PreviousFile {
+            homography: h,
+            grid: Some(Grid::plate()),
+            distortion: Some(DistortionTable {
+                model: "radial".into(),
+                center: [3679.5, 2455.5],
+                focal_px: 9226.0,
+                k1: -0.021,
+                k2: 0.0012,
+            }),
+            fit: Some(fit.clone()),
+        };
+        let text = toml::to_string(&old).unwrap();
+        assert!(text.starts_with("homography = [["), "{text}");
+        let cal = Calibration::parse(&text, Path::new("old.toml")).expect("loads");
+        assert_eq!(cal.build_from_image.matrix(), h);
+        assert_eq!(cal.grid, Some(Grid::plate()));
+        assert_eq!(cal.fit, Some(fit));
+        let d = cal.distortion.expect("distortion");
+        assert_eq!(
+            (d.center, d.focal_px, d.k1, d.k2),
+            ([3679.5, 2455.5], 9226.0, -0.021, 0.0012)
+        );
+        assert_eq!(cal.to_toml(), text);
+        // The minimal file: the homography alone.
+        let bare = toml::to_string(&PreviousFile {
+            homography: h,
+            grid: None,
+            distortion: None,
+            fit: None,
+        })
+        .unwrap();
+        let cal = Calibration::parse(&bare, Path::new("bare.toml")).expect("loads");
+        assert_eq!(
+            cal.camera(),
+            CameraModel::pinhole(Homography::from_matrix(h))
+        );
+        assert_eq!(cal.to_toml(), bare);
     }
 }

@@ -29,13 +29,7 @@ pub fn rectify_file(
 ) -> Result<Grid, RectifyFileError> {
     let calibration = Calibration::load(calibration)?;
     let grid = calibration.grid.unwrap_or_default();
-    let rectifier = Rectifier::new(
-        calibration.homography,
-        grid,
-        calibration.distortion,
-        Interpolation::Bilinear,
-        0,
-    )?;
+    let rectifier = Rectifier::new(&calibration.camera(), grid, Interpolation::Bilinear, 0)?;
     let bad_image = |message: String| RectifyFileError::Image {
         path: image.display().to_string(),
         message,

@@ -38,6 +38,7 @@ mod file;
 mod frame;
 mod luma_decode;
 mod os;
+mod positions;
 #[cfg(feature = "nef")]
 pub mod raw;
 #[cfg(target_arch = "x86_64")]
@@ -48,8 +49,7 @@ mod warp;
 
 use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 
-pub use crate::geometry::mat3::homography_from_points;
-pub use crate::geometry::{Grid, RadialDistortion};
+pub use crate::geometry::{CameraModel, Grid, RadialDistortion};
 pub use calibration::{Calibration, CalibrationError};
 pub use decode::{decode_jpeg, luma};
 pub use file::{rectify_file, RectifyFileError};

@@ -6,7 +6,8 @@
 
 use std::arch::x86_64::*;
 
-use super::warp::{bilinear_run, map_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
+use super::positions::map_run;
+use super::warp::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
 
 /// Whether the AVX2 kernels can run here (cached by std after the first call).
 #[inline]

@@ -1,0 +1,509 @@
+//! Phase 1 of the rectifier (see `warp.rs`): fixed-point source positions of a run of grid
+//! pixels, incremental along the row, f32 blocks where that is exact enough, f64 elsewhere.
+
+use super::warp::{Coords, DistParams, Job, FRAC_BITS, ONE};
+
+/// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
+#[inline(always)]
+pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co: &mut Coords) {
+    let m = &job.m;
+    let r = row as f64;
+    // Along a row the homogeneous position is affine in the column: one base
+    // per row plus c·step per pixel, no 3x3 product.
+    let line = Line {
+        bx: m[0][1] * r + m[0][2],
+        by: m[1][1] * r + m[1][2],
+        bw: m[2][1] * r + m[2][2],
+        sx: m[0][0],
+        sy: m[1][0],
+        sw: m[2][0],
+    };
+    if let Some(map) = job.map {
+        // Cached positions (distortion): only the image bounds are applied.
+        // i32::MIN fails finish's unsigned range test, so it stays outside.
+        let src = &map[row * job.cols + col0..][..n];
+        let ix = &mut co.ix[..n];
+        let iy = &mut co.iy[..n];
+        let fx = &mut co.fx[..n];
+        let fy = &mut co.fy[..n];
+        for j in 0..n {
+            let [x, y] = src[j];
+            (ix[j], iy[j], fx[j], fy[j]) = finish(job, x, y, true);
+        }
+        return;
+    }
+    let mut j0 = 0;
+    while j0 < n {
+        let len = BLOCK.min(n - j0);
+        match &job.dist {
+            Some(d) => fast_block_distorted(job, d, &line, col0, j0, len, co),
+            None => fast_block(job, &line, col0, j0, len, co),
+        }
+        j0 += len;
+    }
+}
+
+/// Homogeneous source position along one grid row: `base + c·step`.
+struct Line {
+    bx: f64,
+    by: f64,
+    bw: f64,
+    sx: f64,
+    sy: f64,
+    sw: f64,
+}
+
+impl Line {
+    /// Undistorted source position in pixels, and w.
+    #[inline(always)]
+    fn at(&self, c: f64) -> (f64, f64, f64) {
+        let w = self.bw + c * self.sw;
+        ((self.bx + c * self.sx) / w, (self.by + c * self.sy) / w, w)
+    }
+
+    /// Source position in fixed-point units plus ½ (so `floor` rounds), and w.
+    #[inline(always)]
+    fn scaled(&self, c: f64) -> (f64, f64, f64) {
+        let w = self.bw + c * self.sw;
+        let rw = ONE as f64 / w;
+        (
+            (self.bx + c * self.sx) * rw + 0.5,
+            (self.by + c * self.sy) * rw + 0.5,
+            w,
+        )
+    }
+}
+
+/// Pixels per block of the f32 incremental path.
+const BLOCK: usize = 64;
+/// Largest position change (fixed-point units, 2¹⁸ = 128 px) across a block
+/// for the f32 path; its rounding error stays below ~0.1 unit (5e-5 px).
+const BLOCK_SPAN: f64 = (1 << 18) as f64;
+/// Homogeneous w at or below this is "beyond the horizon" (keeps 1/w finite).
+const W_MIN: f64 = 1e-200;
+
+/// Phase 1 for one block of `len` pixels starting at column `col0 + j0`.
+///
+/// Within a block, the position relative to the block start is
+/// `δ(j) = j·K / w(j)` with `K = step − U₀·sw` (one f64 setup per block),
+/// evaluated in f32: δ is small, so f32 loses nothing that matters, and the
+/// loop runs 8 lanes wide. Blocks where that does not hold (near the
+/// horizon, steep minification) use the exact f64 path.
+#[inline(always)]
+fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize, co: &mut Coords) {
+    let c0 = (col0 + j0) as f64;
+    let c1 = c0 + (len - 1) as f64;
+    let (ux0, uy0, w0) = l.scaled(c0);
+    let (ux1, uy1, w1) = l.scaled(c1);
+    let (xmax, ymax) = (job.xmax_q as f64, job.ymax_q as f64);
+    // w is affine in c, so positive at both ends means positive throughout,
+    // and then the position is monotonic along the block.
+    if w0 > W_MIN && w1 > W_MIN {
+        let off_x = (ux0 < 0.0 && ux1 < 0.0) || (ux0 >= xmax + 1.0 && ux1 >= xmax + 1.0);
+        let off_y = (uy0 < 0.0 && uy1 < 0.0) || (uy0 >= ymax + 1.0 && uy1 >= ymax + 1.0);
+        if off_x || off_y {
+            co.ix[j0..j0 + len].fill(-1);
+            return;
+        }
+        let near = (ux1 - ux0).abs() <= BLOCK_SPAN
+            && (uy1 - uy0).abs() <= BLOCK_SPAN
+            && ux0.abs() < 1e9
+            && uy0.abs() < 1e9
+            && w1 <= 2.0 * w0
+            && w0 <= 2.0 * w1;
+        if near {
+            let one = ONE as f64;
+            let (x0i, y0i) = (ux0.floor(), uy0.floor());
+            let kx = (l.sx * one + 0.5 * l.sw - ux0 * l.sw) as f32;
+            let ky = (l.sy * one + 0.5 * l.sw - uy0 * l.sw) as f32;
+            let (x0f, y0f) = ((ux0 - x0i) as f32, (uy0 - y0i) as f32);
+            let (x0i, y0i) = (x0i as i32, y0i as i32);
+            let (w0f, swf) = (w0 as f32, l.sw as f32);
+            let lim = 2.0 * BLOCK_SPAN as f32;
+            let ix = &mut co.ix[j0..j0 + len];
+            let iy = &mut co.iy[j0..j0 + len];
+            let fx = &mut co.fx[j0..j0 + len];
+            let fy = &mut co.fy[j0..j0 + len];
+            for j in 0..len {
+                let jf = j as i32 as f32;
+                let t = jf / (w0f + swf * jf);
+                let dx = clamp_f32((x0f + kx * t).floor(), lim);
+                let dy = clamp_f32((y0f + ky * t).floor(), lim);
+                // SAFETY: clamped to ±2^19, finite (NaN became -lim).
+                let (dx, dy): (i32, i32) =
+                    unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
+                (ix[j], iy[j], fx[j], fy[j]) = finish(job, x0i + dx, y0i + dy, true);
+            }
+            return;
+        }
+    }
+    exact_run::<T, false>(job, &NO_DIST, l, col0, j0, len, co);
+}
+
+/// [`fast_block`] with lens distortion.
+///
+/// The undistorted offset from the block start, (δu, δv) = j·(Ku, Kv)/w(j),
+/// is pushed through the distortion as a difference from the block start:
+/// with e = Δr² and κ = Δk = e·(k1 + k2·(2r₀² + e)),
+/// `Δu_d = δu·(k₀ + κ) + du₀·κ` (and likewise for v). Every f32 term is a
+/// small difference, so the result keeps the block path's precision.
+#[inline(always)]
+fn fast_block_distorted<T>(
+    job: &Job<'_, T>,
+    d: &DistParams,
+    l: &Line,
+    col0: usize,
+    j0: usize,
+    len: usize,
+    co: &mut Coords,
+) {
+    let c0 = (col0 + j0) as f64;
+    let c1 = c0 + (len - 1) as f64;
+    let (u0, v0, w0) = l.at(c0);
+    let (u1, v1, w1) = l.at(c1);
+    let one = ONE as f64;
+    if w0 > W_MIN && w1 > W_MIN && w1 <= 2.0 * w0 && w0 <= 2.0 * w1 {
+        let (ud0, vd0, in0) = d.apply(u0, v0);
+        let (ud1, vd1, in1) = d.apply(u1, v1);
+        let span = BLOCK_SPAN / one;
+        let near = in0
+            && in1
+            && (u1 - u0).abs() <= span
+            && (v1 - v0).abs() <= span
+            && (ud1 - ud0).abs() <= span
+            && (vd1 - vd0).abs() <= span
+            && ud0.abs() < 1e5
+            && vd0.abs() < 1e5;
+        if near {
+            let (du0, dv0) = (u0 - d.cu, v0 - d.cv);
+            let r20 = (du0 * du0 + dv0 * dv0) * d.inv_f2;
+            let k0 = 1.0 + r20 * (d.k1 + r20 * d.k2);
+            let (xs, ys) = (ud0 * one + 0.5, vd0 * one + 0.5);
+            let (x0i, y0i) = (xs.floor(), ys.floor());
+            let (x0f, y0f) = ((xs - x0i) as f32, (ys - y0i) as f32);
+            let (x0i, y0i) = (x0i as i32, y0i as i32);
+            let ku = (l.sx - u0 * l.sw) as f32;
+            let kv = (l.sy - v0 * l.sw) as f32;
+            let (w0f, swf) = (w0 as f32, l.sw as f32);
+            let (du0f, dv0f, k0f) = (du0 as f32, dv0 as f32, k0 as f32);
+            let (au, av, s) = (
+                (2.0 * du0 * d.inv_f2) as f32,
+                (2.0 * dv0 * d.inv_f2) as f32,
+                d.inv_f2 as f32,
+            );
+            let (k1, k2, r20f) = (d.k1 as f32, d.k2 as f32, r20 as f32);
+            // Room left below the fold, as a limit on Δr².
+            let e_max = (d.r2_max - r20) as f32;
+            let onef = one as f32;
+            let lim = 2.0 * BLOCK_SPAN as f32;
+            let ix = &mut co.ix[j0..j0 + len];
+            let iy = &mut co.iy[j0..j0 + len];
+            let fx = &mut co.fx[j0..j0 + len];
+            let fy = &mut co.fy[j0..j0 + len];
+            for j in 0..len {
+                let jf = j as i32 as f32;
+                let t = jf / (w0f + swf * jf);
+                let (du, dv) = (ku * t, kv * t);
+                let e = (au + s * du) * du + (av + s * dv) * dv;
+                let kappa = e * (k1 + k2 * (2.0 * r20f + e));
+                let dud = du * (k0f + kappa) + du0f * kappa;
+                let dvd = dv * (k0f + kappa) + dv0f * kappa;
+                let dx = clamp_f32((x0f + dud * onef).floor(), lim);
+                let dy = clamp_f32((y0f + dvd * onef).floor(), lim);
+                // SAFETY: clamped to ±2^19, finite (NaN became -lim).
+                let (dx, dy): (i32, i32) =
+                    unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
+                (ix[j], iy[j], fx[j], fy[j]) = finish(job, x0i + dx, y0i + dy, e < e_max);
+            }
+            return;
+        }
+    }
+    exact_run::<T, true>(job, d, l, col0, j0, len, co);
+}
+
+/// `x` limited to [−lim, lim]; NaN gives −lim. Plain compares, so it
+/// vectorises to max/min.
+#[inline(always)]
+fn clamp_f32(x: f32, lim: f32) -> f32 {
+    let x = if x > -lim { x } else { -lim };
+    if x < lim {
+        x
+    } else {
+        lim
+    }
+}
+
+/// Fixed-point position → (ix, iy, fx, fy), `ix = −1` when outside.
+///
+/// Inside iff the rounded position lies in [0, W−1] x [0, H−1]. On the last
+/// column/row the pixel steps back by one with full weight on the far
+/// neighbour, so the 2x2 block stays in the image.
+#[inline(always)]
+fn finish<T>(job: &Job<'_, T>, xq: i32, yq: i32, ok: bool) -> (i32, i32, i32, i32) {
+    // Unsigned compare tests 0 ≤ q ≤ max in one go.
+    let ok = ok & ((xq as u32) <= job.xmax_q as u32) & ((yq as u32) <= job.ymax_q as u32);
+    let xi = (xq >> FRAC_BITS).min(job.wm2);
+    let yi = (yq >> FRAC_BITS).min(job.hm2);
+    (
+        if ok { xi } else { -1 },
+        yi,
+        xq - (xi << FRAC_BITS),
+        yq - (yi << FRAC_BITS),
+    )
+}
+
+const NO_DIST: DistParams = DistParams {
+    cu: 0.0,
+    cv: 0.0,
+    inv_f2: 0.0,
+    k1: 0.0,
+    k2: 0.0,
+    r2_max: f64::INFINITY,
+};
+
+/// Phase 1, exact f64 per pixel (with distortion, or where the f32 block
+/// path does not apply); pixels `j0..j0 + len` of the run.
+#[inline(always)]
+fn exact_run<T, const DIST: bool>(
+    job: &Job<'_, T>,
+    d: &DistParams,
+    l: &Line,
+    col0: usize,
+    j0: usize,
+    len: usize,
+    co: &mut Coords,
+) {
+    let one = ONE as f64;
+    // Clamp range for the float → int conversion (outside either way).
+    let (xlim, ylim) = (job.xmax_q as f64 + 4.0, job.ymax_q as f64 + 4.0);
+    let ix = &mut co.ix[j0..j0 + len];
+    let iy = &mut co.iy[j0..j0 + len];
+    let fx = &mut co.fx[j0..j0 + len];
+    let fy = &mut co.fy[j0..j0 + len];
+    for j in 0..len {
+        // Grid sides are < 2^17, so the i32 round trip is exact (and i32→f64
+        // converts in SIMD, usize→f64 does not).
+        let c = (col0 + j0 + j) as i32 as f64;
+        let w = l.bw + c * l.sw;
+        let mut ok = w > W_MIN;
+        let rw = 1.0 / if ok { w } else { 1.0 }; // one division per pixel
+        let mut u = (l.bx + c * l.sx) * rw;
+        let mut v = (l.by + c * l.sy) * rw;
+        if DIST {
+            let (du, dv, in_model) = d.apply(u, v);
+            u = du;
+            v = dv;
+            ok &= in_model;
+        }
+        let xq = clamp_f64((u * one + 0.5).floor(), xlim);
+        let yq = clamp_f64((v * one + 0.5).floor(), ylim);
+        // SAFETY: clamped to [−4, max + 4] ⊂ i32, finite (NaN became −4).
+        let (xq, yq): (i32, i32) = unsafe { (xq.to_int_unchecked(), yq.to_int_unchecked()) };
+        (ix[j], iy[j], fx[j], fy[j]) = finish(job, xq, yq, ok);
+    }
+}
+
+/// `x` limited to [−4, hi]; NaN gives −4.
+#[inline(always)]
+fn clamp_f64(x: f64, hi: f64) -> f64 {
+    let x = if x > -4.0 { x } else { -4.0 };
+    if x < hi {
+        x
+    } else {
+        hi
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::mat3::{self, Mat3};
+    use crate::geometry::{homography_from_points, CameraModel, Grid, RadialDistortion};
+    use crate::rectify::warp::{Source, CHUNK};
+    use crate::rectify::{Interpolation, Rectifier};
+
+    fn job(data: &[u8], w: usize, h: usize, m: Mat3, dist: Option<DistParams>) -> Job<'_, u8> {
+        Job {
+            src: Source {
+                data,
+                width: w,
+                height: h,
+                stride: w,
+            },
+            fill: 0,
+            m,
+            dist,
+            xmax_q: ((w - 1) as i32) << FRAC_BITS,
+            ymax_q: ((h - 1) as i32) << FRAC_BITS,
+            wm2: (w - 2) as i32,
+            hm2: (h - 2) as i32,
+            map: None,
+            cols: 0,
+        }
+    }
+
+    /// The f32 block paths (with and without distortion) agree with the
+    /// exact f64 path to within one fixed-point unit (1/2048 px), including
+    /// the inside/outside verdict away from the boundary.
+    #[test]
+    fn f32_blocks_match_exact_positions() {
+        let (w, h) = (7360usize, 4912usize);
+        let data = vec![0u8; w * h];
+        let plate = [
+            [-137.5, 137.5],
+            [137.5, 137.5],
+            [137.5, -137.5],
+            [-137.5, -137.5],
+        ];
+        let views = [
+            [
+                [1400.0, 600.0],
+                [5960.0, 600.0],
+                [6900.0, 4500.0],
+                [460.0, 4500.0],
+            ],
+            [
+                [1200.0, 900.0],
+                [6100.0, 300.0],
+                [7300.0, 4700.0],
+                [100.0, 4000.0],
+            ],
+            [
+                [3000.0, 2000.0],
+                [4000.0, 2100.0],
+                [4200.0, 2900.0],
+                [2900.0, 2800.0],
+            ],
+        ];
+        let lens = RadialDistortion {
+            center: [3650.0, 2500.0],
+            focal_px: 8000.0,
+            k1: -0.06,
+            k2: 0.015,
+        };
+        let mut fast_blocks = 0;
+        for ((k, img), dist) in views
+            .iter()
+            .enumerate()
+            .flat_map(|v| [(v, None), (v, Some(DistParams::new(&lens)))])
+        {
+            let h_img = homography_from_points(*img, plate).unwrap().matrix();
+            // Overhanging grid (pixels outside the image) at two scales.
+            let p = if k == 2 { 0.5 } else { 0.0625 };
+            let g = [
+                [p, 0.0, -150.0 + 0.5 * p],
+                [0.0, -p, 150.0 - 0.5 * p],
+                [0.0, 0.0, 1.0],
+            ];
+            let (hi, _) = mat3::inverse(&h_img);
+            let m = mat3::mul(&hi, &g);
+            let j = job(&data, w, h, m, dist);
+            let cols = (300.0 / p) as usize;
+            let (mut a, mut b) = (Coords::new(), Coords::new());
+            for row in (0..cols).step_by(97) {
+                for col0 in (0..cols).step_by(CHUNK) {
+                    let n = CHUNK.min(cols - col0);
+                    map_run(&j, row, col0, n, &mut a);
+                    let r = row as f64;
+                    let line = Line {
+                        bx: m[0][1] * r + m[0][2],
+                        by: m[1][1] * r + m[1][2],
+                        bw: m[2][1] * r + m[2][2],
+                        sx: m[0][0],
+                        sy: m[1][0],
+                        sw: m[2][0],
+                    };
+                    match &dist {
+                        Some(d) => exact_run::<u8, true>(&j, d, &line, col0, 0, n, &mut b),
+                        None => exact_run::<u8, false>(&j, &NO_DIST, &line, col0, 0, n, &mut b),
+                    }
+                    for i in 0..n {
+                        let q = |c: &Coords| {
+                            (
+                                (c.ix[i].max(0) << FRAC_BITS) + c.fx[i],
+                                (c.iy[i] << FRAC_BITS) + c.fy[i],
+                            )
+                        };
+                        let ((xa, ya), (xb, yb)) = (q(&a), q(&b));
+                        let edge = xb.min(j.xmax_q - xb).min(yb).min(j.ymax_q - yb);
+                        if (a.ix[i] < 0) != (b.ix[i] < 0) {
+                            assert!(
+                                edge.abs() <= 1,
+                                "verdicts differ away from the edge: row {row} col {}",
+                                col0 + i
+                            );
+                        } else if a.ix[i] >= 0 {
+                            assert!(
+                                (xa - xb).abs() <= 1 && (ya - yb).abs() <= 1,
+                                "row {row} col {}: {xa},{ya} vs {xb},{yb}",
+                                col0 + i
+                            );
+                            fast_blocks += usize::from(xa != xb || ya != yb);
+                        }
+                    }
+                }
+            }
+        }
+        // Tiny differences show the block path really ran (and stayed within 1 unit).
+        assert!(fast_blocks > 0);
+    }
+
+    /// The cached map (distortion) gives exactly the positions computed
+    /// directly for the actual image size.
+    #[test]
+    fn position_map_matches_direct_computation() {
+        let lens = RadialDistortion {
+            center: [310.0, 205.0],
+            focal_px: 500.0,
+            k1: -0.2,
+            k2: 0.05,
+        };
+        let h = homography_from_points(
+            [[120.0, 60.0], [500.0, 70.0], [590.0, 390.0], [30.0, 380.0]],
+            [
+                [-100.0, 100.0],
+                [100.0, 100.0],
+                [100.0, -100.0],
+                [-100.0, -100.0],
+            ],
+        )
+        .unwrap();
+        let grid = Grid {
+            x_min: -170.0,
+            x_max: 170.0,
+            y_min: -170.0,
+            y_max: 170.0,
+            pixel_mm: 0.4,
+        };
+        let camera = CameraModel::new(h, Some(lens));
+        let r = Rectifier::new(&camera, grid, Interpolation::Bilinear, 0).unwrap();
+        let (w, hgt) = (640usize, 420usize);
+        let data = vec![0u8; w * hgt];
+        let direct = job(&data, w, hgt, r.m, r.dist);
+        let cached = Job {
+            map: Some(r.position_map()),
+            cols: grid.columns(),
+            ..job(&data, w, hgt, r.m, r.dist)
+        };
+        let (mut a, mut b) = (Coords::new(), Coords::new());
+        let (mut inside, mut outside) = (0, 0);
+        for row in 0..grid.rows() {
+            for col0 in (0..grid.columns()).step_by(CHUNK) {
+                let n = CHUNK.min(grid.columns() - col0);
+                map_run(&direct, row, col0, n, &mut a);
+                map_run(&cached, row, col0, n, &mut b);
+                for i in 0..n {
+                    assert_eq!(a.ix[i] < 0, b.ix[i] < 0, "row {row} col {}", col0 + i);
+                    if a.ix[i] >= 0 {
+                        inside += 1;
+                        let pa = (a.ix[i], a.iy[i], a.fx[i], a.fy[i]);
+                        assert_eq!(pa, (b.ix[i], b.iy[i], b.fx[i], b.fy[i]));
+                    } else {
+                        outside += 1;
+                    }
+                }
+            }
+        }
+        assert!(inside > 100_000 && outside > 10_000, "{inside} / {outside}");
+    }
+}
