@@ -12,7 +12,7 @@ use layerwise::calibrate::{
 };
 use layerwise::geometry::{BuildPoint, Grid, Homography, ImagePoint};
 use layerwise::vectors::{Direction, Layer, Polyline};
-use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
+use mock_camera::{Illumination, Renderer, Scene, Shape};
 
 const W: u32 = 1472;
 const H: u32 = 982;
@@ -22,7 +22,7 @@ fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<(f64, f64)> {
 }
 
 fn setup() -> (image::DynamicImage, Layer, Homography, Grid) {
-    let truth = Homography::oblique_view(W, H);
+    let truth = mock_camera::Homography::oblique_view(W, H);
     let rings = [
         rect(40.0, 40.0, 70.0, 62.0),
         rect(-90.0, -30.0, -55.0, 5.0),

@@ -214,7 +214,7 @@ impl LiveSeries {
             })
             .collect();
         let rectifier = Rectifier::new(&calibration.camera(), grid, interpolation, fill)
-        .map_err(SeriesError::Rectifier)?;
+            .map_err(SeriesError::Rectifier)?;
         Ok(LiveSeries {
             root: None,
             study,

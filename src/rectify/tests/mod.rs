@@ -518,7 +518,13 @@ fn projective_checkerboard_is_recovered() {
     // A wrong homography must fail the same check (the test can fail).
     let mut wrong = hm;
     wrong[0][2] += 6.0;
-    let r = Rectifier::new(&camera_of(wrong, None), board_grid(), Interpolation::Bilinear, 0).unwrap();
+    let r = Rectifier::new(
+        &camera_of(wrong, None),
+        board_grid(),
+        Interpolation::Bilinear,
+        0,
+    )
+    .unwrap();
     assert!(checker_accuracy(&r, &r.rectify_gray8(&cam)) < 0.9);
 }
 
@@ -538,7 +544,13 @@ fn distorted_camera_is_recovered() {
     let hm = oblique_camera();
     let d = lens();
     let cam = render_camera(&hm, 800, 600, Some(&d));
-    let r = Rectifier::new(&camera_of(hm, Some(d)), board_grid(), Interpolation::Bilinear, 0).unwrap();
+    let r = Rectifier::new(
+        &camera_of(hm, Some(d)),
+        board_grid(),
+        Interpolation::Bilinear,
+        0,
+    )
+    .unwrap();
     for r in both_paths(&r) {
         let acc = checker_accuracy(&r, &r.rectify_gray8(&cam));
         assert!(acc >= 0.99, "accuracy {acc}");
@@ -549,7 +561,13 @@ fn distorted_camera_is_recovered() {
         assert!(acc >= 0.99, "rgb accuracy {acc}");
     }
     // Ignoring the distortion must visibly fail.
-    let plain = Rectifier::new(&camera_of(hm, None), board_grid(), Interpolation::Bilinear, 0).unwrap();
+    let plain = Rectifier::new(
+        &camera_of(hm, None),
+        board_grid(),
+        Interpolation::Bilinear,
+        0,
+    )
+    .unwrap();
     assert!(checker_accuracy(&plain, &plain.rectify_gray8(&cam)) < 0.95);
     // image_point goes through the distortion.
     let (u, v) = image_uv(&r, 100.0, 100.0).unwrap();
@@ -679,7 +697,13 @@ fn dlt_maps_the_corners() {
     ];
     let h = homography_from_points(img, build).unwrap().matrix();
     assert_eq!(h[2][2], 1.0);
-    let r = Rectifier::new(&camera_of(h, None), Grid::plate(), Interpolation::Bilinear, 0).unwrap();
+    let r = Rectifier::new(
+        &camera_of(h, None),
+        Grid::plate(),
+        Interpolation::Bilinear,
+        0,
+    )
+    .unwrap();
     for (p, q) in img.iter().zip(build) {
         let (u, v) = image_uv(&r, q[0], q[1]).unwrap();
         assert!((u - p[0]).abs() < 1e-6 && (v - p[1]).abs() < 1e-6);
