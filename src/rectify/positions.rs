@@ -2,22 +2,12 @@
 //! pixels, incremental along the row, f32 blocks where that is exact enough, f64 elsewhere.
 
 use super::warp::{Coords, DistParams, Job, FRAC_BITS, ONE};
+use crate::geometry::mat3::Mat3;
 
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
 #[inline(always)]
 pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co: &mut Coords) {
-    let m = &job.m;
-    let r = row as f64;
-    // Along a row the homogeneous position is affine in the column: one base
-    // per row plus c·step per pixel, no 3x3 product.
-    let line = Line {
-        bx: m[0][1] * r + m[0][2],
-        by: m[1][1] * r + m[1][2],
-        bw: m[2][1] * r + m[2][2],
-        sx: m[0][0],
-        sy: m[1][0],
-        sw: m[2][0],
-    };
+    let line = Line::of_row(&job.m, row);
     if let Some(map) = job.map {
         // Cached positions (distortion): only the image bounds are applied.
         // i32::MIN fails finish's unsigned range test, so it stays outside.
@@ -54,6 +44,22 @@ struct Line {
 }
 
 impl Line {
+    /// Grid row `row` under `m` (grid (col, row, 1) → homogeneous image position): along a row
+    /// the position is affine in the column, one base per row plus c·step per pixel, no 3x3
+    /// product.
+    #[inline(always)]
+    fn of_row(m: &Mat3, row: usize) -> Line {
+        let r = row as f64;
+        Line {
+            bx: m[0][1] * r + m[0][2],
+            by: m[1][1] * r + m[1][2],
+            bw: m[2][1] * r + m[2][2],
+            sx: m[0][0],
+            sy: m[1][0],
+            sw: m[2][0],
+        }
+    }
+
     /// Undistorted source position in pixels, and w.
     #[inline(always)]
     fn at(&self, c: f64) -> (f64, f64, f64) {
@@ -317,7 +323,7 @@ fn clamp_f64(x: f64, hi: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::mat3::{self, Mat3};
+    use crate::geometry::mat3;
     use crate::geometry::{homography_from_points, CameraModel, Grid, RadialDistortion};
     use crate::rectify::warp::{Source, CHUNK};
     use crate::rectify::{Interpolation, Rectifier};
@@ -404,15 +410,7 @@ mod tests {
                 for col0 in (0..cols).step_by(CHUNK) {
                     let n = CHUNK.min(cols - col0);
                     map_run(&j, row, col0, n, &mut a);
-                    let r = row as f64;
-                    let line = Line {
-                        bx: m[0][1] * r + m[0][2],
-                        by: m[1][1] * r + m[1][2],
-                        bw: m[2][1] * r + m[2][2],
-                        sx: m[0][0],
-                        sy: m[1][0],
-                        sw: m[2][0],
-                    };
+                    let line = Line::of_row(&m, row);
                     match &dist {
                         Some(d) => exact_run::<u8, true>(&j, d, &line, col0, 0, n, &mut b),
                         None => exact_run::<u8, false>(&j, &NO_DIST, &line, col0, 0, n, &mut b),
