@@ -7,7 +7,7 @@ pub mod clip;
 pub mod distortion;
 pub mod grid;
 pub mod homography;
-pub mod mat3;
+pub(crate) mod mat3;
 pub mod rigid;
 
 pub use camera::{BuildPoint, CameraModel, ImagePoint};

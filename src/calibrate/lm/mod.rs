@@ -39,9 +39,9 @@
 //! All exemplars of a call share one grid (the same pixel coordinates), so one ΔH serves all.
 
 //!
-//! Files: [`pyramid`] (levels, the constant Jacobian and its Hessian, the active pixels),
-//! [`pass`] (one pass over a pair: sampling, photometric fit, gradient and normal matrix),
-//! [`driver`] (the LM iterations coarse to fine: [`align`]).
+//! Files: `pyramid.rs` (levels, the constant Jacobian and its Hessian, the active pixels),
+//! `pass.rs` (one pass over a pair: sampling, photometric fit, gradient and normal matrix),
+//! `driver.rs` (the LM iterations coarse to fine: [`align`]).
 
 mod driver;
 mod pass;
