@@ -116,7 +116,7 @@ fn main() {
         }
     };
     let calibration = Calibration {
-        homography: truth.m,
+        build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
         distortion: None,
         grid: Some(grid),
         fit: None,
@@ -142,9 +142,15 @@ fn main() {
     let t = Instant::now();
     let gray = layerwise::rectify::decode_jpeg_luma(&bytes).expect("decode");
     let luma_decode_ms = t.elapsed().as_secs_f64() * 1e3;
-    let rectifier =
-        layerwise::rectify::Rectifier::new(truth.m, grid, None, Interpolation::Bilinear, 0)
-            .expect("rectifier");
+    let rectifier = layerwise::rectify::Rectifier::new(
+        &layerwise::geometry::CameraModel::pinhole(layerwise::geometry::Homography::from_matrix(
+            truth.m,
+        )),
+        grid,
+        Interpolation::Bilinear,
+        0,
+    )
+    .expect("rectifier");
     let t = Instant::now();
     let _ = rectifier.rectify_gray8(&gray);
     let rectify_ms = t.elapsed().as_secs_f64() * 1e3;

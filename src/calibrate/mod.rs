@@ -114,8 +114,13 @@ pub enum RegistrationError {
     },
     #[error("invalid registration input: {0}")]
     Invalid(String),
-    #[error("{file}: cannot write: {message}")]
-    Write { file: PathBuf, message: String },
+    #[error(transparent)]
+    Write(#[from] crate::fsutil::WriteError),
+    #[error("{file}: cannot write the overlay: {source}")]
+    Overlay {
+        file: PathBuf,
+        source: image::ImageError,
+    },
 }
 
 /// Lens model to fit along with the homography.

@@ -1,7 +1,7 @@
 //! The registration pipeline: `layerwise register images` from files ([`register_images`]) and
 //! from frames in memory ([`register_frames`]); see the module doc of `calibrate`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use super::prepare::check_frame;
@@ -73,7 +73,7 @@ pub fn register_images(
         );
     }
     if let Some(out) = &request.out {
-        write_atomic(out, report.calibration.to_toml().as_bytes())?;
+        crate::fsutil::write_atomic(out, report.calibration.to_toml().as_bytes(), true)?;
     }
     if let Some(path) = &request.overlay {
         let picture = draw_overlay(
@@ -84,9 +84,9 @@ pub fn register_images(
         );
         picture
             .save_with_format(path, image::ImageFormat::Png)
-            .map_err(|e| RegistrationError::Write {
+            .map_err(|source| RegistrationError::Overlay {
                 file: path.clone(),
-                message: e.to_string(),
+                source,
             })?;
     }
     Ok(report)
@@ -378,16 +378,4 @@ pub(super) fn round_sig(x: f64, digits: i32) -> f64 {
     }
     let scale = 10f64.powi(digits - 1 - x.abs().log10().floor() as i32);
     (x * scale).round() / scale
-}
-
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RegistrationError> {
-    let err = |e: std::io::Error| RegistrationError::Write {
-        file: path.to_path_buf(),
-        message: e.to_string(),
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(err)?;
-    std::fs::rename(&tmp, path).map_err(err)
 }

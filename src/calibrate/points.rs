@@ -20,9 +20,11 @@ pub struct Correspondence {
 
 /// Reads and parses a points file (see the module doc); at least 4 correspondences.
 pub fn read_points(path: &Path) -> Result<Vec<Correspondence>, RegistrationError> {
-    let text = std::fs::read_to_string(path).map_err(|source| RegistrationError::Read {
-        file: path.to_path_buf(),
-        source,
+    let text = crate::fsutil::read_text_bounded(path, 1 << 20).map_err(|source| {
+        RegistrationError::Read {
+            file: path.to_path_buf(),
+            source,
+        }
     })?;
     parse_points(&text, path)
 }

@@ -139,7 +139,7 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
             "ground truth of the simulated camera (mock_camera::Homography::oblique_view)".into(),
         );
         let calibration = layerwise::rectify::Calibration {
-            homography: truth.m,
+            build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
             distortion: None,
             grid: Some(config.rectify),
             fit: Some(fit),

@@ -209,30 +209,7 @@ impl ImagesArgs {
             options,
         };
         let report = register_images(&request)?;
-        for l in &report.levels {
-            println!(
-                "level {} ({}x{}): {} iterations, cost {:.4e} -> {:.4e}, last step {:.1e} px, {}",
-                l.level,
-                l.width,
-                l.height,
-                l.iterations,
-                l.initial_cost,
-                l.final_cost,
-                l.last_step_px,
-                l.termination.name()
-            );
-        }
-        for i in &report.images {
-            println!(
-                "{} (layer {}): correlation {:.4} (start {:.4})",
-                i.name, i.layer, i.fit.correlation, i.fit.initial_correlation
-            );
-        }
-        let h = report.calibration.homography;
-        println!("homography = {h:?}");
-        if let Some(d) = report.calibration.distortion {
-            println!("distortion: k1 = {:.6}, k2 = {:.6}", d.k1, d.k2);
-        }
+        print!("{report}");
         println!("wrote {} in {:.2} s", out.display(), report.seconds);
         Ok(())
     }

@@ -29,7 +29,7 @@ pub struct PointPair {
 /// Read POINTS.txt: one pair per line, `cx cy cz bx by bz` (whitespace or commas); `#` comments
 /// and blank lines are skipped.
 pub fn read_points_file(path: &Path) -> Result<Vec<PointPair>> {
-    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    let text = crate::fsutil::read_text_bounded(path, 1 << 20).map_err(io_err(path))?;
     let mut pairs = Vec::new();
     for (n, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("").trim();

@@ -103,12 +103,13 @@ impl CtRegistration {
 
     /// Write `ct.toml`.
     pub fn write_toml(&self, path: &Path) -> Result<()> {
-        std::fs::write(path, self.to_toml_string()).map_err(write_err(path))
+        crate::fsutil::write_atomic(path, self.to_toml_string().as_bytes(), true)
+            .map_err(|e| write_err(path)(e.source))
     }
 
     /// Read a `ct.toml` back (e.g. to apply the transform).
     pub fn read_toml(path: &Path) -> Result<CtToml> {
-        let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+        let text = crate::fsutil::read_text_bounded(path, 1 << 20).map_err(io_err(path))?;
         toml::from_str(&text).map_err(|source| CtError::Toml {
             path: path.to_path_buf(),
             source: Box::new(source),

@@ -72,9 +72,11 @@ impl Calibration {
     }
 
     pub fn load(path: &Path) -> Result<Calibration, CalibrationError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CalibrationError::Read {
-            file: path.to_path_buf(),
-            source,
+        let text = crate::fsutil::read_text_bounded(path, 1 << 20).map_err(|source| {
+            CalibrationError::Read {
+                file: path.to_path_buf(),
+                source,
+            }
         })?;
         Calibration::parse(&text, path)
     }

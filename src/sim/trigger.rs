@@ -61,10 +61,11 @@ impl MockTrigger {
 }
 
 fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TriggerError::Script {
-        path: path.to_path_buf(),
-        message: format!("cannot read: {e}"),
-    })?;
+    let text =
+        crate::fsutil::read_text_bounded(path, 16 << 20).map_err(|e| TriggerError::Script {
+            path: path.to_path_buf(),
+            message: format!("cannot read: {e}"),
+        })?;
     let protocol = LineProtocol::default_protocol();
     let mut steps = VecDeque::new();
     for (n, line) in text.lines().enumerate() {

@@ -233,7 +233,7 @@ pub fn plate_grid() -> layerwise::rectify::Grid {
 /// `dir/calibration.toml` holding the mock camera's true homography onto [`plate_grid`].
 pub fn write_true_calibration(dir: &Path, truth: &mock_camera::Homography) -> std::path::PathBuf {
     let calibration = layerwise::rectify::Calibration {
-        homography: truth.m,
+        build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
         distortion: None,
         grid: Some(plate_grid()),
         fit: None,
