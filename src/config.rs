@@ -852,7 +852,7 @@ kind = "mock"
     }
 
     fn refused(result: Result<Config, ConfigError>, key: &str) {
-        let err = result.err().expect("must be refused").to_string();
+        let err = result.expect_err("must be refused").to_string();
         assert!(err.contains("test.toml") && err.contains(key), "{err}");
     }
 

@@ -220,7 +220,7 @@ fn reference<F: Fn(usize, usize, usize) -> f64>(
     col: usize,
 ) -> Option<Vec<f64>> {
     let (x, y) = r.grid().center_of(row as f64, col as f64);
-    let (u, v) = image_uv(&r, x, y)?;
+    let (u, v) = image_uv(r, x, y)?;
     if !(u >= 0.0 && u <= (w - 1) as f64 && v >= 0.0 && v <= (h - 1) as f64) {
         return None;
     }
@@ -243,7 +243,7 @@ fn reference<F: Fn(usize, usize, usize) -> f64>(
 /// skip pixels whose inside/outside verdict hinges on the last ulp.
 fn near_boundary(r: &Rectifier, w: usize, h: usize, row: usize, col: usize) -> bool {
     let (x, y) = r.grid().center_of(row as f64, col as f64);
-    match image_uv(&r, x, y) {
+    match image_uv(r, x, y) {
         None => false,
         Some((u, v)) => {
             let d = [u, (w - 1) as f64 - u, v, (h - 1) as f64 - v]
