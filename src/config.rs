@@ -1,29 +1,14 @@
 //! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
 //! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
 
-use crate::fsutil::{parse_toml, TomlError};
+use crate::fsutil::parse_toml;
 use crate::shot::{Light, Phase, View};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// A configuration that could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: PathBuf,
-        source: std::io::Error,
-    },
-    #[error(transparent)]
-    Parse(#[from] TomlError),
-    #[error("{file}: key `{key}`: {message}")]
-    Invalid {
-        file: PathBuf,
-        key: String,
-        message: String,
-    },
-}
+pub type ConfigError = crate::fsutil::TomlFileError;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -26,6 +26,25 @@ pub struct TomlError {
     pub message: String,
 }
 
+/// A TOML file (a configuration, a calibration) that could not be used: unreadable, not valid
+/// TOML of the expected shape, or a value that fails its check.
+#[derive(Debug, thiserror::Error)]
+pub enum TomlFileError {
+    #[error("{file}: cannot read: {source}")]
+    Read {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Parse(#[from] TomlError),
+    #[error("{file}: key `{key}`: {message}")]
+    Invalid {
+        file: PathBuf,
+        key: String,
+        message: String,
+    },
+}
+
 /// Lower-case hexadecimal SHA-256 of `data`.
 pub fn sha256_hex(data: &[u8]) -> String {
     let digest = Sha256::digest(data);

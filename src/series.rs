@@ -3,11 +3,10 @@
 //! calibration and written as the slice of its layer in its view's series.
 
 use crate::build_dir::{BuildManifest, Sidecar};
-use crate::config::{Config, ConfigError};
+use crate::config::Config;
 use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, Study};
-use crate::rectify::{
-    self, Calibration, CalibrationError, FrameLuma, Grid, Interpolation, Rectifier, RectifyError,
-};
+use crate::fsutil::TomlFileError;
+use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
 use crate::shot::{Shot, View};
 use crate::vectors::{LayerIndex, VectorError};
 use std::collections::BTreeMap;
@@ -43,10 +42,9 @@ pub enum SeriesError {
         "{0}: not a layerwise build directory ({1} missing); pass the daemon's build.output_dir"
     )]
     NotABuild(PathBuf, &'static str),
+    /// The configuration or the calibration file.
     #[error(transparent)]
-    Config(#[from] ConfigError),
-    #[error(transparent)]
-    Calibration(#[from] CalibrationError),
+    File(#[from] TomlFileError),
     #[error(transparent)]
     Vectors(#[from] VectorError),
     #[error("calibration: {0}")]

@@ -3,10 +3,10 @@
 //! `H[2][2] = 1` (docs/frames.md); with a `[distortion]` table it maps undistorted pixels.
 
 use super::{Grid, RadialDistortion};
-use crate::fsutil::{parse_toml, TomlError};
+use crate::fsutil::parse_toml;
 use crate::geometry::{CameraModel, Homography, Mat3};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -20,22 +20,7 @@ pub struct DistortionTable {
 }
 
 /// A calibration file that could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum CalibrationError {
-    #[error("{file}: cannot read: {source}")]
-    Read {
-        file: PathBuf,
-        source: std::io::Error,
-    },
-    #[error(transparent)]
-    Parse(#[from] TomlError),
-    #[error("{file}: key `{key}`: {message}")]
-    Invalid {
-        file: PathBuf,
-        key: String,
-        message: String,
-    },
-}
+pub type CalibrationError = crate::fsutil::TomlFileError;
 
 /// The calibration file as stored. The keys are the file format (docs/frames.md): they do not
 /// change with the names in code.
