@@ -446,6 +446,23 @@ impl Config {
         Ok(config)
     }
 
+    /// Whether this binary has the backends the configuration names (the daemon and
+    /// `check-config` run this after [`Config::load`]; the file itself may be valid for another
+    /// build of layerwise).
+    pub fn check_backends(&self, file: &Path) -> Result<(), ConfigError> {
+        if matches!(self.camera, CameraConfig::Gphoto2(_)) && cfg!(not(feature = "gphoto")) {
+            return Err(ConfigError::Invalid {
+                file: file.to_path_buf(),
+                key: "camera.kind".into(),
+                message: "\"gphoto2\" needs a layerwise built with the `gphoto` feature (cargo \
+                          build --release --features gphoto, with libgphoto2-dev installed); this \
+                          one was built without it"
+                    .into(),
+            });
+        }
+        Ok(())
+    }
+
     /// Whether any part of the machine is the simulated one (`kind = "mock"`).
     pub fn is_simulated(&self) -> bool {
         matches!(self.trigger, TriggerConfig::Mock(_))
@@ -601,16 +618,6 @@ impl Config {
                     ));
                 }
             }
-        }
-        #[cfg(not(feature = "gphoto"))]
-        if let CameraConfig::Gphoto2(_) = &self.camera {
-            return Err(invalid(
-                "camera.kind",
-                "\"gphoto2\" needs a layerwise built with the `gphoto` feature (cargo build \
-                 --release --features gphoto, with libgphoto2-dev installed); this one was built \
-                 without it"
-                    .into(),
-            ));
         }
         if let CameraConfig::Gphoto2(camera) = &self.camera {
             // One shot must give one file: the daemon downloads the file the capture names, so
@@ -927,6 +934,14 @@ kind = "mock"
             1,
         );
         assert_ne!(text, DEMO_CONFIG);
-        refused(parse(&text), "gphoto");
+        let config = parse(&text).expect("a valid file for a gphoto build");
+        let err = config
+            .check_backends(Path::new("test.toml"))
+            .expect_err("this build cannot drive it")
+            .to_string();
+        assert!(
+            err.contains("test.toml") && err.contains("--features gphoto"),
+            "{err}"
+        );
     }
 }

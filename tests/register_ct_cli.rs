@@ -178,11 +178,7 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         .arg(&dicom)
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     let result: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
     let found: Vec<Vec<f64>> = result["transform"]
         .as_array()
@@ -228,11 +224,7 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         .arg(&build)
         .output()
         .unwrap();
-    assert!(
-        demo.status.success(),
-        "{}",
-        String::from_utf8_lossy(&demo.stderr)
-    );
+    common::assert_success(&demo);
     let exported = dir.path().join("export");
     let run = layerwise()
         .args(["export", "--build"])
@@ -243,11 +235,7 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         .arg(&out)
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     assert!(
         String::from_utf8_lossy(&run.stdout).contains("ct "),
         "{}",
@@ -286,11 +274,7 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         .arg(&out)
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     let header = |name: &str| -> String {
         let bytes = std::fs::read(nrrd.join(name)).unwrap();
         let end = bytes.windows(2).position(|w| w == b"\n\n").unwrap();
@@ -318,11 +302,7 @@ fn registers_a_synthetic_ct_to_the_vectors() {
         .arg(&out)
         .output()
         .unwrap();
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    common::assert_success(&run);
     let loc: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let b: Vec<f64> = loc["build_mm"]
         .as_array()

@@ -6,6 +6,8 @@
 //! ±6 px, as a user's clicks would be. The error is measured where it matters: the parts'
 //! contour points mapped into the image by the true and by the recovered mapping, in pixels.
 
+mod common;
+
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 
@@ -696,12 +698,8 @@ fn the_command_line_writes_the_calibration_or_names_the_problem() {
             .expect("runs")
     };
     let ok = run("0");
+    common::assert_success(&ok);
     let stdout = String::from_utf8_lossy(&ok.stdout);
-    assert!(
-        ok.status.success(),
-        "{stdout} {}",
-        String::from_utf8_lossy(&ok.stderr)
-    );
     assert!(
         stdout.contains("level 0") && stdout.contains("wrote"),
         "{stdout}"

@@ -20,6 +20,7 @@ pub struct RunArgs {
 impl RunArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.config)?;
+        config.check_backends(&self.config)?;
         let mut options = RunOptions::new();
         options.notify_systemd = true;
         options.drain_at_end = true;
@@ -52,6 +53,7 @@ pub struct CheckConfigArgs {
 impl CheckConfigArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.file)?;
+        config.check_backends(&self.file)?;
         println!(
             "{}: valid ({} views per layer, output in {})",
             self.file.display(),
