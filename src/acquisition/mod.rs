@@ -6,7 +6,8 @@ pub mod processing;
 pub mod storage;
 
 use crate::build_dir::status::{LastFrame, LiveStatus};
-use crate::build_dir::{self, BuildManifest, Journal, JournalError, Record, Replay};
+use crate::build_dir::{self, BuildManifest, IrregularSignal, Journal, JournalError, Record, Replay};
+use crate::config::MAX_LAYER;
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
 use crate::fsutil::WriteError;
@@ -58,7 +59,10 @@ pub enum AcquisitionError {
 #[derive(Clone, Debug, Default)]
 pub struct RunSummary {
     pub build_dir: PathBuf,
+    /// Frames stored (first takes).
     pub stored: u64,
+    /// Frames taken again for repeated signals, kept beside the first takes.
+    pub retakes: u64,
     pub missing: u64,
     pub skipped: u64,
     pub stop_reason: String,
@@ -94,6 +98,13 @@ impl RunOptions {
     }
 }
 
+/// What to do with a layer signal.
+enum Signal {
+    Capture,
+    Retake,
+    Ignore,
+}
+
 /// The layer currently being captured: which of its lights are done.
 struct OpenEvent {
     layer: u32,
@@ -110,8 +121,13 @@ struct Sequencer {
     lights: LightsGuard,
     camera: CameraActor,
     policy: RetryPolicy,
-    /// Shots done before this start; kept from the replay, not grown while running.
-    before: Replay,
+    /// Where the build stands: the journal's replay at start, grown with every record written.
+    state: Replay,
+    /// The previous layer signal (at start, the journal's last one).
+    prev_signal: Option<(u32, Phase)>,
+    /// After a restart, until the first signal that is not history: a trigger that replays
+    /// signals already handled (a simulated printer's script) is skipped quietly.
+    catching_up: bool,
     open: Option<OpenEvent>,
     queue: Option<ProcessingQueue>,
     live: LiveStatus,
@@ -126,17 +142,19 @@ impl Sequencer {
             .store(self.clock.elapsed().as_millis() as u64, Ordering::SeqCst);
     }
 
-    fn journal(&self, record: &Record) -> Result<(), AcquisitionError> {
+    fn journal(&mut self, record: &Record) -> Result<(), AcquisitionError> {
         let mut journal = self
             .journal
             .lock()
             .map_err(|_| AcquisitionError::Runtime("journal lock poisoned".into()))?;
         journal.append(record)?;
+        drop(journal);
+        self.state.apply(record);
         Ok(())
     }
 
     fn is_done(&self, shot: &Shot) -> bool {
-        self.before.is_done(shot)
+        self.state.is_done(shot)
             || self.open.as_ref().is_some_and(|o| {
                 o.layer == shot.layer && o.phase == shot.phase && o.done.contains(&shot.light)
             })
@@ -169,7 +187,7 @@ impl Sequencer {
                 phase: open.phase,
                 light,
             };
-            if !open.done.contains(&light) && !self.before.is_done(&shot) {
+            if !open.done.contains(&light) && !self.state.is_done(&shot) {
                 self.open = Some(OpenEvent {
                     done: open.done.clone(),
                     ..open
@@ -181,6 +199,81 @@ impl Sequencer {
         Ok(())
     }
 
+    /// Journals and logs a signal out of the expected order.
+    fn irregular(
+        &mut self,
+        event: &LayerEvent,
+        signal: IrregularSignal,
+        detail: String,
+    ) -> Result<(), AcquisitionError> {
+        warn!(layer = event.layer, phase = %event.phase, signal = %signal, "layer {} {}: {signal}: {detail}", event.layer, event.phase);
+        self.journal(&Record::Irregular {
+            layer: event.layer,
+            phase: event.phase,
+            signal,
+            detail,
+            at: self.clock.now(),
+        })
+    }
+
+    /// Checks a signal against the previous one: out of range (not captured), repeated (its
+    /// frames are retaken), skipping layers or going backwards (flagged, then handled as usual).
+    /// Returns whether the signal is to be captured, and whether as a retake.
+    fn classify(&mut self, event: &LayerEvent, shots: &[Shot]) -> Result<Signal, AcquisitionError> {
+        let key = (event.layer, event.phase);
+        if event.layer == 0 || event.layer > MAX_LAYER {
+            self.irregular(
+                event,
+                IrregularSignal::OutOfRange,
+                format!("printers count layers 1 to {MAX_LAYER}; not captured"),
+            )?;
+            return Ok(Signal::Ignore);
+        }
+        let prev = self.prev_signal.replace(key);
+        let all_done = shots.iter().all(|s| self.is_done(s));
+        if self.catching_up {
+            if all_done && prev != Some(key) {
+                return Ok(Signal::Capture);
+            }
+            self.catching_up = false;
+        }
+        let Some(prev) = prev else {
+            return Ok(Signal::Capture);
+        };
+        if prev == key && all_done {
+            let takes = shots.iter().map(|s| self.state.takes(s)).max().unwrap_or(0);
+            self.irregular(
+                event,
+                IrregularSignal::Repeated,
+                format!(
+                    "the same signal again: take {} kept beside the first, nothing overwritten",
+                    takes + 1
+                ),
+            )?;
+            return Ok(Signal::Retake);
+        }
+        if key < prev {
+            self.irregular(
+                event,
+                IrregularSignal::Backwards,
+                format!("after layer {} {}", prev.0, prev.1),
+            )?;
+        } else if event.layer > prev.0.saturating_add(1) {
+            self.irregular(
+                event,
+                IrregularSignal::Skipped,
+                format!(
+                    "layers {} to {} never signalled (after layer {} {})",
+                    prev.0 + 1,
+                    event.layer - 1,
+                    prev.0,
+                    prev.1
+                ),
+            )?;
+        }
+        Ok(Signal::Capture)
+    }
+
     fn on_event(&mut self, event: LayerEvent) -> Result<(), AcquisitionError> {
         self.beat();
         info!(layer = event.layer, phase = %event.phase, "layer signal");
@@ -190,14 +283,7 @@ impl Sequencer {
             at: event.at,
         })?;
         let key = (event.layer, event.phase);
-        if let Some(open) = &self.open {
-            if key > (open.layer, open.phase) {
-                self.close_open_event(
-                    "not captured: the printer moved on (daemon stopped or busy)",
-                )?;
-            }
-        }
-        let shots: Vec<Shot> = self
+        let all_lights: Vec<Shot> = self
             .lights_order
             .iter()
             .map(|&light| Shot {
@@ -206,6 +292,19 @@ impl Sequencer {
                 light,
             })
             .collect();
+        match self.classify(&event, &all_lights)? {
+            Signal::Ignore => return Ok(()),
+            Signal::Retake => return self.retake(&event, all_lights),
+            Signal::Capture => {}
+        }
+        if let Some(open) = &self.open {
+            if key > (open.layer, open.phase) {
+                self.close_open_event(
+                    "not captured: the printer moved on (daemon stopped or busy)",
+                )?;
+            }
+        }
+        let shots = all_lights;
         if shots.iter().all(|s| self.is_done(s)) {
             info!(layer = event.layer, phase = %event.phase, "layer signal for frames already stored; skipped");
             self.summary.skipped += shots.len() as u64;
@@ -228,7 +327,7 @@ impl Sequencer {
                 self.summary.skipped += 1;
                 continue;
             }
-            self.take(shot)?;
+            self.take(shot, 1)?;
         }
         self.open = None;
         let backlog = self.queue.as_ref().map_or(0, ProcessingQueue::depth);
@@ -244,7 +343,19 @@ impl Sequencer {
         Ok(())
     }
 
-    fn take(&mut self, shot: Shot) -> Result<(), AcquisitionError> {
+    /// Takes every light of a repeated signal again, each as its next take.
+    fn retake(&mut self, event: &LayerEvent, shots: Vec<Shot>) -> Result<(), AcquisitionError> {
+        self.live.layer = Some(event.layer);
+        self.live.phase = Some(event.phase);
+        for shot in shots {
+            let take = self.state.takes(&shot) + 1;
+            self.take(shot, take)?;
+        }
+        Ok(())
+    }
+
+    /// Captures take `take` of `shot` (1: the frame; more: a retake kept beside it).
+    fn take(&mut self, shot: Shot, take: u32) -> Result<(), AcquisitionError> {
         self.beat();
         let event_at = self
             .open
@@ -268,29 +379,50 @@ impl Sequencer {
             Ok((frame, attempts)) => {
                 let sidecar = self.storage.store_frame(
                     &shot,
+                    take,
                     &frame,
                     event_at,
                     self.clock.now(),
                     attempts,
                     self.camera.settings(),
                 )?;
-                self.journal(&Record::Frame {
-                    layer: shot.layer,
-                    phase: shot.phase,
-                    light: shot.light,
-                    file: sidecar.file.clone(),
-                    bytes: sidecar.bytes,
-                    sha256: sidecar.sha256.clone(),
-                    at: sidecar.captured_at,
-                })?;
+                let retake = take > 1 && self.state.frames.contains_key(&shot);
+                let record = if retake {
+                    Record::Retake {
+                        layer: shot.layer,
+                        phase: shot.phase,
+                        light: shot.light,
+                        take,
+                        file: sidecar.file.clone(),
+                        bytes: sidecar.bytes,
+                        sha256: sidecar.sha256.clone(),
+                        at: sidecar.captured_at,
+                    }
+                } else {
+                    Record::Frame {
+                        layer: shot.layer,
+                        phase: shot.phase,
+                        light: shot.light,
+                        file: sidecar.file.clone(),
+                        bytes: sidecar.bytes,
+                        sha256: sidecar.sha256.clone(),
+                        at: sidecar.captured_at,
+                    }
+                };
+                self.journal(&record)?;
                 if let Some(open) = self.open.as_mut() {
                     open.done.insert(shot.light);
                 }
-                if let Some(queue) = &self.queue {
-                    queue.submit(shot, self.storage.root().join(&sidecar.file));
-                    self.live.queue_depth = queue.depth();
+                if retake {
+                    // The series keep showing the first take.
+                    self.summary.retakes += 1;
+                } else {
+                    if let Some(queue) = &self.queue {
+                        queue.submit(shot, self.storage.root().join(&sidecar.file));
+                        self.live.queue_depth = queue.depth();
+                    }
+                    self.summary.stored += 1;
                 }
-                self.summary.stored += 1;
                 info!(
                     layer = shot.layer,
                     phase = %shot.phase,
@@ -522,7 +654,9 @@ pub async fn run(
         },
         heartbeat: heartbeat.clone(),
         clock: clock.clone(),
-        before: replay,
+        prev_signal: replay.last_event,
+        catching_up: replay.last_event.is_some(),
+        state: replay,
     };
     sequencer.write_live("running");
 

@@ -10,6 +10,19 @@ use chrono::{DateTime, Utc};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// File stem of take `take` of `shot`: the shot's stem, then `.r{take}` from the second take on.
+pub fn take_stem(shot: &Shot, take: u32) -> String {
+    if take <= 1 {
+        shot.stem()
+    } else {
+        format!("{}.r{take}", shot.stem())
+    }
+}
+
+fn take_name(shot: &Shot, take: u32, extension: &str) -> String {
+    format!("{}.{extension}", take_stem(shot, take))
+}
+
 pub struct Storage {
     root: PathBuf,
     raw: PathBuf,
@@ -39,17 +52,26 @@ impl Storage {
         write_atomic(path, data, self.fsync)
     }
 
-    /// Stores an original and its sidecar; returns the sidecar.
+    /// Stores an original and its sidecar; returns the sidecar. Take 1 is
+    /// `L…_{phase}_{light}.{ext}`, take n > 1 (a retake) `L…_{phase}_{light}.r{n}.{ext}`; an
+    /// original already on disk is never replaced (the next free take is used).
+    #[allow(clippy::too_many_arguments)]
     pub fn store_frame(
         &self,
         shot: &Shot,
+        take: u32,
         frame: &Frame,
         event_at: DateTime<Utc>,
         captured_at: DateTime<Utc>,
         attempts: u32,
         camera: &BTreeMap<String, String>,
     ) -> Result<Sidecar, WriteError> {
-        let name = format!("{}.{}", shot.stem(), frame.extension);
+        let mut take = take.max(1);
+        while take < u32::MAX && self.raw.join(take_name(shot, take, &frame.extension)).exists() {
+            take += 1;
+        }
+        let stem = take_stem(shot, take);
+        let name = format!("{stem}.{}", frame.extension);
         let sidecar = Sidecar {
             layer: shot.layer,
             phase: shot.phase,
@@ -64,7 +86,7 @@ impl Storage {
             attempts,
             camera: camera.clone(),
         };
-        let sidecar_path = self.raw.join(format!("{}.json", shot.stem()));
+        let sidecar_path = self.raw.join(format!("{stem}.json"));
         let json = serde_json::to_vec_pretty(&sidecar).map_err(|e| WriteError {
             path: sidecar_path.clone(),
             source: std::io::Error::other(e),
@@ -162,6 +184,37 @@ impl Storage {
 mod tests {
     use super::*;
     use crate::shot::{Light, Phase};
+
+    #[test]
+    fn an_original_is_never_overwritten() {
+        let dir = tempfile::tempdir().unwrap();
+        let storage = Storage::open(dir.path(), false).unwrap();
+        let shot = Shot {
+            layer: 3,
+            phase: Phase::Post,
+            light: Light::Front,
+        };
+        let frame = |data: &[u8]| Frame {
+            data: data.to_vec(),
+            extension: "jpg".into(),
+            capture_ms: 1.0,
+            download_ms: 1.0,
+        };
+        let t = chrono::Utc::now();
+        let first = storage
+            .store_frame(&shot, 1, &frame(b"one"), t, t, 1, &BTreeMap::new())
+            .unwrap();
+        // Asked for take 1 again (a daemon that lost count): the next free take is used.
+        let second = storage
+            .store_frame(&shot, 1, &frame(b"two"), t, t, 1, &BTreeMap::new())
+            .unwrap();
+        assert_eq!(first.file, "raw/L00003_post_front.jpg");
+        assert_eq!(second.file, "raw/L00003_post_front.r2.jpg");
+        let raw = dir.path().join("raw");
+        assert_eq!(std::fs::read(raw.join("L00003_post_front.jpg")).unwrap(), b"one");
+        assert_eq!(std::fs::read(raw.join("L00003_post_front.r2.jpg")).unwrap(), b"two");
+        assert!(raw.join("L00003_post_front.r2.json").exists());
+    }
 
     #[test]
     fn recover_adopts_orphans_and_drops_temps() {

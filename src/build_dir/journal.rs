@@ -56,6 +56,62 @@ pub enum Record {
         reason: String,
         at: DateTime<Utc>,
     },
+    /// A frame taken again for a (layer, phase) already stored, kept beside the first take
+    /// (`raw/L…_{phase}_{light}.r{take}.{ext}`); the series keep showing the first take.
+    Retake {
+        layer: u32,
+        phase: Phase,
+        light: Light,
+        take: u32,
+        file: String,
+        bytes: u64,
+        sha256: String,
+        at: DateTime<Utc>,
+    },
+    /// A layer signal out of the expected order: repeated, skipping layers, going backwards, or a
+    /// layer number no printer uses.
+    Irregular {
+        layer: u32,
+        phase: Phase,
+        signal: IrregularSignal,
+        detail: String,
+        at: DateTime<Utc>,
+    },
+}
+
+/// How a layer signal broke the expected order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IrregularSignal {
+    /// The same (layer, phase) again: its frames are retaken.
+    Repeated,
+    /// Layers between the previous signal and this one never came.
+    Skipped,
+    /// A layer or phase before the previous signal.
+    Backwards,
+    /// Layer 0, or beyond the five digits of the file names: not captured.
+    OutOfRange,
+}
+
+impl std::fmt::Display for IrregularSignal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            IrregularSignal::Repeated => "repeated signal",
+            IrregularSignal::Skipped => "skipped layers",
+            IrregularSignal::Backwards => "signal going backwards",
+            IrregularSignal::OutOfRange => "layer out of range",
+        })
+    }
+}
+
+/// An irregular signal as `status` lists it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IrregularEntry {
+    pub layer: u32,
+    pub phase: Phase,
+    pub signal: IrregularSignal,
+    pub detail: String,
+    pub at: DateTime<Utc>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -95,6 +151,9 @@ pub struct Replay {
     pub processed: BTreeSet<Shot>,
     pub last_event: Option<(u32, Phase)>,
     pub starts: u32,
+    /// Takes after the first, per shot, in order.
+    pub retakes: BTreeMap<Shot, Vec<FrameEntry>>,
+    pub irregular: Vec<IrregularEntry>,
 }
 
 impl Replay {
@@ -154,6 +213,39 @@ impl Replay {
                     light: *light,
                 });
             }
+            Record::Retake {
+                layer,
+                phase,
+                light,
+                file,
+                bytes,
+                at,
+                ..
+            } => {
+                let shot = Shot {
+                    layer: *layer,
+                    phase: *phase,
+                    light: *light,
+                };
+                self.retakes.entry(shot).or_default().push(FrameEntry {
+                    file: file.clone(),
+                    bytes: *bytes,
+                    at: *at,
+                });
+            }
+            Record::Irregular {
+                layer,
+                phase,
+                signal,
+                detail,
+                at,
+            } => self.irregular.push(IrregularEntry {
+                layer: *layer,
+                phase: *phase,
+                signal: *signal,
+                detail: detail.clone(),
+                at: *at,
+            }),
             Record::ProcessingFailed { .. } | Record::Stop { .. } => {}
         }
     }
@@ -161,6 +253,12 @@ impl Replay {
     /// A shot that needs no capture: stored, or given up on.
     pub fn is_done(&self, shot: &Shot) -> bool {
         self.frames.contains_key(shot) || self.missing.contains_key(shot)
+    }
+
+    /// How many takes of `shot` are stored (0, 1 or more).
+    pub fn takes(&self, shot: &Shot) -> u32 {
+        let first = u32::from(self.frames.contains_key(shot));
+        first + self.retakes.get(shot).map_or(0, |r| r.len() as u32)
     }
 
     /// Stored frames not yet processed, in build order.

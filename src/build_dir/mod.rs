@@ -6,7 +6,7 @@ pub mod journal;
 pub mod manifest;
 pub mod status;
 
-pub use journal::{Journal, JournalError, Record, Replay};
+pub use journal::{IrregularSignal, Journal, JournalError, Record, Replay};
 pub use manifest::BuildManifest;
 
 use crate::shot::View;
