@@ -45,8 +45,10 @@ impl BuildPoint {
 /// pixels; the camera records an undistorted pixel p at `distortion.distort(p)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CameraModel {
-    pub build_from_image: Homography,
-    pub distortion: Option<RadialDistortion>,
+    build_from_image: Homography,
+    distortion: Option<RadialDistortion>,
+    /// `build_from_image⁻¹`, computed once (None when singular).
+    image_from_build: Option<Homography>,
 }
 
 impl CameraModel {
@@ -54,6 +56,7 @@ impl CameraModel {
         CameraModel {
             build_from_image,
             distortion,
+            image_from_build: build_from_image.inverse(),
         }
     }
 
@@ -66,9 +69,18 @@ impl CameraModel {
     /// `None` when H is singular, when `p` lies beyond the horizon (w ≤ 0), or past the radius
     /// where the distortion polynomial folds back ([`RadialDistortion::max_r2`]). The image
     /// size is not known here, so points off the frame still return `Some`.
+    /// Image pixels → build mm, undistorted pixels on the image side.
+    pub fn build_from_image(&self) -> Homography {
+        self.build_from_image
+    }
+
+    /// The lens distortion, if any.
+    pub fn distortion(&self) -> Option<RadialDistortion> {
+        self.distortion
+    }
+
     pub fn image_point(&self, p: BuildPoint) -> Option<ImagePoint> {
-        let image_from_build = self.build_from_image.inverse()?;
-        let (u, v) = image_from_build.apply(p.x, p.y)?;
+        let (u, v) = self.image_from_build?.apply(p.x, p.y)?;
         let (u, v) = match &self.distortion {
             None => (u, v),
             Some(d) => d.distort_within_fold(u, v)?,

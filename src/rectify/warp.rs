@@ -216,7 +216,7 @@ impl Rectifier {
         interpolation: Interpolation,
         fill: u16,
     ) -> Result<Rectifier, RectifyError> {
-        let homography = camera.build_from_image.matrix();
+        let homography = camera.build_from_image().matrix();
         if homography.iter().flatten().any(|v| !v.is_finite()) {
             return Err(RectifyError::NonFiniteHomography);
         }
@@ -233,7 +233,7 @@ impl Rectifier {
             return Err(RectifyError::SingularHomography(measure));
         }
         grid.validate()?;
-        let distortion = camera.distortion;
+        let distortion = camera.distortion();
         if let Some(d) = &distortion {
             d.validate()?;
         }

@@ -666,7 +666,7 @@ fn bad_homographies_are_errors() {
     // Scale does not matter: a mm-scale homography is fine, and H is normalised.
     let scaled = [[0.04, 0.0, -137.5], [0.0, -0.04, 137.5], [0.0, 0.0, 2.0]];
     let r = Rectifier::new(&camera_of(scaled, None), g, bi, 0).unwrap();
-    assert_eq!(r.camera().build_from_image.matrix()[2][2], 1.0);
+    assert_eq!(r.camera().build_from_image().matrix()[2][2], 1.0);
     let bad_lens = RadialDistortion {
         focal_px: 0.0,
         ..lens()
