@@ -709,8 +709,7 @@ impl Config {
     }
 }
 
-/// Highest layer number: file names hold five digits (`L{layer:05}`).
-pub const MAX_LAYER: u32 = 99_999;
+pub use crate::shot::MAX_LAYER;
 /// Largest processing queue: it holds references, but a bound keeps a typo from reserving memory.
 pub const MAX_QUEUE: usize = 100_000;
 /// Largest simulated sensor side.

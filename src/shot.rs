@@ -5,6 +5,9 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
+/// Highest layer number: file names hold five digits (`L{layer:05}`).
+pub const MAX_LAYER: u32 = 99_999;
+
 /// When in the layer cycle a frame is taken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -270,3 +270,85 @@ fn bad_trigger_script_fails_with_its_line() {
         assert!(log.lit().is_empty());
     }
 }
+
+#[test]
+fn irregular_signals_are_journaled_and_no_original_is_overwritten() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 1);
+    let script = dir.path().join("printer.txt");
+    // A repeated signal, a skipped layer, one going backwards and one no printer sends.
+    std::fs::write(
+        &script,
+        "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\nLAYER 3 PRE\nLAYER 2 PRE\nLAYER 0 POST\n",
+    )
+    .unwrap();
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script);
+    }
+    let mut options = RunOptions::new();
+    options.drain_at_end = true;
+    let summary = runtime().block_on(run(&config, options)).unwrap();
+    assert_eq!((summary.stored, summary.retakes), (12, 3));
+    let raw = dir.path().join("raw");
+    let first: std::collections::BTreeMap<String, String> = records(dir.path())
+        .into_iter()
+        .filter_map(|r| match r {
+            layerwise::build_dir::Record::Frame { file, sha256, .. } => Some((file, sha256)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(first.len(), 12);
+    // The first takes are still the files the journal recorded: nothing was overwritten.
+    for (file, sha) in &first {
+        let bytes = std::fs::read(dir.path().join(file)).unwrap();
+        assert_eq!(&layerwise::fsutil::sha256_hex(&bytes), sha, "{file}");
+    }
+    for light in ["front", "side", "top"] {
+        assert!(raw.join(format!("L00001_post_{light}.r2.jpg")).exists());
+        assert!(raw.join(format!("L00001_post_{light}.r2.json")).exists());
+    }
+    assert!(
+        !raw.join("L00000_post_top.jpg").exists(),
+        "layer 0 is not captured"
+    );
+    let status = |dir: &Path| {
+        let out = layerwise()
+            .args(["status", "--json", "--build"])
+            .arg(dir)
+            .json_ok();
+        (
+            out["retakes"].clone(),
+            out["irregular"].clone(),
+            out["frames"].clone(),
+        )
+    };
+    let (retakes, irregular, frames) = status(dir.path());
+    assert_eq!(
+        (retakes, frames),
+        (serde_json::json!(3), serde_json::json!(12))
+    );
+    let lines: Vec<String> = irregular
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(lines.len(), 4, "{lines:?}");
+    for (line, expected) in lines.iter().zip([
+        "L00001 post: repeated signal",
+        "L00003 pre: skipped layers: layers 2 to 2",
+        "L00002 pre: signal going backwards: after layer 3 pre",
+        "L00000 post: layer out of range",
+    ]) {
+        assert!(line.starts_with(expected), "{line} vs {expected}");
+    }
+    // A restart that replays the same signals changes nothing: no new take, no new flag.
+    let mut options = RunOptions::new();
+    options.drain_at_end = true;
+    let again = runtime().block_on(run(&config, options)).unwrap();
+    assert_eq!((again.stored, again.retakes), (0, 0));
+    assert_eq!(
+        status(dir.path()),
+        (serde_json::json!(3), irregular, serde_json::json!(12))
+    );
+}

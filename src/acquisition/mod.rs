@@ -6,8 +6,9 @@ pub mod processing;
 pub mod storage;
 
 use crate::build_dir::status::{LastFrame, LiveStatus};
-use crate::build_dir::{self, BuildManifest, IrregularSignal, Journal, JournalError, Record, Replay};
-use crate::config::MAX_LAYER;
+use crate::build_dir::{
+    self, BuildManifest, IrregularSignal, Journal, JournalError, Record, Replay,
+};
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
 use crate::fsutil::WriteError;
@@ -18,6 +19,7 @@ use crate::hardware::lights::{LightsError, LightsGuard};
 use crate::hardware::trigger::{LayerEvent, TriggerError};
 use crate::hardware::Machine;
 use crate::series::{FrameProcessor, KeepOriginals};
+use crate::shot::MAX_LAYER;
 use crate::shot::{Light, Phase, Shot};
 use chrono::{DateTime, Utc};
 use processing::ProcessingQueue;
@@ -222,6 +224,9 @@ impl Sequencer {
     fn classify(&mut self, event: &LayerEvent, shots: &[Shot]) -> Result<Signal, AcquisitionError> {
         let key = (event.layer, event.phase);
         if event.layer == 0 || event.layer > MAX_LAYER {
+            if self.catching_up {
+                return Ok(Signal::Ignore);
+            }
             self.irregular(
                 event,
                 IrregularSignal::OutOfRange,
@@ -232,7 +237,9 @@ impl Sequencer {
         let prev = self.prev_signal.replace(key);
         let all_done = shots.iter().all(|s| self.is_done(s));
         if self.catching_up {
-            if all_done && prev != Some(key) {
+            // After a restart, signals for frames already stored are the printer (or a script)
+            // replaying what was handled: skipped quietly until the first new signal.
+            if all_done {
                 return Ok(Signal::Capture);
             }
             self.catching_up = false;

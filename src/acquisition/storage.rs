@@ -67,7 +67,12 @@ impl Storage {
         camera: &BTreeMap<String, String>,
     ) -> Result<Sidecar, WriteError> {
         let mut take = take.max(1);
-        while take < u32::MAX && self.raw.join(take_name(shot, take, &frame.extension)).exists() {
+        while take < u32::MAX
+            && self
+                .raw
+                .join(take_name(shot, take, &frame.extension))
+                .exists()
+        {
             take += 1;
         }
         let stem = take_stem(shot, take);
@@ -211,8 +216,14 @@ mod tests {
         assert_eq!(first.file, "raw/L00003_post_front.jpg");
         assert_eq!(second.file, "raw/L00003_post_front.r2.jpg");
         let raw = dir.path().join("raw");
-        assert_eq!(std::fs::read(raw.join("L00003_post_front.jpg")).unwrap(), b"one");
-        assert_eq!(std::fs::read(raw.join("L00003_post_front.r2.jpg")).unwrap(), b"two");
+        assert_eq!(
+            std::fs::read(raw.join("L00003_post_front.jpg")).unwrap(),
+            b"one"
+        );
+        assert_eq!(
+            std::fs::read(raw.join("L00003_post_front.r2.jpg")).unwrap(),
+            b"two"
+        );
         assert!(raw.join("L00003_post_front.r2.json").exists());
     }
 

@@ -160,7 +160,11 @@ impl Replay {
     pub fn apply(&mut self, record: &Record) {
         match record {
             Record::Start { .. } => self.starts += 1,
-            Record::Event { layer, phase, .. } => self.last_event = Some((*layer, *phase)),
+            // A layer no printer uses (flagged out of range) does not move the build on.
+            Record::Event { layer, phase, .. } if (1..=crate::shot::MAX_LAYER).contains(layer) => {
+                self.last_event = Some((*layer, *phase))
+            }
+            Record::Event { .. } => {}
             Record::Frame {
                 layer,
                 phase,

@@ -64,6 +64,10 @@ pub struct StatusReport {
     pub frames: usize,
     pub frames_missing: usize,
     pub missing: Vec<String>,
+    /// Frames taken again for repeated signals (kept beside the first takes).
+    pub retakes: usize,
+    /// Signals out of the expected order, oldest first: `L00003 post: repeated signal: …`.
+    pub irregular: Vec<String>,
     pub waiting_for_processing: usize,
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
@@ -150,6 +154,12 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
             .iter()
             .map(|(shot, reason)| format!("{}: {reason}", shot.stem()))
             .collect(),
+        retakes: replay.retakes.values().map(Vec::len).sum(),
+        irregular: replay
+            .irregular
+            .iter()
+            .map(|i| format!("L{:05} {}: {}: {}", i.layer, i.phase, i.signal, i.detail))
+            .collect(),
         waiting_for_processing: replay.unprocessed().len(),
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
@@ -202,6 +212,23 @@ impl fmt::Display for StatusReport {
         }
         if self.missing.len() > 10 {
             writeln!(f, "  … and {} more", self.missing.len() - 10)?;
+        }
+        if self.retakes > 0 {
+            writeln!(
+                f,
+                "retakes    {} (kept beside the first takes)",
+                self.retakes
+            )?;
+        }
+        if !self.irregular.is_empty() {
+            writeln!(f, "signals    {} irregular", self.irregular.len())?;
+            let skip = self.irregular.len().saturating_sub(10);
+            if skip > 0 {
+                writeln!(f, "  … {skip} earlier ones")?;
+            }
+            for line in &self.irregular[skip..] {
+                writeln!(f, "  {line}")?;
+            }
         }
         writeln!(
             f,
