@@ -151,6 +151,48 @@ fn the_daemon_captures_on_serial_signals() {
 }
 
 #[test]
+fn serial_port_vanished_status_says_so_with_the_right_hint() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = demo_config(&build, 2);
+    // A port that is not there (the USB adapter unplugged before the daemon started).
+    config.trigger = TriggerConfig::Serial(serial_config(&dir.path().join("ttyUSB-unplugged")));
+    let config_path = dir.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let child = spawn_build(&config_path, Stdio::piped());
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        let out = layerwise()
+            .args(["status", "--json", "--build"])
+            .arg(&build)
+            .output()
+            .unwrap();
+        if out.status.success() {
+            let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            if status["trigger"]["reopen_attempts"].as_u64().unwrap_or(0) >= 2 {
+                break status;
+            }
+        }
+        assert!(Instant::now() < deadline, "status never showed the lost trigger");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert_eq!(status["trigger"]["connected"], false);
+    let warning = status["warning"].as_str().unwrap_or_default();
+    assert!(
+        warning.contains("not connected") && warning.contains("USB adapter plugged in"),
+        "{warning}"
+    );
+    assert!(!warning.contains("dialout"), "a vanished port is not a permission problem: {warning}");
+    let text = layerwise()
+        .args(["status", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(text.contains("NOT CONNECTED"), "{text}");
+    let out = terminate(child);
+    assert_success(&out);
+}
+
+#[test]
 fn relay_lights_send_their_command_strings_and_all_off() {
     use layerwise::config::SerialRelayConfig;
     use layerwise::hardware::lights::{Lights, LightsGuard, SerialRelayLights};

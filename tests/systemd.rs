@@ -40,3 +40,33 @@ fn unit_passes_systemd_analyze_verify() {
         "warnings about the unit: {stderr}"
     );
 }
+
+#[test]
+fn unit_exposure_is_at_most_1_5_in_systemd_analyze_security() {
+    let unit = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/systemd/layerwise.service"
+    ))
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("layerwise.service");
+    std::fs::write(
+        &path,
+        unit.replace("/usr/local/bin/layerwise", env!("CARGO_BIN_EXE_layerwise")),
+    )
+    .unwrap();
+    let out = std::process::Command::new("systemd-analyze")
+        .args(["security", "--offline=true", "--no-pager"])
+        .arg(&path)
+        .output()
+        .expect("systemd-analyze is needed: the README's test command installs systemd");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let score: f64 = text
+        .lines()
+        .find_map(|l| l.split("Overall exposure level for").nth(1))
+        .and_then(|rest| rest.split(':').nth(1))
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no exposure level in: {text}"));
+    assert!(score <= 1.5, "exposure {score} > 1.5:\n{text}");
+}

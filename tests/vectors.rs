@@ -1045,3 +1045,16 @@ fn generator_makes_ten_million_hatch_segments() {
     assert_eq!(Info::of(&f).hatches, 10_000_000);
     assert_eq!(f.layers.len(), 1000);
 }
+
+#[test]
+fn units_that_would_overflow_coordinates_are_refused() {
+    for units in ["1e308", "1e-300", "inf"] {
+        let text = format!(
+            "$$HEADERSTART\n$$ASCII\n$$UNITS/{units}\n$$HEADEREND\n$$GEOMETRYSTART\n$$LAYER/1\n$$POLYLINE/1,1,2,0,0,1,1\n"
+        );
+        let err = vectors::read_bytes(text.as_bytes(), "u.cli")
+            .expect_err(units)
+            .to_string();
+        assert!(err.starts_with("u.cli: line 3:") && err.contains("$$UNITS"), "{err}");
+    }
+}

@@ -16,7 +16,7 @@ use crate::hardware::camera::{
     capture_with_retries, CameraActor, CameraError, CaptureFailure, RetryPolicy,
 };
 use crate::hardware::lights::{LightsError, LightsGuard};
-use crate::hardware::trigger::{LayerEvent, TriggerError};
+use crate::hardware::trigger::{LayerEvent, SharedHealth, TriggerError};
 use crate::hardware::Machine;
 use crate::series::{FrameProcessor, KeepOriginals};
 use crate::shot::MAX_LAYER;
@@ -136,6 +136,10 @@ struct Sequencer {
     summary: RunSummary,
     heartbeat: Arc<AtomicU64>,
     clock: SharedClock,
+    /// Tell systemd (READY, WATCHDOG, STATUS=).
+    notify: bool,
+    /// The trigger's health, updated on its thread.
+    trigger_health: SharedHealth,
 }
 
 impl Sequencer {
@@ -467,14 +471,43 @@ impl Sequencer {
         }
     }
 
+    /// Rewrites status.json when the trigger's health changed (called while idle).
+    fn refresh_health(&mut self) {
+        let health = self.trigger_health.get();
+        if self.live.trigger.as_ref() != Some(&health) {
+            if let Some(w) = health.warning() {
+                warn!("{w}");
+            }
+            let state = self.live.state.clone();
+            self.write_live(&state);
+        }
+    }
+
     fn write_live(&mut self, state: &str) {
         self.live.state = state.to_string();
+        self.live.trigger = Some(self.trigger_health.get());
         self.live.updated_at = Some(self.clock.now());
         if let Some(queue) = &self.queue {
             self.live.queue_depth = queue.depth();
         }
         if let Err(e) = self.live.write(self.storage.root()) {
             warn!(error = %e, "status: cannot write status.json");
+        }
+        if self.notify {
+            // What `systemctl status layerwise` shows.
+            let layer = match (self.live.layer, self.live.phase) {
+                (Some(l), Some(p)) => format!("layer {l} {p}"),
+                _ => "waiting for the first layer".into(),
+            };
+            let status = format!(
+                "{state}: {layer}; {} frames, {} missing, {} retakes, {} irregular signals; processing backlog {}",
+                self.state.frames.len(),
+                self.state.missing.len(),
+                self.state.retakes.values().map(Vec::len).sum::<usize>(),
+                self.state.irregular.len(),
+                self.live.queue_depth
+            );
+            let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Status(&status)]);
         }
     }
 
@@ -620,6 +653,7 @@ pub async fn run(
         CameraActor::spawn(camera, timeout, clock.clone()).map_err(AcquisitionError::CameraOpen)?;
     info!(camera = camera.describe(), "camera open");
     trigger.resume_after(replay.last_event);
+    let trigger_health = trigger.health();
 
     let journal = Arc::new(Mutex::new(journal));
     let backlog: Vec<(Shot, PathBuf)> = replay
@@ -661,6 +695,8 @@ pub async fn run(
         },
         heartbeat: heartbeat.clone(),
         clock: clock.clone(),
+        notify: options.notify_systemd,
+        trigger_health,
         prev_signal: replay.last_event,
         catching_up: replay.last_event.is_some(),
         state: replay,
@@ -697,7 +733,7 @@ async fn event_loop(
     if options.notify_systemd {
         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Ready]);
     }
-    let mut tick = tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(5)));
+    let mut tick = tokio::time::interval(Duration::from_secs(1).min(watchdog.unwrap_or(Duration::from_secs(1))));
     let signal = |kind| {
         tokio::signal::unix::signal(kind)
             .map_err(|e| AcquisitionError::Runtime(format!("cannot watch signal {kind:?}: {e}")))
@@ -749,6 +785,9 @@ async fn event_loop(
             _ = sigterm.recv() => { info!("SIGTERM: finishing the frame in hand, then stopping"); stop = Some("SIGTERM".into()); }
             _ = sigint.recv() => { info!("SIGINT: finishing the frame in hand, then stopping"); stop = Some("SIGINT".into()); }
             _ = tick.tick() => {
+                if let Some(sequencer) = idle.as_mut() {
+                    sequencer.refresh_health();
+                }
                 if let Some(period) = watchdog {
                     // Ping only while the capture path shows signs of life.
                     let last = Duration::from_millis(heartbeat.load(Ordering::SeqCst));

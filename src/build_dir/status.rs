@@ -19,6 +19,43 @@ pub struct LastFrame {
     pub at: DateTime<Utc>,
 }
 
+/// How the printer's layer signal reaches the daemon, as status.json reports it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TriggerHealth {
+    /// What the signal comes from, e.g. `serial /dev/ttyUSB0`.
+    pub source: String,
+    pub connected: bool,
+    /// When `connected` last changed.
+    pub since: Option<DateTime<Utc>>,
+    /// Failed attempts to open the source since it was last connected.
+    pub reopen_attempts: u64,
+    /// The last failure, with what to check.
+    pub last_error: Option<String>,
+    /// When the last layer signal arrived.
+    pub last_signal_at: Option<DateTime<Utc>>,
+}
+
+impl TriggerHealth {
+    /// What an operator must act on, if anything.
+    pub fn warning(&self) -> Option<String> {
+        (!self.connected).then(|| {
+            format!(
+                "trigger {} not connected{}{}: {}",
+                self.source,
+                self.since
+                    .map(|t| format!(" since {}", t.format("%Y-%m-%d %H:%M:%S UTC")))
+                    .unwrap_or_default(),
+                if self.reopen_attempts > 0 {
+                    format!(" ({} attempts to reopen)", self.reopen_attempts)
+                } else {
+                    String::new()
+                },
+                self.last_error.as_deref().unwrap_or("no signal can arrive")
+            )
+        })
+    }
+}
+
 /// The daemon's live state, rewritten atomically after every frame.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LiveStatus {
@@ -29,6 +66,9 @@ pub struct LiveStatus {
     pub phase: Option<Phase>,
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
+    /// The layer signal's source (absent in status files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trigger: Option<TriggerHealth>,
 }
 
 impl LiveStatus {
@@ -72,10 +112,14 @@ pub struct StatusReport {
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
     pub bytes_stored: u64,
+    /// What the build derived from the originals so far (the DICOM series).
+    pub bytes_derived: u64,
     pub layers_seen: usize,
     pub layers_expected: Option<u32>,
     pub free_bytes: Option<u64>,
     pub bytes_needed: Option<u64>,
+    /// The layer signal's source, when the daemon reported it.
+    pub trigger: Option<TriggerHealth>,
     pub warning: Option<String>,
 }
 
@@ -87,6 +131,21 @@ pub fn free_bytes(path: &Path) -> Option<u64> {
     // SAFETY: c_path is a valid NUL-terminated string and stat a valid out-pointer.
     let rc = unsafe { libc::statvfs(c_path.as_ptr(), &mut stat) };
     (rc == 0).then(|| stat.f_bavail as u64 * stat.f_frsize as u64)
+}
+
+/// Bytes of the files below `dir` (0 when it does not exist); symlinks are not followed.
+fn dir_size(dir: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .flatten()
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => dir_size(&e.path()),
+            Ok(t) if t.is_file() => e.metadata().map_or(0, |m| m.len()),
+            _ => 0,
+        })
+        .sum()
 }
 
 /// Builds the report for `layerwise status` from the journal, the manifest and status.json.
@@ -109,14 +168,17 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         Err(_) => None,
     };
     let live = live.unwrap_or_default();
-    let bytes_stored: u64 = replay.frames.values().map(|f| f.bytes).sum();
+    let bytes_stored: u64 = replay.frames.values().map(|f| f.bytes).sum::<u64>()
+        + replay.retakes.values().flatten().map(|f| f.bytes).sum::<u64>();
+    let bytes_derived = dir_size(&dir.join(super::DICOM_DIR));
     let layers: std::collections::BTreeSet<u32> = replay.frames.keys().map(|s| s.layer).collect();
     let layers_expected = manifest.as_ref().and_then(|m| m.layers_expected);
     let current_layer = replay.last_event.map(|(l, _)| l).or(live.layer);
     let free = free_bytes(dir);
     let bytes_needed = match (layers_expected, current_layer, layers.len()) {
         (Some(expected), Some(current), seen) if seen > 0 => {
-            let per_layer = bytes_stored as f64 / seen as f64;
+            // Everything a layer writes: originals and the series made from them.
+            let per_layer = (bytes_stored + bytes_derived) as f64 / seen as f64;
             Some((expected.saturating_sub(current) as f64 * per_layer).ceil() as u64)
         }
         _ => None,
@@ -130,6 +192,12 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         )),
         (Some(free), _) if free < min_free_bytes => Some(format!("only {:.1} GB free", free as f64 / 1e9)),
         _ => None,
+    };
+    // A trigger that lost its source while the daemon lives is the first thing to act on.
+    let trigger_warning = live.trigger.as_ref().and_then(TriggerHealth::warning);
+    let warning = match (trigger_warning, warning) {
+        (Some(t), Some(w)) => Some(format!("{t}; {w}")),
+        (t, w) => t.or(w),
     };
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
     let state = match live.state.as_str() {
@@ -164,10 +232,12 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
         bytes_stored,
+        bytes_derived,
         layers_seen: layers.len(),
         layers_expected,
         free_bytes: free,
         bytes_needed,
+        trigger: live.trigger.clone(),
         warning,
     })
 }
@@ -202,9 +272,10 @@ impl fmt::Display for StatusReport {
         }
         writeln!(
             f,
-            "frames     {} stored ({}), {} missing",
+            "frames     {} stored ({}, series {}), {} missing",
             self.frames,
             gb(self.bytes_stored),
+            gb(self.bytes_derived),
             self.frames_missing
         )?;
         for m in self.missing.iter().take(10) {
@@ -235,6 +306,18 @@ impl fmt::Display for StatusReport {
             "processing {} waiting (queue depth {})",
             self.waiting_for_processing, self.queue_depth
         )?;
+        if let Some(t) = &self.trigger {
+            let last = t
+                .last_signal_at
+                .map(|at| format!(", last signal {}", at.format("%Y-%m-%d %H:%M:%S")))
+                .unwrap_or_default();
+            let state = if t.connected {
+                "connected"
+            } else {
+                "NOT CONNECTED"
+            };
+            writeln!(f, "trigger    {} {state}{last}", t.source)?;
+        }
         for (view, last) in &self.last_frames {
             writeln!(
                 f,

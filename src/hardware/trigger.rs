@@ -1,7 +1,9 @@
 //! Layer signals from the printer: a serial line or GPIO lines (the simulated printer lives in
 //! `sim`). Every trigger runs on its own thread (reads block) and yields [`LayerEvent`]s.
 
+use crate::build_dir::status::TriggerHealth;
 use crate::clock::{Backoff, SharedClock};
+use std::sync::{Arc, Mutex};
 use crate::config::{Edge, GpioMode, GpioTriggerConfig, SerialTriggerConfig};
 use crate::shot::Phase;
 use chrono::{DateTime, Utc};
@@ -41,6 +43,75 @@ pub trait Trigger: Send {
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError>;
     /// Tells the trigger where the build stands (from the journal, at start), so counters resume.
     fn resume_after(&mut self, _last: Option<(u32, Phase)>) {}
+    /// The trigger's health, shared with the daemon's status (taken before the trigger moves to
+    /// its thread).
+    fn health(&self) -> SharedHealth {
+        SharedHealth::connected("trigger")
+    }
+}
+
+/// A trigger's health as it changes on the trigger's thread.
+#[derive(Clone, Debug)]
+pub struct SharedHealth(Arc<Mutex<TriggerHealth>>);
+
+impl SharedHealth {
+    /// A source that is connected from the start (GPIO lines, a script).
+    pub fn connected(source: &str) -> SharedHealth {
+        SharedHealth(Arc::new(Mutex::new(TriggerHealth {
+            source: source.to_string(),
+            connected: true,
+            ..TriggerHealth::default()
+        })))
+    }
+    /// The health now.
+    pub fn get(&self) -> TriggerHealth {
+        self.0.lock().map(|h| h.clone()).unwrap_or_default()
+    }
+    fn update(&self, f: impl FnOnce(&mut TriggerHealth)) {
+        if let Ok(mut h) = self.0.lock() {
+            f(&mut h);
+        }
+    }
+    /// The source answered.
+    pub fn up(&self, at: DateTime<Utc>) {
+        self.update(|h| {
+            if !h.connected {
+                h.since = Some(at);
+            }
+            h.connected = true;
+            h.reopen_attempts = 0;
+            h.last_error = None;
+        });
+    }
+    /// The source is gone or cannot be opened.
+    pub fn down(&self, at: DateTime<Utc>, error: String, attempt: bool) {
+        self.update(|h| {
+            if h.connected || h.since.is_none() {
+                h.since = Some(at);
+            }
+            h.connected = false;
+            h.reopen_attempts += u64::from(attempt);
+            h.last_error = Some(error);
+        });
+    }
+    /// A layer signal arrived.
+    pub fn signal(&self, at: DateTime<Utc>) {
+        self.update(|h| h.last_signal_at = Some(at));
+    }
+}
+
+/// What to check when a serial port cannot be opened, by the kind of failure.
+fn open_hint(error: &serialport::Error) -> &'static str {
+    match error.kind() {
+        serialport::ErrorKind::NoDevice => "the port is gone: is the USB adapter plugged in?",
+        serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {
+            "the port is gone: is the USB adapter plugged in?"
+        }
+        serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => {
+            "permission denied: the service user must be in the dialout group"
+        }
+        _ => "check the cable and the port name",
+    }
 }
 
 /// Parses one line of the printer's protocol.
@@ -156,6 +227,7 @@ pub struct SerialTrigger {
     lines: VecDeque<String>,
     backoff: Backoff,
     clock: SharedClock,
+    health: SharedHealth,
 }
 
 impl SerialTrigger {
@@ -169,6 +241,10 @@ impl SerialTrigger {
             Duration::from_millis(config.reopen_backoff_ms[0]),
             Duration::from_millis(config.reopen_backoff_ms[1]),
         );
+        let health = SharedHealth(Arc::new(Mutex::new(TriggerHealth {
+            source: format!("serial {}", config.port),
+            ..TriggerHealth::default()
+        })));
         Ok(SerialTrigger {
             config,
             protocol,
@@ -177,6 +253,7 @@ impl SerialTrigger {
             lines: VecDeque::new(),
             backoff,
             clock,
+            health,
         })
     }
 
@@ -190,10 +267,14 @@ impl SerialTrigger {
                     info!(port = %self.config.port, baud = self.config.baud, "trigger: serial port open");
                     self.port = Some(port);
                     self.backoff.reset();
+                    self.health.up(self.clock.now());
                 }
                 Err(e) => {
+                    let hint = open_hint(&e);
                     warn!(port = %self.config.port, error = %e, retry_in_ms = self.backoff.current().as_millis() as u64,
-                        "trigger: cannot open the serial port; check the cable and that the service user is in the dialout group");
+                        "trigger: cannot open the serial port: {hint}");
+                    self.health
+                        .down(self.clock.now(), format!("{e}: {hint}"), true);
                     self.backoff.wait(self.clock.as_ref());
                 }
             }
@@ -202,6 +283,10 @@ impl SerialTrigger {
 }
 
 impl Trigger for SerialTrigger {
+    fn health(&self) -> SharedHealth {
+        self.health.clone()
+    }
+
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
         let mut chunk = [0u8; 512];
         loop {
@@ -211,6 +296,7 @@ impl Trigger for SerialTrigger {
                 &self.config.port,
                 &self.clock,
             ) {
+                self.health.signal(event.at);
                 return Ok(Some(event));
             }
             self.ensure_open();
@@ -221,6 +307,8 @@ impl Trigger for SerialTrigger {
                 Ok(0) => {
                     warn!(port = %self.config.port, "trigger: serial port closed; reopening");
                     self.port = None;
+                    self.health
+                        .down(self.clock.now(), "the port closed".into(), false);
                 }
                 Ok(n) => self.splitter.push(&chunk[..n], &mut self.lines),
                 Err(e)
@@ -229,6 +317,8 @@ impl Trigger for SerialTrigger {
                 Err(e) => {
                     warn!(port = %self.config.port, error = %e, "trigger: serial port vanished; reopening");
                     self.port = None;
+                    self.health
+                        .down(self.clock.now(), format!("the port vanished: {e}"), false);
                     self.clock.sleep(self.backoff.current());
                 }
             }
@@ -338,6 +428,10 @@ impl GpioTrigger {
 }
 
 impl Trigger for GpioTrigger {
+    fn health(&self) -> SharedHealth {
+        SharedHealth::connected(&format!("gpio {}", self.config.chip.display()))
+    }
+
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
         loop {
             let edge = self

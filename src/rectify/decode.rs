@@ -18,7 +18,9 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     // JPEG dimensions are 16-bit; lift zune's default 16384 cap to that.
     let options = DecoderOptions::default()
         .set_max_width(usize::from(u16::MAX))
-        .set_max_height(usize::from(u16::MAX));
+        .set_max_height(usize::from(u16::MAX))
+        // Truncated or corrupt entropy data is an error, not grey rows.
+        .set_strict_mode(true);
     let mut dec = JpegDecoder::new_with_options(ZCursor::new(bytes), options);
     dec.decode_headers()
         .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
@@ -32,6 +34,7 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     let (w, h) = dec
         .dimensions()
         .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
+    super::check_frame_size(w, h)?;
     let pixels = dec
         .decode()
         .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;

@@ -13,6 +13,8 @@ pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
     let options = DecoderOptions::default()
         .set_max_width(usize::from(u16::MAX))
         .set_max_height(usize::from(u16::MAX))
+        // Truncated or corrupt entropy data is an error, not grey rows.
+        .set_strict_mode(true)
         .jpeg_set_out_colorspace(ColorSpace::Luma);
     let mut decoder = JpegDecoder::new_with_options(ZCursor::new(bytes), options);
     decoder
@@ -21,6 +23,7 @@ pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
     let (w, h) = decoder
         .dimensions()
         .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
+    super::check_frame_size(w, h)?;
     let pixels = decoder
         .decode()
         .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;

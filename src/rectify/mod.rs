@@ -87,6 +87,22 @@ pub enum RectifyError {
     Jpeg(String),
 }
 
+/// Largest frame decoded, in pixels: 128 Mpx, 3.5 times a D810 frame (36 Mpx). A header that
+/// claims more is refused before anything is allocated.
+pub const MAX_FRAME_PIXELS: usize = 1 << 27;
+
+/// Refuses a frame header whose size no camera frame has.
+pub(crate) fn check_frame_size(width: usize, height: usize) -> Result<(), RectifyError> {
+    match width.checked_mul(height) {
+        Some(n) if n <= MAX_FRAME_PIXELS => Ok(()),
+        _ => Err(RectifyError::Jpeg(format!(
+            "the header claims {width} x {height} pixels, more than the {} Mpx a camera frame \
+             may have (a D810 frame is 36 Mpx): not a frame of this camera, or a damaged file",
+            MAX_FRAME_PIXELS >> 20
+        ))),
+    }
+}
+
 impl Rectifier {
     /// Rectifies an 8-bit grey frame onto the grid (see the module docs for
     /// the sampling and border rules).

@@ -3,7 +3,7 @@
 
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::MockTriggerConfig;
-use crate::hardware::trigger::{LayerEvent, LineProtocol, Trigger, TriggerError};
+use crate::hardware::trigger::{LayerEvent, LineProtocol, SharedHealth, Trigger, TriggerError};
 use crate::shot::Phase;
 use std::collections::VecDeque;
 use std::path::Path;
@@ -98,6 +98,10 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
 }
 
 impl Trigger for MockTrigger {
+    fn health(&self) -> SharedHealth {
+        SharedHealth::connected("simulated printer")
+    }
+
     fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
         if let Some(rx) = &self.channel {
             return Ok(rx.recv().ok());

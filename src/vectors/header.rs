@@ -71,9 +71,14 @@ pub(crate) fn parse_header<R: BufRead>(
                 };
                 match word.as_str() {
                     "UNITS" => {
+                        // Real files use 0.001 to 1 mm per unit; outside 1 nm to 1 m, coordinates
+                        // would overflow to infinity or vanish.
                         let u = parse_f64(p)
                             .filter(|u| *u > 0.0)
                             .ok_or_else(|| bad("a positive number"))?;
+                        if !(1e-6..=1e3).contains(&u) {
+                            return Err(bad("a unit of 1e-6 to 1000 mm"));
+                        }
                         header.units_mm = u;
                     }
                     "VERSION" => header.version = Some(text(p)),

@@ -76,6 +76,10 @@ impl RawSpec {
     }
 }
 
+/// Largest volume read, in voxels (2 G: 4 GB of 16-bit voxels; the registration bench's CT is
+/// 0.17 G voxels).
+pub const MAX_VOXELS: usize = 1 << 31;
+
 /// Read a raw volume, one slice at a time.
 pub fn read_raw(path: &Path, spec: &RawSpec) -> Result<Volume> {
     let [nx, ny, nz] = spec.dims;
@@ -84,7 +88,22 @@ pub fn read_raw(path: &Path, spec: &RawSpec) -> Result<Volume> {
         .checked_mul(ny)
         .and_then(|v| v.checked_mul(bpv))
         .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
-    let expected = spec.header_bytes + (slice_bytes as u64) * nz as u64;
+    let voxels = nx
+        .checked_mul(ny)
+        .and_then(|v| v.checked_mul(nz))
+        .filter(|&n| n <= MAX_VOXELS)
+        .ok_or_else(|| {
+            CtError::Invalid(format!(
+                "{}: {nx} x {ny} x {nz} voxels is more than the {} G voxels a CT may have here: \
+                 check the size, or crop the volume",
+                path.display(),
+                MAX_VOXELS >> 30
+            ))
+        })?;
+    let expected = (slice_bytes as u64)
+        .checked_mul(nz as u64)
+        .and_then(|v| v.checked_add(spec.header_bytes))
+        .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
     let file = File::open(path).map_err(io_err(path))?;
     let actual = file.metadata().map_err(io_err(path))?.len();
     if actual != expected {
@@ -101,7 +120,7 @@ pub fn read_raw(path: &Path, spec: &RawSpec) -> Result<Volume> {
     reader
         .seek(SeekFrom::Start(spec.header_bytes))
         .map_err(io_err(path))?;
-    let n = nx * ny * nz;
+    let n = voxels;
     let mut buf = vec![0u8; slice_bytes];
     // Decode each slice into the final vector: no full-size byte copy.
     macro_rules! read_as {

@@ -15,14 +15,18 @@ pub fn read_vgi(path: &Path) -> Result<Volume> {
 pub fn vgi_spec(path: &Path) -> Result<(PathBuf, RawSpec)> {
     let ini = Ini::read(path)?;
     let size = ini.numbers("file1", "Size", 3)?;
-    let dims = [size[0] as usize, size[1] as usize, size[2] as usize];
-    if size.iter().take(3).any(|v| *v < 1.0 || v.fract() != 0.0) {
+    if size
+        .iter()
+        .take(3)
+        .any(|v| !(1.0..=1_048_576.0).contains(v) || v.fract() != 0.0)
+    {
         return Err(ini.bad(
             "Size",
             ini.require("file1", "Size")?,
-            "expected 3 positive integers",
+            "expected 3 positive integers of at most 1048576",
         ));
     }
+    let dims = [size[0] as usize, size[1] as usize, size[2] as usize];
     let res = ini.numbers("geometry", "resolution", 1)?;
     let voxel_mm = if res.len() >= 3 {
         [res[0], res[1], res[2]]
@@ -59,12 +63,17 @@ pub fn vgi_spec(path: &Path) -> Result<(PathBuf, RawSpec)> {
     let raw = match ini.get("file1", "Name") {
         // The name is relative to the .vgi, possibly written with Windows separators.
         Some(name) => {
+            // The raw file lies in the .vgi's folder: a relative path below it is followed, an
+            // absolute path or one with `..` only by its file name (never outside the folder).
             let name = name.trim_matches('"').replace('\\', "/");
-            let file = Path::new(&name).file_name().map(PathBuf::from);
-            let direct = dir.join(&name);
-            match file {
-                Some(f) if !direct.exists() => dir.join(f),
-                _ => direct,
+            let relative = Path::new(&name);
+            let inside = relative
+                .components()
+                .all(|c| matches!(c, std::path::Component::Normal(_)));
+            match relative.file_name() {
+                _ if inside && dir.join(relative).is_file() => dir.join(relative),
+                Some(file) => dir.join(file),
+                None => return Err(ini.bad("Name", &name, "not a file name")),
             }
         }
         None => {
@@ -117,5 +126,38 @@ mod tests {
         .expect("vgi");
         let e = vgi_spec(&d.join("bad.vgi")).expect_err("complex");
         assert!(matches!(e, CtError::UnknownDtype { .. }), "{e}");
+    }
+
+    #[test]
+    fn a_vgi_name_never_leads_outside_its_folder() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let d = tmp.path().join("scan");
+        std::fs::create_dir(&d).expect("dir");
+        // A file the header must not reach: one level up.
+        std::fs::write(tmp.path().join("secret.raw"), [0u8; 24]).expect("secret");
+        std::fs::write(
+            d.join("evil.vgi"),
+            "{volume1}\n[file1]\nSize = 2 3 4\nName = ../secret.raw\nDatatype = unsigned integer\n\
+             BitsPerElement = 8\n[geometry]\nresolution = 0.1\n",
+        )
+        .expect("vgi");
+        let (raw, _) = vgi_spec(&d.join("evil.vgi")).expect("spec");
+        assert_eq!(raw, d.join("secret.raw"), "confined to the .vgi's folder");
+        assert!(read_vgi(&d.join("evil.vgi")).is_err());
+    }
+
+    #[test]
+    fn a_vgi_size_of_1e30_is_an_error_not_a_panic() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let d = tmp.path();
+        std::fs::write(d.join("scan.raw"), [0u8; 8]).expect("raw");
+        std::fs::write(
+            d.join("big.vgi"),
+            "{volume1}\n[file1]\nSize = 1e30 1 1\nName = scan.raw\nDatatype = unsigned integer\n\
+             BitsPerElement = 8\n[geometry]\nresolution = 0.1\n",
+        )
+        .expect("vgi");
+        let err = read_vgi(&d.join("big.vgi")).expect_err("refused").to_string();
+        assert!(err.contains("big.vgi") && err.contains("Size"), "{err}");
     }
 }

@@ -106,6 +106,43 @@ fn decode_jpeg_rejects_garbage_without_panicking() {
 }
 
 #[test]
+fn a_truncated_jpeg_is_an_error_not_a_grey_picture() {
+    let mut rng = Rng(7);
+    let noisy = RgbImage::from_fn(128, 96, |_, _| {
+        Rgb([(rng.next() >> 56) as u8, (rng.next() >> 56) as u8, 9])
+    });
+    let good = encode_jpeg(&DynamicImage::ImageRgb8(noisy));
+    assert!(decode_jpeg(&good).is_ok() && decode_jpeg_luma(&good).is_ok());
+    // Cut in the middle of the entropy-coded data.
+    let cut = &good[..good.len() * 2 / 3];
+    assert!(decode_jpeg(cut).is_err(), "a truncated frame must not decode");
+    assert!(decode_jpeg_luma(cut).is_err(), "a truncated frame must not decode");
+}
+
+#[test]
+fn a_jpeg_header_claiming_65500_squared_pixels_is_refused_before_allocating() {
+    let good = encode_jpeg(&DynamicImage::ImageRgb8(RgbImage::from_pixel(
+        16,
+        16,
+        Rgb([1, 2, 3]),
+    )));
+    // The baseline frame header (SOF0: FF C0, length, precision, height, width).
+    let sof = good
+        .windows(2)
+        .position(|w| w == [0xFF, 0xC0])
+        .expect("SOF0");
+    let mut bomb = good.clone();
+    bomb[sof + 5..sof + 9].copy_from_slice(&[0xFF, 0xDC, 0xFF, 0xDC]);
+    for result in [
+        decode_jpeg(&bomb).map(|_| ()),
+        decode_jpeg_luma(&bomb).map(|_| ()),
+    ] {
+        let err = result.expect_err("65500 x 65500 is no camera frame").to_string();
+        assert!(err.contains("65500 x 65500"), "{err}");
+    }
+}
+
+#[test]
 fn luma_is_bt601_rounded() {
     let img = RgbImage::from_fn(256, 3, |x, y| match y {
         0 => Rgb([x as u8, 0, 0]),
