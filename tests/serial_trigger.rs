@@ -173,7 +173,10 @@ fn serial_port_vanished_status_says_so_with_the_right_hint() {
                 break status;
             }
         }
-        assert!(Instant::now() < deadline, "status never showed the lost trigger");
+        assert!(
+            Instant::now() < deadline,
+            "status never showed the lost trigger"
+        );
         std::thread::sleep(Duration::from_millis(200));
     };
     assert_eq!(status["trigger"]["connected"], false);
@@ -182,7 +185,10 @@ fn serial_port_vanished_status_says_so_with_the_right_hint() {
         warning.contains("not connected") && warning.contains("USB adapter plugged in"),
         "{warning}"
     );
-    assert!(!warning.contains("dialout"), "a vanished port is not a permission problem: {warning}");
+    assert!(
+        !warning.contains("dialout"),
+        "a vanished port is not a permission problem: {warning}"
+    );
     let text = layerwise()
         .args(["status", "--build"])
         .arg(&build)

@@ -1055,6 +1055,9 @@ fn units_that_would_overflow_coordinates_are_refused() {
         let err = vectors::read_bytes(text.as_bytes(), "u.cli")
             .expect_err(units)
             .to_string();
-        assert!(err.starts_with("u.cli: line 3:") && err.contains("$$UNITS"), "{err}");
+        assert!(
+            err.starts_with("u.cli: line 3:") && err.contains("$$UNITS"),
+            "{err}"
+        );
     }
 }

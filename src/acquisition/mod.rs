@@ -733,7 +733,9 @@ async fn event_loop(
     if options.notify_systemd {
         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Ready]);
     }
-    let mut tick = tokio::time::interval(Duration::from_secs(1).min(watchdog.unwrap_or(Duration::from_secs(1))));
+    let mut tick = tokio::time::interval(
+        Duration::from_secs(1).min(watchdog.unwrap_or(Duration::from_secs(1))),
+    );
     let signal = |kind| {
         tokio::signal::unix::signal(kind)
             .map_err(|e| AcquisitionError::Runtime(format!("cannot watch signal {kind:?}: {e}")))

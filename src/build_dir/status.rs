@@ -169,7 +169,12 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
     };
     let live = live.unwrap_or_default();
     let bytes_stored: u64 = replay.frames.values().map(|f| f.bytes).sum::<u64>()
-        + replay.retakes.values().flatten().map(|f| f.bytes).sum::<u64>();
+        + replay
+            .retakes
+            .values()
+            .flatten()
+            .map(|f| f.bytes)
+            .sum::<u64>();
     let bytes_derived = dir_size(&dir.join(super::DICOM_DIR));
     let layers: std::collections::BTreeSet<u32> = replay.frames.keys().map(|s| s.layer).collect();
     let layers_expected = manifest.as_ref().and_then(|m| m.layers_expected);

@@ -3,7 +3,6 @@
 
 use crate::build_dir::status::TriggerHealth;
 use crate::clock::{Backoff, SharedClock};
-use std::sync::{Arc, Mutex};
 use crate::config::{Edge, GpioMode, GpioTriggerConfig, SerialTriggerConfig};
 use crate::shot::Phase;
 use chrono::{DateTime, Utc};
@@ -12,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::io::Read;
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tracing::{info, warn};
 

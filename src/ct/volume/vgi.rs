@@ -157,7 +157,9 @@ mod tests {
              BitsPerElement = 8\n[geometry]\nresolution = 0.1\n",
         )
         .expect("vgi");
-        let err = read_vgi(&d.join("big.vgi")).expect_err("refused").to_string();
+        let err = read_vgi(&d.join("big.vgi"))
+            .expect_err("refused")
+            .to_string();
         assert!(err.contains("big.vgi") && err.contains("Size"), "{err}");
     }
 }

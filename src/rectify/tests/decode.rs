@@ -115,8 +115,14 @@ fn a_truncated_jpeg_is_an_error_not_a_grey_picture() {
     assert!(decode_jpeg(&good).is_ok() && decode_jpeg_luma(&good).is_ok());
     // Cut in the middle of the entropy-coded data.
     let cut = &good[..good.len() * 2 / 3];
-    assert!(decode_jpeg(cut).is_err(), "a truncated frame must not decode");
-    assert!(decode_jpeg_luma(cut).is_err(), "a truncated frame must not decode");
+    assert!(
+        decode_jpeg(cut).is_err(),
+        "a truncated frame must not decode"
+    );
+    assert!(
+        decode_jpeg_luma(cut).is_err(),
+        "a truncated frame must not decode"
+    );
 }
 
 #[test]
@@ -137,7 +143,9 @@ fn a_jpeg_header_claiming_65500_squared_pixels_is_refused_before_allocating() {
         decode_jpeg(&bomb).map(|_| ()),
         decode_jpeg_luma(&bomb).map(|_| ()),
     ] {
-        let err = result.expect_err("65500 x 65500 is no camera frame").to_string();
+        let err = result
+            .expect_err("65500 x 65500 is no camera frame")
+            .to_string();
         assert!(err.contains("65500 x 65500"), "{err}");
     }
 }
