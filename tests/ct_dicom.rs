@@ -6,15 +6,11 @@
 use std::path::Path;
 
 use dicom_core::value::{PrimitiveValue, C};
-use dicom_core::{DataElement, Tag, VR};
+use dicom_core::{DataElement, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 use layerwise::ct::{self, synth, volume, CtParams, InitialTransform, VoxelData};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
-
-fn put(o: &mut InMemDicomObject, tag: Tag, vr: VR, v: impl Into<PrimitiveValue>) {
-    o.put(DataElement::new(tag, vr, v.into()));
-}
 
 fn ds(v: &[f64]) -> String {
     v.iter()
@@ -37,90 +33,35 @@ fn write_slice(
     ipp: [f64; 3],
     spacing: f64,
 ) {
-    let mut o = InMemDicomObject::new_empty();
     let uid = format!("1.2.826.0.1.3680043.10.1234.{k}");
-    put(
-        &mut o,
-        tags::SOP_CLASS_UID,
-        VR::UI,
-        "1.2.840.10008.5.1.4.1.1.2",
-    );
-    put(&mut o, tags::SOP_INSTANCE_UID, VR::UI, uid.as_str());
-    put(&mut o, tags::MODALITY, VR::CS, "CT");
-    put(
-        &mut o,
-        tags::INSTANCE_NUMBER,
-        VR::IS,
-        format!("{}", k + 1).as_str(),
-    );
-    put(
-        &mut o,
-        tags::IMAGE_ORIENTATION_PATIENT,
-        VR::DS,
-        ds(&iop).as_str(),
-    );
-    put(
-        &mut o,
-        tags::IMAGE_POSITION_PATIENT,
-        VR::DS,
-        ds(&ipp).as_str(),
-    );
-    put(
-        &mut o,
-        tags::PIXEL_SPACING,
-        VR::DS,
-        ds(&[spacing, spacing]).as_str(),
-    );
-    put(
-        &mut o,
-        tags::SAMPLES_PER_PIXEL,
-        VR::US,
-        PrimitiveValue::from(1u16),
-    );
-    put(
-        &mut o,
-        tags::PHOTOMETRIC_INTERPRETATION,
-        VR::CS,
-        "MONOCHROME2",
-    );
-    put(
-        &mut o,
-        tags::ROWS,
-        VR::US,
-        PrimitiveValue::from(rows as u16),
-    );
-    put(
-        &mut o,
-        tags::COLUMNS,
-        VR::US,
-        PrimitiveValue::from(cols as u16),
-    );
-    put(
-        &mut o,
-        tags::BITS_ALLOCATED,
-        VR::US,
-        PrimitiveValue::from(16u16),
-    );
-    put(
-        &mut o,
-        tags::BITS_STORED,
-        VR::US,
-        PrimitiveValue::from(16u16),
-    );
-    put(&mut o, tags::HIGH_BIT, VR::US, PrimitiveValue::from(15u16));
-    put(
-        &mut o,
-        tags::PIXEL_REPRESENTATION,
-        VR::US,
-        PrimitiveValue::from(1u16),
-    );
-    put(&mut o, tags::RESCALE_INTERCEPT, VR::DS, "20000");
-    put(&mut o, tags::RESCALE_SLOPE, VR::DS, "1");
-    o.put(DataElement::new(
-        tags::PIXEL_DATA,
-        VR::OW,
-        PrimitiveValue::I16(C::from_vec(pixels.to_vec())),
-    ));
+    let text = |tag, vr, value: &str| DataElement::new(tag, vr, PrimitiveValue::from(value));
+    let short = |tag, value: u16| DataElement::new(tag, VR::US, PrimitiveValue::from(value));
+    // A scanner's series as layerwise's readers meet it: signed pixels with a rescale, any
+    // orientation. dicom-rs encodes it; the test only says what the file holds.
+    let o = InMemDicomObject::from_element_iter([
+        text(tags::SOP_CLASS_UID, VR::UI, "1.2.840.10008.5.1.4.1.1.2"),
+        text(tags::SOP_INSTANCE_UID, VR::UI, &uid),
+        text(tags::MODALITY, VR::CS, "CT"),
+        text(tags::INSTANCE_NUMBER, VR::IS, &(k + 1).to_string()),
+        text(tags::IMAGE_ORIENTATION_PATIENT, VR::DS, &ds(&iop)),
+        text(tags::IMAGE_POSITION_PATIENT, VR::DS, &ds(&ipp)),
+        text(tags::PIXEL_SPACING, VR::DS, &ds(&[spacing, spacing])),
+        short(tags::SAMPLES_PER_PIXEL, 1),
+        text(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, "MONOCHROME2"),
+        short(tags::ROWS, rows as u16),
+        short(tags::COLUMNS, cols as u16),
+        short(tags::BITS_ALLOCATED, 16),
+        short(tags::BITS_STORED, 16),
+        short(tags::HIGH_BIT, 15),
+        short(tags::PIXEL_REPRESENTATION, 1),
+        text(tags::RESCALE_INTERCEPT, VR::DS, "20000"),
+        text(tags::RESCALE_SLOPE, VR::DS, "1"),
+        DataElement::new(
+            tags::PIXEL_DATA,
+            VR::OW,
+            PrimitiveValue::I16(C::from_vec(pixels.to_vec())),
+        ),
+    ]);
     let meta = FileMetaTableBuilder::new()
         .media_storage_sop_class_uid("1.2.840.10008.5.1.4.1.1.2")
         .media_storage_sop_instance_uid(uid.as_str())
