@@ -421,3 +421,54 @@ fn vectors_raster_writes_each_kind_and_names_bad_input() {
         .fails();
     assert!(err.contains("no layer 100"), "{err}");
 }
+
+#[test]
+fn check_takes_one_test_shot_per_light_through_the_real_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(&dir.path().join("build"), 1);
+    let config_path = dir.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let shots = dir.path().join("shots");
+    let report = layerwise()
+        .args(["check", "--json", "--config"])
+        .arg(&config_path)
+        .arg("--out")
+        .arg(&shots)
+        .json_ok();
+    let layerwise::config::CameraConfig::Mock(mock) = &config.camera else {
+        panic!("the demo camera is the mock")
+    };
+    let (w, h) = (u64::from(mock.width), u64::from(mock.height));
+    assert_eq!(report["camera"], format!("mock_camera {w}x{h}"));
+    assert_eq!(report["trigger"], "simulated printer");
+    let shots_json = report["shots"].as_array().unwrap();
+    assert_eq!(shots_json.len(), 3);
+    let mut means = Vec::new();
+    for (shot, light) in shots_json.iter().zip(["front", "side", "top"]) {
+        assert_eq!(shot["light"], light);
+        assert!(shot["error"].is_null(), "{shot}");
+        assert_eq!(
+            (shot["width"].as_u64(), shot["height"].as_u64()),
+            (Some(w), Some(h))
+        );
+        assert!(shots.join(format!("check_{light}.jpg")).exists());
+        means.push(shot["mean"].as_f64().unwrap());
+    }
+    // Each lamp lights the plate differently: the lights were really switched.
+    assert!(
+        (means[0] - means[1]).abs() > 1e-3 && (means[1] - means[2]).abs() > 1e-3,
+        "{means:?}"
+    );
+    assert!(
+        !dir.path().join("build").join("journal.jsonl").exists(),
+        "no build was started"
+    );
+    let text = layerwise()
+        .args(["check", "--config"])
+        .arg(&config_path)
+        .stdout_ok();
+    assert!(
+        text.contains("light front ok") && text.contains("light top   ok"),
+        "{text}"
+    );
+}

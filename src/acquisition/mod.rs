@@ -2,6 +2,7 @@
 //! capture and download, light off, store the original, hand it to processing. Resumes from the
 //! journal after any stop; never waits for processing.
 
+pub mod check;
 pub mod processing;
 mod sequencer;
 pub mod storage;

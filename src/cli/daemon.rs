@@ -6,8 +6,9 @@ use super::runtime;
 use anyhow::{Context, Result};
 use clap::Args;
 use layerwise::acquisition::{self, RunOptions, RunSummary};
-use layerwise::clock::SystemClock;
+use layerwise::clock::{SharedClock, SystemClock};
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
+use layerwise::hardware::Machine;
 use std::path::{Path, PathBuf};
 
 #[derive(Args)]
@@ -33,15 +34,61 @@ impl RunArgs {
     }
 }
 
-/// Opens the machine the configuration describes and runs the daemon on it: the real hardware,
-/// or the simulated machine where a part says `kind = "mock"`.
-fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
-    let machine = if config.is_simulated() {
-        layerwise::sim::open(config, options.clock.clone())?.0
+/// The machine the configuration describes: the real hardware, or the simulated machine where a
+/// part says `kind = "mock"`.
+fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
+    Ok(if config.is_simulated() {
+        layerwise::sim::open(config, clock)?.0
     } else {
-        layerwise::hardware::open(config, options.clock.clone())?
-    };
+        layerwise::hardware::open(config, clock)?
+    })
+}
+
+/// Opens the machine and runs the daemon on it.
+fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
+    let machine = open_machine(config, options.clock.clone())?;
     Ok(runtime()?.block_on(acquisition::run(config, machine, options))?)
+}
+
+#[derive(Args)]
+pub struct CheckArgs {
+    /// The configuration file the daemon will run with.
+    #[arg(long, default_value = "/etc/layerwise/layerwise.toml")]
+    config: PathBuf,
+    /// Keep the test shots here (`check_{light}.{ext}`).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+impl CheckArgs {
+    pub fn run(self) -> Result<()> {
+        let config = Config::load(&self.config)?;
+        config.check_backends(&self.config)?;
+        if let Some(out) = &self.out {
+            std::fs::create_dir_all(out)
+                .with_context(|| format!("cannot create {}", out.display()))?;
+        }
+        let clock = SystemClock::shared();
+        let machine = open_machine(&config, clock.clone())?;
+        let report = layerwise::acquisition::check::check_machine(
+            &config,
+            machine,
+            clock,
+            self.out.as_deref(),
+        )?;
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print!("{report}");
+        }
+        if !report.ok() {
+            anyhow::bail!("a test shot failed (see above): fix it before the build");
+        }
+        Ok(())
+    }
 }
 
 #[derive(Args)]

@@ -30,6 +30,8 @@ pub enum Command {
     Run(daemon::RunArgs),
     /// Validate a configuration file without touching any hardware.
     CheckConfig(daemon::CheckConfigArgs),
+    /// Before a build: detect the camera, read its settings, take one test shot per light.
+    Check(daemon::CheckArgs),
     /// Where a build stands: layer, frames, missing frames, processing, disk.
     Status(daemon::StatusArgs),
     /// Laser scan vector files (CLI, ASCII or binary).
@@ -65,6 +67,7 @@ impl Command {
         match self {
             Command::Run(args) => args.run(),
             Command::CheckConfig(args) => args.run(),
+            Command::Check(args) => args.run(),
             Command::Status(args) => args.run(),
             Command::Vectors { command } => command.run(),
             Command::Rectify(args) => args.run(),
