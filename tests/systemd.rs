@@ -4,13 +4,29 @@ mod common;
 
 use common::assert_success;
 
-#[test]
-fn unit_passes_systemd_analyze_verify() {
-    let unit = std::fs::read_to_string(concat!(
+/// The unit as shipped.
+fn shipped_unit() -> String {
+    std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/systemd/layerwise.service"
     ))
+    .unwrap()
+}
+
+/// The unit with ExecStart pointing at this build, written into `dir`.
+fn unit_for_this_build(unit: &str, dir: &std::path::Path) -> std::path::PathBuf {
+    let path = dir.join("layerwise.service");
+    std::fs::write(
+        &path,
+        unit.replace("/usr/local/bin/layerwise", env!("CARGO_BIN_EXE_layerwise")),
+    )
     .unwrap();
+    path
+}
+
+#[test]
+fn unit_passes_systemd_analyze_verify() {
+    let unit = shipped_unit();
     for required in [
         "Type=notify",
         "WatchdogSec=",
@@ -22,12 +38,7 @@ fn unit_passes_systemd_analyze_verify() {
         assert!(unit.contains(required), "the unit lacks {required}");
     }
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("layerwise.service");
-    std::fs::write(
-        &path,
-        unit.replace("/usr/local/bin/layerwise", env!("CARGO_BIN_EXE_layerwise")),
-    )
-    .unwrap();
+    let path = unit_for_this_build(&unit, dir.path());
     let out = std::process::Command::new("systemd-analyze")
         .arg("verify")
         .arg(&path)
@@ -43,18 +54,9 @@ fn unit_passes_systemd_analyze_verify() {
 
 #[test]
 fn unit_exposure_is_at_most_1_5_in_systemd_analyze_security() {
-    let unit = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/systemd/layerwise.service"
-    ))
-    .unwrap();
+    let unit = shipped_unit();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("layerwise.service");
-    std::fs::write(
-        &path,
-        unit.replace("/usr/local/bin/layerwise", env!("CARGO_BIN_EXE_layerwise")),
-    )
-    .unwrap();
+    let path = unit_for_this_build(&unit, dir.path());
     let out = std::process::Command::new("systemd-analyze")
         .args(["security", "--offline=true", "--no-pager"])
         .arg(&path)

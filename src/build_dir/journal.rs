@@ -143,6 +143,59 @@ pub struct FrameEntry {
     pub at: DateTime<Utc>,
 }
 
+impl FrameEntry {
+    fn new(file: &str, bytes: u64, at: DateTime<Utc>) -> FrameEntry {
+        FrameEntry {
+            file: file.to_string(),
+            bytes,
+            at,
+        }
+    }
+}
+
+impl Record {
+    /// The frame a record is about, for the records that are about one.
+    pub fn shot(&self) -> Option<Shot> {
+        match *self {
+            Record::Frame {
+                layer,
+                phase,
+                light,
+                ..
+            }
+            | Record::Missing {
+                layer,
+                phase,
+                light,
+                ..
+            }
+            | Record::Processed {
+                layer,
+                phase,
+                light,
+                ..
+            }
+            | Record::ProcessingFailed {
+                layer,
+                phase,
+                light,
+                ..
+            }
+            | Record::Retake {
+                layer,
+                phase,
+                light,
+                ..
+            } => Some(Shot {
+                layer,
+                phase,
+                light,
+            }),
+            _ => None,
+        }
+    }
+}
+
 /// Where the build stands, from replaying the journal.
 #[derive(Clone, Debug, Default)]
 pub struct Replay {
@@ -158,99 +211,56 @@ pub struct Replay {
 
 impl Replay {
     pub fn apply(&mut self, record: &Record) {
-        match record {
-            Record::Start { .. } => self.starts += 1,
+        match (record, record.shot()) {
+            (Record::Start { .. }, _) => self.starts += 1,
             // A layer no printer uses (flagged out of range) does not move the build on.
-            Record::Event { layer, phase, .. } if (1..=crate::shot::MAX_LAYER).contains(layer) => {
+            (Record::Event { layer, phase, .. }, _)
+                if (1..=crate::shot::MAX_LAYER).contains(layer) =>
+            {
                 self.last_event = Some((*layer, *phase))
             }
-            Record::Event { .. } => {}
-            Record::Frame {
-                layer,
-                phase,
-                light,
-                file,
-                bytes,
-                at,
-                ..
-            } => {
-                let shot = Shot {
-                    layer: *layer,
-                    phase: *phase,
-                    light: *light,
-                };
+            (
+                Record::Frame {
+                    file, bytes, at, ..
+                },
+                Some(shot),
+            ) => {
                 self.missing.remove(&shot);
-                self.frames.insert(
-                    shot,
-                    FrameEntry {
-                        file: file.clone(),
-                        bytes: *bytes,
-                        at: *at,
-                    },
-                );
+                self.frames.insert(shot, FrameEntry::new(file, *bytes, *at));
             }
-            Record::Missing {
-                layer,
-                phase,
-                light,
-                reason,
-                ..
-            } => {
-                let shot = Shot {
-                    layer: *layer,
-                    phase: *phase,
-                    light: *light,
-                };
-                if !self.frames.contains_key(&shot) {
-                    self.missing.insert(shot, reason.clone());
-                }
+            (Record::Missing { reason, .. }, Some(shot)) if !self.frames.contains_key(&shot) => {
+                self.missing.insert(shot, reason.clone());
             }
-            Record::Processed {
-                layer,
-                phase,
-                light,
-                ..
-            } => {
-                self.processed.insert(Shot {
-                    layer: *layer,
-                    phase: *phase,
-                    light: *light,
-                });
+            (Record::Processed { .. }, Some(shot)) => {
+                self.processed.insert(shot);
             }
-            Record::Retake {
-                layer,
-                phase,
-                light,
-                file,
-                bytes,
-                at,
-                ..
-            } => {
-                let shot = Shot {
-                    layer: *layer,
-                    phase: *phase,
-                    light: *light,
-                };
-                self.retakes.entry(shot).or_default().push(FrameEntry {
-                    file: file.clone(),
-                    bytes: *bytes,
-                    at: *at,
-                });
-            }
-            Record::Irregular {
-                layer,
-                phase,
-                signal,
-                detail,
-                at,
-            } => self.irregular.push(IrregularEntry {
+            (
+                Record::Retake {
+                    file, bytes, at, ..
+                },
+                Some(shot),
+            ) => self
+                .retakes
+                .entry(shot)
+                .or_default()
+                .push(FrameEntry::new(file, *bytes, *at)),
+            (
+                Record::Irregular {
+                    layer,
+                    phase,
+                    signal,
+                    detail,
+                    at,
+                },
+                _,
+            ) => self.irregular.push(IrregularEntry {
                 layer: *layer,
                 phase: *phase,
                 signal: *signal,
                 detail: detail.clone(),
                 at: *at,
             }),
-            Record::ProcessingFailed { .. } | Record::Stop { .. } => {}
+            _ => {}
         }
     }
 
