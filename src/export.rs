@@ -261,7 +261,15 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         ));
     }
     if let Some(vectors) = &record.config.build.vectors {
-        let slices = export_vectors(vectors, &live, grid, &label, request, &mut summary)?;
+        let slices = export_vectors(
+            vectors,
+            &live,
+            grid,
+            &label,
+            request,
+            record.config.build.numbering(),
+            &mut summary,
+        )?;
         summary.series.push((
             if label == "export" {
                 "vectors".into()
@@ -337,6 +345,7 @@ fn export_vectors(
     grid: Grid,
     label: &str,
     request: &ExportRequest,
+    numbering: crate::vectors::LayerNumbering,
     summary: &mut ExportSummary,
 ) -> Result<usize, ExportError> {
     use crate::raster::{self, RasterOptions, RGB_CONTOUR, RGB_HATCH};
@@ -356,8 +365,11 @@ fn export_vectors(
     let mut rgb_volume: Vec<u8> = Vec::new();
     let mut zs = Vec::new();
     let mut slices = 0;
+    let map = crate::vectors::LayerMap::of_file(&file, numbering);
     for (k, layer) in file.layers.iter().enumerate() {
-        let layer_number = k as u32 + 1;
+        let Some(layer_number) = map.layer(k) else {
+            continue;
+        };
         let rgb = raster::rgb(layer, &grid, &options).map_err(|source| ExportError::Raster {
             file: path.to_path_buf(),
             layer: k,
@@ -451,7 +463,8 @@ fn export_ct(
     let planes: Vec<(u32, f64, f64)> = match &record.config.build.vectors {
         Some(path) => {
             let file = crate::vectors::read(path)?;
-            ct::resample::layer_planes(&file)
+            let map = crate::vectors::LayerMap::of_file(&file, record.config.build.numbering());
+            ct::resample::layer_planes(&file, &map)
         }
         None => {
             let layers: std::collections::BTreeSet<u32> =

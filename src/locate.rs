@@ -28,6 +28,16 @@ pub struct ViewLocation {
     /// Pixel (u, v) in the original camera frame (through the homography and distortion).
     pub image_pixel: Option<[f64; 2]>,
     pub original: Option<PathBuf>,
+    /// The original frame's size (width, height) in pixels, when it could be read.
+    pub frame_size: Option<[u32; 2]>,
+}
+
+impl ViewLocation {
+    /// Whether the image pixel falls inside the original frame (None: unknown).
+    pub fn in_frame(&self) -> Option<bool> {
+        let ([u, v], [w, h]) = (self.image_pixel?, self.frame_size?);
+        Some(u >= -0.5 && v >= -0.5 && u <= f64::from(w) - 0.5 && v <= f64::from(h) - 0.5)
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -43,6 +53,16 @@ pub struct Location {
 /// Where `point` (build mm) is in the layer stack, the rectified views and the original frames.
 pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateError> {
     let layer = record.heights.layer_at(point[2]);
+    if let (Some(k), Some(last)) = (layer, last_layer(record)) {
+        if k > last {
+            return Err(LocateError::Invalid(format!(
+                "z = {} mm is in layer {k}, above the last layer of the build in {} (layer {last}, top at z = {:.4} mm): give a z in the build",
+                point[2],
+                record.dir.display(),
+                record.heights.z(last)
+            )));
+        }
+    }
     let rectifier = match &record.calibration {
         Some(c) => Some(
             Rectifier::new(&c.camera(), record.grid, Default::default(), 0)
@@ -78,6 +98,10 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
                     .as_ref()
                     .and_then(|r| r.image_point(BuildPoint::new(point[0], point[1])))
                     .map(|p| [p.u, p.v]),
+                frame_size: original
+                    .as_ref()
+                    .and_then(|p| image::image_dimensions(p).ok())
+                    .map(|(w, h)| [w, h]),
                 original,
             }
         })
@@ -89,6 +113,21 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
         layer_z_mm: layer.map(|k| record.heights.z(k)),
         views,
     })
+}
+
+/// The build's last layer: the highest one the journal recorded, else the configured count.
+fn last_layer(record: &BuildRecord) -> Option<u32> {
+    let journal = record.dir.join(crate::build_dir::JOURNAL);
+    let recorded = crate::build_dir::journal::Journal::read(&journal)
+        .ok()
+        .and_then(|r| {
+            r.frames
+                .keys()
+                .chain(r.missing.keys())
+                .map(|s| s.layer)
+                .max()
+        });
+    recorded.or(record.config.build.layers)
 }
 
 fn find_original(dir: &Path, shot: &Shot) -> Option<PathBuf> {
@@ -120,8 +159,12 @@ impl std::fmt::Display for Location {
                 .map_or("off the grid".to_string(), |[r, c]| {
                     format!("row {r:.1}, column {c:.1}")
                 });
+            let outside = match (v.in_frame(), v.frame_size) {
+                (Some(false), Some([w, h])) => format!(" (outside the {w} x {h} frame)"),
+                _ => String::new(),
+            };
             let img = v.image_pixel.map_or("not in view".to_string(), |[u, v]| {
-                format!("u {u:.1}, v {v:.1}")
+                format!("u {u:.1}, v {v:.1}{outside}")
             });
             writeln!(
                 f,
@@ -165,7 +208,8 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
         location.views.first().and_then(|v| v.rectified_pixel),
     ) {
         let file = crate::vectors::read(path).map_err(|e| LocateError::Invalid(e.to_string()))?;
-        if let Some(layer) = file.layers.get(k as usize - 1) {
+        let map = crate::vectors::LayerMap::of_file(&file, record.config.build.numbering());
+        if let Some(layer) = map.position(k).and_then(|p| file.layers.get(p)) {
             let picture = crate::raster::rgb(
                 layer,
                 &record.grid,

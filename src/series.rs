@@ -8,7 +8,7 @@ use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, Study};
 use crate::fsutil::TomlFileError;
 use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
 use crate::shot::{Shot, View};
-use crate::vectors::{LayerIndex, VectorError};
+use crate::vectors::{LayerIndex, LayerMap, VectorError};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -64,71 +64,75 @@ pub enum SeriesError {
     UnknownView(View),
 }
 
-/// Where layer k sits in z: the k-th layer of the vector file, or k x the layer thickness.
+/// Where printer layer k sits in z: the z of the vector file's layer that the build's
+/// numbering pairs with it (`vectors::LayerMap`), or k x the layer thickness.
 #[derive(Clone, Debug)]
 pub struct LayerHeights {
-    z_mm: Option<Vec<f64>>,
+    map: Option<LayerMap>,
     thickness_mm: f64,
 }
 
 impl LayerHeights {
     pub fn from_config(config: &Config) -> Result<LayerHeights, SeriesError> {
         let thickness_mm = config.build.layer_thickness_mm;
-        let z_mm = match &config.build.vectors {
-            Some(path) => {
-                let index = LayerIndex::build(path)?;
-                Some((0..index.len()).filter_map(|k| index.z_mm(k)).collect())
-            }
+        let map = match &config.build.vectors {
+            Some(path) => Some(LayerIndex::build(path)?.layer_map(config.build.numbering())),
             None => None,
         };
-        Ok(LayerHeights { z_mm, thickness_mm })
+        Ok(LayerHeights { map, thickness_mm })
     }
 
     pub fn uniform(thickness_mm: f64) -> LayerHeights {
         LayerHeights {
-            z_mm: None,
+            map: None,
             thickness_mm,
         }
     }
 
+    /// The match of printer layers to the vector file, when the build has one.
+    pub fn map(&self) -> Option<&LayerMap> {
+        self.map.as_ref()
+    }
+
     /// z of layer `layer` (1-based, as the printer counts).
     pub fn z(&self, layer: u32) -> f64 {
-        match &self.z_mm {
-            Some(z) if layer >= 1 && (layer as usize) <= z.len() => z[layer as usize - 1],
-            _ => layer as f64 * self.thickness_mm,
-        }
+        self.map
+            .as_ref()
+            .and_then(|m| m.z_mm(layer))
+            .unwrap_or(layer as f64 * self.thickness_mm)
     }
 
     /// The layer whose slab (z of the layer below, z of the layer] holds `z`.
     pub fn layer_at(&self, z: f64) -> Option<u32> {
-        match &self.z_mm {
-            Some(zs) => {
-                let k = zs.partition_point(|&top| top < z - 1e-9);
-                let bottom = if k == 0 {
-                    zs.first().map(|z1| z1 - self.thickness_mm)?
-                } else {
-                    zs[k - 1]
-                };
-                (k < zs.len() && z > bottom - 1e-9).then_some(k as u32 + 1)
-            }
-            None => {
-                let k = (z / self.thickness_mm - 1e-9).ceil();
-                (k >= 1.0 && k <= u32::MAX as f64).then_some(k as u32)
+        let Some(map) = &self.map else {
+            let k = (z / self.thickness_mm - 1e-9).ceil();
+            return (k >= 1.0 && k <= u32::MAX as f64).then_some(k as u32);
+        };
+        let (first, last) = map.range()?;
+        // Printer layers in z order: the first whose top is at or above z.
+        let (mut lo, mut hi) = (first, last);
+        if self.z(last) < z - 1e-9 {
+            return None;
+        }
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if self.z(mid) < z - 1e-9 {
+                lo = mid + 1;
+            } else {
+                hi = mid;
             }
         }
+        let bottom = self.z(lo) - self.thickness(lo);
+        (z > bottom - 1e-9).then_some(lo)
     }
 
     /// Thickness of layer `layer`: its z minus the one below.
     pub fn thickness(&self, layer: u32) -> f64 {
-        match &self.z_mm {
-            Some(z) if layer >= 2 && (layer as usize) <= z.len() => {
-                let t = z[layer as usize - 1] - z[layer as usize - 2];
-                if t > 0.0 {
-                    t
-                } else {
-                    self.thickness_mm
-                }
-            }
+        let below = layer
+            .checked_sub(1)
+            .and_then(|b| self.map.as_ref()?.z_mm(b));
+        match (self.map.as_ref().and_then(|m| m.z_mm(layer)), below) {
+            (Some(z), Some(b)) if z - b > 0.0 => z - b,
             _ => self.thickness_mm,
         }
     }

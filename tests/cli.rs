@@ -393,7 +393,7 @@ fn vectors_raster_writes_each_kind_and_names_bad_input() {
         layerwise()
             .args(["vectors", "raster"])
             .arg(&file)
-            .args(["--layer", "10", "--kind", kind, "--out"])
+            .args(["--layer", "10", "--extent", "--kind", kind, "--out"])
             .arg(&out)
             .succeeds();
         let img = image::open(&out).unwrap();
@@ -416,10 +416,22 @@ fn vectors_raster_writes_each_kind_and_names_bad_input() {
     let err = layerwise()
         .args(["vectors", "raster"])
         .arg(&file)
-        .args(["--layer", "100", "--out"])
+        .args(["--layer", "101", "--out"])
         .arg(dir.path().join("x.png"))
         .fails();
-    assert!(err.contains("no layer 100"), "{err}");
+    assert!(
+        err.contains("no vectors for printer layer 101") && err.contains("printer layers 1 to 100"),
+        "{err}"
+    );
+    // Without --extent the layer is drawn on the plate grid, where the rectified views are.
+    let plate = dir.path().join("plate.png");
+    layerwise()
+        .args(["vectors", "raster"])
+        .arg(&file)
+        .args(["--layer", "10", "--out"])
+        .arg(&plate)
+        .succeeds();
+    assert_eq!(image::image_dimensions(&plate).unwrap(), (4400, 4400));
 }
 
 #[test]

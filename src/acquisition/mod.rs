@@ -396,6 +396,9 @@ fn default_processor(
         return Ok(Arc::new(KeepOriginals));
     };
     let calibration = crate::rectify::Calibration::load(path)?;
+    if let Some(note) = calibration.grid_note(&config.rectify) {
+        info!("{}: {note}", path.display());
+    }
     let settings = crate::series::SeriesSettings::from_config(config)?;
     let live =
         crate::series::LiveSeries::new(manifest, &config.views.all(), &calibration, settings)?;

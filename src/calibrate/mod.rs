@@ -24,6 +24,7 @@
 
 pub mod exemplar;
 pub mod filter;
+pub mod identify;
 pub mod lm;
 pub mod overlay;
 mod pipeline;
@@ -38,7 +39,7 @@ use image::DynamicImage;
 use crate::geometry::{Grid, Homography};
 use crate::raster::RasterError;
 use crate::rectify::calibration::Calibration;
-use crate::vectors::{Layer, VectorError};
+use crate::vectors::{Layer, LayerNumbering, VectorError};
 
 pub use exemplar::F32Image;
 pub use lm::{align, Alignment, LevelReport, LmOptions, Pair, PairFit, Termination};
@@ -71,20 +72,31 @@ pub enum RegistrationError {
     /// The exemplar could not be rendered (e.g. its grid is too large).
     #[error("cannot render the exemplar: {0}")]
     Raster(#[from] RasterError),
-    #[error("{file}: no layer {layer}: the file has {count} layers (indices 0 to {last})", last = count.saturating_sub(1))]
+    #[error("{file}: no vectors for printer layer {layer}: the file has {available}; check --layer (the number in the frame's name) or --layer-match/--layer-offset")]
     NoSuchLayer {
         file: String,
-        layer: usize,
-        count: usize,
+        layer: u32,
+        available: String,
     },
     #[error("layer {layer} has no fused area to register to (no closed contours or hatches)")]
-    NoFusedArea { layer: usize },
+    NoFusedArea { layer: u32 },
+    #[error(
+        "the parts' contours cannot tell a lens distortion from the homography: k1 = {probe} \
+         would move them only {visible_px:.2} px beyond it (at least {min} px needed; the parts \
+         reach {pct:.0}% of the way to the frame's corners). Register several layers at once \
+         (--layer/--image per frame), frames whose parts reach further out, or a calibration \
+         target; or use --distortion none",
+        probe = identify::PROBE_K,
+        min = identify::MIN_VISIBLE_PX,
+        pct = 100.0 * max_radius
+    )]
+    DistortionNotIdentifiable { visible_px: f64, max_radius: f64 },
     #[error("{image}: cannot decode: {message}")]
     Image { image: String, message: String },
     #[error("{image}: layer {layer}'s parts are not in view: {detail}")]
     NotInView {
         image: String,
-        layer: usize,
+        layer: u32,
         detail: String,
     },
     #[error(
@@ -94,7 +106,7 @@ pub enum RegistrationError {
     )]
     NoContrast {
         image: String,
-        layer: usize,
+        layer: u32,
         part: f64,
         powder: f64,
         min_ratio: f64,
@@ -156,9 +168,6 @@ pub struct RegistrationOptions {
     pub seed: u64,
     /// A frame must show at least this ratio of mean local std over the parts to around them.
     pub min_contrast: f64,
-    /// The grid written into the calibration; `None`: the whole plate at the image's
-    /// resolution at the plate center (the paper's choice), snapped to whole pixels.
-    pub output_grid: Option<Grid>,
     pub lm: LmOptions,
 }
 
@@ -172,7 +181,6 @@ impl Default for RegistrationOptions {
             margin_mm: None,
             seed: exemplar::DEFAULT_SEED,
             min_contrast: 1.5,
-            output_grid: None,
             lm: LmOptions::default(),
         }
     }
@@ -182,14 +190,16 @@ impl Default for RegistrationOptions {
 #[derive(Clone, Debug, PartialEq)]
 pub struct RegistrationImage {
     pub path: PathBuf,
-    /// 0-based position of the layer in the vector file.
-    pub layer: usize,
+    /// The printer layer the frame shows (from 1, the number in its file name).
+    pub layer: u32,
 }
 
 /// `layerwise register images`: everything the command needs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageRegistration {
     pub vectors: PathBuf,
+    /// How printer layers pair with the vector file's layers.
+    pub numbering: LayerNumbering,
     /// One or more frames from the same camera pose; they share one homography.
     pub images: Vec<RegistrationImage>,
     /// POINTS.txt: `u v x y` per line, at least 4.
@@ -206,7 +216,8 @@ pub struct ImageRegistration {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImageFit {
     pub name: String,
-    pub layer: usize,
+    /// The printer layer (from 1).
+    pub layer: u32,
     pub fit: PairFit,
 }
 
@@ -219,6 +230,11 @@ pub struct ImageRegistrationReport {
     pub initial_build_from_image: Homography,
     /// The grid the exemplars were rendered on.
     pub exemplar_grid: Grid,
+    /// The frame's resolution at the plate center, mm per pixel (advice for `[rectify]
+    /// pixel_mm`; the calibration stores no grid).
+    pub native_pixel_mm: f64,
+    /// Why the distortion was fitted in part or not kept, when it was asked for.
+    pub distortion_note: Option<String>,
     /// Coarsest level first.
     pub levels: Vec<LevelReport>,
     pub images: Vec<ImageFit>,
@@ -235,8 +251,8 @@ pub struct Frame<'a> {
     pub name: &'a str,
     pub image: &'a DynamicImage,
     pub layer: &'a Layer,
-    /// The layer's index in its file (for the report).
-    pub layer_index: usize,
+    /// The printer layer (from 1) the frame shows (for the report).
+    pub layer_number: u32,
 }
 
 #[cfg(test)]

@@ -25,15 +25,16 @@ pub fn register_images(
         return Err(RegistrationError::Invalid("no --image given".into()));
     }
     let file = vectors::read(&request.vectors)?;
+    let map = vectors::LayerMap::of_file(&file, request.numbering);
     let mut layers = Vec::with_capacity(request.images.len());
     for img in &request.images {
-        let layer = file
-            .layers
-            .get(img.layer)
+        let layer = map
+            .position(img.layer)
+            .and_then(|k| file.layers.get(k))
             .ok_or_else(|| RegistrationError::NoSuchLayer {
                 file: request.vectors.display().to_string(),
                 layer: img.layer,
-                count: file.layers.len(),
+                available: map.describe(),
             })?;
         layers.push(layer);
     }
@@ -56,7 +57,7 @@ pub fn register_images(
             name,
             image,
             layer,
-            layer_index: req.layer,
+            layer_number: req.layer,
         })
         .collect();
     let mut report = register_frames(
@@ -123,7 +124,7 @@ pub fn register_frames(
     let mut bbox: Option<[f64; 4]> = None;
     for f in frames {
         let b = exemplar::layer_bbox(f.layer).ok_or(RegistrationError::NoFusedArea {
-            layer: f.layer_index,
+            layer: f.layer_number,
         })?;
         bbox = Some(match bbox {
             None => b,
@@ -218,7 +219,59 @@ pub fn register_frames(
         .zip(&exemplars)
         .map(|(image, exemplar)| Pair { image, exemplar })
         .collect();
-    let aligned = align(&pairs, image_from_exemplar0, dist0, &options.lm).map_err(|e| match e {
+    // A distortion is fitted only as far as the frames can tell it from the homography, and
+    // is kept only when it fits better than the homography alone (calibrate::identify).
+    let mut lm = options.lm.clone();
+    let mut distortion_note = None;
+    if let Some(lens) = &dist0 {
+        let layers: Vec<&crate::vectors::Layer> = frames.iter().map(|f| f.layer).collect();
+        let size = (first.image.width(), first.image.height());
+        let seen = super::identify::visibility(&layers, &image_from_build0, lens, size);
+        if !seen.k1_identifiable() {
+            return Err(RegistrationError::DistortionNotIdentifiable {
+                visible_px: seen.k1_px,
+                max_radius: seen.max_radius,
+            });
+        }
+        if !seen.k2_identifiable() {
+            lm.fix_k2 = true;
+            distortion_note = Some(format!(
+                "k2 kept at 0: the parts' contours cannot tell it from k1 and the homography \
+                 (k2 = {} moves them {:.2} px beyond both; correlation with k1 {:.3})",
+                super::identify::PROBE_K,
+                seen.k2_px,
+                seen.correlation
+            ));
+        }
+    }
+    let plain = if dist0.is_some() {
+        align(&pairs, image_from_exemplar0, None, &options.lm).ok()
+    } else {
+        None
+    };
+    let fitted = align(&pairs, image_from_exemplar0, dist0, &lm);
+    let mean_correlation = |a: &super::Alignment| {
+        a.pairs.iter().map(|p| p.correlation).sum::<f64>() / a.pairs.len().max(1) as f64
+    };
+    let fitted = match (fitted, plain) {
+        (Ok(radial), Some(plain)) if mean_correlation(&plain) >= mean_correlation(&radial) => {
+            distortion_note = Some(format!(
+                "distortion not kept: with it the parts correlate {:.4}, without it {:.4}; the \
+                 calibration holds the homography alone",
+                mean_correlation(&radial),
+                mean_correlation(&plain)
+            ));
+            Ok(plain)
+        }
+        (Err(e), Some(plain)) => {
+            distortion_note = Some(format!(
+                "distortion not kept: its fit failed ({e}); the calibration holds the homography alone"
+            ));
+            Ok(plain)
+        }
+        (fitted, _) => fitted,
+    };
+    let aligned = fitted.map_err(|e| match e {
         RegistrationError::NotConverged {
             image,
             correlation,
@@ -254,10 +307,7 @@ pub fn register_frames(
             level: 0,
             reason: "the refined homography cannot be normalised to H[2][2] = 1".into(),
         })?;
-    let output_grid = match options.output_grid {
-        Some(grid) => grid,
-        None => plate_grid(&build_from_image)?,
-    };
+    let native_pixel_mm = plate_grid(&build_from_image)?.pixel_mm;
     let camera = CameraModel::new(build_from_image, aligned.distortion);
     let click_residuals_px: Vec<f64> = points
         .iter()
@@ -272,7 +322,7 @@ pub fn register_frames(
         .zip(&aligned.pairs)
         .map(|(f, fit)| ImageFit {
             name: f.name.to_string(),
-            layer: f.layer_index,
+            layer: f.layer_number,
             fit: fit.clone(),
         })
         .collect();
@@ -292,11 +342,13 @@ pub fn register_frames(
         calibration: Calibration {
             build_from_image,
             distortion: aligned.distortion,
-            grid: Some(output_grid),
+            grid: None,
             fit: Some(fit),
         },
         initial_build_from_image: build_from_image0,
         exemplar_grid: grid,
+        native_pixel_mm,
+        distortion_note,
         levels: aligned.levels,
         images,
         click_residuals_px,

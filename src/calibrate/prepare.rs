@@ -99,7 +99,7 @@ pub(super) fn check_frame(
     let max = ie.data.par_iter().copied().reduce(|| 0.0f32, f32::max);
     if !(max > 0.0) {
         return Err(RegistrationError::NoFusedArea {
-            layer: f.layer_index,
+            layer: f.layer_number,
         });
     }
     // Support: near a part (the std window reaches it). Part: well inside (the exemplar's
@@ -158,7 +158,7 @@ pub(super) fn check_frame(
     if out_frac > 0.01 {
         return Err(RegistrationError::NotInView {
             image: f.name.to_string(),
-            layer: f.layer_index,
+            layer: f.layer_number,
             detail: format!(
                 "{:.1}% of the area near its contours maps outside the {}x{} frame under the \
                  start points",
@@ -173,7 +173,7 @@ pub(super) fn check_frame(
     if acc.part.1 == 0 || acc.powder.1 == 0 || !(part >= min_contrast * powder && part > 0.0) {
         return Err(RegistrationError::NoContrast {
             image: f.name.to_string(),
-            layer: f.layer_index,
+            layer: f.layer_number,
             part,
             powder,
             min_ratio: min_contrast,

@@ -35,8 +35,16 @@ impl fmt::Display for ImageRegistrationReport {
         }
         let h = self.calibration.build_from_image.matrix();
         writeln!(f, "homography = {h:?}")?;
+        writeln!(
+            f,
+            "resolution at the plate center: {:.4} mm per pixel (the rectified grid is [rectify] in the configuration)",
+            self.native_pixel_mm
+        )?;
         if let Some(d) = self.calibration.distortion {
             writeln!(f, "distortion: k1 = {:.6}, k2 = {:.6}", d.k1, d.k2)?;
+        }
+        if let Some(note) = &self.distortion_note {
+            writeln!(f, "note: {note}")?;
         }
         Ok(())
     }
@@ -214,6 +222,8 @@ mod tests {
             },
             initial_build_from_image: Homography::IDENTITY,
             exemplar_grid: Grid::plate(),
+            native_pixel_mm: 0.30972,
+            distortion_note: None,
             levels: vec![LevelReport {
                 level: 1,
                 scale: 2,
@@ -228,7 +238,7 @@ mod tests {
             }],
             images: vec![ImageFit {
                 name: "L00001_post_top.jpg".into(),
-                layer: 0,
+                layer: 1,
                 fit: PairFit {
                     photometric: vec![0.0, 1.0],
                     initial_correlation: 0.61234,
@@ -250,8 +260,9 @@ mod tests {
         let h = r.calibration.build_from_image.matrix();
         let want = format!(
             "level 1 (400x300): 12 iterations, cost 1.2346e4 -> 1.2345e-2, last step 3.2e-5 px, \
-             small step\nL00001_post_top.jpg (layer 0): correlation 0.9568 (start 0.6123)\n\
-             homography = {h:?}\n"
+             small step\nL00001_post_top.jpg (layer 1): correlation 0.9568 (start 0.6123)\n\
+             homography = {h:?}\nresolution at the plate center: 0.3097 mm per pixel (the \
+             rectified grid is [rectify] in the configuration)\n"
         );
         assert_eq!(r.to_string(), want);
         let d = RadialDistortion {

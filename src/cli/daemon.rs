@@ -139,8 +139,8 @@ impl StatusArgs {
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Number of layers to simulate.
-    #[arg(long, default_value_t = 20)]
+    /// Number of layers to simulate (1 to 99999).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(1..=99_999))]
     layers: u32,
     /// The build directory to write (run again on it to resume).
     #[arg(long, default_value = "demo-build")]
@@ -171,7 +171,8 @@ impl DemoArgs {
 
 /// The embedded demo configuration for `layers` layers in `out`, with the simulated camera's
 /// true homography written as the calibration, so the demo writes rectified DICOM series like a
-/// calibrated machine does.
+/// calibrated machine does. The build directory also gets the parts' vector file (the build's
+/// `vectors`) and a points file of four clicks, to try `register images` on (README tutorial).
 fn demo_config(layers: u32, out: &Path) -> Result<Config> {
     let mut config = Config::parse(DEMO_CONFIG, Path::new("<embedded demo.toml>"))?;
     config.build.output_dir = out.to_path_buf();
@@ -180,7 +181,21 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
         mock.layers = layers;
     }
     if let CameraConfig::Mock(mock) = &config.camera {
+        use layerwise::sim::demo;
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+        let vectors = demo::demo_vectors(layers, config.build.layer_thickness_mm);
+        let mut bytes = Vec::new();
+        layerwise::vectors::write_ascii(&vectors, &mut bytes)?;
+        let vectors_path = std::fs::canonicalize(out)
+            .with_context(|| format!("cannot resolve {}", out.display()))?
+            .join(demo::DEMO_VECTORS);
+        layerwise::fsutil::write_atomic(&vectors_path, &bytes, true)?;
+        config.build.vectors = Some(vectors_path);
+        layerwise::fsutil::write_atomic(
+            &out.join(demo::DEMO_POINTS),
+            demo::demo_points(mock.width, mock.height).as_bytes(),
+            true,
+        )?;
         let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
         let mut fit = toml::Table::new();
         fit.insert(
@@ -190,7 +205,7 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
         let calibration = layerwise::rectify::Calibration {
             build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
             distortion: None,
-            grid: Some(config.rectify),
+            grid: None,
             fit: Some(fit),
         };
         let path = out.join("calibration.toml");

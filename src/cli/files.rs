@@ -27,9 +27,11 @@ impl VectorsCommand {
 pub struct RasterArgs {
     /// The vector file (CLI, ASCII or binary).
     file: PathBuf,
-    /// Layer index in the file, from 0.
+    /// The printer layer (from 1, as in the frames' names); see --layer-match.
     #[arg(long)]
-    layer: usize,
+    layer: u32,
+    #[command(flatten)]
+    numbering: super::numbering::NumberingArgs,
     /// mask | coverage | rgb | exemplar
     #[arg(long, default_value = "mask")]
     kind: String,
@@ -39,6 +41,15 @@ pub struct RasterArgs {
     /// Only this part, on a grid around it (2 mm margin, 62.5 µm).
     #[arg(long)]
     part: Option<i64>,
+    /// On a grid around the file's geometry (2 mm margin, 62.5 µm) instead of the whole plate.
+    #[arg(long, conflicts_with_all = ["config", "build"])]
+    extent: bool,
+    /// The configuration whose [rectify] grid to draw on (default: the built-in plate grid).
+    #[arg(long, conflicts_with = "build")]
+    config: Option<PathBuf>,
+    /// A build directory: draw on its [rectify] grid, as its rectified views are.
+    #[arg(long)]
+    build: Option<PathBuf>,
 }
 
 impl RasterArgs {
@@ -50,18 +61,28 @@ impl RasterArgs {
             kind,
             out,
             part,
+            numbering,
+            extent,
+            config,
+            build,
         } = self;
         let kind: raster::RasterKind = kind.parse()?;
         let vectors = layerwise::vectors::read(&file)?;
-        if layer >= vectors.layers.len() {
+        let map = layerwise::vectors::LayerMap::of_file(&vectors, numbering.numbering());
+        let Some(position) = map.position(layer) else {
             anyhow::bail!(
-                "{}: no layer {layer}: the file has layers 0 to {}",
+                "{}: no vectors for printer layer {layer}: the file has {}",
                 file.display(),
-                vectors.layers.len().saturating_sub(1)
+                map.describe()
             );
-        }
-        let grid = raster::default_grid(&vectors, part)?;
-        raster::render_to_png(&vectors, layer, kind, &grid, part, &out)?;
+        };
+        let grid = match (&config, &build) {
+            _ if extent || part.is_some() => raster::default_grid(&vectors, part)?,
+            (Some(path), _) => layerwise::config::Config::load(path)?.rectify,
+            (None, Some(dir)) => layerwise::series::BuildRecord::open(dir)?.config.rectify,
+            (None, None) => layerwise::geometry::Grid::default(),
+        };
+        raster::render_to_png(&vectors, position, kind, &grid, part, &out)?;
         println!(
             "{} layer {layer} -> {} ({} x {} px at {} mm, x {} … {}, y {} … {})",
             file.display(),
@@ -116,17 +137,30 @@ pub struct RectifyArgs {
     /// Layer thickness in mm, for the slice's z.
     #[arg(long, default_value_t = 0.03)]
     layer_thickness_mm: f64,
+    /// The configuration whose [rectify] grid to use (default: the built-in plate grid).
+    #[arg(long, conflicts_with = "build")]
+    config: Option<PathBuf>,
+    /// A build directory: its configuration's [rectify] grid, as its series use.
+    #[arg(long)]
+    build: Option<PathBuf>,
 }
 
 impl RectifyArgs {
     pub fn run(self) -> Result<()> {
         let started = std::time::Instant::now();
+        let config = match (&self.config, &self.build) {
+            (Some(path), _) => Some(layerwise::config::Config::load(path)?),
+            (None, Some(dir)) => Some(layerwise::series::BuildRecord::open(dir)?.config),
+            (None, None) => None,
+        };
+        let grid = config.map(|c| c.rectify).unwrap_or_default();
         let grid = layerwise::rectify::rectify_file(
             &self.calibration,
             &self.image,
             &self.out,
             self.layer,
             self.layer_thickness_mm,
+            grid,
         )?;
         println!(
             "{} -> {} ({} x {} px at {} mm) in {:.0} ms",

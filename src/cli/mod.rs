@@ -5,6 +5,7 @@
 mod build;
 mod daemon;
 mod files;
+mod numbering;
 mod register;
 
 use anyhow::{Context, Result};

@@ -35,7 +35,7 @@ pub struct CtArgs {
     /// --dtype, --voxel-mm) or a TIFF stack folder (with --voxel-mm).
     #[arg(long)]
     ct: PathBuf,
-    /// Register to this part of the vector file only.
+    /// Register to this part of the vector file only (its number in the file's $$LABEL).
     #[arg(long)]
     part: Option<i64>,
     /// Start from ≥ 3 point pairs `cx cy cz bx by bz`; default: centroids with R = I.
@@ -71,6 +71,9 @@ pub struct CtArgs {
     /// Voxel size of the vectors' signed distance volume.
     #[arg(long, default_value_t = 0.05)]
     tsdf_voxel_mm: f64,
+    /// The resampled series' layer numbers (with --build: the build's configuration decides).
+    #[command(flatten)]
+    numbering: super::numbering::NumberingArgs,
 }
 
 impl CtArgs {
@@ -109,7 +112,16 @@ impl CtArgs {
             dtype: self.dtype,
         };
         let out = self.out.clone();
+        let numbering = match &self.build {
+            Some(build) => layerwise::series::BuildRecord::open(build)?
+                .config
+                .build
+                .numbering(),
+            None => self.numbering.numbering(),
+        };
+        let (ply, resampled) = (self.surface_ply.clone(), self.resample_dicom.clone());
         let request = ct::CtRequest {
+            numbering,
             source: recorded,
             vectors: self.vectors,
             part: self.part,
@@ -129,6 +141,18 @@ impl CtArgs {
             out.display(),
             started.elapsed().as_secs_f64()
         );
+        if let Some(ply) = ply {
+            println!(
+                "wrote the CT surface coloured by distance to {}",
+                ply.display()
+            );
+        }
+        if let Some(dir) = resampled {
+            println!(
+                "wrote the CT resampled onto the build grid to {}",
+                dir.display()
+            );
+        }
         Ok(())
     }
 }
@@ -146,10 +170,12 @@ pub struct ImagesArgs {
     /// The laser scan vector file (CLI).
     #[arg(long)]
     vectors: PathBuf,
-    /// Layer shown by the image (0-based index in the file); one for all images or one per
-    /// --image, in order.
+    /// The printer layer each image shows (from 1: the number in L00150_post_top.jpg); one for
+    /// all images or one per --image, in order.
     #[arg(long, required = true)]
-    layer: Vec<usize>,
+    layer: Vec<u32>,
+    #[command(flatten)]
+    numbering: super::numbering::NumberingArgs,
     /// Post-scan frame(s) from the camera pose to calibrate; several are fitted jointly.
     #[arg(long, required = true)]
     image: Vec<PathBuf>,
@@ -191,6 +217,7 @@ impl ImagesArgs {
         let out = self.out.clone();
         let request = ImageRegistration {
             vectors: self.vectors,
+            numbering: self.numbering.numbering(),
             images: self
                 .image
                 .into_iter()

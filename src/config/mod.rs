@@ -3,6 +3,7 @@
 
 use crate::fsutil::parse_toml;
 use crate::shot::{Light, Phase, View};
+use crate::vectors::{LayerMatch, LayerNumbering};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -44,12 +45,32 @@ pub struct BuildConfig {
     /// Layers the build will have, if known: the status command forecasts disk use from it.
     #[serde(default)]
     pub layers: Option<u32>,
-    /// The build's laser scan vector file (CLI): layer k's z is the z of its k-th layer.
+    /// The build's laser scan vector file (CLI): printer layer k's z is the z of the file's
+    /// layer that `layer_match` pairs with it (docs/frames.md).
     #[serde(default)]
     pub vectors: Option<PathBuf>,
     /// Without a vector file, layer k sits at z = k x this.
     #[serde(default = "default_layer_thickness")]
     pub layer_thickness_mm: f64,
+    /// How printer layers pair with the vector file's layers: `geometry` (layer 1 is the first
+    /// layer with geometry), `position` (layer n is the file's n-th layer) or `z`
+    /// (z = n x layer_thickness_mm).
+    #[serde(default)]
+    pub layer_match: LayerMatch,
+    /// Printer layers before the vector file's first (geometry, position): may be negative.
+    #[serde(default)]
+    pub layer_offset: i64,
+}
+
+impl BuildConfig {
+    /// The numbering that pairs printer layers with the vector file's layers.
+    pub fn numbering(&self) -> LayerNumbering {
+        LayerNumbering {
+            rule: self.layer_match,
+            offset: self.layer_offset,
+            thickness_mm: self.layer_thickness_mm,
+        }
+    }
 }
 
 /// Where layer signals come from.

@@ -55,6 +55,8 @@ pub struct CtRequest {
     pub params: CtParams,
     /// Recorded in ct.toml so the export can read the CT again.
     pub source: CtSource,
+    /// How printer layers pair with the vector file's layers (the resampled series' numbers).
+    pub numbering: crate::vectors::LayerNumbering,
 }
 
 /// Registers `volume` to the vectors and writes ct.toml (and the PLY and resampled DICOM asked for).
@@ -103,7 +105,8 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
                 .unwrap_or_default()
         );
         let series = Series::named(&study, 50, &name);
-        let planes = layer_planes(&file);
+        let map = crate::vectors::LayerMap::of_file(&file, request.numbering);
+        let planes = layer_planes(&file, &map);
         resample_to_dicom(
             volume,
             &registered.registration.build_from_ct,

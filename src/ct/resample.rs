@@ -6,7 +6,7 @@ use std::path::Path;
 use super::{CtError, Result, Volume};
 use crate::dicom::{self, Compression, Plane, Series, Slice, Study};
 use crate::geometry::{Affine3, Grid, Rigid3};
-use crate::vectors::VectorFile;
+use crate::vectors::{LayerMap, VectorFile};
 
 /// Trilinear sample of the CT's physical values at a fractional voxel index; None outside.
 fn sample(volume: &Volume, p: [f64; 3]) -> Option<f64> {
@@ -45,15 +45,17 @@ pub fn index_from_ct(volume: &Volume) -> Result<Affine3> {
         .ok_or_else(singular)
 }
 
-/// (layer number from 1, z, thickness) of each layer of a vector file.
-pub fn layer_planes(file: &VectorFile) -> Vec<(u32, f64, f64)> {
+/// (printer layer from 1, z, thickness) of each layer of a vector file that `map` pairs with a
+/// printer layer.
+pub fn layer_planes(file: &VectorFile, map: &LayerMap) -> Vec<(u32, f64, f64)> {
     file.layers
         .iter()
         .enumerate()
-        .map(|(k, l)| {
+        .filter_map(|(k, l)| {
+            let layer = map.layer(k)?;
             let below = if k > 0 { file.layers[k - 1].z_mm } else { 0.0 };
             let t = l.z_mm - below;
-            (k as u32 + 1, l.z_mm, if t > 0.0 { t } else { 0.03 })
+            Some((layer, l.z_mm, if t > 0.0 { t } else { 0.03 }))
         })
         .collect()
 }

@@ -60,6 +60,13 @@ pub enum DicomError {
     Read { path: PathBuf, message: String },
     #[error("{path}: {message}")]
     Geometry { path: PathBuf, message: String },
+    #[error(
+        "{path}: cannot search this folder ({source}); give an existing folder of DICOM files"
+    )]
+    Folder {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// How pixel data is stored.
@@ -552,9 +559,9 @@ fn floats(obj: &InMemDicomObject, tag: Tag) -> Vec<f64> {
 /// Reads the headers (not the pixels) of every `.dcm` below `dir` and groups them by series.
 pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
     let mut files = Vec::new();
-    collect_dcm(dir, &mut files).map_err(|e| DicomError::Read {
+    collect_dcm(dir, &mut files, 0).map_err(|source| DicomError::Folder {
         path: dir.to_path_buf(),
-        message: e.to_string(),
+        source,
     })?;
     files.sort();
     let mut series: BTreeMap<String, SeriesSummary> = BTreeMap::new();
@@ -629,11 +636,20 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
     Ok(out)
 }
 
-fn collect_dcm(dir: &Path, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+/// The `.dcm` files below `dir`: real folders only (a symbolic link to a folder is not followed,
+/// so a link loop cannot make the search endless), at most 32 levels deep.
+fn collect_dcm(dir: &Path, out: &mut Vec<PathBuf>, depth: usize) -> std::io::Result<()> {
+    if depth > 32 {
+        return Err(std::io::Error::other(format!(
+            "{} is more than 32 folders deep",
+            dir.display()
+        )));
+    }
     for entry in std::fs::read_dir(dir)? {
-        let path = entry?.path();
-        if path.is_dir() {
-            collect_dcm(&path, out)?;
+        let entry = entry?;
+        let path = entry.path();
+        if entry.file_type()?.is_dir() {
+            collect_dcm(&path, out, depth + 1)?;
         } else if path.extension().is_some_and(|e| e == "dcm") {
             out.push(path);
         }

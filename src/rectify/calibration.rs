@@ -111,6 +111,26 @@ impl Calibration {
         })
     }
 
+    /// A note when this (older) calibration carries a `[grid]` other than `grid`, the one in
+    /// use: since the grid moved to the configuration's `[rectify]`, a stored grid is ignored.
+    pub fn grid_note(&self, grid: &Grid) -> Option<String> {
+        let stored = self.grid.as_ref().filter(|g| *g != grid)?;
+        Some(format!(
+            "the calibration's [grid] ({} mm/px, x {} … {}, y {} … {}) is ignored: the rectified \
+             grid is the configuration's [rectify] ({} mm/px, x {} … {}, y {} … {})",
+            stored.pixel_mm,
+            stored.x_min,
+            stored.x_max,
+            stored.y_min,
+            stored.y_max,
+            grid.pixel_mm,
+            grid.x_min,
+            grid.x_max,
+            grid.y_min,
+            grid.y_max
+        ))
+    }
+
     pub fn to_toml(&self) -> String {
         let stored = CalibrationFile {
             build_from_image: self.build_from_image.matrix(),

@@ -19,16 +19,20 @@ pub enum RectifyFileError {
     OutputKind { path: String },
 }
 
-/// Rectifies `image` through `calibration` onto its grid (or the whole plate) and writes `out`.
+/// Rectifies `image` through `calibration` onto `grid` (the configuration's `[rectify]`) and
+/// writes `out`.
 pub fn rectify_file(
     calibration: &Path,
     image: &Path,
     out: &Path,
     layer: u32,
     layer_thickness_mm: f64,
+    grid: Grid,
 ) -> Result<Grid, RectifyFileError> {
     let calibration = Calibration::load(calibration)?;
-    let grid = calibration.grid.unwrap_or_default();
+    if let Some(note) = calibration.grid_note(&grid) {
+        tracing::info!("{note}");
+    }
     let rectifier = Rectifier::new(&calibration.camera(), grid, Interpolation::Bilinear, 0)?;
     let bad_image = |message: String| RectifyFileError::Image {
         path: image.display().to_string(),

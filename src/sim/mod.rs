@@ -5,6 +5,7 @@
 //! the binary picks it when a configuration says `kind = "mock"`.
 
 pub mod camera;
+pub mod demo;
 pub mod lights;
 pub mod trigger;
 

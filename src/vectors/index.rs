@@ -12,6 +12,7 @@ struct LayerStart {
     offset: u64,
     line: u64,
     z_mm: f64,
+    has_geometry: bool,
 }
 
 /// Byte offsets of every layer start, built by one pass over the file that keeps no geometry;
@@ -37,6 +38,7 @@ impl LayerIndex {
                 offset: pos.offset,
                 line: pos.line,
                 z_mm: layer.z_mm,
+                has_geometry: stream.last_had_geometry,
             });
         }
         Ok(LayerIndex {
@@ -63,6 +65,19 @@ impl LayerIndex {
     /// z of layer `k` in millimetres.
     pub fn z_mm(&self, k: usize) -> Option<f64> {
         self.starts.get(k).map(|s| s.z_mm)
+    }
+
+    /// The match of printer layers to this file's layers.
+    pub fn layer_map(&self, numbering: super::LayerNumbering) -> super::LayerMap {
+        let summary: Vec<super::LayerSummary> = self
+            .starts
+            .iter()
+            .map(|s| super::LayerSummary {
+                z_mm: s.z_mm,
+                has_geometry: s.has_geometry,
+            })
+            .collect();
+        super::LayerMap::new(&summary, numbering)
     }
 
     /// Byte offset of the layer command of layer `k` in the file.

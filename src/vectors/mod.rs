@@ -29,6 +29,7 @@ mod header;
 mod index;
 mod info;
 mod number;
+mod numbering;
 mod source;
 mod stream;
 pub mod synth;
@@ -41,6 +42,7 @@ use serde::Serialize;
 pub use error::VectorError;
 pub use index::LayerIndex;
 pub use info::{info, Info, PartInfo};
+pub use numbering::{LayerMap, LayerMatch, LayerNumbering, LayerSummary};
 pub use stream::LayerReader;
 pub use write::{write_ascii, write_binary};
 

@@ -82,6 +82,8 @@ pub(crate) struct LayerStream<R> {
     pending: Option<(f64, Pos)>,
     next_index: usize,
     finished: bool,
+    /// Whether the layer last returned had polylines or hatches (also when they were not kept).
+    pub(crate) last_had_geometry: bool,
 }
 
 impl<R: BufRead> LayerStream<R> {
@@ -90,6 +92,7 @@ impl<R: BufRead> LayerStream<R> {
             parser,
             pending: None,
             next_index: first_index,
+            last_had_geometry: false,
             finished: false,
         }
     }
@@ -120,6 +123,7 @@ impl<R: BufRead> LayerStream<R> {
             },
         };
         let mut layer = Layer::new(self.next_index, z);
+        self.last_had_geometry = false;
         loop {
             match self.parser.next_command(store)? {
                 None => break,
@@ -128,11 +132,13 @@ impl<R: BufRead> LayerStream<R> {
                     break;
                 }
                 Some((Command::Polyline(p), _)) => {
+                    self.last_had_geometry = true;
                     if store {
                         layer.polylines.push(p);
                     }
                 }
                 Some((Command::Hatches(h), _)) => {
+                    self.last_had_geometry = true;
                     if store {
                         layer.hatches.push(h);
                     }

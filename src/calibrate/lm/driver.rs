@@ -224,7 +224,17 @@ pub fn align(
         let mut termination = Termination::MaxIterations;
         while iterations < opts.max_iterations {
             iterations += 1;
-            let Some(step) = lm_step(&cur.hess, &cur.grad, lambda) else {
+            let step = if opts.fix_k2 && cur.grad.len() > 9 {
+                let (mut hess, mut grad) = (cur.hess.clone(), cur.grad.clone());
+                hess.row_mut(9).fill(0.0);
+                hess.column_mut(9).fill(0.0);
+                hess[(9, 9)] = 1.0;
+                grad[9] = 0.0;
+                lm_step(&hess, &grad, lambda)
+            } else {
+                lm_step(&cur.hess, &cur.grad, lambda)
+            };
+            let Some(step) = step else {
                 lambda *= 10.0;
                 if lambda > 1e12 {
                     termination = Termination::NoDecrease;

@@ -93,6 +93,9 @@ pub struct LmOptions {
     /// stays out of the photometric fit: a plate-wide exemplar that reached the plate's edge
     /// was 1.2 px off instead of 0.16 px.
     pub support_margin_px: Option<f64>,
+    /// Keep the distortion's k2 at its start value (fit k1 only): set when the frames cannot
+    /// tell k2 from k1 and the homography (`calibrate::identify`).
+    pub fix_k2: bool,
 }
 
 impl Default for LmOptions {
@@ -107,6 +110,7 @@ impl Default for LmOptions {
             max_outside: 0.01,
             photometric_degree: 3,
             support_margin_px: Some(24.0),
+            fix_k2: false,
         }
     }
 }
