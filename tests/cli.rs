@@ -251,11 +251,33 @@ fn rectify_one_frame_to_png_and_dicom_and_refuse_garbage() {
         .arg("rectify")
         .arg("--calibration")
         .arg(&view.calibration)
+        .arg("--config")
+        .arg(&view.config)
         .args(["--image", "frame.jpg", "--out", "here.dcm"])
         .succeeds();
     assert!(dir.path().join("here.dcm").is_file());
     let png = image::open(dir.path().join("top.png")).unwrap();
     assert_eq!((png.width(), png.height()), (550, 550));
+    // One grid: without --config/--build the grid is the built-in [rectify] default, and an
+    // older calibration's own [grid] is named as ignored.
+    let plate = dir.path().join("plate.png");
+    let out = layerwise()
+        .arg("rectify")
+        .arg("--calibration")
+        .arg(&view.calibration)
+        .arg("--image")
+        .arg(&frame)
+        .arg("--out")
+        .arg(&plate)
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("[grid]") && stderr.contains("is ignored"),
+        "{stderr}"
+    );
+    assert_eq!(image::image_dimensions(&plate).unwrap(), (4400, 4400));
     let series = layerwise()
         .args(["dicom", "info", "--json"])
         .arg(dir.path())

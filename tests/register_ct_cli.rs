@@ -282,7 +282,9 @@ fn registers_a_synthetic_ct_to_the_vectors() {
     };
     let ct_header = header("ct.nrrd");
     assert!(
-        ct_header.contains("sizes: 1100 1100 2") && ct_header.contains("type: uint16"),
+        ct_header.contains("sizes: 1100 1100 2")
+            && ct_header.contains("type: uint16")
+            && ct_header.contains("encoding: gzip"),
         "{ct_header}"
     );
     let view = header("post_top.nrrd");

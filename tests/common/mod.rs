@@ -243,20 +243,27 @@ pub fn write_true_calibration(dir: &Path, truth: &mock_camera::Homography) -> st
     path
 }
 
-/// A small oblique picture of the demo plate at layer 1 (top light, after the scan), and a
-/// calibration file holding its true homography onto the plate at 0.5 mm: a 550×550 grid.
+/// A small oblique picture of the demo plate at layer 1 (top light, after the scan), a
+/// calibration file holding its true homography, and a configuration whose [rectify] grid is
+/// the plate at 0.5 mm: a 550×550 grid.
 pub struct SmallView {
     pub renderer: mock_camera::Renderer,
     pub parts: Vec<mock_camera::Shape>,
     pub calibration: std::path::PathBuf,
+    pub config: std::path::PathBuf,
 }
 
 impl SmallView {
     pub fn new(dir: &Path) -> Self {
         let (w, h) = (320, 214);
         let truth = mock_camera::Homography::oblique_view(w, h);
+        let mut config = demo_config(&dir.join("build"), 1);
+        config.rectify = plate_grid();
+        let config_path = dir.join("small-view.toml");
+        write_config(&config, &config_path);
         SmallView {
             calibration: write_true_calibration(dir, &truth),
+            config: config_path,
             renderer: mock_camera::Renderer::new(w, h, truth),
             parts: mock_camera::demo_parts(1),
         }
@@ -285,6 +292,8 @@ impl SmallView {
             .arg("rectify")
             .arg("--calibration")
             .arg(&self.calibration)
+            .arg("--config")
+            .arg(&self.config)
             .arg("--image")
             .arg(image)
             .arg("--out")
