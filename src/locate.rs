@@ -47,21 +47,29 @@ pub struct Location {
     pub ct: Option<CtLocation>,
     pub layer: Option<u32>,
     pub layer_z_mm: Option<f64>,
+    /// Why the point has no layer (above or below the build), when it has none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub outside: Option<String>,
     pub views: Vec<ViewLocation>,
 }
 
 /// Where `point` (build mm) is in the layer stack, the rectified views and the original frames.
 pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateError> {
-    let layer = record.heights.layer_at(point[2]);
-    if let (Some(k), Some(last)) = (layer, last_layer(record)) {
-        if k > last {
-            return Err(LocateError::Invalid(format!(
-                "z = {} mm is in layer {k}, above the last layer of the build in {} (layer {last}, top at z = {:.4} mm): give a z in the build",
+    let mut layer = record.heights.layer_at(point[2]);
+    let mut outside = None;
+    if let Some(last) = last_layer(record) {
+        let top = record.heights.z(last);
+        if point[2] > top + 1e-9 {
+            layer = None;
+            outside = Some(format!(
+                "z = {} mm is above the last layer of the build in {} (layer {last}, top at z = {top:.4} mm)",
                 point[2],
                 record.dir.display(),
-                record.heights.z(last)
-            )));
+            ));
         }
+    }
+    if layer.is_none() && outside.is_none() {
+        outside = Some(format!("z = {} mm is in no layer of the build", point[2]));
     }
     let rectifier = match &record.calibration {
         Some(c) => Some(
@@ -111,6 +119,7 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
         build_mm: point,
         layer,
         layer_z_mm: layer.map(|k| record.heights.z(k)),
+        outside,
         views,
     })
 }
@@ -143,7 +152,11 @@ impl std::fmt::Display for Location {
         writeln!(f, "build point   ({x}, {y}, {z}) mm")?;
         match (self.layer, self.layer_z_mm) {
             (Some(k), Some(zk)) => writeln!(f, "layer         {k} (top at z = {zk} mm)")?,
-            _ => writeln!(f, "layer         none: z is outside the build")?,
+            _ => writeln!(
+                f,
+                "layer         none: {}",
+                self.outside.as_deref().unwrap_or("z is outside the build")
+            )?,
         }
         if let Some(ct) = &self.ct {
             let [a, b, c] = ct.ct_mm;

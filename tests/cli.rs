@@ -395,6 +395,21 @@ fn locate_finds_a_point_in_every_view_and_marks_it() {
         sheet.pixels().any(|p| p.0 == [0, 255, 0]),
         "no marker drawn"
     );
+    // Above the 2-layer build: refused, with the build's top (it reported layer 167 before).
+    let err = layerwise()
+        .args(["locate", "--point", "10,10,5", "--build"])
+        .arg(&build)
+        .fails();
+    assert!(
+        err.contains("above the last layer of the build") && err.contains("layer 2"),
+        "{err}"
+    );
+    // Off the plate: the original frame's pixel is flagged as outside the frame.
+    let text = layerwise()
+        .args(["locate", "--point", "300,0,0.05", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(text.contains("outside the 1472 x 982 frame"), "{text}");
     layerwise()
         .args(["locate", "--point", "1,2", "--build"])
         .arg(&build)

@@ -1,6 +1,6 @@
 //! Commands on a finished build: `export` and `locate`.
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, bail, Result};
 use clap::Args;
 use layerwise::ct::CtFrame;
 use layerwise::series::BuildRecord;
@@ -94,6 +94,9 @@ impl LocateArgs {
         let record = BuildRecord::open(&self.build)?;
         let mut location = layerwise::locate::locate(&record, point)?;
         location.ct = frame.map(|f| f.locate(point));
+        if let (None, None, Some(why)) = (location.layer, &location.ct, &location.outside) {
+            bail!("{why}: nothing to locate; give a point in the build (or a CT point with --ct)");
+        }
         if let Some(out) = &self.mark {
             layerwise::locate::mark(&record, &location, out)?;
         }

@@ -1,0 +1,350 @@
+//! Every parser, fed mutated inputs: a deterministic mutational fuzzer that runs in CI on the
+//! stable toolchain (the coverage-guided targets of the same functions are in `fuzz/`, for
+//! `cargo +nightly fuzz run`). Seeds are valid inputs made by code; each mutant (bit flips,
+//! extreme bytes, cuts, repeated spans, huge or odd numbers spliced into text) must give `Ok` or
+//! an error, never a panic (an allocation sized by a wild header shows up as a capacity panic or
+//! an abort). A mutant that panics is kept in target/fuzz-smoke/ and named in the failure.
+
+mod common;
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::{Path, PathBuf};
+
+/// Mutants per seed.
+const MUTANTS: u64 = 250;
+/// Mutants of the DICOM seed: a mutated element length makes dicom-rs take up to ~2 s on a 2 KB
+/// file (it sizes its read by the header), so fewer of those keep CI short.
+const DICOM_MUTANTS: u64 = 40;
+
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        // xorshift64*
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+const SPLICES: &[&str] = &[
+    "4294967295",
+    "-1",
+    "0",
+    "1e308",
+    "-1e308",
+    "nan",
+    "inf",
+    "99999999999999999999",
+    "1e-320",
+    "\u{0}",
+    "\"",
+    "[",
+    "]]",
+    "=",
+    "\n",
+    ",",
+    "//",
+    "$$LAYER/",
+    "$$POLYLINE/1,1,99999999",
+];
+
+/// One mutant of `seed`: 1 to 4 edits.
+fn mutate(seed: &[u8], rng: &mut Rng) -> Vec<u8> {
+    let mut b = seed.to_vec();
+    for _ in 0..1 + rng.below(4) {
+        let len = b.len();
+        match rng.below(7) {
+            0 if len > 0 => {
+                let i = rng.below(len);
+                b[i] ^= 1 << rng.below(8);
+            }
+            1 if len > 0 => {
+                let i = rng.below(len);
+                b[i] = [0x00, 0xFF, 0x7F, 0x80, b'9', b'-'][rng.below(6)];
+            }
+            2 => b.truncate(rng.below(len + 1)),
+            3 if len > 0 => {
+                let (a, n) = (rng.below(len), 1 + rng.below(64));
+                let span: Vec<u8> = b[a..(a + n).min(len)].to_vec();
+                let at = rng.below(len);
+                b.splice(at..at, span);
+            }
+            4 => {
+                let at = rng.below(len + 1);
+                let s = SPLICES[rng.below(SPLICES.len())].as_bytes();
+                b.splice(at..at, s.iter().copied());
+            }
+            5 if len >= 4 => {
+                // A 32-bit little-endian field set to an extreme (binary headers, counts).
+                let i = rng.below(len - 3);
+                let v: u32 = [u32::MAX, 0x7FFF_FFFF, 0x8000_0000, 0, 0xFFFF][rng.below(5)];
+                b[i..i + 4].copy_from_slice(&v.to_le_bytes());
+            }
+            _ => {
+                // Replace a digit run with a huge number (text formats).
+                if let Some(i) = (0..len)
+                    .map(|k| (k + rng.below(len)) % len)
+                    .find(|&k| b[k].is_ascii_digit())
+                {
+                    let end = (i..len).find(|&k| !b[k].is_ascii_digit()).unwrap_or(len);
+                    let s = SPLICES[rng.below(8)].as_bytes();
+                    b.splice(i..end, s.iter().copied());
+                }
+            }
+        }
+    }
+    b
+}
+
+/// Runs `parse` on every mutant of every seed; returns the mutants that panicked (saved).
+fn fuzz(name: &str, seeds: &[Vec<u8>], parse: impl FnMut(&[u8])) -> Vec<PathBuf> {
+    fuzz_n(name, seeds, MUTANTS, parse)
+}
+
+fn fuzz_n(
+    name: &str,
+    seeds: &[Vec<u8>],
+    mutants: u64,
+    mut parse: impl FnMut(&[u8]),
+) -> Vec<PathBuf> {
+    let mut failures = Vec::new();
+    let keep = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-smoke");
+    for (s, seed) in seeds.iter().enumerate() {
+        // The seed itself must parse without a panic too.
+        let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ (s as u64 + 1) ^ name.len() as u64);
+        for i in 0..=mutants {
+            let input = if i == 0 {
+                seed.clone()
+            } else {
+                mutate(seed, &mut rng)
+            };
+            let started = std::time::Instant::now();
+            let panicked = catch_unwind(AssertUnwindSafe(|| parse(&input))).is_err();
+            if started.elapsed().as_secs_f64() > 0.5 {
+                eprintln!(
+                    "{name} seed {s} mutant {i}: {:.2} s for {} bytes",
+                    started.elapsed().as_secs_f64(),
+                    input.len()
+                );
+            }
+            if panicked {
+                std::fs::create_dir_all(&keep).unwrap();
+                let path = keep.join(format!("{name}-seed{s}-mutant{i}.bin"));
+                std::fs::write(&path, &input).unwrap();
+                failures.push(path);
+            }
+        }
+    }
+    failures
+}
+
+fn assert_no_panics(failures: Vec<PathBuf>) {
+    assert!(
+        failures.is_empty(),
+        "{} mutant(s) panicked; inputs kept: {failures:#?}",
+        failures.len()
+    );
+}
+
+#[test]
+fn vector_files() {
+    let file = layerwise::vectors::synth::generate(3, 6, 8);
+    let (mut ascii, mut binary) = (Vec::new(), Vec::new());
+    layerwise::vectors::write_ascii(&file, &mut ascii).unwrap();
+    layerwise::vectors::write_binary(&file, &mut binary).unwrap();
+    assert_no_panics(fuzz("vectors", &[ascii, binary], |b| {
+        let _ = layerwise::vectors::read_bytes(b, "fuzz.cli");
+    }));
+}
+
+#[test]
+fn configuration_calibration_and_points_files() {
+    let configs = vec![
+        include_bytes!("../config/demo.toml").to_vec(),
+        include_bytes!("../config/layerwise.toml").to_vec(),
+    ];
+    assert_no_panics(fuzz("config", &configs, |b| {
+        let _ = layerwise::config::Config::parse(&String::from_utf8_lossy(b), Path::new("f.toml"));
+    }));
+    let calibration = layerwise::rectify::Calibration {
+        build_from_image: layerwise::geometry::Homography::from_matrix([
+            [0.34, -0.0004, -250.0],
+            [-0.0003, -0.397, 194.4],
+            [-3.5e-6, 0.000385, 1.0],
+        ]),
+        distortion: Some(layerwise::geometry::RadialDistortion {
+            center: [735.5, 490.5],
+            focal_px: 1840.0,
+            k1: -0.1,
+            k2: 0.01,
+        }),
+        grid: Some(layerwise::geometry::Grid::plate()),
+        fit: None,
+    };
+    assert_no_panics(fuzz(
+        "calibration",
+        &[calibration.to_toml().into_bytes()],
+        |b| {
+            let _ = layerwise::rectify::Calibration::parse(
+                &String::from_utf8_lossy(b),
+                Path::new("c.toml"),
+            );
+        },
+    ));
+    let points = layerwise::sim::demo::demo_points(1472, 982).into_bytes();
+    assert_no_panics(fuzz("points", &[points], |b| {
+        let _ = layerwise::calibrate::parse_points(&String::from_utf8_lossy(b), Path::new("p.txt"));
+    }));
+}
+
+#[test]
+fn camera_frames_jpeg_and_nef() {
+    let truth = mock_camera::Homography::oblique_view(96, 64);
+    let renderer = mock_camera::Renderer::new(96, 64, truth);
+    let parts = mock_camera::demo_parts(1);
+    let scene = mock_camera::Scene {
+        layer: 1,
+        fused: &parts,
+        scanned: true,
+        illumination: mock_camera::Illumination::Top,
+    };
+    let jpeg = renderer.render_jpeg(&scene, 90);
+    let nef = mock_camera::nef::encode_nef(&renderer.render(&scene), &Default::default());
+    assert_no_panics(fuzz("frames", &[jpeg, nef], |b| {
+        let _ = layerwise::rectify::decode_frame_luma(b);
+        let _ = layerwise::rectify::decode_frame(b);
+    }));
+}
+
+#[test]
+fn journal_and_ct_toml() {
+    use layerwise::build_dir::journal::{Journal, Record};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("journal.jsonl");
+    {
+        let (mut journal, _) = Journal::open(&path, false).unwrap();
+        let at = chrono::Utc::now();
+        journal
+            .append(&Record::Start {
+                at,
+                pid: 7,
+                version: "0.1.0".into(),
+            })
+            .unwrap();
+        let (phase, light) = (layerwise::shot::Phase::Post, layerwise::shot::Light::Top);
+        journal
+            .append(&Record::Event {
+                layer: 1,
+                phase,
+                at,
+            })
+            .unwrap();
+        journal
+            .append(&Record::Frame {
+                layer: 1,
+                phase,
+                light,
+                file: "raw/L00001_post_top.jpg".into(),
+                bytes: 1234,
+                sha256: "00".repeat(32),
+                at,
+            })
+            .unwrap();
+        journal
+            .append(&Record::Processed {
+                layer: 1,
+                phase,
+                light,
+                at,
+            })
+            .unwrap();
+    }
+    let seed = std::fs::read(&path).unwrap();
+    let target = dir.path().join("mutant.jsonl");
+    assert_no_panics(fuzz("journal", &[seed], |b| {
+        std::fs::write(&target, b).unwrap();
+        let _ = Journal::read(&target);
+    }));
+
+    let registration = layerwise::ct::CtRegistration {
+        build_from_ct: layerwise::geometry::Rigid3::IDENTITY,
+        iterations: 3,
+        termination: layerwise::ct::Termination::SmallStep,
+        threshold: 100.0,
+        points_used: 10,
+        points_total: 12,
+        points_excluded_plate: 1,
+        points_outside: 1,
+        mean_abs_um: 1.0,
+        median_abs_um: 1.0,
+        p95_abs_um: 2.0,
+        max_abs_um: 3.0,
+        rms_um: 1.5,
+    };
+    let ct_toml = dir.path().join("ct.toml");
+    assert_no_panics(fuzz(
+        "ct-toml",
+        &[registration.to_toml_string().into_bytes()],
+        |b| {
+            std::fs::write(&ct_toml, b).unwrap();
+            let _ = layerwise::ct::CtRegistration::read_toml(&ct_toml);
+        },
+    ));
+}
+
+#[test]
+fn ct_volume_headers() {
+    use layerwise::ct::volume::{read_volume, VolumeSource};
+    let dir = tempfile::tempdir().unwrap();
+    let n = 6usize;
+    let voxels: Vec<u8> = (0..n * n * n)
+        .flat_map(|i| (i as u16).to_le_bytes())
+        .collect();
+    std::fs::write(dir.path().join("scan.vol"), &voxels).unwrap();
+    std::fs::write(dir.path().join("scan.raw"), &voxels).unwrap();
+    let pcr = format!(
+        "[VolumeData]\nVolume_SizeX={n}\nVolume_SizeY={n}\nVolume_SizeZ={n}\nVoxelSizeRec=0.05\nFormat=5\n"
+    );
+    let vgi = format!(
+        "{{volume1}}\n[representation]\nsize = {n} {n} {n}\ndatatype = unsigned integer\ndatarange = 0 65535\nbitsperelement = 16\n[file1]\nName = scan.raw\nFileFormat = raw\nSize = {n} {n} {n}\nDatatype = unsigned integer\nBitsPerElement = 16\n{{scene}}\n[geometry]\nresolution = 0.05 0.05 0.05\n"
+    );
+    for (name, seed) in [("scan.pcr", pcr), ("scan.vgi", vgi)] {
+        let path = dir.path().join(name);
+        assert_no_panics(fuzz(name, &[seed.into_bytes()], |b| {
+            std::fs::write(&path, b).unwrap();
+            if let Ok(source) = VolumeSource::detect(&path, None) {
+                let _ = read_volume(&source);
+            }
+        }));
+    }
+}
+
+#[test]
+fn dicom_slices() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = common::SmallView::new(dir.path());
+    let frame = dir.path().join("frame.jpg");
+    std::fs::write(&frame, view.jpeg()).unwrap();
+    let slice = dir.path().join("slice.dcm");
+    let small = layerwise::geometry::Grid {
+        x_min: -20.0,
+        x_max: 20.0,
+        y_min: -20.0,
+        y_max: 20.0,
+        pixel_mm: 2.0,
+    };
+    layerwise::rectify::rectify_file(&view.calibration, &frame, &slice, 1, 0.03, small).unwrap();
+    let seed = std::fs::read(&slice).unwrap();
+    let series = dir.path().join("series");
+    std::fs::create_dir_all(&series).unwrap();
+    let target = series.join("L00001.dcm");
+    assert_no_panics(fuzz_n("dicom", &[seed], DICOM_MUTANTS, |b| {
+        std::fs::write(&target, b).unwrap();
+        let _ = layerwise::dicom::series_info(&series);
+    }));
+}
