@@ -93,6 +93,13 @@ impl Backoff {
         clock.sleep(self.current);
         self.current = (self.current * 2).min(self.max.max(self.initial));
     }
+    /// The current period, doubling it for next time (for a caller that waits on its own,
+    /// e.g. interruptibly).
+    pub fn next(&mut self) -> Duration {
+        let current = self.current;
+        self.current = (self.current * 2).min(self.max.max(self.initial));
+        current
+    }
     /// Back to the initial period (after a success).
     pub fn reset(&mut self) {
         self.current = self.initial;

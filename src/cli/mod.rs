@@ -5,6 +5,7 @@
 mod build;
 mod daemon;
 mod files;
+mod push;
 mod register;
 
 use anyhow::{Context, Result};
@@ -58,6 +59,8 @@ pub enum Command {
         #[command(subcommand)]
         command: register::RegisterCommand,
     },
+    /// Push a build's (or an export folder's) DICOM instances to a PACS: STOW-RS or C-STORE.
+    Push(push::PushArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
 }
@@ -77,6 +80,7 @@ impl Command {
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
             Command::Demo(args) => args.run(),
+            Command::Push(args) => args.run(),
         }
     }
 }
