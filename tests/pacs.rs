@@ -40,6 +40,8 @@ struct Orthanc {
     dir: PathBuf,
     http: u16,
     dicom: u16,
+    /// The Authorization header of the test's own requests, when authentication is on.
+    authorization: Option<String>,
     child: Option<Child>,
 }
 
@@ -48,7 +50,7 @@ impl Orthanc {
     fn new(dir: &Path, http: u16, dicom: u16, users: &[(&str, &str)]) -> Orthanc {
         let dir = dir.join(format!("orthanc-{http}"));
         std::fs::create_dir_all(dir.join("db")).unwrap();
-        let users: serde_json::Map<String, serde_json::Value> = users
+        let registered: serde_json::Map<String, serde_json::Value> = users
             .iter()
             .map(|(u, p)| (u.to_string(), serde_json::Value::from(*p)))
             .collect();
@@ -62,8 +64,8 @@ impl Orthanc {
             "DicomAet": "ORTHANC",
             "DicomCheckCalledAet": true,
             "RemoteAccessAllowed": true,
-            "AuthenticationEnabled": !users.is_empty(),
-            "RegisteredUsers": users,
+            "AuthenticationEnabled": !registered.is_empty(),
+            "RegisteredUsers": registered,
             "DicomWeb": { "Enable": true, "Root": "/dicom-web/" },
             "ConcurrentJobs": 1,
             "StorageCompression": false,
@@ -73,10 +75,30 @@ impl Orthanc {
             serde_json::to_vec_pretty(&config).unwrap(),
         )
         .unwrap();
+        // The test's own requests: `curl -u` would send the same header.
+        let authorization = users.first().map(|(u, p)| {
+            let out = Command::new("base64")
+                .arg("-w0")
+                .stdin(std::process::Stdio::piped())
+                .stdout(std::process::Stdio::piped())
+                .spawn()
+                .and_then(|mut child| {
+                    use std::io::Write;
+                    child
+                        .stdin
+                        .take()
+                        .unwrap()
+                        .write_all(format!("{u}:{p}").as_bytes())?;
+                    child.wait_with_output()
+                })
+                .unwrap();
+            format!("Basic {}", String::from_utf8(out.stdout).unwrap())
+        });
         let mut orthanc = Orthanc {
             dir,
             http,
             dicom,
+            authorization,
             child: None,
         };
         orthanc.start();
@@ -128,8 +150,16 @@ impl Orthanc {
         self.url("/dicom-web")
     }
 
+    fn request(&self, method: &str, path: &str) -> ureq::Request {
+        let request = ureq::request(method, &self.url(path));
+        match &self.authorization {
+            Some(a) => request.set("Authorization", a),
+            None => request,
+        }
+    }
+
     fn get(&self, path: &str) -> ureq::Response {
-        ureq::get(&self.url(path))
+        self.request("GET", path)
             .call()
             .unwrap_or_else(|e| panic!("GET {path}: {e}"))
     }
@@ -159,7 +189,8 @@ impl Orthanc {
 
     /// The stored file of the instance with this SOP Instance UID.
     fn file_of(&self, sop_instance_uid: &str) -> Vec<u8> {
-        let found = ureq::post(&self.url("/tools/lookup"))
+        let found = self
+            .request("POST", "/tools/lookup")
             .send_string(sop_instance_uid)
             .unwrap()
             .into_string()
@@ -356,4 +387,225 @@ fn a_build_is_pushed_live_by_stow_rs_and_c_store_and_push_again_sends_nothing() 
     let second = push(&build, &["--to", &by_url]);
     assert!(stdout(&second).contains("0 pushed"), "{}", stdout(&second));
     assert_eq!(web.instance_count(), 18);
+}
+
+/// A build whose layer signals come every `interval_ms`, pushing to `destinations`.
+fn slow_build(
+    tmp: &Path,
+    layers: u32,
+    interval_ms: u64,
+    destinations: Vec<PacsDestination>,
+) -> (PathBuf, PathBuf) {
+    let build = tmp.join("build");
+    let mut config = calibrated_config(&build, layers, Compression::None);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = interval_ms;
+    }
+    config.pacs = destinations;
+    let config_path = tmp.join("layerwise.toml");
+    write_config(&config, &config_path);
+    (build, config_path)
+}
+
+fn wait_until(what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
+    let deadline = Instant::now() + timeout;
+    while !done() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Every series file is logged stored exactly once.
+fn assert_logged_once(build: &Path, name: &str, layers: usize) {
+    let (stored, rejected, _) = log_counts(build, name);
+    assert_eq!(rejected, 0);
+    assert_eq!(stored.len(), 6 * layers, "{stored:?}");
+    assert!(stored.values().all(|&n| n == 1), "{stored:?}");
+    let files: Vec<_> = series_files(build).into_keys().collect();
+    assert_eq!(stored.into_keys().collect::<Vec<_>>(), files);
+}
+
+#[test]
+fn an_archive_down_in_mid_build_gets_everything_once_when_it_returns() {
+    private_network();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut web = Orthanc::new(tmp.path(), 8042, 4242, &[]);
+    let layers = 6;
+    let (build, config_path) = slow_build(tmp.path(), layers, 250, vec![stow("web", &web)]);
+    let daemon = common::spawn_build(&config_path, std::process::Stdio::null());
+    wait_until("the first pushes", Duration::from_secs(60), || {
+        !log_counts(&build, "web").0.is_empty()
+    });
+    web.stop();
+    let frames_at_stop = common::originals(&build).len();
+    // Capture goes on while the archive is away; the queue grows and the error shows.
+    wait_until(
+        "frames and an error while the archive is down",
+        Duration::from_secs(60),
+        || common::originals(&build).len() >= frames_at_stop + 6 && log_counts(&build, "web").2 > 0,
+    );
+    let status = status_json(&build);
+    let pacs = &status["pacs"][0];
+    assert!(pacs["pending"].as_u64().unwrap() > 0, "{pacs}");
+    let error = pacs["last_error"].as_str().unwrap();
+    assert!(
+        error.contains("/dicom-web/studies") && error.to_lowercase().contains("connect"),
+        "{error}"
+    );
+    let text = layerwise()
+        .args(["status", "--build"])
+        .arg(&build)
+        .succeeds();
+    assert!(
+        stdout(&text).contains("pacs       web:"),
+        "{}",
+        stdout(&text)
+    );
+    web.start();
+    let out = daemon.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert_holds_the_build(&web, &build, layers as usize);
+    assert_eq!(web.instance_count(), 6 * layers as u64);
+    assert_logged_once(&build, "web", layers as usize);
+    assert_eq!(status_json(&build)["pacs"][0]["pending"], 0);
+}
+
+#[test]
+fn a_daemon_killed_while_pushing_completes_the_push_on_restart() {
+    private_network();
+    let tmp = tempfile::tempdir().unwrap();
+    let dimse = Orthanc::new(tmp.path(), 8043, 4243, &[]);
+    let layers = 5;
+    let (build, config_path) = slow_build(
+        tmp.path(),
+        layers,
+        200,
+        vec![cstore("dimse", &dimse, "ORTHANC")],
+    );
+    let mut daemon = common::spawn_build(&config_path, std::process::Stdio::null());
+    wait_until("the first pushes", Duration::from_secs(60), || {
+        log_counts(&build, "dimse").0.len() >= 3
+    });
+    daemon.kill().unwrap();
+    daemon.wait().unwrap();
+    assert!(
+        series_files(&build).len() < 6 * layers as usize,
+        "killed too late to test anything"
+    );
+    common::run_build(&config_path);
+    assert_holds_the_build(&dimse, &build, layers as usize);
+    assert_eq!(dimse.instance_count(), 6 * layers as u64);
+    assert_logged_once(&build, "dimse", layers as usize);
+}
+
+#[test]
+fn rejections_and_unreachable_archives_are_reported_with_their_reason() {
+    private_network();
+    let tmp = tempfile::tempdir().unwrap();
+    let secured = Orthanc::new(tmp.path(), 8042, 4242, &[("printer07", "s3cret")]);
+    // An export-like folder: one good instance, one without its StudyInstanceUID.
+    let build = tmp.path().join("build");
+    let mut config = calibrated_config(&build, 1, Compression::None);
+    let config_path = tmp.path().join("build.toml");
+    write_config(&config, &config_path);
+    common::run_build(&config_path);
+    let folder = tmp.path().join("export");
+    std::fs::create_dir_all(folder.join("series")).unwrap();
+    let files: Vec<String> = series_files(&build).into_keys().collect();
+    std::fs::copy(build.join(&files[0]), folder.join("series/good.dcm")).unwrap();
+    let mut bad = dicom_object::open_file(build.join(&files[1])).unwrap();
+    bad.remove_element(dicom_dictionary_std::tags::STUDY_INSTANCE_UID);
+    bad.write_to_file(folder.join("series/bad.dcm")).unwrap();
+
+    // 401 without credentials, said plainly; nothing recorded as pushed.
+    let url = secured.dicom_web();
+    let unauthorized = push(&folder, &["--to", &url]);
+    assert!(!unauthorized.status.success());
+    assert!(
+        stderr(&unauthorized).contains("HTTP 401 Unauthorized"),
+        "{}",
+        stderr(&unauthorized)
+    );
+    // With the secret from a file: the good one stored, the bad one rejected with the reason.
+    let secret = tmp.path().join("pacs.secret");
+    std::fs::write(&secret, "s3cret\n").unwrap();
+    let mut web = stow("archive", &secured);
+    web.auth = Some(layerwise::config::pacs::PacsAuth::Basic);
+    web.user = Some("printer07".into());
+    web.secret_file = Some(secret);
+    config.pacs = vec![web];
+    write_config(&config, &config_path);
+    let rejected = push(
+        &folder,
+        &["--config", config_path.to_str().unwrap(), "--to", "archive"],
+    );
+    assert_eq!(rejected.status.code(), Some(1), "{}", stderr(&rejected));
+    assert!(
+        stdout(&rejected).contains("1 pushed"),
+        "{}",
+        stdout(&rejected)
+    );
+    assert!(
+        stdout(&rejected).contains("rejected series/bad.dcm: STOW-RS FailureReason"),
+        "{}",
+        stdout(&rejected)
+    );
+    // Not retried on the next push: it is recorded as failed.
+    let again = push(&folder, &["--config", config_path.to_str().unwrap()]);
+    assert!(
+        stdout(&again).contains("0 pushed"),
+        "{}{}",
+        stdout(&again),
+        stderr(&again)
+    );
+    assert_eq!(log_counts(&folder, "archive").1, 1);
+    // C-STORE: the same refusal with its status, and a wrong AE title refused at association.
+    let dimse = format!("dicom://ORTHANC@127.0.0.1:{}", secured.dicom);
+    let refused = push(&folder, &["--to", &dimse]);
+    assert!(
+        stdout(&refused).contains("rejected series/bad.dcm: C-STORE status"),
+        "{}",
+        stdout(&refused)
+    );
+    let wrong_ae = push(
+        &folder,
+        &[
+            "--to",
+            &format!("dicom://WRONG@127.0.0.1:{}", secured.dicom),
+        ],
+    );
+    assert!(
+        stderr(&wrong_ae).contains("called AE title not recognized"),
+        "{}",
+        stderr(&wrong_ae)
+    );
+    // Nothing listening: connection refused, for both protocols, in the log for status.
+    for to in [
+        "http://127.0.0.1:9/dicom-web",
+        "dicom://ORTHANC@127.0.0.1:9",
+    ] {
+        let down = push(&folder, &["--to", to]);
+        assert!(!down.status.success());
+        assert!(stderr(&down).contains("refused"), "{to}: {}", stderr(&down));
+    }
+    // status of a build shows the destination's failures and last error.
+    let on_build = push(
+        &build,
+        &[
+            "--to",
+            &format!("dicom://WRONG@127.0.0.1:{}", secured.dicom),
+        ],
+    );
+    assert!(!on_build.status.success());
+    let status = status_json(&build);
+    let entry = &status["pacs"][0];
+    assert_eq!(entry["pending"], 6, "{entry}");
+    assert!(
+        entry["last_error"]
+            .as_str()
+            .unwrap()
+            .contains("called AE title not recognized"),
+        "{entry}"
+    );
+    assert_eq!(secured.instance_count(), 1);
 }
