@@ -83,10 +83,10 @@ fn push_loop(mut queue: Queue, inbox: Receiver<Control>, clock: SharedClock, pol
                 }
                 poll
             }
-            Err(PacsError::Transport { .. }) => backoff.next(),
+            Err(PacsError::Transport { .. }) => backoff.advance(),
             Err(e) => {
                 error!(destination = %name, error = %e, "pacs: cannot record the push");
-                backoff.next()
+                backoff.advance()
             }
         };
         let wait = match deadline {
