@@ -430,8 +430,8 @@ fn an_archive_down_in_mid_build_gets_everything_once_when_it_returns() {
     private_network();
     let tmp = tempfile::tempdir().unwrap();
     let mut web = Orthanc::new(tmp.path(), 8042, 4242, &[]);
-    let layers = 6;
-    let (build, config_path) = slow_build(tmp.path(), layers, 250, vec![stow("web", &web)]);
+    let layers = 8;
+    let (build, config_path) = slow_build(tmp.path(), layers, 300, vec![stow("web", &web)]);
     let daemon = common::spawn_build(&config_path, std::process::Stdio::null());
     wait_until("the first pushes", Duration::from_secs(60), || {
         !log_counts(&build, "web").0.is_empty()
@@ -475,11 +475,11 @@ fn a_daemon_killed_while_pushing_completes_the_push_on_restart() {
     private_network();
     let tmp = tempfile::tempdir().unwrap();
     let dimse = Orthanc::new(tmp.path(), 8043, 4243, &[]);
-    let layers = 5;
+    let layers = 8;
     let (build, config_path) = slow_build(
         tmp.path(),
         layers,
-        200,
+        300,
         vec![cstore("dimse", &dimse, "ORTHANC")],
     );
     let mut daemon = common::spawn_build(&config_path, std::process::Stdio::null());
