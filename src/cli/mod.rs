@@ -5,8 +5,9 @@
 mod build;
 mod daemon;
 mod files;
-mod push;
 mod register;
+// The push to archives (PACS).
+mod push;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
