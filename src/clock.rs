@@ -90,8 +90,14 @@ impl Backoff {
     }
     /// Waits the current period on `clock`, then doubles it (up to the maximum).
     pub fn wait(&mut self, clock: &dyn Clock) {
-        clock.sleep(self.current);
+        clock.sleep(self.advance());
+    }
+    /// The current period, doubling it for next time (for a caller that waits on its own,
+    /// e.g. interruptibly).
+    pub fn advance(&mut self) -> Duration {
+        let current = self.current;
         self.current = (self.current * 2).min(self.max.max(self.initial));
+        current
     }
     /// Back to the initial period (after a success).
     pub fn reset(&mut self) {

@@ -285,6 +285,15 @@ impl Replay {
     }
 }
 
+/// Opens (creating) an append-only log for reading it back and appending to it.
+pub(super) fn open_append(path: &Path) -> std::io::Result<File> {
+    OpenOptions::new()
+        .create(true)
+        .read(true)
+        .append(true)
+        .open(path)
+}
+
 pub struct Journal {
     path: PathBuf,
     file: File,
@@ -299,12 +308,7 @@ impl Journal {
             path: path.to_path_buf(),
             source,
         };
-        let mut file = OpenOptions::new()
-            .create(true)
-            .read(true)
-            .append(true)
-            .open(path)
-            .map_err(io)?;
+        let mut file = open_append(path).map_err(io)?;
         let replay = Self::replay_file(path, &mut file)?;
         Ok((
             Journal {

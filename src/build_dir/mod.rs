@@ -4,6 +4,7 @@
 
 pub mod journal;
 pub mod manifest;
+pub mod pushlog;
 pub mod status;
 
 pub use journal::{IrregularSignal, Journal, JournalError, Record, Replay};

@@ -120,6 +120,8 @@ pub struct StatusReport {
     pub bytes_needed: Option<u64>,
     /// The layer signal's source, when the daemon reported it.
     pub trigger: Option<TriggerHealth>,
+    /// The push to each archive (`[[pacs]]`): pushed, pending, failed, last error.
+    pub pacs: Vec<super::pushlog::PushSummary>,
     pub warning: Option<String>,
 }
 
@@ -243,6 +245,7 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         free_bytes: free,
         bytes_needed,
         trigger: live.trigger.clone(),
+        pacs: super::pushlog::summaries(dir),
         warning,
     })
 }
@@ -338,6 +341,9 @@ impl fmt::Display for StatusReport {
                 write!(f, ", the rest of the build needs about {}", gb(needed))?;
             }
             writeln!(f)?;
+        }
+        for push in &self.pacs {
+            write!(f, "{push}")?;
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

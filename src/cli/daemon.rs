@@ -9,6 +9,7 @@ use layerwise::acquisition::{self, RunOptions, RunSummary};
 use layerwise::clock::{SharedClock, SystemClock};
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
 use layerwise::hardware::Machine;
+use layerwise::pacs::{live::Pusher, Destination};
 use std::path::{Path, PathBuf};
 
 #[derive(Args)]
@@ -44,10 +45,38 @@ fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
     })
 }
 
-/// Opens the machine and runs the daemon on it.
+/// Opens the machine and runs the daemon on it, with the push to every `[[pacs]]` beside it
+/// (its own threads: capture and processing never wait for an archive).
 fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
     let machine = open_machine(config, options.clock.clone())?;
-    Ok(runtime()?.block_on(acquisition::run(config, machine, options))?)
+    let pusher = start_pusher(config, &options)?;
+    let summary = runtime()?.block_on(acquisition::run(config, machine, options));
+    if let Some(pusher) = pusher {
+        pusher.finish(PUSH_GRACE);
+    }
+    Ok(summary?)
+}
+
+/// How long the push goes on after the build stops, to send what is still pending.
+const PUSH_GRACE: std::time::Duration = std::time::Duration::from_secs(60);
+
+fn start_pusher(config: &Config, options: &RunOptions) -> Result<Option<Pusher>> {
+    if config.pacs.is_empty() {
+        return Ok(None);
+    }
+    let destinations = config
+        .pacs
+        .iter()
+        .map(Destination::from_config)
+        .collect::<Result<Vec<_>, _>>()?;
+    let dir = &config.build.output_dir;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(Some(Pusher::start(
+        dir,
+        destinations,
+        options.clock.clone(),
+        std::time::Duration::from_millis(500),
+    )?))
 }
 
 #[derive(Args)]

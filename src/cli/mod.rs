@@ -7,6 +7,8 @@ mod daemon;
 mod files;
 mod numbering;
 mod register;
+// The push to archives (PACS).
+mod push;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -59,6 +61,8 @@ pub enum Command {
         #[command(subcommand)]
         command: register::RegisterCommand,
     },
+    /// Push a build's (or an export folder's) DICOM instances to a PACS: STOW-RS or C-STORE.
+    Push(push::PushArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
 }
@@ -78,6 +82,7 @@ impl Command {
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
             Command::Demo(args) => args.run(),
+            Command::Push(args) => args.run(),
         }
     }
 }

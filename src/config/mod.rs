@@ -1,6 +1,8 @@
 //! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
 //! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
 
+pub mod pacs;
+
 use crate::fsutil::parse_toml;
 use crate::shot::{Light, Phase, View};
 use crate::vectors::{LayerMatch, LayerNumbering};
@@ -30,6 +32,9 @@ pub struct Config {
     pub calibration: CalibrationConfig,
     #[serde(default)]
     pub storage: StorageConfig,
+    /// Archives every DICOM instance is pushed to (`[[pacs]]`, config/pacs.rs).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pacs: Vec<pacs::PacsDestination>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -525,6 +530,7 @@ impl Config {
         if self.build.output_dir.as_os_str().is_empty() {
             return Err(invalid("build.output_dir", "must name a directory".into()));
         }
+        pacs::validate(&self.pacs, file)?;
         match &self.trigger {
             TriggerConfig::Serial(serial) => {
                 let regex = regex::Regex::new(&serial.pattern).map_err(|e| {

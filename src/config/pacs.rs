@@ -1,0 +1,236 @@
+//! `[[pacs]]`: the archives every DICOM instance of a build is pushed to, by DICOMweb STOW-RS
+//! (`url`) or DIMSE C-STORE (`host`, `port`, `called_ae`). Secrets are read from a file named
+//! here (`secret_file`), never written in the configuration.
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// One archive.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PacsDestination {
+    /// A short name: the push log is `pacs/<name>.jsonl` in the build directory, and
+    /// `layerwise push --to NAME` picks it.
+    pub name: String,
+    /// STOW-RS: the DICOMweb root, e.g. `http://pacs:8042/dicom-web` (instances are POSTed to
+    /// `{url}/studies`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub url: Option<String>,
+    /// STOW-RS authentication: `basic` (with `user`) or `bearer`, the password or token read
+    /// from `secret_file`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auth: Option<PacsAuth>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub user: Option<String>,
+    /// A file holding the password or token alone (trailing newline ignored), readable by the
+    /// service only (chmod 600).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub secret_file: Option<PathBuf>,
+    /// C-STORE: the archive's host name or address.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// C-STORE: its DICOM port (Orthanc's DicomPort, 4242 by default; 104 is the standard one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub port: Option<u16>,
+    /// C-STORE: the archive's AE title (Orthanc's DicomAet).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub called_ae: Option<String>,
+    /// C-STORE: this printer's AE title, as registered on the archive (DicomModalities).
+    #[serde(default = "default_calling_ae")]
+    pub calling_ae: String,
+    /// Longest wait for a connection or an answer.
+    #[serde(default = "default_timeout_s")]
+    pub timeout_s: u64,
+    /// Wait between attempts while the archive is unreachable: first and longest.
+    #[serde(default = "default_retry_ms")]
+    pub retry_backoff_ms: [u64; 2],
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PacsAuth {
+    Basic,
+    Bearer,
+}
+
+fn default_calling_ae() -> String {
+    "LAYERWISE".into()
+}
+
+fn default_timeout_s() -> u64 {
+    30
+}
+
+fn default_retry_ms() -> [u64; 2] {
+    [500, 30_000]
+}
+
+/// Whether an AE title is valid: 1 to 16 characters of printable ASCII, no backslash.
+pub fn valid_ae_title(ae: &str) -> bool {
+    let trimmed = ae.trim();
+    !trimmed.is_empty()
+        && ae.len() <= 16
+        && ae.bytes().all(|b| (0x20..0x7f).contains(&b) && b != b'\\')
+}
+
+impl PacsDestination {
+    /// What is wrong with this destination, as (key, message).
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        if self.name.is_empty()
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_' || c == '.')
+            || self.name.starts_with('.')
+        {
+            return Some((
+                "name",
+                "must be a short name of letters, digits, `-`, `_` or `.` (it names the push log)"
+                    .into(),
+            ));
+        }
+        match (&self.url, &self.host) {
+            (Some(_), Some(_)) | (None, None) => {
+                return Some((
+                    "url",
+                    "give either `url` (DICOMweb STOW-RS) or `host`, `port` and `called_ae` \
+                     (DIMSE C-STORE)"
+                        .into(),
+                ))
+            }
+            (Some(url), None) => {
+                if !(url.starts_with("http://") || url.starts_with("https://")) {
+                    return Some((
+                        "url",
+                        "must start with http:// or https:// (the DICOMweb root, e.g. \
+                         http://pacs:8042/dicom-web)"
+                            .into(),
+                    ));
+                }
+                match (self.auth, &self.user, &self.secret_file) {
+                    (Some(PacsAuth::Basic), None, _) => {
+                        return Some(("user", "auth = \"basic\" needs `user`".into()))
+                    }
+                    (Some(_), _, None) => {
+                        return Some((
+                            "secret_file",
+                            "auth needs `secret_file`: a file holding the password or token".into(),
+                        ))
+                    }
+                    _ => {}
+                }
+            }
+            (None, Some(_)) => {
+                if self.port.is_none_or(|p| p == 0) {
+                    return Some(("port", "C-STORE needs the archive's DICOM port".into()));
+                }
+                if !self.called_ae.as_deref().is_some_and(valid_ae_title) {
+                    return Some((
+                        "called_ae",
+                        "C-STORE needs the archive's AE title: 1 to 16 printable ASCII characters"
+                            .into(),
+                    ));
+                }
+                if self.auth.is_some() {
+                    return Some(("auth", "only STOW-RS (`url`) takes auth".into()));
+                }
+            }
+        }
+        if !valid_ae_title(&self.calling_ae) {
+            return Some((
+                "calling_ae",
+                "must be 1 to 16 printable ASCII characters".into(),
+            ));
+        }
+        if self.timeout_s == 0 {
+            return Some(("timeout_s", "must be at least 1 second".into()));
+        }
+        let [first, max] = self.retry_backoff_ms;
+        if first == 0 || max < first {
+            return Some((
+                "retry_backoff_ms",
+                "must be [first, longest] with 0 < first <= longest".into(),
+            ));
+        }
+        None
+    }
+}
+
+/// Checks every destination and that names are unique.
+pub fn validate(destinations: &[PacsDestination], file: &Path) -> Result<(), super::ConfigError> {
+    for (i, destination) in destinations.iter().enumerate() {
+        let invalid = |key: &str, message: String| super::ConfigError::Invalid {
+            file: file.to_path_buf(),
+            key: format!("pacs[{i}].{key}"),
+            message,
+        };
+        if let Some((key, message)) = destination.problem() {
+            return Err(invalid(key, message));
+        }
+        if destinations[..i].iter().any(|d| d.name == destination.name) {
+            return Err(invalid(
+                "name",
+                format!("\"{}\" is used twice", destination.name),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Vec<PacsDestination>, String> {
+        #[derive(Deserialize)]
+        struct Doc {
+            pacs: Vec<PacsDestination>,
+        }
+        let doc: Doc = toml::from_str(text).map_err(|e| e.to_string())?;
+        validate(&doc.pacs, Path::new("t.toml")).map_err(|e| e.to_string())?;
+        Ok(doc.pacs)
+    }
+
+    #[test]
+    fn both_protocols_parse_and_mistakes_name_their_key() {
+        let ok = parse(
+            "[[pacs]]\nname = \"web\"\nurl = \"http://h:8042/dicom-web\"\nauth = \"basic\"\n\
+             user = \"u\"\nsecret_file = \"/etc/s\"\n\
+             [[pacs]]\nname = \"dimse\"\nhost = \"h\"\nport = 4242\ncalled_ae = \"ORTHANC\"\n",
+        )
+        .unwrap();
+        assert_eq!(ok.len(), 2);
+        assert_eq!(ok[1].calling_ae, "LAYERWISE");
+        for (text, key) in [
+            ("name = \"a\"\n", "pacs[0].url"),
+            ("name = \"a\"\nurl = \"ftp://x\"\n", "pacs[0].url"),
+            (
+                "name = \"a\"\nhost = \"h\"\ncalled_ae = \"X\"\n",
+                "pacs[0].port",
+            ),
+            (
+                "name = \"a\"\nhost = \"h\"\nport = 1\n",
+                "pacs[0].called_ae",
+            ),
+            (
+                "name = \"a\"\nhost = \"h\"\nport = 1\ncalled_ae = \"WAY_TOO_LONG_AE_TITLE\"\n",
+                "pacs[0].called_ae",
+            ),
+            ("name = \"a/b\"\nurl = \"http://x\"\n", "pacs[0].name"),
+            (
+                "name = \"a\"\nurl = \"http://x\"\nauth = \"bearer\"\n",
+                "pacs[0].secret_file",
+            ),
+        ] {
+            let err = parse(&format!("[[pacs]]\n{text}")).unwrap_err();
+            assert!(err.contains(key), "{text}: {err}");
+        }
+        let twice = parse(
+            "[[pacs]]\nname = \"a\"\nurl = \"http://x\"\n[[pacs]]\nname = \"a\"\nurl = \"http://y\"\n",
+        )
+        .unwrap_err();
+        assert!(twice.contains("used twice"), "{twice}");
+        let inline = parse("[[pacs]]\nname = \"a\"\nurl = \"http://x\"\npassword = \"p\"\n");
+        assert!(inline.unwrap_err().contains("password"));
+    }
+}

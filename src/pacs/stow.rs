@@ -1,0 +1,225 @@
+//! DICOMweb STOW-RS (PS3.18 10.5): one `multipart/related; type="application/dicom"` POST to
+//! `{url}/studies` per batch; the answer's ReferencedSOPSequence (0008,1199) lists what the
+//! archive stored, its FailedSOPSequence (0008,1198) what it refused, with FailureReason
+//! (0008,1197).
+
+use super::{status_text, Destination, Instance, Outcome, Sender, Target};
+use serde_json::Value;
+use std::collections::HashMap;
+
+pub struct StowClient {
+    agent: ureq::Agent,
+    url: String,
+    authorization: Option<String>,
+}
+
+impl StowClient {
+    pub fn new(destination: &Destination) -> StowClient {
+        let (url, authorization) = match &destination.target {
+            Target::Stow { url, authorization } => (url.clone(), authorization.clone()),
+            Target::CStore { .. } => unreachable!("a STOW-RS client for a C-STORE destination"),
+        };
+        let agent = ureq::AgentBuilder::new()
+            .timeout_connect(destination.timeout)
+            .timeout_read(destination.timeout)
+            .timeout_write(destination.timeout)
+            .user_agent(concat!("layerwise/", env!("CARGO_PKG_VERSION")))
+            .build();
+        StowClient {
+            agent,
+            url: format!("{url}/studies"),
+            authorization,
+        }
+    }
+}
+
+/// The multipart body of a batch and its boundary.
+pub fn multipart(batch: &[Instance]) -> (Vec<u8>, String) {
+    let boundary = format!(
+        "layerwise-{:016x}",
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64)
+    );
+    let total: usize = batch.iter().map(|i| i.bytes.len() + 80).sum();
+    let mut body = Vec::with_capacity(total + 64);
+    for instance in batch {
+        body.extend_from_slice(
+            format!("--{boundary}\r\nContent-Type: application/dicom\r\n\r\n").as_bytes(),
+        );
+        body.extend_from_slice(&instance.bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (body, boundary)
+}
+
+impl Sender for StowClient {
+    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+        let (body, boundary) = multipart(batch);
+        let mut request = self
+            .agent
+            .post(&self.url)
+            .set(
+                "Content-Type",
+                &format!("multipart/related; type=\"application/dicom\"; boundary={boundary}"),
+            )
+            .set("Accept", "application/dicom+json");
+        if let Some(authorization) = &self.authorization {
+            request = request.set("Authorization", authorization);
+        }
+        let (status, text) = match request.send_bytes(&body) {
+            Ok(response) => {
+                let status = response.status();
+                (status, response.into_string().unwrap_or_default())
+            }
+            // 409 (all failed) and other statuses may still carry the per-instance answer.
+            Err(ureq::Error::Status(status, response)) => {
+                let text = response.into_string().unwrap_or_default();
+                match status {
+                    401 | 403 => {
+                        return Err(format!(
+                            "POST {}: HTTP {status} {}: check auth, user and secret_file of this \
+                             destination",
+                            self.url,
+                            if status == 401 {
+                                "Unauthorized"
+                            } else {
+                                "Forbidden"
+                            }
+                        ))
+                    }
+                    400 | 409 | 415 if parse_json(&text).is_some() => (status, text),
+                    _ => {
+                        return Err(format!(
+                            "POST {}: HTTP {status}{}",
+                            self.url,
+                            short(&text).map(|t| format!(": {t}")).unwrap_or_default()
+                        ))
+                    }
+                }
+            }
+            Err(ureq::Error::Transport(e)) => {
+                return Err(format!("POST {}: {e}", self.url));
+            }
+        };
+        let answer = parse_json(&text).ok_or_else(|| {
+            format!(
+                "POST {}: HTTP {status} without a STOW-RS answer (is the URL the DICOMweb root, e.g. \
+                 http://pacs:8042/dicom-web?){}",
+                self.url,
+                short(&text).map(|t| format!(": {t}")).unwrap_or_default()
+            )
+        })?;
+        outcomes(batch, &answer).map_err(|m| format!("POST {}: {m}", self.url))
+    }
+}
+
+fn parse_json(text: &str) -> Option<Value> {
+    serde_json::from_str::<Value>(text)
+        .ok()
+        .filter(Value::is_object)
+}
+
+/// The first line of a body, shortened, for an error message.
+fn short(text: &str) -> Option<String> {
+    let line = text.lines().map(str::trim).find(|l| !l.is_empty())?;
+    Some(line.chars().take(200).collect())
+}
+
+/// The items of a sequence attribute in DICOM JSON.
+fn items<'a>(answer: &'a Value, tag: &str) -> impl Iterator<Item = &'a Value> {
+    answer
+        .get(tag)
+        .and_then(|a| a.get("Value"))
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+}
+
+fn first_value<'a>(item: &'a Value, tag: &str) -> Option<&'a Value> {
+    item.get(tag)?.get("Value")?.as_array()?.first()
+}
+
+/// Each instance's outcome from the STOW-RS answer; an instance the answer does not mention
+/// means the batch's fate is unknown (an error: the batch is sent again later).
+pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, String> {
+    let mut by_uid: HashMap<String, Outcome> = HashMap::new();
+    for item in items(answer, "00081199") {
+        if let Some(uid) = first_value(item, "00081155").and_then(Value::as_str) {
+            by_uid.insert(uid.to_string(), Outcome::Stored);
+        }
+    }
+    for item in items(answer, "00081198") {
+        let Some(uid) = first_value(item, "00081155").and_then(Value::as_str) else {
+            continue;
+        };
+        let reason = match first_value(item, "00081197").and_then(Value::as_u64) {
+            Some(code) => format!(
+                "STOW-RS FailureReason {code:04X}H ({})",
+                status_text(code as u16)
+            ),
+            None => "in FailedSOPSequence without a FailureReason".to_string(),
+        };
+        by_uid.insert(uid.to_string(), Outcome::Rejected(reason));
+    }
+    batch
+        .iter()
+        .map(|instance| {
+            by_uid
+                .get(&instance.sop_instance_uid)
+                .cloned()
+                .ok_or_else(|| {
+                    format!(
+                        "the answer does not mention instance {} ({})",
+                        instance.sop_instance_uid, instance.file
+                    )
+                })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn instance(uid: &str) -> Instance {
+        Instance {
+            file: format!("{uid}.dcm"),
+            sop_class_uid: "1.2.840.10008.5.1.4.1.1.7".into(),
+            sop_instance_uid: uid.into(),
+            transfer_syntax: "1.2.840.10008.1.2.1".into(),
+            bytes: vec![7; 140],
+            dataset_offset: 132,
+        }
+    }
+
+    #[test]
+    fn the_answer_says_stored_or_rejected_with_reason_per_instance() {
+        let answer: Value = serde_json::from_str(
+            r#"{"00081199":{"vr":"SQ","Value":[{"00081155":{"vr":"UI","Value":["1.1"]}}]},
+                "00081198":{"vr":"SQ","Value":[{"00081155":{"vr":"UI","Value":["1.2"]},
+                                                "00081197":{"vr":"US","Value":[272]}}]}}"#,
+        )
+        .unwrap();
+        let batch = [instance("1.1"), instance("1.2")];
+        let got = outcomes(&batch, &answer).unwrap();
+        assert_eq!(got[0], Outcome::Stored);
+        assert_eq!(
+            got[1],
+            Outcome::Rejected("STOW-RS FailureReason 0110H (processing failure)".into())
+        );
+        let err = outcomes(&[instance("1.3")], &answer).unwrap_err();
+        assert!(err.contains("1.3"), "{err}");
+    }
+
+    #[test]
+    fn the_body_is_multipart_related_with_every_file_whole() {
+        let batch = [instance("1.1"), instance("1.2")];
+        let (body, boundary) = multipart(&batch);
+        let text = String::from_utf8_lossy(&body);
+        assert_eq!(text.matches(&format!("--{boundary}\r\n")).count(), 2);
+        assert!(text.ends_with(&format!("--{boundary}--\r\n")));
+        assert_eq!(body.iter().filter(|&&b| b == 7).count(), 280);
+    }
+}
