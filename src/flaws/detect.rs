@@ -202,7 +202,14 @@ pub fn detect(
 
 /// Voxels of the part (solid) below the threshold, sorted.
 fn candidates(volume: &Volume, solid: &Bitset, t: f64) -> Vec<usize> {
-    fn run<T: Voxel>(v: &[T], dims: [usize; 3], solid: &Bitset, s: f64, c: f64, t: f64) -> Vec<usize> {
+    fn run<T: Voxel>(
+        v: &[T],
+        dims: [usize; 3],
+        solid: &Bitset,
+        s: f64,
+        c: f64,
+        t: f64,
+    ) -> Vec<usize> {
         let plane = dims[0] * dims[1];
         let slices: Vec<Vec<usize>> = (0..dims[2])
             .into_par_iter()
@@ -295,8 +302,7 @@ fn dilate(mask: &[bool], dims: [usize; 3], r: usize) -> Vec<bool> {
 
 impl Context<'_> {
     fn to_build(&self, idx: [f64; 3]) -> [f64; 3] {
-        self.build_from_ct
-            .apply(self.volume.index_to_physical(idx))
+        self.build_from_ct.apply(self.volume.index_to_physical(idx))
     }
 
     /// Measures one component; `None` when it is within the clearance of the part's exterior
@@ -321,7 +327,8 @@ impl Context<'_> {
         }
         let b0: [usize; 3] = std::array::from_fn(|a| lo[a] - r);
         let bd: [usize; 3] = std::array::from_fn(|a| hi[a] + r - b0[a] + 1);
-        let local = |p: [usize; 3]| (p[0] - b0[0]) + bd[0] * ((p[1] - b0[1]) + bd[1] * (p[2] - b0[2]));
+        let local =
+            |p: [usize; 3]| (p[0] - b0[0]) + bd[0] * ((p[1] - b0[1]) + bd[1] * (p[2] - b0[2]));
         let global = |i: usize| {
             let (x, y, z) = (i % bd[0], (i / bd[0]) % bd[1], i / (bd[0] * bd[1]));
             (b0[0] + x) + nx * ((b0[1] + y) + ny * (b0[2] + z))
@@ -340,8 +347,24 @@ impl Context<'_> {
         {
             return None;
         }
+        // The material around the flaw (the shell between the window and the clearance): the
+        // local level, robust to beam hardening and to the partial-volume voxels that pull the
+        // global class median down.
+        let (mut shell_sum, mut shell_n) = (0.0, 0usize);
+        for (i, (&c, &inw)) in clear.iter().zip(&window).enumerate() {
+            let g = global(i);
+            if c && !inw && self.cand.binary_search(&g).is_err() {
+                shell_sum += self.volume.value(g);
+                shell_n += 1;
+            }
+        }
+        let material = if shell_n > 0 {
+            shell_sum / shell_n as f64
+        } else {
+            self.material_level
+        };
         // Partial-volume void fractions over the window (not over other flaws' voxels).
-        let contrast = self.material_level - self.void_level;
+        let contrast = (material - self.void_level).max(f64::MIN_POSITIVE);
         let (mut sum, mut sp) = (0.0, [0.0; 3]);
         for (i, &inw) in window.iter().enumerate() {
             if !inw {
@@ -351,7 +374,7 @@ impl Context<'_> {
             if !mask[i] && self.cand.binary_search(&g).is_ok() {
                 continue;
             }
-            let f = (self.material_level - self.volume.value(g)) / contrast;
+            let f = (material - self.volume.value(g)) / contrast;
             let p = ijk(g);
             sum += f;
             for a in 0..3 {
@@ -390,9 +413,8 @@ impl Context<'_> {
         let (volume_mm3, centroid_voxel) = if sum > 0.0 {
             (sum * voxel_volume, sp.map(|s| s / sum))
         } else {
-            let c: [f64; 3] = std::array::from_fn(|a| {
-                comp.iter().map(|&v| ijk(v)[a] as f64).sum::<f64>() / n
-            });
+            let c: [f64; 3] =
+                std::array::from_fn(|a| comp.iter().map(|&v| ijk(v)[a] as f64).sum::<f64>() / n);
             (n * voxel_volume, c)
         };
         let centroid_ct_mm = self.volume.index_to_physical(centroid_voxel);
@@ -459,10 +481,8 @@ impl Context<'_> {
     fn sections(&self, pts: &[[f64; 3]], h: f64) -> Vec<Section> {
         let zmin = pts.iter().map(|p| p[2]).fold(f64::INFINITY, f64::min);
         let zmax = pts.iter().map(|p| p[2]).fold(f64::NEG_INFINITY, f64::max);
-        let (Some(first), Some(last)) = (
-            self.heights.layer_at(zmin),
-            self.heights.layer_at(zmax),
-        ) else {
+        let (Some(first), Some(last)) = (self.heights.layer_at(zmin), self.heights.layer_at(zmax))
+        else {
             return Vec::new();
         };
         (first..=last)
@@ -482,7 +502,12 @@ impl Context<'_> {
                 let n = sel.len() as f64;
                 let cx = sel.iter().map(|p| p[0]).sum::<f64>() / n;
                 let cy = sel.iter().map(|p| p[1]).sum::<f64>() / n;
-                let mut bbox = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+                let mut bbox = [
+                    f64::INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::NEG_INFINITY,
+                ];
                 for p in &sel {
                     bbox[0] = bbox[0].min(p[0] - h / 2.0);
                     bbox[1] = bbox[1].min(p[1] - h / 2.0);

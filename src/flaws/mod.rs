@@ -28,7 +28,9 @@ use serde::{Deserialize, Serialize};
 pub use detect::{detect, CtLabels, Detection, FlawParams};
 pub use patches::{cut_patches, flaw_sheet, PatchOptions, PatchSummary};
 pub use run::{run, FlawsReport, FlawsRequest};
-pub use write::{find_flaw, read_table, write_nrrd, write_table, FLAWS_CSV, FLAWS_JSON, FLAWS_NRRD};
+pub use write::{
+    find_flaw, read_table, write_nrrd, write_table, FLAWS_CSV, FLAWS_JSON, FLAWS_NRRD,
+};
 
 /// What failed, on which input.
 #[derive(Debug, thiserror::Error)]
@@ -72,7 +74,11 @@ pub enum FlawsError {
         source: std::io::Error,
     },
     #[error("no flaw {id} in {path} (ids 1 to {count})")]
-    NoSuchFlaw { id: u32, path: PathBuf, count: usize },
+    NoSuchFlaw {
+        id: u32,
+        path: PathBuf,
+        count: usize,
+    },
     #[error("{0}")]
     Invalid(String),
 }

@@ -137,14 +137,22 @@ fn plan(
             let z = record.heights.z(s.layer) - 0.5 * record.heights.thickness(s.layer);
             let step = px as f64 * record.grid.pixel_mm;
             let found = control_offsets().find_map(|(i, j)| {
-                let c = [s.center_mm[0] + i as f64 * step, s.center_mm[1] + j as f64 * step];
+                let c = [
+                    s.center_mm[0] + i as f64 * step,
+                    s.center_mm[1] + j as f64 * step,
+                ];
                 let g = patch_grid(&record.grid, c, px);
                 let key = (s.layer, (g.x_min * 1e6) as i64, (g.y_max * 1e6) as i64);
                 let (cx, cy) = g.center_of((px / 2) as f64, (px / 2) as f64);
                 let clean = all.iter().all(|f| {
                     !overlaps(
                         &g,
-                        [f.bbox_min_mm[0], f.bbox_min_mm[1], f.bbox_max_mm[0], f.bbox_max_mm[1]],
+                        [
+                            f.bbox_min_mm[0],
+                            f.bbox_min_mm[1],
+                            f.bbox_max_mm[0],
+                            f.bbox_max_mm[1],
+                        ],
                     )
                 });
                 (clean && !used.contains(&key) && ct.labels.inside([cx, cy, z])).then_some((g, key))
@@ -238,7 +246,11 @@ fn to16(luma: FrameLuma) -> Patch {
     match luma {
         FrameLuma::Gamma8(g) => {
             let (w, h) = g.dimensions();
-            let data = g.into_raw().into_iter().map(|v| v as u16 * GAMMA8_SCALE).collect();
+            let data = g
+                .into_raw()
+                .into_iter()
+                .map(|v| v as u16 * GAMMA8_SCALE)
+                .collect();
             (
                 ImageBuffer::from_raw(w, h, data).expect("same size"),
                 GAMMA8_SCALE,
@@ -311,7 +323,10 @@ fn annotations_in(grid: &Grid, layer: u32, flaws: &[Flaw]) -> Vec<(u32, u32, [f6
 fn png16(path: &Path, img: &Gray16Image) -> Result<()> {
     let mut bytes = Vec::new();
     image::DynamicImage::ImageLuma16(img.clone())
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
         .map_err(|source| FlawsError::Image {
             path: path.to_path_buf(),
             source,
@@ -365,9 +380,10 @@ pub fn cut_patches(
                 JobKind::Control => summary.control_patches += 1,
             }
             let id = images.len() + 1;
-            let (cx, cy) = job
-                .grid
-                .center_of((job.grid.rows() / 2) as f64, (job.grid.columns() / 2) as f64);
+            let (cx, cy) = job.grid.center_of(
+                (job.grid.rows() / 2) as f64,
+                (job.grid.columns() / 2) as f64,
+            );
             let found = annotations_in(&job.grid, job.layer, &table.flaws);
             if found.is_empty() {
                 csv.push_str(&format!(
@@ -411,7 +427,9 @@ pub fn cut_patches(
             });
         }
     }
-    let csv = csv.replace("Flaw,", "flaw,").replace("Control,", "control,");
+    let csv = csv
+        .replace("Flaw,", "flaw,")
+        .replace("Control,", "control,");
     let coco = serde_json::json!({
         "info": {
             "description": "layerwise flaws: CT flaws on the layer-wise views",
@@ -427,7 +445,10 @@ pub fn cut_patches(
         ],
     });
     for (name, text) in [
-        (LABELS_JSON, serde_json::to_string_pretty(&coco).unwrap_or_default()),
+        (
+            LABELS_JSON,
+            serde_json::to_string_pretty(&coco).unwrap_or_default(),
+        ),
         (LABELS_CSV, csv),
     ] {
         let path = out.join(name);
@@ -455,11 +476,14 @@ pub fn cut_patches(
 
 fn save_rgb(path: &Path, img: &RgbImage) -> Result<()> {
     let mut bytes = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|source| FlawsError::Image {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|source| FlawsError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
     crate::fsutil::write_atomic(path, &bytes, false).map_err(|e| FlawsError::Write {
         path: e.path,
         source: e.source,
@@ -474,7 +498,13 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
         controls: false,
         sheet_rows: usize::MAX,
     };
-    let (jobs, _) = plan(record, std::slice::from_ref(flaw), std::slice::from_ref(flaw), &options, None);
+    let (jobs, _) = plan(
+        record,
+        std::slice::from_ref(flaw),
+        std::slice::from_ref(flaw),
+        &options,
+        None,
+    );
     if jobs.is_empty() {
         return Err(FlawsError::Invalid(format!(
             "flaw {} spans no layer of the build",
@@ -511,13 +541,19 @@ fn draw_sheet(
         if let Some(ct) = ct {
             tiles.push(Some(ct_section(record, job, ct)));
         }
-        tiles.extend(patches[*j].iter().map(|p| p.as_ref().map(|p| display8(&p.0))));
+        tiles.extend(
+            patches[*j]
+                .iter()
+                .map(|p| p.as_ref().map(|p| display8(&p.0))),
+        );
         let boxes = annotations_in(&job.grid, job.layer, flaws);
         for (c, t) in tiles.iter().enumerate() {
             let (x0, y0) = (gap + c as u32 * (tile + gap), gap + r as u32 * (tile + gap));
             for y in 0..tile {
                 for x in 0..tile {
-                    let v = t.as_ref().map_or(128, |t| t.get_pixel(x / scale, y / scale)[0]);
+                    let v = t
+                        .as_ref()
+                        .map_or(128, |t| t.get_pixel(x / scale, y / scale)[0]);
                     sheet.put_pixel(x0 + x, y0 + y, Rgb([v, v, v]));
                 }
             }

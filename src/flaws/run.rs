@@ -55,7 +55,11 @@ pub fn run(request: &FlawsRequest) -> Result<FlawsReport> {
         }
     };
     let volume = source.read()?;
-    let record = request.build.as_deref().map(BuildRecord::open).transpose()?;
+    let record = request
+        .build
+        .as_deref()
+        .map(BuildRecord::open)
+        .transpose()?;
     let heights = record.as_ref().map_or_else(
         || LayerHeights::uniform(request.layer_thickness_mm),
         |r| r.heights.clone(),

@@ -58,11 +58,12 @@ pub fn write_table(dir: &Path, table: &FlawTable) -> Result<()> {
     })?;
     for (name, text) in [(FLAWS_CSV, table_csv(table)), (FLAWS_JSON, json)] {
         let path = dir.join(name);
-        crate::fsutil::write_atomic(&path, text.as_bytes(), false)
-            .map_err(|e| FlawsError::Write {
+        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(|e| {
+            FlawsError::Write {
                 path: e.path,
                 source: e.source,
-            })?;
+            }
+        })?;
     }
     Ok(())
 }
@@ -74,12 +75,11 @@ pub fn read_table(path: &Path) -> Result<FlawTable> {
     } else {
         path.to_path_buf()
     };
-    let text = crate::fsutil::read_text_bounded(&file, 1 << 30).map_err(|source| {
-        FlawsError::Read {
+    let text =
+        crate::fsutil::read_text_bounded(&file, 1 << 30).map_err(|source| FlawsError::Read {
             path: file.clone(),
             source,
-        }
-    })?;
+        })?;
     serde_json::from_str(&text).map_err(|source| FlawsError::Table { path: file, source })
 }
 
@@ -101,11 +101,7 @@ pub fn find_flaw(path: &Path, id: u32) -> Result<super::Flaw> {
 /// The flaws as labels (voxel = flaw id, 0 elsewhere) on an axis-aligned grid of the build
 /// frame around them (1 mm margin) at the CT's voxel size: uint16 NRRD, gzip. Returns the grid's
 /// sizes, or `None` when there is no flaw (nothing is written).
-pub fn write_nrrd(
-    path: &Path,
-    table: &FlawTable,
-    labels: &CtLabels,
-) -> Result<Option<[usize; 3]>> {
+pub fn write_nrrd(path: &Path, table: &FlawTable, labels: &CtLabels) -> Result<Option<[usize; 3]>> {
     if table.flaws.is_empty() {
         return Ok(None);
     }
@@ -119,7 +115,11 @@ pub fn write_nrrd(
         }
     }
     let mut step = table.voxel_mm.iter().cloned().fold(f64::INFINITY, f64::min);
-    let count = |s: f64| (0..3).map(|a| ((hi[a] - lo[a]) / s).ceil() + 1.0).product::<f64>();
+    let count = |s: f64| {
+        (0..3)
+            .map(|a| ((hi[a] - lo[a]) / s).ceil() + 1.0)
+            .product::<f64>()
+    };
     while count(step) > MAX_LABEL_VOXELS {
         step *= 1.25;
     }
