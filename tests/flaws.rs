@@ -9,7 +9,7 @@
 mod common;
 
 use common::{layerwise, Run};
-use layerwise::ct::{synth, CtRegistration, CtSource, Termination};
+use layerwise::ct::{synth, CtRegistration, CtSource};
 use layerwise::geometry::Rigid3;
 use std::path::{Path, PathBuf};
 
@@ -144,21 +144,7 @@ fn scan(
 
 /// ct.toml with the true transform, naming the CT.
 fn write_ct_toml(path: &Path, scan: &Scan, source: Option<CtSource>) {
-    let reg = CtRegistration {
-        build_from_ct: scan.truth,
-        iterations: 0,
-        termination: Termination::SmallStep,
-        threshold: 0.5 * (VOID + MATERIAL),
-        points_used: 0,
-        points_total: 0,
-        points_excluded_plate: 0,
-        points_outside: 0,
-        mean_abs_um: 0.0,
-        median_abs_um: 0.0,
-        p95_abs_um: 0.0,
-        max_abs_um: 0.0,
-        rms_um: 0.0,
-    };
+    let reg = CtRegistration::given(scan.truth, 0.5 * (VOID + MATERIAL));
     std::fs::write(path, reg.to_toml_string_with(source)).unwrap();
 }
 

@@ -485,16 +485,24 @@ impl Context<'_> {
         else {
             return Vec::new();
         };
+        // Each voxel centre in the layer whose slab holds it (as the layers spanned are found).
+        let layers: Vec<Option<u32>> = pts.iter().map(|p| self.heights.layer_at(p[2])).collect();
         (first..=last)
             .map(|layer| {
                 let top = self.heights.z(layer);
                 let bottom = top - self.heights.thickness(layer);
-                let pick = |lo: f64, hi: f64| -> Vec<&[f64; 3]> {
-                    pts.iter().filter(|p| p[2] > lo && p[2] <= hi).collect()
-                };
-                let mut sel = pick(bottom, top);
+                let mut sel: Vec<&[f64; 3]> = pts
+                    .iter()
+                    .zip(&layers)
+                    .filter(|(_, l)| **l == Some(layer))
+                    .map(|(p, _)| p)
+                    .collect();
                 if sel.is_empty() {
-                    sel = pick(bottom - h / 2.0, top + h / 2.0);
+                    // A slab thinner than a voxel: the voxels within half a voxel of it.
+                    sel = pts
+                        .iter()
+                        .filter(|p| p[2] > bottom - h / 2.0 && p[2] <= top + h / 2.0)
+                        .collect();
                 }
                 if sel.is_empty() {
                     sel = pts.iter().collect();
@@ -522,5 +530,104 @@ impl Context<'_> {
                 }
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ct::VoxelData;
+
+    /// A 32³ u8 volume at 0.1 mm: a solid cube (200) over indices 4..28 in a background of 10,
+    /// with voids of 10: two 2³ cubes touching at a corner (one 26-connected flaw), a 3³ pore, a
+    /// 7 x 7 x 1 plate, a 2³ void two voxels under the surface and a lone voxel.
+    fn phantom() -> Volume {
+        let n = 32;
+        let mut v = vec![10u8; n * n * n];
+        let mut fill = |lo: [usize; 3], hi: [usize; 3], value: u8| {
+            for z in lo[2]..hi[2] {
+                for y in lo[1]..hi[1] {
+                    for x in lo[0]..hi[0] {
+                        v[x + n * (y + n * z)] = value;
+                    }
+                }
+            }
+        };
+        fill([4; 3], [28; 3], 200);
+        fill([8; 3], [10; 3], 10);
+        fill([10; 3], [12; 3], 10);
+        fill([18; 3], [21; 3], 10);
+        fill([8, 8, 22], [15, 15, 23], 10);
+        fill([5, 14, 14], [7, 16, 16], 10);
+        fill([20, 10, 10], [21, 11, 11], 10);
+        Volume::new_scaled([n; 3], [0.1; 3], VoxelData::U8(v)).expect("volume")
+    }
+
+    fn found() -> Detection {
+        let identity = Rigid3::from_rotation_translation(
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+        );
+        detect(
+            &phantom(),
+            &identity,
+            &LayerHeights::uniform(0.1),
+            Some(7),
+            &FlawParams::default(),
+        )
+        .expect("detect")
+    }
+
+    #[test]
+    fn components_are_26_connected_sized_and_kept_off_the_surface() {
+        let d = found();
+        assert_eq!(d.flaws.len(), 3, "{:#?}", d.flaws);
+        assert_eq!(d.rejected_small, 1, "the lone voxel");
+        assert_eq!(d.rejected_surface, 1, "the void under the surface");
+        let voxels: Vec<usize> = d.flaws.iter().map(|f| f.voxels).collect();
+        assert_eq!(voxels, [16, 27, 49], "ids in order of z");
+        assert!(d.flaws.iter().all(|f| f.part == Some(7)));
+        assert_eq!(d.labels.labels.len(), 16 + 27 + 49);
+    }
+
+    #[test]
+    fn a_cube_pore_is_measured_exactly() {
+        let d = found();
+        let pore = &d.flaws[1];
+        assert_eq!(pore.id, 2);
+        assert_eq!(pore.kind, FlawKind::GasPore);
+        assert!(
+            (pore.volume_mm3 - 0.027).abs() < 1e-9,
+            "{}",
+            pore.volume_mm3
+        );
+        for a in 0..3 {
+            assert!(
+                (pore.centroid_mm[a] - 1.9).abs() < 1e-9,
+                "{:?}",
+                pore.centroid_mm
+            );
+        }
+        assert_eq!(pore.voxel_min, [18; 3]);
+        assert_eq!(pore.voxel_max, [20; 3]);
+        assert!(
+            (pore.bbox_min_mm[0] - 1.75).abs() < 1e-9 && (pore.bbox_max_mm[2] - 2.05).abs() < 1e-9
+        );
+        // Voxel centres at z 1.8, 1.9, 2.0: layers 18 to 20 of 0.1 mm.
+        assert_eq!((pore.first_layer, pore.last_layer), (Some(18), Some(20)));
+        assert_eq!(pore.sections.len(), 3);
+        assert!(pore.sections.iter().all(|s| s.voxels == 9));
+        assert_eq!(d.labels.label([1.9, 1.9, 1.9]), Some(2));
+        assert!(d.labels.inside([1.0, 2.5, 1.0]) && !d.labels.inside([0.1, 0.1, 0.1]));
+    }
+
+    #[test]
+    fn a_flat_void_in_the_layer_plane_is_lack_of_fusion() {
+        let d = found();
+        let plate = &d.flaws[2];
+        assert_eq!(plate.kind, FlawKind::LackOfFusion);
+        assert!(plate.elongation > 3.0, "{}", plate.elongation);
+        assert!(plate.flat_in_layer > 0.99, "{}", plate.flat_in_layer);
+        assert_eq!((plate.first_layer, plate.last_layer), (Some(22), Some(22)));
     }
 }
