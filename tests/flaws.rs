@@ -611,6 +611,23 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
     let sheet = image::open(out.join("contact_sheet.png")).unwrap();
     assert!(sheet.height() as usize >= sections * 9 && sheet.width() >= 7 * 9);
 
+    // The README's picture: `LAYERWISE_FLAWS_SHEET=docs/flaws_contact_sheet.png cargo test …`
+    // keeps a contact sheet of wider patches.
+    if let Some(picture) = std::env::var_os("LAYERWISE_FLAWS_SHEET") {
+        let wide = dir.path().join("wide");
+        layerwise()
+            .args(["flaws", "--patch-px", "41", "--ct"])
+            .arg(&pcr)
+            .arg("--registration")
+            .arg(&ct_toml)
+            .arg("--build")
+            .arg(&build)
+            .arg("--out")
+            .arg(&wide)
+            .succeeds();
+        std::fs::copy(wide.join("contact_sheet.png"), picture).unwrap();
+    }
+
     // locate --flaw: the flaw's centroid in every modality and its patches as one sheet.
     let mark = dir.path().join("flaw1.png");
     let loc = layerwise()
