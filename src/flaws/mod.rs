@@ -36,13 +36,13 @@ pub use write::{
 #[derive(Debug, thiserror::Error)]
 pub enum FlawsError {
     #[error(transparent)]
-    Ct(#[from] crate::ct::CtError),
+    Ct(Box<crate::ct::CtError>),
     #[error(
         "{path}: not a usable registration (give the ct.toml written by `layerwise register ct`)"
     )]
     Registration {
         path: PathBuf,
-        source: crate::ct::CtError,
+        source: Box<crate::ct::CtError>,
     },
     #[error(transparent)]
     Build(#[from] crate::series::SeriesError),
@@ -84,6 +84,12 @@ pub enum FlawsError {
 }
 
 pub type Result<T, E = FlawsError> = std::result::Result<T, E>;
+
+impl From<crate::ct::CtError> for FlawsError {
+    fn from(e: crate::ct::CtError) -> Self {
+        FlawsError::Ct(Box::new(e))
+    }
+}
 
 pub(crate) fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> FlawsError + '_ {
     move |source| FlawsError::Write {

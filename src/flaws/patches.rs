@@ -348,7 +348,7 @@ pub fn cut_patches(
     options: &PatchOptions,
     out: &Path,
 ) -> Result<PatchSummary> {
-    if options.patch_px == 0 || options.patch_px % 2 == 0 || options.patch_px > 4096 {
+    if options.patch_px == 0 || options.patch_px.is_multiple_of(2) || options.patch_px > 4096 {
         return Err(FlawsError::Invalid(format!(
             "patch size {} px: give an odd number of pixels up to 4095, so the flaw is the centre pixel",
             options.patch_px

@@ -42,7 +42,7 @@ pub fn run(request: &FlawsRequest) -> Result<FlawsReport> {
     let registration = CtRegistration::read_toml(&request.registration).map_err(|source| {
         FlawsError::Registration {
             path: request.registration.clone(),
-            source,
+            source: Box::new(source),
         }
     })?;
     let source = match (&request.ct, &registration.source) {
