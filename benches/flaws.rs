@@ -11,18 +11,7 @@ use layerwise::geometry::Rigid3;
 use layerwise::series::LayerHeights;
 
 fn bench(c: &mut Criterion) {
-    let voxel = std::env::var("CT_BENCH_VOXEL_MM")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(0.05);
-    let part = synth::Part::parameter_cylinder([40.0, -25.0, 0.0], 1.0);
-    let scan = synth::render(
-        &part,
-        &synth::SynthSpec {
-            voxel_mm: voxel,
-            ..Default::default()
-        },
-    );
+    let (_, scan) = synth::bench_case(synth::bench_voxel_mm());
     let truth = Rigid3::from_matrix(scan.ct_to_build).expect("a rotation");
     let heights = LayerHeights::uniform(0.03);
     let params = FlawParams::default();

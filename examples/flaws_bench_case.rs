@@ -16,13 +16,8 @@ fn main() {
     let out = Path::new(args.get(1).map_or("benches/peers/out", String::as_str)).to_path_buf();
     let voxel: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(0.05);
     std::fs::create_dir_all(&out).expect("out dir");
-    let part = synth::Part::parameter_cylinder([40.0, -25.0, 0.0], 1.0);
-    let spec = synth::SynthSpec {
-        voxel_mm: voxel,
-        ..Default::default()
-    };
     let t = Instant::now();
-    let scan = synth::render(&part, &spec);
+    let (_, scan) = synth::bench_case(voxel);
     let [x, y, z] = scan.volume.dims;
     eprintln!("rendered {x} x {y} x {z} in {:.1?}", t.elapsed());
     let VoxelData::U16(data) = &scan.volume.data else {

@@ -237,6 +237,18 @@ fn part(pores: bool) -> (Scene, Vec<([f64; 3], f64)>) {
     )
 }
 
+/// `layerwise flaws --registration REGISTRATION --out OUT`, more arguments to add.
+fn flaws_command(registration: &Path, out: &Path) -> std::process::Command {
+    let mut command = layerwise();
+    command
+        .arg("flaws")
+        .arg("--registration")
+        .arg(registration)
+        .arg("--out")
+        .arg(out);
+    command
+}
+
 fn flaws_json(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("flaws.json")).unwrap()).unwrap()
 }
@@ -349,11 +361,8 @@ fn pores_in_a_raw_ct_are_found_and_measured_and_nothing_else() {
         write_ct_toml(&ct_toml, &scan, Some(source));
         let out = ct_dir.join("out");
         // The CT comes from ct.toml's record of it.
-        let text = layerwise()
-            .args(["flaws", "--layer-thickness-mm", "0.1", "--registration"])
-            .arg(&ct_toml)
-            .arg("--out")
-            .arg(&out)
+        let text = flaws_command(&ct_toml, &out)
+            .args(["--layer-thickness-mm", "0.1"])
             .stdout_ok();
         println!("{text}");
         let table = flaws_json(&out);
@@ -384,13 +393,9 @@ fn pores_in_a_raw_ct_are_found_and_measured_and_nothing_else() {
         assert!(csv.starts_with("id,kind,part,x_mm,y_mm,z_mm"), "{csv}");
         // Deterministic: the same inputs (here given as --ct) give the same table.
         let again = ct_dir.join("again");
-        layerwise()
-            .args(["flaws", "--layer-thickness-mm", "0.1", "--ct"])
+        flaws_command(&ct_toml, &again)
+            .args(["--layer-thickness-mm", "0.1", "--ct"])
             .arg(&pcr)
-            .arg("--registration")
-            .arg(&ct_toml)
-            .arg("--out")
-            .arg(&again)
             .succeeds();
         assert_eq!(
             csv,
@@ -417,20 +422,9 @@ fn pores_in_a_dicom_ct_are_found_and_measured() {
     let ct_toml = dir.path().join("ct.toml");
     write_ct_toml(&ct_toml, &scan, None);
     let out = dir.path().join("out");
-    let text = layerwise()
-        .args([
-            "flaws",
-            "--layer-thickness-mm",
-            "0.1",
-            "--part",
-            "3",
-            "--ct",
-        ])
+    let text = flaws_command(&ct_toml, &out)
+        .args(["--layer-thickness-mm", "0.1", "--part", "3", "--ct"])
         .arg(&series)
-        .arg("--registration")
-        .arg(&ct_toml)
-        .arg("--out")
-        .arg(&out)
         .stdout_ok();
     println!("{text}");
     let table = flaws_json(&out);
@@ -446,12 +440,8 @@ fn pores_in_a_dicom_ct_are_found_and_measured() {
 fn a_wrong_or_missing_registration_is_refused_with_its_name() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("nowhere.toml");
-    let err = layerwise()
-        .args(["flaws", "--registration"])
-        .arg(&missing)
-        .arg("--out")
-        .arg(dir.path().join("out"))
-        .fails();
+    let out = dir.path().join("out");
+    let err = flaws_command(&missing, &out).fails();
     assert!(
         err.contains("nowhere.toml") && err.contains("register ct"),
         "{err}"
@@ -459,12 +449,7 @@ fn a_wrong_or_missing_registration_is_refused_with_its_name() {
     assert_eq!(err.lines().count(), 1, "one line: {err}");
     let wrong = dir.path().join("calibration.toml");
     std::fs::write(&wrong, "homography = [[1.0, 0.0, 0.0]]\n").unwrap();
-    let err = layerwise()
-        .args(["flaws", "--registration"])
-        .arg(&wrong)
-        .arg("--out")
-        .arg(dir.path().join("out"))
-        .fails();
+    let err = flaws_command(&wrong, &out).fails();
     assert!(
         err.contains("calibration.toml")
             && err.contains("register ct")
@@ -476,12 +461,7 @@ fn a_wrong_or_missing_registration_is_refused_with_its_name() {
     let small = scan(&scene, 0.2, rotation([0.0, 0.0, 1.0], 0.0), 0.4, false, 1);
     let bare = dir.path().join("ct.toml");
     write_ct_toml(&bare, &small, None);
-    let err = layerwise()
-        .args(["flaws", "--registration"])
-        .arg(&bare)
-        .arg("--out")
-        .arg(dir.path().join("out"))
-        .fails();
+    let err = flaws_command(&bare, &out).fails();
     assert!(
         err.contains("records no CT") && err.contains("--ct"),
         "{err}"
@@ -512,16 +492,16 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
     let ct_toml = dir.path().join("ct.toml");
     write_ct_toml(&ct_toml, &scan, None);
     let out = dir.path().join("labelled");
-    let text = layerwise()
-        .args(["flaws", "--patch-px", "9", "--ct"])
-        .arg(&pcr)
-        .arg("--registration")
-        .arg(&ct_toml)
-        .arg("--build")
-        .arg(&build)
-        .arg("--out")
-        .arg(&out)
-        .stdout_ok();
+    let cut = |patch_px: &str, out: &Path| {
+        let mut command = flaws_command(&ct_toml, out);
+        command
+            .args(["--patch-px", patch_px, "--ct"])
+            .arg(&pcr)
+            .arg("--build")
+            .arg(&build);
+        command
+    };
+    let text = cut("9", &out).stdout_ok();
     println!("{text}");
     let table = flaws_json(&out);
     check_pores(&table, &pores, 0.1, 0.1);
@@ -615,16 +595,7 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
     // keeps a contact sheet of wider patches.
     if let Some(picture) = std::env::var_os("LAYERWISE_FLAWS_SHEET") {
         let wide = dir.path().join("wide");
-        layerwise()
-            .args(["flaws", "--patch-px", "41", "--ct"])
-            .arg(&pcr)
-            .arg("--registration")
-            .arg(&ct_toml)
-            .arg("--build")
-            .arg(&build)
-            .arg("--out")
-            .arg(&wide)
-            .succeeds();
+        cut("41", &wide).succeeds();
         std::fs::copy(wide.join("contact_sheet.png"), picture).unwrap();
     }
 

@@ -1,7 +1,7 @@
 //! `layerwise flaws`: the internal flaws of a registered CT, and with a build the labelled
 //! patches of every view of the layers they sit in.
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use clap::Args;
 use layerwise::flaws::{FlawParams, FlawsRequest, PatchOptions};
 use std::path::PathBuf;
@@ -40,31 +40,16 @@ pub struct FlawsArgs {
     /// Patch side in pixels of the build's rectified grid (odd: the flaw is the centre pixel).
     #[arg(long, default_value_t = 65)]
     patch_px: usize,
-    /// Voxel size in mm (raw volumes and TIFF stacks).
-    #[arg(long)]
-    voxel_mm: Option<f64>,
-    /// Raw volumes: X,Y,Z voxels.
-    #[arg(long)]
-    size: Option<String>,
-    /// Raw volumes: u8, u16 or f32.
-    #[arg(long)]
-    dtype: Option<String>,
+    #[command(flatten)]
+    layout: super::register::RawLayoutArgs,
 }
 
 impl FlawsArgs {
     pub fn run(self) -> Result<()> {
-        if self.size.is_some() != self.dtype.is_some() {
-            bail!("--size and --dtype go together (a raw volume)");
-        }
-        let ct = self.ct.map(|path| layerwise::ct::CtSource {
-            path: std::fs::canonicalize(&path)
-                .unwrap_or(path)
-                .display()
-                .to_string(),
-            voxel_mm: self.voxel_mm,
-            size: self.size,
-            dtype: self.dtype,
-        });
+        let ct = match &self.ct {
+            Some(path) => Some(self.layout.source(path)?),
+            None => None,
+        };
         let mut params = FlawParams {
             min_volume_voxels: self.min_volume_voxels,
             clearance_voxels: self.clearance_voxels,

@@ -85,6 +85,15 @@ pub enum FlawsError {
 
 pub type Result<T, E = FlawsError> = std::result::Result<T, E>;
 
+impl From<crate::fsutil::WriteError> for FlawsError {
+    fn from(e: crate::fsutil::WriteError) -> Self {
+        FlawsError::Write {
+            path: e.path,
+            source: e.source,
+        }
+    }
+}
+
 impl From<crate::ct::CtError> for FlawsError {
     fn from(e: crate::ct::CtError) -> Self {
         FlawsError::Ct(Box::new(e))

@@ -320,24 +320,21 @@ fn annotations_in(grid: &Grid, layer: u32, flaws: &[Flaw]) -> Vec<(u32, u32, [f6
         .collect()
 }
 
-fn png16(path: &Path, img: &Gray16Image) -> Result<()> {
+/// Writes a PNG atomically, its folder created.
+fn save_png(path: &Path, img: image::DynamicImage) -> Result<()> {
     let mut bytes = Vec::new();
-    image::DynamicImage::ImageLuma16(img.clone())
-        .write_to(
-            &mut std::io::Cursor::new(&mut bytes),
-            image::ImageFormat::Png,
-        )
-        .map_err(|source| FlawsError::Image {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(|source| FlawsError::Image {
+        path: path.to_path_buf(),
+        source,
+    })?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(write_err(dir))?;
     }
-    crate::fsutil::write_atomic(path, &bytes, false).map_err(|e| FlawsError::Write {
-        path: e.path,
-        source: e.source,
-    })
+    Ok(crate::fsutil::write_atomic(path, &bytes, false)?)
 }
 
 /// Cuts, writes and labels the patches of every flaw of `table` in `out`.
@@ -374,7 +371,10 @@ pub fn cut_patches(
             };
             let view = views[v];
             let file_name = format!("{}.png", job.stem(view));
-            png16(&out.join(&file_name), img)?;
+            save_png(
+                &out.join(&file_name),
+                image::DynamicImage::ImageLuma16(img.clone()),
+            )?;
             match job.kind {
                 JobKind::Flaw => summary.flaw_patches += 1,
                 JobKind::Control => summary.control_patches += 1,
@@ -452,12 +452,7 @@ pub fn cut_patches(
         (LABELS_CSV, csv),
     ] {
         let path = out.join(name);
-        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(|e| {
-            FlawsError::Write {
-                path: e.path,
-                source: e.source,
-            }
-        })?;
+        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(FlawsError::from)?;
     }
     let flaw_jobs: Vec<(usize, &Job)> = jobs
         .iter()
@@ -468,26 +463,10 @@ pub fn cut_patches(
     if !flaw_jobs.is_empty() {
         let sheet = draw_sheet(record, &flaw_jobs, &patches, &table.flaws, ct);
         let path = out.join(CONTACT_SHEET);
-        save_rgb(&path, &sheet)?;
+        save_png(&path, image::DynamicImage::ImageRgb8(sheet))?;
         summary.sheet = Some(path);
     }
     Ok(summary)
-}
-
-fn save_rgb(path: &Path, img: &RgbImage) -> Result<()> {
-    let mut bytes = Vec::new();
-    img.write_to(
-        &mut std::io::Cursor::new(&mut bytes),
-        image::ImageFormat::Png,
-    )
-    .map_err(|source| FlawsError::Image {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    crate::fsutil::write_atomic(path, &bytes, false).map_err(|e| FlawsError::Write {
-        path: e.path,
-        source: e.source,
-    })
 }
 
 /// The contact sheet of one flaw (`locate --flaw`): its patches in every view of every layer it
@@ -514,7 +493,7 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
     let patches = cut(record, &jobs)?;
     let rows: Vec<(usize, &Job)> = jobs.iter().enumerate().collect();
     let sheet = draw_sheet(record, &rows, &patches, std::slice::from_ref(flaw), None);
-    save_rgb(out, &sheet)
+    save_png(out, image::DynamicImage::ImageRgb8(sheet))
 }
 
 /// Rows of tiles: the CT section (when the CT is at hand), then every view, each with the flaw's

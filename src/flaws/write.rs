@@ -58,12 +58,7 @@ pub fn write_table(dir: &Path, table: &FlawTable) -> Result<()> {
     })?;
     for (name, text) in [(FLAWS_CSV, table_csv(table)), (FLAWS_JSON, json)] {
         let path = dir.join(name);
-        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(|e| {
-            FlawsError::Write {
-                path: e.path,
-                source: e.source,
-            }
-        })?;
+        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(FlawsError::from)?;
     }
     Ok(())
 }
@@ -170,9 +165,6 @@ pub fn write_nrrd(path: &Path, table: &FlawTable, labels: &CtLabels) -> Result<O
     gz.write_all(&data)
         .and_then(|_| gz.finish().map(|_| ()))
         .map_err(write_err(path))?;
-    crate::fsutil::write_atomic(path, &out, false).map_err(|e| FlawsError::Write {
-        path: e.path,
-        source: e.source,
-    })?;
+    crate::fsutil::write_atomic(path, &out, false).map_err(FlawsError::from)?;
     Ok(Some(dims))
 }
