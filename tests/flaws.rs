@@ -16,30 +16,50 @@ use std::path::{Path, PathBuf};
 const VOID: f64 = 1000.0;
 const MATERIAL: f64 = 20000.0;
 
-/// A box part in build mm with spherical voids (pores, or pits cut into its faces).
+/// A part in build mm: a union of boxes (lo, hi) minus spherical voids (pores, or pits cut into
+/// its faces).
 struct Scene {
-    lo: [f64; 3],
-    hi: [f64; 3],
+    boxes: Vec<([f64; 3], [f64; 3])>,
     voids: Vec<([f64; 3], f64)>,
 }
 
 impl Scene {
     fn sdf(&self, q: [f64; 3]) -> f64 {
-        let mut out = 0.0f64;
-        let mut inside = f64::NEG_INFINITY;
-        for a in 0..3 {
-            let c = 0.5 * (self.lo[a] + self.hi[a]);
-            let d = (q[a] - c).abs() - 0.5 * (self.hi[a] - self.lo[a]);
-            out += d.max(0.0).powi(2);
-            inside = inside.max(d);
+        let mut d = f64::INFINITY;
+        for (lo, hi) in &self.boxes {
+            let mut out = 0.0f64;
+            let mut inside = f64::NEG_INFINITY;
+            for a in 0..3 {
+                let c = 0.5 * (lo[a] + hi[a]);
+                let e = (q[a] - c).abs() - 0.5 * (hi[a] - lo[a]);
+                out += e.max(0.0).powi(2);
+                inside = inside.max(e);
+            }
+            d = d.min(out.sqrt() + inside.min(0.0));
         }
-        let mut d = out.sqrt() + inside.min(0.0);
         for (c, r) in &self.voids {
             let dist =
                 ((q[0] - c[0]).powi(2) + (q[1] - c[1]).powi(2) + (q[2] - c[2]).powi(2)).sqrt();
             d = d.max(r - dist);
         }
         d
+    }
+
+    /// The boxes' bounds.
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let lo = std::array::from_fn(|a| {
+            self.boxes
+                .iter()
+                .map(|b| b.0[a])
+                .fold(f64::INFINITY, f64::min)
+        });
+        let hi = std::array::from_fn(|a| {
+            self.boxes
+                .iter()
+                .map(|b| b.1[a])
+                .fold(f64::NEG_INFINITY, f64::max)
+        });
+        (lo, hi)
     }
 }
 
@@ -77,8 +97,9 @@ fn scan(
     dicom: bool,
     seed: u64,
 ) -> Scan {
-    let center: [f64; 3] = std::array::from_fn(|a| 0.5 * (scene.lo[a] + scene.hi[a]));
-    let half: [f64; 3] = std::array::from_fn(|a| 0.5 * (scene.hi[a] - scene.lo[a]));
+    let (lo, hi) = scene.bounds();
+    let center: [f64; 3] = std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]));
+    let half: [f64; 3] = std::array::from_fn(|a| 0.5 * (hi[a] - lo[a]));
     // Half extent of the rotated box along each CT axis: Σ |Rᵀ| · half.
     let dims: [usize; 3] = std::array::from_fn(|j| {
         let e: f64 = (0..3).map(|i| rot[i][j].abs() * half[i]).sum();
@@ -229,8 +250,7 @@ fn part(pores: bool) -> (Scene, Vec<([f64; 3], f64)>) {
     voids.push(([12.0, 23.0, 1.0], 0.2));
     (
         Scene {
-            lo: [10.0, 20.0, 0.0],
-            hi: [14.0, 23.0, 2.0],
+            boxes: vec![([10.0, 20.0, 0.0], [14.0, 23.0, 2.0])],
             voids,
         },
         truth,
@@ -483,8 +503,7 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
 
     let pores = vec![([45.3, 48.1, 0.75], 0.3), ([54.6, 52.4, 1.35], 0.2)];
     let scene = Scene {
-        lo: [40.0, 44.0, 0.0],
-        hi: [60.0, 56.0, 2.0],
+        boxes: vec![([40.0, 44.0, 0.0], [60.0, 56.0, 2.0])],
         voids: pores.clone(),
     };
     let scan = scan(&scene, 0.1, rotation([0.1, 0.2, 1.0], 8.0), 0.4, false, 9);
@@ -638,4 +657,73 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
         err.contains("no flaw 99") && err.contains("ids 1 to 2"),
         "{err}"
     );
+}
+
+/// The block of the first tests as laser vectors: 20 layers of 0.1 mm, one rectangle of part 1.
+fn block_vectors(path: &Path) {
+    use layerwise::vectors::{Direction, Format, Header, Layer, Polyline, VectorFile};
+    let mut file = VectorFile {
+        header: Header::new(Format::Ascii, 0.001),
+        layers: Vec::new(),
+    };
+    for k in 0..20 {
+        let mut layer = Layer::new(k, 0.1 * (k + 1) as f64);
+        layer.polylines.push(Polyline {
+            part: 1,
+            direction: Direction::CounterClockwise,
+            points: vec![
+                [10.0, 20.0],
+                [14.0, 20.0],
+                [14.0, 23.0],
+                [10.0, 23.0],
+                [10.0, 20.0],
+            ],
+        });
+        file.layers.push(layer);
+    }
+    let mut out = std::fs::File::create(path).unwrap();
+    layerwise::vectors::write_ascii(&file, &mut out).unwrap();
+}
+
+/// A CT that kept a slab of the plate under the part, with a void in it: an internal void of the
+/// CT, but not a flaw of the part; the vectors' signed distance leaves it out.
+#[test]
+fn a_void_in_the_plate_slab_is_no_flaw_of_the_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut scene, truth) = part(true);
+    scene.boxes.push(([9.5, 19.5, -0.6], [14.5, 23.5, 0.0]));
+    scene.voids.push(([12.0, 21.5, -0.3], 0.12));
+    let scan = scan(
+        &scene,
+        0.05,
+        rotation([1.0, -1.0, 2.0], 10.0),
+        0.3,
+        false,
+        11,
+    );
+    let pcr = write_phoenix(dir.path(), &scan);
+    let ct_toml = dir.path().join("ct.toml");
+    write_ct_toml(&ct_toml, &scan, None);
+    let out = dir.path().join("all");
+    flaws_command(&ct_toml, &out)
+        .arg("--ct")
+        .arg(&pcr)
+        .succeeds();
+    assert_eq!(
+        flaws_json(&out)["flaws"].as_array().unwrap().len(),
+        truth.len() + 1,
+        "without the vectors the slab's void is a void of the CT"
+    );
+    let cli = dir.path().join("block.cli");
+    block_vectors(&cli);
+    let out = dir.path().join("part");
+    let text = flaws_command(&ct_toml, &out)
+        .args(["--layer-thickness-mm", "0.1", "--part", "1", "--ct"])
+        .arg(&pcr)
+        .arg("--vectors")
+        .arg(&cli)
+        .stdout_ok();
+    let table = flaws_json(&out);
+    assert_eq!(table["rejected_outside_part"], 1, "{text}");
+    check_pores(&table, &truth, 0.05, 0.1);
 }

@@ -25,6 +25,10 @@ pub struct FlawsArgs {
     /// The build: its layers, and patches of its views at every flaw.
     #[arg(long)]
     build: Option<PathBuf>,
+    /// The laser vectors (default: the build's, if its configuration names them): flaws whose
+    /// centroid is outside the nominal part (of --part) are left out (plate slab, supports).
+    #[arg(long)]
+    vectors: Option<PathBuf>,
     /// Components with fewer voxels below the threshold are noise.
     #[arg(long, default_value_t = 8)]
     min_volume_voxels: usize,
@@ -65,6 +69,7 @@ impl FlawsArgs {
             part: self.part,
             out: self.out,
             build: self.build,
+            vectors: self.vectors,
             layer_thickness_mm: self.layer_thickness_mm,
             params,
             patches: PatchOptions {

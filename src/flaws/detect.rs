@@ -103,6 +103,24 @@ pub struct Detection {
     pub labels: CtLabels,
 }
 
+impl Detection {
+    /// Keeps the flaws for which `keep` holds, renumbered in their order; returns how many went.
+    pub fn retain(&mut self, keep: impl Fn(&Flaw) -> bool) -> usize {
+        let mut new_id = vec![0u32; self.flaws.len() + 1];
+        let before = self.flaws.len();
+        self.flaws.retain(|f| keep(f));
+        for (i, f) in self.flaws.iter_mut().enumerate() {
+            new_id[f.id as usize] = i as u32 + 1;
+            f.id = i as u32 + 1;
+        }
+        self.labels.labels.retain_mut(|(_, id)| {
+            *id = new_id[*id as usize];
+            *id != 0
+        });
+        before - self.flaws.len()
+    }
+}
+
 /// Finds and measures the internal flaws of a registered CT.
 pub fn detect(
     volume: &Volume,
@@ -619,6 +637,17 @@ mod tests {
         assert!(pore.sections.iter().all(|s| s.voxels == 9));
         assert_eq!(d.labels.label([1.9, 1.9, 1.9]), Some(2));
         assert!(d.labels.inside([1.0, 2.5, 1.0]) && !d.labels.inside([0.1, 0.1, 0.1]));
+    }
+
+    #[test]
+    fn flaws_left_out_are_renumbered_with_their_labels() {
+        let mut d = found();
+        assert_eq!(d.retain(|f| f.voxels != 27), 1);
+        let ids: Vec<(u32, usize)> = d.flaws.iter().map(|f| (f.id, f.voxels)).collect();
+        assert_eq!(ids, [(1, 16), (2, 49)]);
+        assert_eq!(d.labels.label([1.9, 1.9, 1.9]), None);
+        assert_eq!(d.labels.label([1.0, 1.0, 2.2]), Some(2));
+        assert_eq!(d.labels.labels.len(), 16 + 49);
     }
 
     #[test]

@@ -79,6 +79,11 @@ pub enum FlawsError {
         path: PathBuf,
         count: usize,
     },
+    #[error("{path}: cannot use these vectors as the nominal part")]
+    Nominal {
+        path: PathBuf,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     #[error("{0}")]
     Invalid(String),
 }
@@ -209,5 +214,9 @@ pub struct FlawTable {
     /// partial-volume voxels at the surface).
     pub rejected_small: usize,
     pub rejected_surface: usize,
+    /// Components whose centroid is outside the nominal part (the vectors' signed distance ≥ 0:
+    /// the plate slab, supports), when the vectors were given.
+    #[serde(default)]
+    pub rejected_outside_part: usize,
     pub flaws: Vec<Flaw>,
 }

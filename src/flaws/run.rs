@@ -21,6 +21,9 @@ pub struct FlawsRequest {
     pub part: Option<i64>,
     pub out: PathBuf,
     pub build: Option<PathBuf>,
+    /// The laser vectors (default: the build's): flaws outside the nominal part (the signed
+    /// distance of `part`'s vectors, or all of them) are left out.
+    pub vectors: Option<PathBuf>,
     /// Layer thickness when there is no build to give the layers.
     pub layer_thickness_mm: f64,
     pub params: FlawParams,
@@ -64,13 +67,34 @@ pub fn run(request: &FlawsRequest) -> Result<FlawsReport> {
         || LayerHeights::uniform(request.layer_thickness_mm),
         |r| r.heights.clone(),
     );
-    let found = detect(
+    let mut found = detect(
         &volume,
         &registration.build_from_ct,
         &heights,
         request.part,
         &request.params,
     )?;
+    let vectors = request
+        .vectors
+        .clone()
+        .or_else(|| record.as_ref().and_then(|r| r.config.build.vectors.clone()));
+    let rejected_outside_part = match &vectors {
+        Some(path) => {
+            let nominal = |e: Box<dyn std::error::Error + Send + Sync>| FlawsError::Nominal {
+                path: path.clone(),
+                source: e,
+            };
+            let file = crate::vectors::read(path).map_err(|e| nominal(e.into()))?;
+            let params = crate::tsdf::TsdfParams {
+                voxel_mm: volume.voxel_mm[0].clamp(0.02, 0.1),
+                part: request.part,
+                ..Default::default()
+            };
+            let field = crate::tsdf::build(&file, &params).map_err(|e| nominal(e.into()))?;
+            found.retain(|f| field.sample(f.centroid_mm).is_some_and(|d| d < 0.0))
+        }
+        None => 0,
+    };
     let table = FlawTable {
         ct: source.path.clone(),
         registration: display(&request.registration),
@@ -82,6 +106,7 @@ pub fn run(request: &FlawsRequest) -> Result<FlawsReport> {
         clearance_voxels: request.params.clearance_voxels,
         rejected_small: found.rejected_small,
         rejected_surface: found.rejected_surface,
+        rejected_outside_part,
         flaws: found.flaws,
     };
     write_table(&request.out, &table)?;
@@ -128,14 +153,15 @@ impl std::fmt::Display for FlawsReport {
         let t = &self.table;
         writeln!(
             f,
-            "{} flaws in {} (threshold {:.1}; void {:.1}, material {:.1}; {} components too small, {} at the part surface)",
+            "{} flaws in {} (threshold {:.1}; void {:.1}, material {:.1}; {} components too small, {} at the part surface, {} outside the nominal part)",
             t.flaws.len(),
             t.ct,
             t.threshold,
             t.void_level,
             t.material_level,
             t.rejected_small,
-            t.rejected_surface
+            t.rejected_surface,
+            t.rejected_outside_part
         )?;
         for flaw in &t.flaws {
             let [x, y, z] = flaw.centroid_mm;
