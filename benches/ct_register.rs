@@ -6,18 +6,8 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use layerwise::ct::{self, synth, CtParams, InitialTransform, Threshold};
 
 fn bench(c: &mut Criterion) {
-    let voxel = std::env::var("CT_BENCH_VOXEL_MM")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(0.05);
-    let part = synth::Part::parameter_cylinder([40.0, -25.0, 0.0], 1.0);
-    let scan = synth::render(
-        &part,
-        &synth::SynthSpec {
-            voxel_mm: voxel,
-            ..Default::default()
-        },
-    );
+    let voxel = synth::bench_voxel_mm();
+    let (part, scan) = synth::bench_case(voxel);
     let (lo, hi) = part.bounds();
     let field = synth::GridField::from_sdf(|p| part.sdf(p), lo, hi, f64::min(voxel, 0.1), 1.0);
     let nominal = synth::nominal_shape(&part, 0.1);

@@ -42,13 +42,8 @@ fn main() {
     let voxel: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(0.05);
     std::fs::create_dir_all(&out).expect("out dir");
 
-    let part = synth::Part::parameter_cylinder([40.0, -25.0, 0.0], 1.0);
-    let spec = synth::SynthSpec {
-        voxel_mm: voxel,
-        ..Default::default()
-    };
     let t = Instant::now();
-    let scan = synth::render(&part, &spec);
+    let (part, scan) = synth::bench_case(voxel);
     eprintln!("rendered {:?} in {:.1?}", scan.volume.dims, t.elapsed());
     let VoxelData::U16(data) = &scan.volume.data else {
         unreachable!("synthetic CTs are u16")

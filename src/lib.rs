@@ -23,6 +23,7 @@ pub mod config;
 pub mod ct;
 pub mod dicom;
 pub mod export;
+pub mod flaws;
 pub mod fsutil;
 pub mod geometry;
 pub mod hardware;

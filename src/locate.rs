@@ -97,7 +97,7 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
             let dicom = shot
                 .map(|s| series_dir(&record.dir, view).join(format!("L{:05}.dcm", s.layer)))
                 .filter(|p| p.exists());
-            let original = shot.and_then(|s| find_original(&record.dir, &s));
+            let original = shot.and_then(|s| crate::build_dir::original_path(&record.dir, &s));
             ViewLocation {
                 view: view.to_string(),
                 rectified_pixel: on_grid.then_some([row, col]),
@@ -137,13 +137,6 @@ fn last_layer(record: &BuildRecord) -> Option<u32> {
                 .max()
         });
     recorded.or(record.config.build.layers)
-}
-
-fn find_original(dir: &Path, shot: &Shot) -> Option<PathBuf> {
-    ["jpg", "jpeg", "nef", "png", "tif"]
-        .iter()
-        .map(|ext| dir.join(format!("raw/{}.{ext}", shot.stem())))
-        .find(|p| p.exists())
 }
 
 impl std::fmt::Display for Location {

@@ -34,6 +34,14 @@ pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
     build_dir.join(DICOM_DIR).join(view.to_string())
 }
 
+/// The stored original of a shot (first take), whatever its extension, if it is on disk.
+pub fn original_path(build_dir: &Path, shot: &crate::shot::Shot) -> Option<PathBuf> {
+    ["jpg", "jpeg", "nef", "png", "tif"]
+        .iter()
+        .map(|ext| build_dir.join(format!("{RAW_DIR}/{}.{ext}", shot.stem())))
+        .find(|p| p.exists())
+}
+
 /// What the sidecar next to each original says.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Sidecar {

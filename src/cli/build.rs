@@ -55,7 +55,7 @@ pub struct LocateArgs {
         long,
         value_delimiter = ',',
         allow_hyphen_values = true,
-        required_unless_present = "ct_point"
+        required_unless_present_any = ["ct_point", "flaw"]
     )]
     point: Vec<f64>,
     /// x,y,z in CT mm (needs --ct).
@@ -73,9 +73,19 @@ pub struct LocateArgs {
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
-    /// Draw the point in each view, side by side (PNG).
+    /// Draw the point in each view, side by side (PNG); with --flaw, the flaw's patches of
+    /// every view of every layer it spans.
     #[arg(long)]
     mark: Option<PathBuf>,
+    /// A flaw of `layerwise flaws` (its id in flaws.csv): locate its centroid.
+    #[arg(long, requires = "flaws", conflicts_with_all = ["point", "ct_point"])]
+    flaw: Option<u32>,
+    /// The output folder (or flaws.json) of `layerwise flaws`, with --flaw.
+    #[arg(long)]
+    flaws: Option<PathBuf>,
+    /// Patch side in pixels for --flaw --mark (odd).
+    #[arg(long, default_value_t = 65)]
+    patch_px: usize,
 }
 
 impl LocateArgs {
@@ -85,8 +95,13 @@ impl LocateArgs {
                 .map_err(|_| anyhow!("{flag} takes x,y,z in mm"))
         };
         let frame = self.ct.as_deref().map(CtFrame::open).transpose()?;
-        let point = match &frame {
-            Some(frame) if !self.ct_point.is_empty() => {
+        let flaw = match (self.flaw, &self.flaws) {
+            (Some(id), Some(dir)) => Some(layerwise::flaws::find_flaw(dir, id)?),
+            _ => None,
+        };
+        let point = match (&frame, &flaw) {
+            (_, Some(flaw)) => flaw.centroid_mm,
+            (Some(frame), None) if !self.ct_point.is_empty() => {
                 frame.to_build(three(self.ct_point, "--ct-point")?)
             }
             _ => three(self.point, "--point")?,
@@ -97,8 +112,12 @@ impl LocateArgs {
         if let (None, None, Some(why)) = (location.layer, &location.ct, &location.outside) {
             bail!("{why}: nothing to locate; give a point in the build (or a CT point with --ct)");
         }
-        if let Some(out) = &self.mark {
-            layerwise::locate::mark(&record, &location, out)?;
+        match (&self.mark, &flaw) {
+            (Some(out), Some(flaw)) => {
+                layerwise::flaws::flaw_sheet(&record, flaw, self.patch_px, out)?
+            }
+            (Some(out), None) => layerwise::locate::mark(&record, &location, out)?,
+            _ => {}
         }
         if self.json {
             println!("{}", serde_json::to_string_pretty(&location)?);

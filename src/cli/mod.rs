@@ -5,6 +5,7 @@
 mod build;
 mod daemon;
 mod files;
+mod flaws;
 mod numbering;
 mod register;
 // The push to archives (PACS).
@@ -51,6 +52,9 @@ pub enum Command {
     Export(build::ExportArgs),
     /// Where a build point is: its layer, its pixel in each rectified view and in each original frame.
     Locate(build::LocateArgs),
+    /// Internal flaws of a registered CT (pores, lack of fusion) in the build frame and its
+    /// layers; with --build, labelled patches of every view of those layers.
+    Flaws(flaws::FlawsArgs),
     /// DICOM series of a build.
     Dicom {
         #[command(subcommand)]
@@ -79,6 +83,7 @@ impl Command {
             Command::Optics(args) => args.run(),
             Command::Export(args) => args.run(),
             Command::Locate(args) => args.run(),
+            Command::Flaws(args) => args.run(),
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
             Command::Demo(args) => args.run(),

@@ -1,6 +1,6 @@
 //! `register images` (camera → build plate, paper §3.1) and `register ct` (CT → build, §3.2).
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use clap::{Args, Subcommand, ValueEnum};
 use layerwise::calibrate::{
     register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
@@ -53,15 +53,8 @@ pub struct CtArgs {
     /// The build whose study the resampled series joins.
     #[arg(long)]
     build: Option<PathBuf>,
-    /// Voxel size in mm (raw volumes and TIFF stacks).
-    #[arg(long)]
-    voxel_mm: Option<f64>,
-    /// Raw volumes: X,Y,Z voxels.
-    #[arg(long)]
-    size: Option<String>,
-    /// Raw volumes: u8, u16 or f32.
-    #[arg(long)]
-    dtype: Option<String>,
+    #[command(flatten)]
+    layout: RawLayoutArgs,
     /// A fixed threshold (physical units); default Otsu.
     #[arg(long)]
     threshold: Option<f64>,
@@ -76,23 +69,47 @@ pub struct CtArgs {
     numbering: super::numbering::NumberingArgs,
 }
 
+/// How to read a CT file that does not say it itself (raw volumes, TIFF stacks).
+#[derive(Args)]
+pub struct RawLayoutArgs {
+    /// Voxel size in mm (raw volumes and TIFF stacks).
+    #[arg(long)]
+    voxel_mm: Option<f64>,
+    /// Raw volumes: X,Y,Z voxels.
+    #[arg(long)]
+    size: Option<String>,
+    /// Raw volumes: u8, u16 or f32.
+    #[arg(long)]
+    dtype: Option<String>,
+}
+
+impl RawLayoutArgs {
+    /// The CT at `path` with this layout, as ct.toml records it (the path made absolute).
+    pub fn source(self, path: &std::path::Path) -> Result<layerwise::ct::CtSource> {
+        match (&self.size, &self.dtype, self.voxel_mm) {
+            (Some(_), Some(_), None) => bail!("a raw volume needs --voxel-mm"),
+            (Some(_), None, _) | (None, Some(_), _) => {
+                bail!("--size and --dtype go together (a raw volume)")
+            }
+            _ => {}
+        }
+        Ok(layerwise::ct::CtSource {
+            path: std::fs::canonicalize(path)
+                .unwrap_or(path.to_path_buf())
+                .display()
+                .to_string(),
+            voxel_mm: self.voxel_mm,
+            size: self.size,
+            dtype: self.dtype,
+        })
+    }
+}
+
 impl CtArgs {
     fn run(self) -> Result<()> {
         use layerwise::ct;
-        let source = match (&self.size, &self.dtype) {
-            (Some(size), Some(dtype)) => {
-                let voxel = self
-                    .voxel_mm
-                    .ok_or_else(|| anyhow!("a raw volume needs --voxel-mm"))?;
-                ct::volume::VolumeSource::Raw(
-                    self.ct.clone(),
-                    ct::volume::RawSpec::from_args(size, voxel, dtype)?,
-                )
-            }
-            (None, None) => ct::volume::VolumeSource::detect(&self.ct, self.voxel_mm)?,
-            _ => bail!("--size and --dtype go together (a raw volume)"),
-        };
-        let volume = ct::volume::read_volume(&source)?;
+        let recorded = self.layout.source(&self.ct)?;
+        let volume = recorded.read()?;
         let mut params = ct::CtParams::default();
         if let Some(v) = self.threshold {
             params.threshold = ct::surface::Threshold::Value(v);
@@ -101,15 +118,6 @@ impl CtArgs {
         let init = match &self.init {
             Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(points)?),
             None => ct::InitialTransform::Centroid,
-        };
-        let recorded = ct::CtSource {
-            path: std::fs::canonicalize(&self.ct)
-                .unwrap_or(self.ct.clone())
-                .display()
-                .to_string(),
-            voxel_mm: self.voxel_mm,
-            size: self.size,
-            dtype: self.dtype,
         };
         let out = self.out.clone();
         let numbering = match &self.build {

@@ -71,6 +71,26 @@ pub struct PointCounts {
 }
 
 impl CtRegistration {
+    /// A transform known from elsewhere (a fixture's truth, another tool's registration): no
+    /// iterations, no error figures.
+    pub fn given(build_from_ct: Rigid3, threshold: f64) -> Self {
+        Self {
+            build_from_ct,
+            iterations: 0,
+            termination: Termination::SmallStep,
+            threshold,
+            points_used: 0,
+            points_total: 0,
+            points_excluded_plate: 0,
+            points_outside: 0,
+            mean_abs_um: 0.0,
+            median_abs_um: 0.0,
+            p95_abs_um: 0.0,
+            max_abs_um: 0.0,
+            rms_um: 0.0,
+        }
+    }
+
     pub fn to_toml_string(&self) -> String {
         self.to_toml_string_with(None)
     }

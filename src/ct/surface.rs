@@ -85,11 +85,18 @@ pub fn otsu(volume: &Volume) -> Result<f64> {
 
 /// Halfway between the medians of Otsu's two classes, in physical units.
 pub fn iso50(volume: &Volume) -> Result<f64> {
+    let (lo, hi) = class_levels(volume)?;
+    Ok(0.5 * (lo + hi))
+}
+
+/// The medians of Otsu's two classes (background or void, material), in physical units: the
+/// two density levels of the CT, for partial-volume fractions.
+pub fn class_levels(volume: &Volume) -> Result<(f64, f64)> {
     let h = Histogram::of(volume)?;
     let k = h.otsu_bin();
     let lo = h.median_bin(0, k + 1);
     let hi = h.median_bin(k + 1, h.counts.len());
-    Ok(0.5 * (h.value_at_center(lo) + h.value_at_center(hi)))
+    Ok((h.value_at_center(lo), h.value_at_center(hi)))
 }
 
 struct Histogram {

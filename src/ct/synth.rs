@@ -341,6 +341,26 @@ pub fn render(part: &Part, spec: &SynthSpec) -> SynthCt {
     }
 }
 
+/// The benchmarks' case: the parameter cylinder at (40, −25, 0) mm scanned with the default
+/// spec at `voxel_mm` (50 µm: 660 x 646 x 395 voxels).
+pub fn bench_case(voxel_mm: f64) -> (Part, SynthCt) {
+    let part = Part::parameter_cylinder([40.0, -25.0, 0.0], 1.0);
+    let spec = SynthSpec {
+        voxel_mm,
+        ..Default::default()
+    };
+    let scan = render(&part, &spec);
+    (part, scan)
+}
+
+/// The benchmarks' voxel size: `CT_BENCH_VOXEL_MM`, else 50 µm.
+pub fn bench_voxel_mm() -> f64 {
+    std::env::var("CT_BENCH_VOXEL_MM")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0.05)
+}
+
 fn coverage(
     part: &AsBuilt,
     to_build: &impl Fn(f64, f64, f64) -> [f64; 3],
