@@ -36,3 +36,4 @@ pub mod shot;
 pub mod sim;
 pub mod tsdf;
 pub mod vectors;
+pub mod web;

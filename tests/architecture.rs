@@ -14,7 +14,7 @@ const LAYERS: &[&[&str]] = &[
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
     &["export", "locate", "hardware"],
-    &["acquisition"],
+    &["acquisition", "web"],
     &["sim"],
 ];
 

@@ -6,6 +6,7 @@ mod build;
 mod daemon;
 mod files;
 mod register;
+mod serve;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -58,6 +59,8 @@ pub enum Command {
         #[command(subcommand)]
         command: register::RegisterCommand,
     },
+    /// Serve the operator page of a build directory (read-only), e.g. a finished build.
+    Serve(serve::ServeArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
 }
@@ -76,6 +79,7 @@ impl Command {
             Command::Locate(args) => args.run(),
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
+            Command::Serve(args) => args.run(),
             Command::Demo(args) => args.run(),
         }
     }

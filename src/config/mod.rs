@@ -7,6 +7,9 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+pub mod web;
+pub use web::WebConfig;
+
 /// A configuration that could not be used.
 pub type ConfigError = crate::fsutil::TomlFileError;
 
@@ -29,6 +32,9 @@ pub struct Config {
     pub calibration: CalibrationConfig,
     #[serde(default)]
     pub storage: StorageConfig,
+    /// The operator page (src/web).
+    #[serde(default)]
+    pub web: WebConfig,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -700,6 +706,9 @@ impl Config {
                 format!("must be 1 to {MAX_QUEUE} (frames wait on disk when the queue is full)"),
             ));
         }
+        self.web
+            .validate()
+            .map_err(|(key, message)| invalid(key, message))?;
         Ok(())
     }
 
