@@ -211,6 +211,7 @@ async fn layers(
     Json(json!({
         "views": views,
         "newest": timeline.newest_with_frames(),
+        "complete": timeline.newest_complete(views.len()),
         "layers_expected": expected,
         "rectified": info.as_ref().is_some_and(|i| i.rectification.is_some()),
         "vectors": info.as_ref().is_some_and(|i| i.vectors_file.is_some()),

@@ -195,6 +195,22 @@ impl Timeline {
         }
     }
 
+    /// The newest layer whose `views` frames are all stored or given up on: what an operator
+    /// looks at while the next layer is being captured.
+    pub fn newest_complete(&self, views: usize) -> Option<u32> {
+        self.layers
+            .values()
+            .rev()
+            .find(|l| {
+                l.views
+                    .values()
+                    .filter(|v| v.file.is_some() || v.state == "missing")
+                    .count()
+                    >= views.max(1)
+            })
+            .map(|l| l.layer)
+    }
+
     /// The newest layer with a stored frame.
     pub fn newest_with_frames(&self) -> Option<u32> {
         self.layers
@@ -241,6 +257,8 @@ mod tests {
         assert!(timeline.refresh().unwrap());
         assert_eq!(timeline.layers[&3].summary().stored, 1);
         assert_eq!(timeline.newest_with_frames(), Some(3));
+        assert_eq!(timeline.newest_complete(1), Some(3));
+        assert_eq!(timeline.newest_complete(6), None);
         let text = line(&processed);
         let (head, tail) = text.split_at(10);
         let mut file = std::fs::OpenOptions::new()

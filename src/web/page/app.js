@@ -49,7 +49,9 @@ function showStatus(s) {
 
 async function loadLayers() {
   const j = await getJson("/api/layers");
-  state.views = j.views; state.layers = j.layers; state.newest = j.newest;
+  // Following the build shows the newest layer with all its views; the one being captured is
+  // a click (or End) away.
+  state.views = j.views; state.layers = j.layers; state.newest = j.complete || j.newest;
   state.expected = j.layers_expected; state.rectified = j.rectified; state.vectors = j.vectors;
   state.byLayer = new Map(j.layers.map((l) => [l.layer, l]));
   const slider = $("slider");
