@@ -360,3 +360,132 @@ fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
     );
     println!("{}", String::from_utf8_lossy(&out.stdout));
 }
+
+/// POST /api/calibration as the calibration page sends it.
+fn post_pairs(addr: SocketAddr, layer: u32, pairs: &[[f64; 4]]) -> (u16, serde_json::Value) {
+    let points: Vec<_> = pairs
+        .iter()
+        .map(|p| serde_json::json!({"fx": p[0], "fy": p[1], "x": p[2], "y": p[3]}))
+        .collect();
+    let body =
+        serde_json::json!({"layer": layer, "view": "post_top", "points": points}).to_string();
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    write!(
+        s,
+        "POST /api/calibration HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let mut response = Vec::new();
+    s.read_to_end(&mut response).unwrap();
+    let text = String::from_utf8_lossy(&response).into_owned();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap();
+    let body = if head.to_ascii_lowercase().contains("chunked") {
+        String::from_utf8(dechunk(body.as_bytes())).unwrap()
+    } else {
+        body.to_string()
+    };
+    (
+        head[9..12].parse().unwrap(),
+        serde_json::from_str(&body).unwrap_or_default(),
+    )
+}
+
+#[test]
+fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let config = web_config(&dir, 2);
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    run_build(&config_path);
+    let serve = |extra: &[&str]| {
+        let mut child = layerwise()
+            .args(["serve", "--listen", "127.0.0.1:0", "--build"])
+            .arg(&dir)
+            .args(extra)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let (addr, _) = watch_output(child.stdout.take().unwrap());
+        (child, addr)
+    };
+    // The clicks of an operator who hit the true points: build corners seen through the mock
+    // camera's homography, as fractions of the 320 x 214 frame.
+    let truth = mock_camera::Homography::oblique_view(320, 214);
+    let image_from_build = truth.inverse().unwrap();
+    let pairs: Vec<[f64; 4]> = [
+        (-60.0, -50.0),
+        (60.0, -50.0),
+        (60.0, 50.0),
+        (-60.0, 50.0),
+        (0.0, 0.0),
+    ]
+    .iter()
+    .map(|&(x, y)| {
+        let (u, v) = image_from_build.apply(x, y).unwrap();
+        [u / 320.0, v / 214.0, x, y]
+    })
+    .collect();
+    assert!(pairs
+        .iter()
+        .all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+
+    let (off, addr) = serve(&[]);
+    let (status, body) = post_pairs(addr, 1, &pairs);
+    assert_eq!(status, 403, "{body}");
+    assert!(!dir.join("calibration").exists());
+    let _ = terminate(off);
+
+    let (on, addr) = serve(&["--calibration-page"]);
+    let (status, page) = http(addr, "GET", "/calibrate", b"");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&page).contains("Save &amp; register"));
+    assert_eq!(post_pairs(addr, 1, &pairs[..3]).0, 400);
+    assert_eq!(post_pairs(addr, 99, &pairs).0, 404);
+    let (status, first) = post_pairs(addr, 1, &pairs);
+    assert_eq!(status, 200, "{first}");
+    let points_file = dir.join(first["points_file"].as_str().unwrap());
+    assert!(first["points_file"]
+        .as_str()
+        .unwrap()
+        .starts_with("calibration/points-L00001-post_top-"));
+    let saved = std::fs::read_to_string(&points_file).unwrap();
+    let read = layerwise::calibrate::parse_points(&saved, &points_file).unwrap();
+    assert_eq!(read.len(), 5);
+    for (c, p) in read.iter().zip(&pairs) {
+        assert!((c.image.u - p[0] * 320.0).abs() < 0.01 && (c.image.v - p[1] * 214.0).abs() < 0.01);
+        assert!((c.build.x - p[2]).abs() < 1e-3 && (c.build.y - p[3]).abs() < 1e-3);
+    }
+    // The registration ran: a new calibration with its overlay and one residual per pair, or
+    // the registration's own error with the points kept.
+    match first["calibration_file"].as_str() {
+        Some(calibration) => {
+            assert!(dir.join(calibration).is_file());
+            assert_eq!(first["click_residuals_px"].as_array().unwrap().len(), 5);
+            let (status, png) = http(addr, "GET", first["overlay"].as_str().unwrap(), b"");
+            assert_eq!(status, 200);
+            assert!(png.starts_with(b"\x89PNG"));
+        }
+        None => assert!(
+            first["error"].as_str().is_some_and(|e| !e.is_empty()),
+            "{first}"
+        ),
+    }
+    // Saving again writes another file; the first stays as it was.
+    let (_, second) = post_pairs(addr, 1, &pairs);
+    assert_ne!(second["points_file"], first["points_file"]);
+    assert_eq!(std::fs::read_to_string(&points_file).unwrap(), saved);
+    assert_eq!(
+        http(
+            addr,
+            "GET",
+            "/api/calibration/..%2F..%2Fjournal/overlay.png",
+            b""
+        )
+        .0,
+        400
+    );
+    let _ = terminate(on);
+}

@@ -17,6 +17,9 @@ pub struct ServeArgs {
     /// A file holding the bearer token requests must carry (required beyond loopback).
     #[arg(long)]
     token_file: Option<PathBuf>,
+    /// Let the calibration page save new points files (and calibrations) in the build directory.
+    #[arg(long)]
+    calibration_page: bool,
 }
 
 impl ServeArgs {
@@ -30,6 +33,7 @@ impl ServeArgs {
         let config = WebConfig {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
+            calibration_page: self.calibration_page,
             ..WebConfig::default()
         };
         config.validate().map_err(|(key, message)| {

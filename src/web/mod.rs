@@ -8,6 +8,7 @@
 //! every 250 ms, then only the appended bytes) and pushes updates to open pages as server-sent
 //! events. Only layer numbers and view names from a request reach the file system.
 
+pub mod calibration;
 pub mod listener;
 pub mod preview;
 mod routes;

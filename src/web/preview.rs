@@ -156,11 +156,14 @@ enum Decoded {
     Colour(DynamicImage),
 }
 
+/// A decoded original and what it was decoded for.
+type DecodedEntry = ((PathBuf, Kind), Arc<Decoded>);
+
 /// Makes and keeps the page's pictures.
 pub struct Pictures {
     max_px: u32,
     cache: Mutex<Cache>,
-    decoded: Mutex<VecDeque<((PathBuf, Kind), Arc<Decoded>)>>,
+    decoded: Mutex<VecDeque<DecodedEntry>>,
 }
 
 impl Pictures {

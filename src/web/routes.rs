@@ -24,6 +24,7 @@ use std::time::Duration;
 const INDEX_HTML: &str = include_str!("page/index.html");
 const APP_JS: &str = include_str!("page/app.js");
 const STYLE_CSS: &str = include_str!("page/style.css");
+const CALIBRATE_HTML: &str = include_str!("page/calibrate.html");
 
 /// Request bodies the page accepts (only the calibration page sends one).
 pub const MAX_BODY_BYTES: usize = 64 * 1024;
@@ -42,6 +43,12 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
             "/style.css",
             get(|| async { page(STYLE_CSS, "text/css; charset=utf-8") }),
         )
+        .route(
+            "/calibrate",
+            get(|| async { page(CALIBRATE_HTML, "text/html; charset=utf-8") }),
+        )
+        .route("/api/calibration", axum::routing::post(calibrate))
+        .route("/api/calibration/{stamp}/overlay.png", get(overlay))
         .route("/api/status", get(status))
         .route("/api/layers", get(layers))
         .route("/api/layers/{layer}", get(layer))
@@ -215,6 +222,8 @@ async fn layers(
         "layers_expected": expected,
         "rectified": info.as_ref().is_some_and(|i| i.rectification.is_some()),
         "vectors": info.as_ref().is_some_and(|i| i.vectors_file.is_some()),
+        "grid": info.as_ref().map(|i| i.grid),
+        "calibration_page": shared.config.calibration_page,
         "layers": layers,
     }))
 }
@@ -527,4 +536,68 @@ async fn blocking<T: Send + 'static>(
             format!("request failed: {e}"),
         )
     })
+}
+
+#[derive(Deserialize)]
+struct CalibrationRequest {
+    layer: u32,
+    view: String,
+    points: Vec<super::calibration::ClickedPair>,
+}
+
+/// The calibration page's save: a new points file, then the registration (when enabled).
+async fn calibrate(
+    State(shared): State<Arc<Shared>>,
+    Json(request): Json<CalibrationRequest>,
+) -> Result<Json<super::calibration::CalibrationResult>, ApiError> {
+    if !shared.config.calibration_page {
+        return Err(ApiError(
+            StatusCode::FORBIDDEN,
+            "the calibration page is off: set web.calibration_page = true (or serve --calibration-page)".into(),
+        ));
+    }
+    let n = parse_layer(&request.layer.to_string())?;
+    let view = parse_view(&request.view)?;
+    let original = original_path(&shared, n, view)?;
+    let vectors = shared
+        .info()
+        .and_then(|i| i.vectors_file.clone())
+        .ok_or_else(|| bad("the build has no vector file (build.vectors) to register to"))?;
+    let _turn = shared
+        .encode
+        .acquire()
+        .await
+        .map_err(|_| ApiError(StatusCode::SERVICE_UNAVAILABLE, "shutting down".into()))?;
+    let dir = shared.dir.clone();
+    blocking(move || {
+        super::calibration::save_and_register(
+            &dir,
+            &vectors,
+            &original,
+            n,
+            &view.to_string(),
+            &request.points,
+            chrono::Utc::now(),
+        )
+    })
+    .await?
+    .map(Json)
+    .map_err(|e| bad(e.to_string()))
+}
+
+async fn overlay(
+    State(shared): State<Arc<Shared>>,
+    Path(stamp): Path<String>,
+) -> Result<Response, ApiError> {
+    if !super::calibration::is_stamp(&stamp) {
+        return Err(bad("not a calibration of this page"));
+    }
+    let path = shared
+        .dir
+        .join(super::calibration::CALIBRATION_DIR)
+        .join(format!("overlay-{stamp}.png"));
+    let png = blocking(move || std::fs::read(path))
+        .await?
+        .map_err(|_| not_found("no such overlay"))?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }
