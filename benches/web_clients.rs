@@ -9,11 +9,12 @@
 //!
 //! LAYERWISE_BENCH_LAYERS sets the layers per run (default 20).
 
-use layerwise::acquisition::{run, RunOptions};
+#[path = "support/prerecorded.rs"]
+mod prerecorded;
+
 use layerwise::build_dir::journal::Record;
 use layerwise::config::{Config, TriggerConfig, DEMO_CONFIG};
-use layerwise::hardware::camera::{Camera, CameraError, Frame};
-use layerwise::shot::Shot;
+use prerecorded::{mock_frame, run_prerecorded};
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -21,28 +22,6 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
-
-struct Prerecorded(Vec<u8>);
-
-impl Camera for Prerecorded {
-    fn capture(&mut self, _shot: &Shot) -> Result<Frame, CameraError> {
-        Ok(Frame {
-            data: self.0.clone(),
-            extension: "jpg".into(),
-            capture_ms: 0.0,
-            download_ms: 0.0,
-        })
-    }
-    fn reopen(&mut self) -> Result<(), CameraError> {
-        Ok(())
-    }
-    fn settings(&self) -> BTreeMap<String, String> {
-        BTreeMap::new()
-    }
-    fn describe(&self) -> String {
-        "prerecorded".into()
-    }
-}
 
 const WIDTH: u32 = 1472;
 const HEIGHT: u32 = 982;
@@ -68,19 +47,6 @@ fn config(dir: &Path, layers: u32) -> Config {
     config.calibration.file = Some(path);
     config.web.listen = "127.0.0.1:0".into();
     config
-}
-
-fn mock_frame() -> Vec<u8> {
-    let truth = mock_camera::Homography::oblique_view(WIDTH, HEIGHT);
-    let renderer = mock_camera::Renderer::new(WIDTH, HEIGHT, truth);
-    let parts = mock_camera::demo_parts(1);
-    let scene = mock_camera::Scene {
-        layer: 1,
-        fused: &parts,
-        scanned: true,
-        illumination: mock_camera::Illumination::Top,
-    };
-    renderer.render_jpeg(&scene, 90)
 }
 
 fn get(addr: SocketAddr, path: &str) -> Vec<u8> {
@@ -142,11 +108,6 @@ struct Measured {
 fn build(layers: u32, clients: usize) -> Measured {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = config(dir.path(), layers);
-    let options = RunOptions::new();
-    let (mut machine, _simulation) =
-        layerwise::sim::open(&config, options.clock.clone()).expect("simulated machine");
-    let frame = mock_frame();
-    machine.camera = Box::new(move || Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>));
     let addr = config.web.address().expect("address").expect("listen");
     let page =
         layerwise::web::WebServer::start(dir.path(), &config.web, addr).expect("page server");
@@ -158,14 +119,7 @@ fn build(layers: u32, clients: usize) -> Measured {
             std::thread::spawn(move || client(addr, stop, pictures))
         })
         .collect();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime");
-    runtime
-        .block_on(run(&config, machine, options))
-        .expect("mock build");
+    run_prerecorded(&config, mock_frame(WIDTH, HEIGHT));
     stop.store(true, Ordering::SeqCst);
     for t in threads {
         let _ = t.join();

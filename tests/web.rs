@@ -13,10 +13,10 @@ use std::time::{Duration, Instant};
 /// One HTTP/1.1 request on its own connection: (status, body).
 fn http(addr: SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, Vec<u8>) {
     let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
     write!(
         s,
-        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Length: {}\r\n\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n",
         body.len()
     )
     .unwrap();
@@ -109,22 +109,33 @@ fn watch_output(
     (addr, reader)
 }
 
-#[test]
-fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("build");
-    let config = web_config(&dir, 3);
-    let config_path = tmp.path().join("layerwise.toml");
-    write_config(&config, &config_path);
+/// A finished mock build of `layers` layers in `tmp/build` (see [`web_config`]).
+fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
+    let dir = tmp.join("build");
+    let config_path = tmp.join("layerwise.toml");
+    write_config(&web_config(&dir, layers), &config_path);
     run_build(&config_path);
+    dir
+}
 
+/// `layerwise serve` of `dir` on a free port, with `extra` arguments.
+fn serve(dir: &Path, extra: &[&str]) -> (std::process::Child, SocketAddr) {
     let mut child = layerwise()
         .args(["serve", "--listen", "127.0.0.1:0", "--build"])
-        .arg(&dir)
+        .arg(dir)
+        .args(extra)
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
     let (addr, _) = watch_output(child.stdout.take().unwrap());
+    (child, addr)
+}
+
+#[test]
+fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 3);
+    let (child, addr) = serve(&dir, &[]);
 
     let (status, page) = http(addr, "GET", "/", b"");
     assert_eq!(status, 200);
@@ -367,50 +378,20 @@ fn post_pairs(addr: SocketAddr, layer: u32, pairs: &[[f64; 4]]) -> (u16, serde_j
         .iter()
         .map(|p| serde_json::json!({"fx": p[0], "fy": p[1], "x": p[2], "y": p[3]}))
         .collect();
-    let body =
-        serde_json::json!({"layer": layer, "view": "post_top", "points": points}).to_string();
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    write!(
-        s,
-        "POST /api/calibration HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
-        body.len()
-    )
-    .unwrap();
-    let mut response = Vec::new();
-    s.read_to_end(&mut response).unwrap();
-    let text = String::from_utf8_lossy(&response).into_owned();
-    let (head, body) = text.split_once("\r\n\r\n").unwrap();
-    let body = if head.to_ascii_lowercase().contains("chunked") {
-        String::from_utf8(dechunk(body.as_bytes())).unwrap()
-    } else {
-        body.to_string()
-    };
-    (
-        head[9..12].parse().unwrap(),
-        serde_json::from_str(&body).unwrap_or_default(),
-    )
+    let body = serde_json::json!({"layer": layer, "view": "post_top", "points": points});
+    let (status, answer) = http(
+        addr,
+        "POST",
+        "/api/calibration",
+        body.to_string().as_bytes(),
+    );
+    (status, serde_json::from_slice(&answer).unwrap_or_default())
 }
 
 #[test]
 fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("build");
-    let config = web_config(&dir, 2);
-    let config_path = tmp.path().join("layerwise.toml");
-    write_config(&config, &config_path);
-    run_build(&config_path);
-    let serve = |extra: &[&str]| {
-        let mut child = layerwise()
-            .args(["serve", "--listen", "127.0.0.1:0", "--build"])
-            .arg(&dir)
-            .args(extra)
-            .stdout(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        let (addr, _) = watch_output(child.stdout.take().unwrap());
-        (child, addr)
-    };
+    let dir = finished_build(tmp.path(), 2);
     // The clicks of an operator who hit the true points: build corners seen through the mock
     // camera's homography, as fractions of the 320 x 214 frame.
     let truth = mock_camera::Homography::oblique_view(320, 214);
@@ -432,13 +413,13 @@ fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled()
         .iter()
         .all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
 
-    let (off, addr) = serve(&[]);
+    let (off, addr) = serve(&dir, &[]);
     let (status, body) = post_pairs(addr, 1, &pairs);
     assert_eq!(status, 403, "{body}");
     assert!(!dir.join("calibration").exists());
     let _ = terminate(off);
 
-    let (on, addr) = serve(&["--calibration-page"]);
+    let (on, addr) = serve(&dir, &["--calibration-page"]);
     let (status, page) = http(addr, "GET", "/calibrate", b"");
     assert_eq!(status, 200);
     assert!(String::from_utf8_lossy(&page).contains("Save &amp; register"));
