@@ -338,7 +338,7 @@ fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
         .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)");
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("build");
-    let mut config = web_config(&dir, 40);
+    let mut config = web_config(&dir, 100);
     if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
         mock.interval_ms = 400;
     }

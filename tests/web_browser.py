@@ -92,13 +92,15 @@ try:
         const imgs = [...document.querySelectorAll('#views img')];
         return imgs.length > 0 && imgs.every(i => i.dataset.layer === '2') && imgs.some(i => i.complete && i.naturalWidth > 0);"""))
     print("layer 2 shown after a click on the timeline")
-    # Back to following the newest layer for the screenshot, once the build is further on.
-    js("document.getElementById('follow').click()")
+    # Back to the newest complete layer (End), then stay there for the screenshot: on a loaded
+    # machine the build may move on faster than six pictures load.
+    js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'End'}))")
     wait_for("the newest layer again", lambda: shown() > 2)
+    js("document.getElementById('follow').click()")
     wait_for("all pictures of the layer shown", lambda: js("""
         const n = document.getElementById('layer-number').textContent;
         const imgs = [...document.querySelectorAll('#views img')];
-        return imgs.length === 6 && imgs.every(i => i.dataset.layer === n && i.complete && i.naturalWidth > 0);"""))
+        return imgs.length === 6 && imgs.every(i => i.dataset.layer === n && i.complete && i.naturalWidth > 0);"""), 90)
     js("window.scrollTo(0, 0)")
     time.sleep(0.5)
     png = base64.b64decode(call("GET", s + "/screenshot"))

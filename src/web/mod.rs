@@ -151,14 +151,20 @@ impl WebServer {
             .enable_all()
             .max_blocking_threads(4)
             .thread_name("layerwise-web")
+            .on_thread_start(lower_priority)
             .build()
             .map_err(WebError::Runtime)?;
         let (stop_tx, stop_rx) = watch::channel(false);
+        // What is on disk already is read before the first request is answered.
+        let mut timeline = Timeline::new(dir);
+        if let Err(e) = timeline.refresh() {
+            warn!(dir = %dir.display(), error = %e, "page server: cannot read the journal yet");
+        }
         let shared = Arc::new(Shared {
             dir: dir.to_path_buf(),
             config: config.clone(),
             token,
-            timeline: RwLock::new(Timeline::new(dir)),
+            timeline: RwLock::new(timeline),
             status: RwLock::new(None),
             info: Mutex::new(None),
             pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
@@ -170,6 +176,7 @@ impl WebServer {
         let thread = std::thread::Builder::new()
             .name("layerwise-web".into())
             .spawn(move || {
+                lower_priority();
                 runtime.block_on(async move {
                     let listener = match tokio::net::TcpListener::from_std(std_listener) {
                         Ok(l) => l,
@@ -209,6 +216,13 @@ impl Drop for WebServer {
     }
 }
 
+/// The page's threads yield the CPU to capture and processing (nice +10, best effort: the
+/// hardened unit's system call filter may refuse it, which changes nothing else).
+fn lower_priority() {
+    // SAFETY: nice() only changes the calling thread's scheduling priority on Linux.
+    let _ = unsafe { libc::nice(10) };
+}
+
 fn read_token(path: &Path) -> Result<String, WebError> {
     let error = |message: String| WebError::Token {
         path: path.to_path_buf(),
@@ -236,6 +250,7 @@ async fn watch_build(shared: Arc<Shared>) {
     let mut status_at: Option<Instant> = None;
     let mut pending = true;
     let mut warned = false;
+    let preparing = Arc::new(std::sync::atomic::AtomicBool::new(false));
     loop {
         tokio::select! {
             _ = tick.tick() => {}
@@ -276,6 +291,13 @@ async fn watch_build(shared: Arc<Shared>) {
         let s = shared.clone();
         let _ = tokio::task::spawn_blocking(move || s.refresh_status()).await;
         shared.updates.send_modify(|v| *v += 1);
-        routes::prepare_newest(&shared).await;
+        // The newest previews are made beside the watch, one batch at a time.
+        if !preparing.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            let (s, flag) = (shared.clone(), preparing.clone());
+            tokio::spawn(async move {
+                routes::prepare_newest(&s).await;
+                flag.store(false, std::sync::atomic::Ordering::SeqCst);
+            });
+        }
     }
 }
