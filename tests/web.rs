@@ -118,8 +118,18 @@ fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
     dir
 }
 
+/// A `layerwise serve` that is stopped when dropped, also when a test fails half-way.
+struct Served(std::process::Child);
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// `layerwise serve` of `dir` on a free port, with `extra` arguments.
-fn serve(dir: &Path, extra: &[&str]) -> (std::process::Child, SocketAddr) {
+fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
     let mut child = layerwise()
         .args(["serve", "--listen", "127.0.0.1:0", "--build"])
         .arg(dir)
@@ -128,7 +138,7 @@ fn serve(dir: &Path, extra: &[&str]) -> (std::process::Child, SocketAddr) {
         .spawn()
         .unwrap();
     let (addr, _) = watch_output(child.stdout.take().unwrap());
-    (child, addr)
+    (Served(child), addr)
 }
 
 #[test]
@@ -272,7 +282,7 @@ fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build
     assert_eq!(status, 405);
     // Still serving after all that.
     assert_eq!(get_json(addr, "/api/layers/3")["layer"], 3);
-    let _ = terminate(child);
+    drop(child);
 }
 
 #[test]
@@ -417,7 +427,7 @@ fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled()
     let (status, body) = post_pairs(addr, 1, &pairs);
     assert_eq!(status, 403, "{body}");
     assert!(!dir.join("calibration").exists());
-    let _ = terminate(off);
+    drop(off);
 
     let (on, addr) = serve(&dir, &["--calibration-page"]);
     let (status, page) = http(addr, "GET", "/calibrate", b"");
@@ -468,5 +478,5 @@ fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled()
         .0,
         400
     );
-    let _ = terminate(on);
+    drop(on);
 }
