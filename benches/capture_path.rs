@@ -6,37 +6,16 @@
 //! 2. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
 
-use layerwise::acquisition::{run, RunOptions};
+#[path = "support/prerecorded.rs"]
+mod prerecorded;
+
 use layerwise::build_dir::journal::Record;
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
-use layerwise::hardware::camera::{Camera, CameraError, Frame};
-use std::collections::BTreeMap;
+use prerecorded::{mock_frame, run_prerecorded};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-struct Prerecorded(Vec<u8>);
-
-impl Camera for Prerecorded {
-    fn capture(&mut self, _shot: &layerwise::shot::Shot) -> Result<Frame, CameraError> {
-        Ok(Frame {
-            data: self.0.clone(),
-            extension: "jpg".into(),
-            capture_ms: 0.0,
-            download_ms: 0.0,
-        })
-    }
-    fn reopen(&mut self) -> Result<(), CameraError> {
-        Ok(())
-    }
-    fn settings(&self) -> BTreeMap<String, String> {
-        BTreeMap::from([("model".to_string(), "prerecorded".to_string())])
-    }
-    fn describe(&self) -> String {
-        "prerecorded".into()
-    }
-}
 
 fn config(dir: &Path, layers: u32, fsync: bool) -> Config {
     let mut config = Config::parse(DEMO_CONFIG, Path::new("demo.toml")).expect("demo config");
@@ -48,35 +27,8 @@ fn config(dir: &Path, layers: u32, fsync: bool) -> Config {
     config
 }
 
-fn mock_frame(width: u32, height: u32) -> Vec<u8> {
-    let renderer = mock_camera::Renderer::new(
-        width,
-        height,
-        mock_camera::Homography::oblique_view(width, height),
-    );
-    let parts = mock_camera::demo_parts(1);
-    let scene = mock_camera::Scene {
-        layer: 1,
-        fused: &parts,
-        scanned: true,
-        illumination: mock_camera::Illumination::Top,
-    };
-    renderer.render_jpeg(&scene, 90)
-}
-
 fn build(config: &Config, frame: Vec<u8>) {
-    let options = RunOptions::new();
-    let (mut machine, _simulation) =
-        layerwise::sim::open(config, options.clock.clone()).expect("simulated machine");
-    machine.camera = Box::new(move || Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>));
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime");
-    runtime
-        .block_on(run(config, machine, options))
-        .expect("mock build");
+    run_prerecorded(config, frame);
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {

@@ -12,7 +12,7 @@
 //! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
 //! | 4 registration | [`calibrate`], [`ct`], [`series`] | image ↔ vectors, CT ↔ vectors, the live DICOM series of a view |
 //! | 5 products | [`export`], [`locate`], [`hardware`], [`pacs`] | one study per build, a point in every view, camera/lights/trigger, the push to archives |
-//! | 6 daemon | [`acquisition`], [`logging`] | the acquisition daemon |
+//! | 6 daemon | [`acquisition`], [`web`] | the acquisition daemon; the operator page |
 //! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
 
 pub mod acquisition;
@@ -38,3 +38,4 @@ pub mod shot;
 pub mod sim;
 pub mod tsdf;
 pub mod vectors;
+pub mod web;

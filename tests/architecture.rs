@@ -14,7 +14,7 @@ const LAYERS: &[&[&str]] = &[
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
     &["export", "flaws", "locate", "hardware", "pacs"],
-    &["acquisition"],
+    &["acquisition", "web"],
     &["sim"],
 ];
 

@@ -7,8 +7,9 @@ cd "$(dirname "$0")/.."
 # System packages: libgphoto2 for the real camera backend (bindgen needs libclang), socat for the
 # serial-trigger pty tests, systemd for `systemd-analyze verify`, dicom3tools and dcmtk to validate
 # the DICOM we write, cmake and g++ to build CharLS (JPEG-LS), python3-venv for the test venv;
-# orthanc, orthanc-dicomweb and iproute2: the real PACS tests/pacs.rs pushes to (STOW-RS, C-STORE).
-packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2)
+# orthanc, orthanc-dicomweb and iproute2: the real PACS tests/pacs.rs pushes to (STOW-RS, C-STORE);
+# chromium and chromium-driver for the browser test of the operator page (tests/web.rs).
+packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver)
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -72,3 +72,23 @@ fn unit_exposure_is_at_most_1_5_in_systemd_analyze_security() {
         .unwrap_or_else(|| panic!("no exposure level in: {text}"));
     assert!(score <= 1.5, "exposure {score} > 1.5:\n{text}");
 }
+
+/// IP is allowed for the operator page on loopback only: any other address is a drop-in the
+/// operator adds on purpose (README, "The operator page").
+#[test]
+fn unit_allows_ip_on_loopback_only() {
+    let unit = shipped_unit();
+    let values = |key: &str| -> Vec<String> {
+        unit.lines()
+            .filter_map(|l| l.strip_prefix(&format!("{key}=")))
+            .map(str::to_string)
+            .collect()
+    };
+    assert_eq!(values("IPAddressDeny"), ["any"]);
+    assert_eq!(values("IPAddressAllow"), ["localhost"]);
+    let families = values("RestrictAddressFamilies").join(" ");
+    for family in ["AF_UNIX", "AF_NETLINK", "AF_INET", "AF_INET6"] {
+        assert!(families.split(' ').any(|f| f == family), "{families}");
+    }
+    assert!(!families.contains("AF_PACKET"), "{families}");
+}

@@ -49,6 +49,8 @@ fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
 /// (its own threads: capture and processing never wait for an archive).
 fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
     let machine = open_machine(config, options.clock.clone())?;
+    // The page runs on a thread of its own and reads the build directory only.
+    let _page = super::serve::start_for_daemon(config);
     let pusher = start_pusher(config, &options)?;
     let summary = runtime()?.block_on(acquisition::run(config, machine, options));
     if let Some(pusher) = pusher {
@@ -174,12 +176,28 @@ pub struct DemoArgs {
     /// The build directory to write (run again on it to resume).
     #[arg(long, default_value = "demo-build")]
     out: PathBuf,
+    /// Serve the operator page at this host:port while the demo runs (e.g. 127.0.0.1:8040).
+    #[arg(long)]
+    listen: Option<String>,
+    /// Time between layer signals in ms (0: as fast as the machine goes).
+    #[arg(long, default_value_t = 0)]
+    interval_ms: u64,
 }
 
 impl DemoArgs {
     pub fn run(self) -> Result<()> {
         let (layers, out) = (self.layers, self.out.as_path());
-        let config = demo_config(layers, out)?;
+        let mut config = demo_config(layers, out)?;
+        if let TriggerConfig::Mock(mock) = &mut config.trigger {
+            mock.interval_ms = self.interval_ms;
+        }
+        if let Some(listen) = self.listen {
+            config.web.listen = listen;
+            config
+                .web
+                .validate()
+                .map_err(|(_, message)| anyhow::anyhow!("--listen: {message}"))?;
+        }
         let started = std::time::Instant::now();
         let mut options = RunOptions::new();
         options.clock = SystemClock::shared();

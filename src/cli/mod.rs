@@ -10,6 +10,7 @@ mod numbering;
 mod register;
 // The push to archives (PACS).
 mod push;
+mod serve;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -67,6 +68,8 @@ pub enum Command {
     },
     /// Push a build's (or an export folder's) DICOM instances to a PACS: STOW-RS or C-STORE.
     Push(push::PushArgs),
+    /// Serve the operator page of a build directory (read-only), e.g. a finished build.
+    Serve(serve::ServeArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
 }
@@ -86,6 +89,7 @@ impl Command {
             Command::Flaws(args) => args.run(),
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
+            Command::Serve(args) => args.run(),
             Command::Demo(args) => args.run(),
             Command::Push(args) => args.run(),
         }

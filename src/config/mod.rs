@@ -10,6 +10,9 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+pub mod web;
+pub use web::WebConfig;
+
 /// A configuration that could not be used.
 pub type ConfigError = crate::fsutil::TomlFileError;
 
@@ -35,6 +38,9 @@ pub struct Config {
     /// Archives every DICOM instance is pushed to (`[[pacs]]`, config/pacs.rs).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub pacs: Vec<pacs::PacsDestination>,
+    /// The operator page (src/web).
+    #[serde(default)]
+    pub web: WebConfig,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -727,6 +733,9 @@ impl Config {
                 format!("must be 1 to {MAX_QUEUE} (frames wait on disk when the queue is full)"),
             ));
         }
+        self.web
+            .validate()
+            .map_err(|(key, message)| invalid(key, message))?;
         Ok(())
     }
 

@@ -1,0 +1,79 @@
+//! `layerwise serve`: the operator page for any build directory, read-only.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use layerwise::config::WebConfig;
+use layerwise::web::WebServer;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct ServeArgs {
+    /// The build directory (a finished build, or one a daemon is writing).
+    #[arg(long)]
+    build: PathBuf,
+    /// host:port to listen on (port 0: any free port, printed).
+    #[arg(long, default_value = "127.0.0.1:8040")]
+    listen: String,
+    /// A file holding the bearer token requests must carry (required beyond loopback).
+    #[arg(long)]
+    token_file: Option<PathBuf>,
+    /// Let the calibration page save new points files (and calibrations) in the build directory.
+    #[arg(long)]
+    calibration_page: bool,
+}
+
+impl ServeArgs {
+    pub fn run(self) -> Result<()> {
+        anyhow::ensure!(
+            self.build.join(layerwise::build_dir::JOURNAL).is_file(),
+            "{}: not a layerwise build directory (no {}); pass the daemon's build.output_dir",
+            self.build.display(),
+            layerwise::build_dir::JOURNAL
+        );
+        let config = WebConfig {
+            listen: self.listen.clone(),
+            token_file: self.token_file.clone(),
+            calibration_page: self.calibration_page,
+            ..WebConfig::default()
+        };
+        config.validate().map_err(|(key, message)| {
+            anyhow::anyhow!("--{}: {message}", &key[4..].replace('_', "-"))
+        })?;
+        let addr = config
+            .address()
+            .map_err(|m| anyhow::anyhow!("--listen: {m}"))?
+            .context("--listen must name an address")?;
+        let server = WebServer::start(&self.build, &config, addr)?;
+        println!(
+            "serving {} at http://{}/ (Ctrl-C stops)",
+            self.build.display(),
+            server.addr
+        );
+        super::runtime()?.block_on(async {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+            tokio::select! {
+                r = tokio::signal::ctrl_c() => r,
+                _ = term.recv() => Ok(()),
+            }
+        })?;
+        drop(server);
+        Ok(())
+    }
+}
+
+/// Starts the page of the daemon's build when `[web] listen` is set. A page that cannot start
+/// (port taken, token unreadable) is logged, never a reason not to capture.
+pub fn start_for_daemon(config: &layerwise::config::Config) -> Option<WebServer> {
+    let addr = config.web.address().ok()??;
+    match WebServer::start(&config.build.output_dir, &config.web, addr) {
+        Ok(server) => {
+            tracing::info!(url = %format!("http://{}/", server.addr), "operator page");
+            Some(server)
+        }
+        Err(e) => {
+            tracing::warn!(error = %e, "no operator page; capture goes on");
+            None
+        }
+    }
+}

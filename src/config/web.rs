@@ -1,0 +1,120 @@
+//! `[web]`: the operator page the daemon serves (src/web), and `layerwise serve`.
+
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Most connections a page server keeps open at once.
+pub const MAX_CONNECTIONS: usize = 4096;
+
+/// How the operator page is served.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WebConfig {
+    /// `host:port` to listen on; `""` serves no page. Loopback (`127.0.0.1:8040`) by default.
+    pub listen: String,
+    /// A file holding the bearer token every request must carry; required when `listen` is not
+    /// a loopback address.
+    pub token_file: Option<PathBuf>,
+    /// Connections open at once; more wait until one closes.
+    pub max_connections: usize,
+    /// Live-update streams (one per open page) at once; more are refused with 503.
+    pub max_event_streams: usize,
+    /// Longest side of a preview and of a zoomed crop, in pixels.
+    pub preview_px: u32,
+    /// Memory for encoded previews, in MB.
+    pub cache_mb: u64,
+    /// The calibration page may save a new points file in the build directory (never
+    /// overwriting one) and run the registration.
+    pub calibration_page: bool,
+}
+
+impl Default for WebConfig {
+    fn default() -> Self {
+        WebConfig {
+            listen: "127.0.0.1:8040".into(),
+            token_file: None,
+            max_connections: 64,
+            max_event_streams: 16,
+            preview_px: 1024,
+            cache_mb: 64,
+            calibration_page: false,
+        }
+    }
+}
+
+impl WebConfig {
+    /// The address to listen on, or None when the page is off.
+    pub fn address(&self) -> Result<Option<SocketAddr>, String> {
+        let text = self.listen.trim();
+        if text.is_empty() {
+            return Ok(None);
+        }
+        text.parse().map(Some).map_err(|e| {
+            format!(
+                "\"{text}\" is not host:port ({e}); e.g. \"127.0.0.1:8040\", or \"\" for no page"
+            )
+        })
+    }
+
+    /// Checks the section; the error is (key, message).
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let address = self.address().map_err(|m| ("web.listen", m))?;
+        if let Some(address) = address {
+            if !address.ip().is_loopback() && self.token_file.is_none() {
+                return Err((
+                    "web.listen",
+                    format!(
+                        "{address} is reachable from other machines: set web.token_file to a file \
+                         holding a bearer token (or listen on 127.0.0.1 behind a reverse proxy)"
+                    ),
+                ));
+            }
+        }
+        if !(1..=MAX_CONNECTIONS).contains(&self.max_connections) {
+            return Err((
+                "web.max_connections",
+                format!("must be 1 to {MAX_CONNECTIONS}"),
+            ));
+        }
+        if !(1..=self.max_connections).contains(&self.max_event_streams) {
+            return Err((
+                "web.max_event_streams",
+                "must be 1 to web.max_connections".into(),
+            ));
+        }
+        if !(64..=4096).contains(&self.preview_px) {
+            return Err(("web.preview_px", "must be 64 to 4096 pixels".into()));
+        }
+        if !(1..=4096).contains(&self.cache_mb) {
+            return Err(("web.cache_mb", "must be 1 to 4096 MB".into()));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn loopback_by_default_off_when_empty_token_beyond_loopback() {
+        let mut web = WebConfig::default();
+        assert_eq!(
+            web.address().unwrap().unwrap().to_string(),
+            "127.0.0.1:8040"
+        );
+        assert!(web.validate().is_ok());
+        web.listen = "".into();
+        assert_eq!(web.address().unwrap(), None);
+        web.listen = "0.0.0.0:8040".into();
+        assert_eq!(web.validate().unwrap_err().0, "web.listen");
+        web.token_file = Some("/etc/layerwise/web.token".into());
+        assert!(web.validate().is_ok());
+        web.listen = "printer:80".into();
+        assert!(web.validate().unwrap_err().1.contains("host:port"));
+        web.listen = "[::1]:8040".into();
+        web.max_event_streams = 0;
+        assert_eq!(web.validate().unwrap_err().0, "web.max_event_streams");
+    }
+}

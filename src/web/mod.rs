@@ -1,0 +1,306 @@
+//! The operator page: the newest layer of every view with its vectors, the build's timeline and
+//! health, served over HTTP from what is on disk in a build directory (journal, status.json,
+//! originals, calibration), read-only. The daemon starts it beside the capture path and
+//! `layerwise serve --build DIR` serves any build, finished or being written by another process.
+//!
+//! The server runs on its own thread with its own small runtime, so no request, slow client or
+//! picture being encoded can take time from the capture path. It watches the journal (a stat
+//! every 250 ms, then only the appended bytes) and pushes updates to open pages as server-sent
+//! events. Only layer numbers and view names from a request reach the file system.
+
+pub mod calibration;
+pub mod listener;
+pub mod preview;
+mod routes;
+pub mod timeline;
+
+use crate::build_dir::status::{self, StatusReport};
+use crate::config::WebConfig;
+use crate::geometry::Grid;
+use crate::series::BuildRecord;
+use crate::shot::View;
+use crate::vectors::LayerIndex;
+use preview::{Pictures, Rectification};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicUsize;
+use std::sync::{Arc, Mutex, OnceLock, RwLock};
+use std::time::{Duration, Instant, SystemTime};
+use timeline::Timeline;
+use tokio::sync::{watch, Semaphore};
+use tracing::warn;
+
+/// How often the journal and status.json are looked at.
+pub const WATCH_PERIOD: Duration = Duration::from_millis(250);
+/// The status report (it sums the sizes of the series) is made at most this often.
+const STATUS_PERIOD: Duration = Duration::from_secs(1);
+
+#[derive(Debug, thiserror::Error)]
+pub enum WebError {
+    #[error(
+        "cannot listen on {addr}: {source}; set web.listen to a free address, or \"\" for no page"
+    )]
+    Listen {
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("web.token_file {path}: {message}")]
+    Token { path: PathBuf, message: String },
+    #[error("cannot start the page server: {0}")]
+    Runtime(std::io::Error),
+}
+
+/// What is known of the build from its configuration snapshot (once the daemon wrote it).
+pub(crate) struct BuildInfo {
+    pub views: Vec<View>,
+    pub grid: Grid,
+    pub rectification: Option<Rectification>,
+    pub vectors_file: Option<PathBuf>,
+    /// How printer layers pair with the vector file's layers (docs/frames.md).
+    pub numbering: crate::vectors::LayerNumbering,
+    pub vectors: OnceLock<Result<LayerIndex, String>>,
+    pub min_free_bytes: u64,
+}
+
+impl BuildInfo {
+    fn open(dir: &Path) -> Option<BuildInfo> {
+        let record = BuildRecord::open(dir).ok()?;
+        Some(BuildInfo {
+            views: record.config.views.all(),
+            grid: record.grid,
+            rectification: record.calibration.map(|calibration| Rectification {
+                calibration,
+                grid: record.grid,
+            }),
+            vectors_file: record.config.build.vectors.clone(),
+            numbering: record.config.build.numbering(),
+            vectors: OnceLock::new(),
+            min_free_bytes: (record.config.storage.min_free_gb * 1e9) as u64,
+        })
+    }
+
+    /// The vector file's layer index, read once.
+    pub fn vectors(&self) -> Option<Result<&LayerIndex, String>> {
+        let path = self.vectors_file.as_ref()?;
+        Some(
+            self.vectors
+                .get_or_init(|| LayerIndex::build(path).map_err(|e| e.to_string()))
+                .as_ref()
+                .map_err(Clone::clone),
+        )
+    }
+}
+
+/// Everything the handlers share.
+pub(crate) struct Shared {
+    pub dir: PathBuf,
+    pub config: WebConfig,
+    pub token: Option<String>,
+    pub timeline: RwLock<Timeline>,
+    pub status: RwLock<Option<Arc<StatusReport>>>,
+    info: Mutex<Option<Arc<BuildInfo>>>,
+    pub pictures: Pictures,
+    /// Pictures are made one at a time: the page never takes more than one core.
+    pub encode: Semaphore,
+    pub updates: watch::Sender<u64>,
+    pub streams: AtomicUsize,
+    pub stop: watch::Receiver<bool>,
+}
+
+impl Shared {
+    /// The build's configuration snapshot, read once it exists.
+    pub fn info(&self) -> Option<Arc<BuildInfo>> {
+        let mut info = self.info.lock().unwrap_or_else(|e| e.into_inner());
+        if info.is_none() {
+            *info = BuildInfo::open(&self.dir).map(Arc::new);
+        }
+        info.clone()
+    }
+
+    fn min_free_bytes(&self) -> u64 {
+        self.info().map_or(20_000_000_000, |i| i.min_free_bytes)
+    }
+
+    /// Makes the status report again (blocking).
+    pub fn refresh_status(&self) -> Option<Arc<StatusReport>> {
+        let report = status::report(&self.dir, self.min_free_bytes())
+            .ok()
+            .map(Arc::new);
+        *self.status.write().unwrap_or_else(|e| e.into_inner()) = report.clone();
+        report
+    }
+}
+
+/// A running page server; dropping it stops the server.
+pub struct WebServer {
+    pub addr: SocketAddr,
+    stop: watch::Sender<bool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl WebServer {
+    /// Listens on `addr` (port 0: any free port, see [`WebServer::addr`]) and serves the build
+    /// directory `dir` from a thread of its own.
+    pub fn start(dir: &Path, config: &WebConfig, addr: SocketAddr) -> Result<WebServer, WebError> {
+        let token = match &config.token_file {
+            Some(path) => Some(read_token(path)?),
+            None => None,
+        };
+        let listen_error = |source| WebError::Listen { addr, source };
+        let std_listener = std::net::TcpListener::bind(addr).map_err(listen_error)?;
+        std_listener.set_nonblocking(true).map_err(listen_error)?;
+        let addr = std_listener.local_addr().map_err(listen_error)?;
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .max_blocking_threads(4)
+            .thread_name("layerwise-web")
+            .on_thread_start(lower_priority)
+            .build()
+            .map_err(WebError::Runtime)?;
+        let (stop_tx, stop_rx) = watch::channel(false);
+        // What is on disk already is read before the first request is answered.
+        let mut timeline = Timeline::new(dir);
+        if let Err(e) = timeline.refresh() {
+            warn!(dir = %dir.display(), error = %e, "page server: cannot read the journal yet");
+        }
+        let shared = Arc::new(Shared {
+            dir: dir.to_path_buf(),
+            config: config.clone(),
+            token,
+            timeline: RwLock::new(timeline),
+            status: RwLock::new(None),
+            info: Mutex::new(None),
+            pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
+            encode: Semaphore::new(1),
+            updates: watch::channel(0).0,
+            streams: AtomicUsize::new(0),
+            stop: stop_rx.clone(),
+        });
+        let thread = std::thread::Builder::new()
+            .name("layerwise-web".into())
+            .spawn(move || {
+                lower_priority();
+                runtime.block_on(async move {
+                    let listener = match tokio::net::TcpListener::from_std(std_listener) {
+                        Ok(l) => l,
+                        Err(e) => return warn!(error = %e, "page server: cannot listen"),
+                    };
+                    let listener = listener::Limited::new(listener, shared.config.max_connections);
+                    tokio::spawn(watch_build(shared.clone()));
+                    let app = routes::router(shared.clone());
+                    let mut stop = stop_rx;
+                    let served = axum::serve(listener, app)
+                        .with_graceful_shutdown(async move {
+                            let _ = stop.wait_for(|s| *s).await;
+                        })
+                        .await;
+                    if let Err(e) = served {
+                        warn!(error = %e, "page server stopped");
+                    }
+                });
+                // Pictures being encoded are not waited for.
+                runtime.shutdown_timeout(Duration::from_millis(100));
+            })
+            .map_err(WebError::Runtime)?;
+        Ok(WebServer {
+            addr,
+            stop: stop_tx,
+            thread: Some(thread),
+        })
+    }
+}
+
+impl Drop for WebServer {
+    fn drop(&mut self) {
+        let _ = self.stop.send(true);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// The page's threads yield the CPU to capture and processing (nice +10, best effort: the
+/// hardened unit's system call filter may refuse it, which changes nothing else).
+fn lower_priority() {
+    // SAFETY: nice() only changes the calling thread's scheduling priority on Linux.
+    let _ = unsafe { libc::nice(10) };
+}
+
+fn read_token(path: &Path) -> Result<String, WebError> {
+    let error = |message: String| WebError::Token {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = crate::fsutil::read_text_bounded(path, 4096)
+        .map_err(|e| error(format!("{e}; write the token (one line) into it")))?;
+    let token = text.trim().to_string();
+    if token.len() < 16 || token.chars().any(|c| c.is_whitespace() || c.is_control()) {
+        return Err(error(
+            "must hold one token of at least 16 characters without spaces (e.g. from `openssl rand -hex 32`)".into(),
+        ));
+    }
+    Ok(token)
+}
+
+/// Looks at the journal and status.json every [`WATCH_PERIOD`]; when they changed, reads what
+/// is new, remakes the status (at most every [`STATUS_PERIOD`]), tells the open pages, and
+/// makes the newest layer's previews ahead of their request.
+async fn watch_build(shared: Arc<Shared>) {
+    let mut tick = tokio::time::interval(WATCH_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut stop = shared.stop.clone();
+    let mut seen: Option<(u64, Option<SystemTime>)> = None;
+    let mut status_at: Option<Instant> = None;
+    let mut pending = true;
+    let mut warned = false;
+    let preparing = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.wait_for(|s| *s) => return,
+        }
+        let s = shared.clone();
+        let looked = tokio::task::spawn_blocking(move || {
+            let stamp = |name: &str| std::fs::metadata(s.dir.join(name)).ok();
+            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len());
+            let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
+            let changed = s
+                .timeline
+                .write()
+                .unwrap_or_else(|e| e.into_inner())
+                .refresh();
+            (journal, status, changed)
+        })
+        .await;
+        let Ok((journal, status_time, changed)) = looked else {
+            continue;
+        };
+        match changed {
+            Err(e) if !warned => {
+                warn!(dir = %shared.dir.display(), error = %e, "page server: cannot read the journal");
+                warned = true;
+            }
+            _ => {}
+        }
+        if seen != Some((journal, status_time)) {
+            seen = Some((journal, status_time));
+            pending = true;
+        }
+        if !pending || status_at.is_some_and(|t| t.elapsed() < STATUS_PERIOD) {
+            continue;
+        }
+        pending = false;
+        status_at = Some(Instant::now());
+        let s = shared.clone();
+        let _ = tokio::task::spawn_blocking(move || s.refresh_status()).await;
+        shared.updates.send_modify(|v| *v += 1);
+        // The newest previews are made beside the watch, one batch at a time.
+        if !preparing.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            let (s, flag) = (shared.clone(), preparing.clone());
+            tokio::spawn(async move {
+                routes::prepare_newest(&s).await;
+                flag.store(false, std::sync::atomic::Ordering::SeqCst);
+            });
+        }
+    }
+}

@@ -1,0 +1,203 @@
+// The operator page: newest layer of every view, any earlier layer, timeline and health.
+// Updates arrive as server-sent events (/api/events); no polling.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const state = {
+  views: [], layers: [], byLayer: new Map(), newest: null, current: null, expected: null,
+  rectified: false, vectors: false, follow: true, svg: new Map(),
+};
+window.layerwisePageLoadedAt = Date.now();
+
+async function getJson(url) {
+  const r = await fetch(url, { credentials: "same-origin" });
+  if (!r.ok) throw new Error(url + ": " + r.status);
+  return r.json();
+}
+
+function fmtBytes(b) { return b == null ? "?" : (b / 1e9).toFixed(1) + " GB"; }
+function fmtAge(t) {
+  if (!t) return "never";
+  const s = Math.round((Date.now() - Date.parse(t)) / 1000);
+  return s < 120 ? s + " s ago" : Math.round(s / 60) + " min ago";
+}
+function dd(dl, key, value, cls) {
+  const dt = document.createElement("dt"); dt.textContent = key;
+  const d = document.createElement("dd"); d.textContent = value; if (cls) d.className = cls;
+  dl.append(dt, d);
+}
+
+function showStatus(s) {
+  if (!s) return;
+  $("build-name").textContent = s.name || "layerwise";
+  $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "");
+  const w = $("warning");
+  w.hidden = !s.warning; w.textContent = s.warning || "";
+  const h = $("health"); h.replaceChildren();
+  const t = s.trigger;
+  if (t) dd(h, "trigger", t.source + (t.connected ? " connected" : " NOT CONNECTED") + ", last signal " + fmtAge(t.last_signal_at), t.connected ? "ok" : "bad");
+  else dd(h, "trigger", "no report (daemon not running?)");
+  const last = Object.values(s.last_frames || {}).map((f) => f.at).sort().pop();
+  dd(h, "camera", "last frame " + fmtAge(last) + ", " + s.frames + " stored, " + s.frames_missing + " missing, " + s.retakes + " retakes", s.frames_missing ? "bad" : "ok");
+  dd(h, "lights", (state.views.length ? state.views.join(", ") : "–"));
+  let disk = fmtBytes(s.free_bytes) + " free";
+  if (s.bytes_needed != null) disk += ", rest of build needs " + fmtBytes(s.bytes_needed);
+  dd(h, "disk", disk, s.warning && s.warning.includes("free") ? "bad" : "ok");
+  dd(h, "backlog", s.waiting_for_processing + " frames waiting (queue " + s.queue_depth + ")", s.waiting_for_processing > 12 ? "wait" : "ok");
+  if (s.irregular && s.irregular.length) dd(h, "signals", s.irregular.length + " irregular: " + s.irregular[s.irregular.length - 1], "wait");
+  $("layer-of").textContent = s.layers_expected ? "of " + s.layers_expected : "";
+}
+
+async function loadLayers() {
+  const j = await getJson("/api/layers");
+  // Following the build shows the newest layer with all its views; the one being captured is
+  // a click (or End) away.
+  state.views = j.views; state.layers = j.layers; state.newest = j.complete || j.newest;
+  state.expected = j.layers_expected; state.rectified = j.rectified; state.vectors = j.vectors;
+  state.byLayer = new Map(j.layers.map((l) => [l.layer, l]));
+  const slider = $("slider");
+  const max = Math.max(1, j.newest || 1, ...j.layers.map((l) => l.layer));
+  slider.max = max;
+  drawTimeline();
+  if (state.follow && state.newest && state.newest !== state.current) showLayer(state.newest);
+  else if (state.current == null && state.newest) showLayer(state.newest);
+  $("newest-note").textContent = state.follow || state.current === state.newest ? "" : "(newest: " + state.newest + ")";
+}
+
+function cellClass(l) {
+  if (l.missing || l.failed) return "bad";
+  if (l.processed < l.stored) return "wait";
+  return "";
+}
+
+function drawTimeline() {
+  const tl = $("timeline");
+  const maxLag = Math.max(1000, ...state.layers.map((l) => l.lag_ms || 0));
+  const cells = state.layers.map((l) => {
+    const c = document.createElement("div");
+    c.className = "cell " + cellClass(l) + (l.layer === state.current ? " current" : "");
+    c.dataset.layer = l.layer;
+    c.style.height = (20 + 80 * (l.lag_ms || 0) / maxLag) + "%";
+    c.title = "layer " + l.layer + ": " + l.stored + " stored, " + l.processed + " rectified, " + l.missing + " missing, " + l.failed + " failed" + (l.lag_ms != null ? ", lag " + l.lag_ms + " ms" : "") + (l.flags ? ", " + l.flags + " flags" : "");
+    return c;
+  });
+  tl.replaceChildren(...cells);
+}
+
+$("timeline").addEventListener("click", (e) => {
+  const n = e.target.dataset && e.target.dataset.layer;
+  if (n) { setFollow(false); showLayer(Number(n)); }
+});
+
+function setFollow(on) { state.follow = on; $("follow").checked = on; }
+
+async function vectorsSvg(n) {
+  if (!state.vectors) return "";
+  if (!state.svg.has(n)) {
+    const r = await fetch("/api/layers/" + n + "/vectors.svg");
+    state.svg.set(n, r.ok ? await r.text() : "");
+    if (state.svg.size > 20) state.svg.delete(state.svg.keys().next().value);
+  }
+  return state.svg.get(n);
+}
+
+function kind() { return $("raw").checked || !state.rectified ? "raw" : "rectified"; }
+
+async function showLayer(n) {
+  n = Math.max(1, Math.min(Number($("slider").max), n));
+  state.current = n;
+  $("layer-number").textContent = n;
+  $("slider").value = n;
+  document.querySelectorAll("#timeline .cell.current").forEach((c) => c.classList.remove("current"));
+  const cell = document.querySelector('#timeline .cell[data-layer="' + n + '"]');
+  if (cell) cell.classList.add("current");
+  let detail;
+  try { detail = await getJson("/api/layers/" + n); } catch (e) { detail = null; }
+  if (state.current !== n) return;
+  const svg = kind() === "rectified" ? await vectorsSvg(n) : "";
+  const tiles = state.views.map((view) => {
+    const t = document.createElement("div");
+    const v = detail && detail.views[view];
+    t.className = "tile " + (v ? v.state : "none") + (kind() === "raw" ? " raw" : "");
+    t.dataset.view = view; t.dataset.layer = n;
+    const p = detail && detail.pictures[view];
+    if (p) {
+      const img = document.createElement("img");
+      img.alt = "layer " + n + " " + view; img.src = p[kind()]; img.dataset.layer = n;
+      t.append(img);
+      if (svg) { const o = document.createElement("div"); o.className = "vectors"; o.innerHTML = svg; t.append(o); }
+      t.addEventListener("click", () => openZoom(n, view, p));
+    }
+    const label = document.createElement("span"); label.className = "label"; label.textContent = view;
+    const st = document.createElement("span"); st.className = "state";
+    st.textContent = v ? v.state + (v.lag_ms != null ? " · " + v.lag_ms + " ms" : "") + (v.reason ? ": " + v.reason : "") : "no frame";
+    t.append(label, st);
+    return t;
+  });
+  $("views").replaceChildren(...tiles);
+  const d = $("layer-detail"); d.replaceChildren();
+  if (detail) {
+    const s = detail.summary;
+    dd(d, "frames", s.stored + " stored, " + s.missing + " missing");
+    dd(d, "rectified", s.processed + (s.failed ? ", " + s.failed + " failed" : ""), s.failed ? "bad" : "ok");
+    if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
+    for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
+    for (const f of detail.flags) dd(d, "flag", f, "wait");
+  }
+  $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
+}
+
+// Zoom: the preview on the left, a full-resolution crop around the clicked point on the right.
+let zoomed = null;
+async function openZoom(n, view, p) {
+  zoomed = { n, view, p, kind: kind() };
+  $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
+  $("zoom-img").src = p[zoomed.kind];
+  $("zoom-original").href = p.original;
+  $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
+  $("zoom-crop").hidden = true;
+  $("zoom").hidden = false;
+}
+$("zoom-img").addEventListener("click", (e) => {
+  const r = e.target.getBoundingClientRect();
+  const fx = (e.clientX - r.left) / r.width, fy = (e.clientY - r.top) / r.height;
+  const w = 0.1, h = 0.1;
+  const x = Math.min(1 - w, Math.max(0, fx - w / 2)), y = Math.min(1 - h, Math.max(0, fy - h / 2));
+  const c = $("zoom-crop");
+  c.src = zoomed.p[zoomed.kind] + "&x=" + x.toFixed(4) + "&y=" + y.toFixed(4) + "&w=" + w + "&h=" + h;
+  c.hidden = false;
+});
+function closeZoom() { $("zoom").hidden = true; zoomed = null; }
+$("zoom-close").addEventListener("click", closeZoom);
+
+$("slider").addEventListener("input", (e) => { setFollow(false); showLayer(Number(e.target.value)); });
+$("prev").addEventListener("click", () => { setFollow(false); showLayer(state.current - 1); });
+$("next").addEventListener("click", () => { setFollow(false); showLayer(state.current + 1); });
+$("follow").addEventListener("change", (e) => { setFollow(e.target.checked); if (state.follow && state.newest) showLayer(state.newest); });
+$("overlay").addEventListener("change", (e) => document.body.classList.toggle("no-overlay", !e.target.checked));
+$("raw").addEventListener("change", () => showLayer(state.current));
+document.addEventListener("keydown", (e) => {
+  if (e.target.tagName === "INPUT" && e.target.type !== "checkbox") return;
+  if (e.key === "Escape") closeZoom();
+  else if (e.key === "ArrowLeft") { setFollow(false); showLayer(state.current - 1); }
+  else if (e.key === "ArrowRight") { setFollow(false); showLayer(state.current + 1); }
+  else if (e.key === "End") { setFollow(true); if (state.newest) showLayer(state.newest); }
+  else if (e.key === "Home") { setFollow(false); showLayer(1); }
+  else if (e.key === "v") $("overlay").click();
+  else if (e.key === "r") $("raw").click();
+});
+
+let refreshing = false, again = false;
+async function refresh(status) {
+  showStatus(status);
+  if (refreshing) { again = true; return; }
+  refreshing = true;
+  try { await loadLayers(); } catch (e) { console.error(e); }
+  refreshing = false;
+  if (again) { again = false; refresh(null); }
+}
+
+const events = new EventSource("/api/events");
+events.addEventListener("update", (e) => refresh(JSON.parse(e.data).status));
+events.onerror = () => { $("state").textContent = "connection to the daemon lost; retrying"; };
+refresh(null);
+getJson("/api/status").then(showStatus).catch(() => {});

@@ -1,0 +1,607 @@
+//! The page's routes: static files, JSON, pictures, originals, vectors and the event stream.
+//! Requests name layers and views only; both are checked before anything reaches the disk.
+
+use super::preview::{Kind, PreviewError, Region};
+use super::timeline::LayerState;
+use super::Shared;
+use crate::build_dir::RAW_DIR;
+use crate::shot::{Shot, View, MAX_LAYER};
+use axum::body::Bytes;
+use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::{Json, Router};
+use serde::Deserialize;
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+const INDEX_HTML: &str = include_str!("page/index.html");
+const APP_JS: &str = include_str!("page/app.js");
+const STYLE_CSS: &str = include_str!("page/style.css");
+const CALIBRATE_HTML: &str = include_str!("page/calibrate.html");
+
+/// Request bodies the page accepts (only the calibration page sends one).
+pub const MAX_BODY_BYTES: usize = 64 * 1024;
+
+pub(crate) fn router(shared: Arc<Shared>) -> Router {
+    Router::new()
+        .route(
+            "/",
+            get(|| async { page(INDEX_HTML, "text/html; charset=utf-8") }),
+        )
+        .route(
+            "/app.js",
+            get(|| async { page(APP_JS, "text/javascript; charset=utf-8") }),
+        )
+        .route(
+            "/style.css",
+            get(|| async { page(STYLE_CSS, "text/css; charset=utf-8") }),
+        )
+        .route(
+            "/calibrate",
+            get(|| async { page(CALIBRATE_HTML, "text/html; charset=utf-8") }),
+        )
+        .route("/api/calibration", axum::routing::post(calibrate))
+        .route("/api/calibration/{stamp}/overlay.png", get(overlay))
+        .route("/api/status", get(status))
+        .route("/api/layers", get(layers))
+        .route("/api/layers/{layer}", get(layer))
+        .route("/api/layers/{layer}/vectors.svg", get(vectors))
+        .route("/api/layers/{layer}/{view}/picture.jpg", get(picture))
+        .route("/api/layers/{layer}/{view}/original", get(original))
+        .route("/api/events", get(events))
+        .layer(middleware::from_fn_with_state(shared.clone(), authorize))
+        .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
+        .with_state(shared)
+}
+
+fn page(text: &'static str, kind: &'static str) -> Response {
+    ([(header::CONTENT_TYPE, kind)], text).into_response()
+}
+
+/// An error answer: its status and what to do, as JSON.
+pub(crate) struct ApiError(StatusCode, String);
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.0, Json(json!({ "error": self.1 }))).into_response()
+    }
+}
+
+fn bad(message: impl Into<String>) -> ApiError {
+    ApiError(StatusCode::BAD_REQUEST, message.into())
+}
+
+fn not_found(message: impl Into<String>) -> ApiError {
+    ApiError(StatusCode::NOT_FOUND, message.into())
+}
+
+/// A layer number as typed by a user: 1 to 99999, digits only.
+pub fn parse_layer(text: &str) -> Result<u32, ApiError> {
+    let digits = !text.is_empty() && text.len() <= 5 && text.bytes().all(|b| b.is_ascii_digit());
+    match text.parse::<u32>() {
+        Ok(n) if digits && (1..=MAX_LAYER).contains(&n) => Ok(n),
+        _ => Err(bad(format!(
+            "'{}' is not a layer number (1 to {MAX_LAYER})",
+            text.escape_debug()
+        ))),
+    }
+}
+
+/// A view name: `{phase}_{light}` exactly as the build directory spells it.
+pub fn parse_view(text: &str) -> Result<View, ApiError> {
+    let view = text.split_once('_').and_then(|(phase, light)| {
+        Some(View {
+            phase: phase.parse().ok()?,
+            light: light.parse().ok()?,
+        })
+    });
+    match view {
+        Some(v) if v.to_string() == text => Ok(v),
+        _ => Err(bad(format!(
+            "'{}' is not a view: pre or post, then front, side or top, e.g. post_top",
+            text.escape_debug()
+        ))),
+    }
+}
+
+/// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
+async fn authorize(State(shared): State<Arc<Shared>>, request: Request, next: Next) -> Response {
+    let Some(token) = &shared.token else {
+        return next.run(request).await;
+    };
+    let headers = request.headers();
+    let bearer = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "));
+    let cookie = headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .filter_map(|c| c.trim().strip_prefix("layerwise_token="))
+        .next();
+    let query = request
+        .uri()
+        .query()
+        .into_iter()
+        .flat_map(|q| q.split('&'))
+        .find_map(|kv| kv.strip_prefix("token="));
+    let equal = |given: Option<&str>| given.is_some_and(|g| same(g.as_bytes(), token.as_bytes()));
+    if equal(bearer) || equal(cookie) {
+        return next.run(request).await;
+    }
+    if equal(query) {
+        let mut response = next.run(request).await;
+        let cookie = format!("layerwise_token={token}; HttpOnly; SameSite=Strict; Path=/");
+        if let Ok(value) = HeaderValue::from_str(&cookie) {
+            response.headers_mut().insert(header::SET_COOKIE, value);
+        }
+        return response;
+    }
+    ApiError(
+        StatusCode::UNAUTHORIZED,
+        "this page needs the token of web.token_file: open it as /?token=… or send Authorization: Bearer …".into(),
+    )
+    .into_response()
+}
+
+/// Compares in time independent of where the first difference is.
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+async fn status(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let cached = shared
+        .status
+        .read()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    let report = match cached {
+        Some(r) => Some(r),
+        None => blocking(move || shared.refresh_status()).await?,
+    };
+    report.map(|r| Json(&*r).into_response()).ok_or_else(|| {
+        not_found("no build here yet (no journal.jsonl): the daemon has not started it")
+    })
+}
+
+/// The configured views, else those the journal shows.
+fn views(shared: &Shared) -> Vec<String> {
+    match shared.info() {
+        Some(info) => info.views.iter().map(ToString::to_string).collect(),
+        None => {
+            let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
+            let mut seen: Vec<String> = timeline
+                .layers
+                .values()
+                .flat_map(|l| l.views.keys().cloned())
+                .collect();
+            seen.sort();
+            seen.dedup();
+            seen
+        }
+    }
+}
+
+#[derive(Deserialize)]
+struct LayersQuery {
+    from: Option<u32>,
+}
+
+async fn layers(
+    State(shared): State<Arc<Shared>>,
+    Query(q): Query<LayersQuery>,
+) -> Json<serde_json::Value> {
+    let views = views(&shared);
+    let info = shared.info();
+    let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
+    let from = q.from.unwrap_or(0);
+    let layers: Vec<_> = timeline
+        .layers
+        .range(from..)
+        .map(|(_, l)| l.summary())
+        .collect();
+    let expected = shared
+        .status
+        .read()
+        .unwrap_or_else(|e| e.into_inner())
+        .as_ref()
+        .and_then(|s| s.layers_expected);
+    Json(json!({
+        "views": views,
+        "newest": timeline.newest_with_frames(),
+        "complete": timeline.newest_complete(views.len()),
+        "layers_expected": expected,
+        "rectified": info.as_ref().is_some_and(|i| i.rectification.is_some()),
+        "vectors": info.as_ref().is_some_and(|i| i.vectors_file.is_some()),
+        "grid": info.as_ref().map(|i| i.grid),
+        "calibration_page": shared.config.calibration_page,
+        "layers": layers,
+    }))
+}
+
+async fn layer(
+    State(shared): State<Arc<Shared>>,
+    Path(layer): Path<String>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    let n = parse_layer(&layer)?;
+    let state = layer_state(&shared, n)?;
+    let pictures: BTreeMap<String, serde_json::Value> = state
+        .views
+        .iter()
+        .filter(|(_, v)| v.file.is_some())
+        .map(|(view, _)| {
+            let base = format!("/api/layers/{n}/{view}");
+            (
+                view.clone(),
+                json!({
+                    "rectified": format!("{base}/picture.jpg?kind=rectified"),
+                    "raw": format!("{base}/picture.jpg?kind=raw"),
+                    "original": format!("{base}/original"),
+                }),
+            )
+        })
+        .collect();
+    Ok(Json(json!({
+        "layer": n,
+        "summary": state.summary(),
+        "views": state.views,
+        "signals": state.signals,
+        "flags": state.flags,
+        "pictures": pictures,
+        "vectors": format!("/api/layers/{n}/vectors.svg"),
+    })))
+}
+
+fn layer_state(shared: &Shared, n: u32) -> Result<LayerState, ApiError> {
+    let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
+    timeline
+        .layers
+        .get(&n)
+        .cloned()
+        .ok_or_else(|| not_found(format!("layer {n} has no frames or signals (yet)")))
+}
+
+/// The stored original of a view of a layer, from the journal, checked to be
+/// `raw/L{layer}_{view}.{ext}` in the build directory.
+fn original_path(shared: &Shared, n: u32, view: View) -> Result<std::path::PathBuf, ApiError> {
+    let state = layer_state(shared, n)?;
+    let file = state
+        .view(view)
+        .and_then(|v| v.file.clone())
+        .ok_or_else(|| not_found(format!("layer {n} has no {view} frame")))?;
+    let stem = Shot {
+        layer: n,
+        phase: view.phase,
+        light: view.light,
+    }
+    .stem();
+    let ext = file
+        .strip_prefix(&format!("{RAW_DIR}/{stem}."))
+        .filter(|e| !e.is_empty() && e.len() <= 8 && e.bytes().all(|b| b.is_ascii_alphanumeric()))
+        .ok_or_else(|| {
+            not_found(format!(
+                "the journal names an unexpected file for layer {n} {view}"
+            ))
+        })?;
+    Ok(shared.dir.join(RAW_DIR).join(format!("{stem}.{ext}")))
+}
+
+#[derive(Deserialize)]
+struct PictureQuery {
+    kind: Option<String>,
+    x: Option<f64>,
+    y: Option<f64>,
+    w: Option<f64>,
+    h: Option<f64>,
+}
+
+async fn picture(
+    State(shared): State<Arc<Shared>>,
+    Path((layer, view)): Path<(String, String)>,
+    Query(q): Query<PictureQuery>,
+) -> Result<Response, ApiError> {
+    let (n, view) = (parse_layer(&layer)?, parse_view(&view)?);
+    let kind: Kind = q
+        .kind
+        .as_deref()
+        .unwrap_or("rectified")
+        .parse()
+        .map_err(bad)?;
+    let region = match (q.x, q.y, q.w, q.h) {
+        (None, None, None, None) => Region::WHOLE,
+        (Some(x), Some(y), Some(w), Some(h)) => Region::checked(x, y, w, h).map_err(bad)?,
+        _ => return Err(bad("a crop needs all of x, y, w and h")),
+    };
+    let path = original_path(&shared, n, view)?;
+    let jpeg = make_picture(&shared, path, kind, region).await?;
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/jpeg"),
+            (header::CACHE_CONTROL, "private, max-age=600"),
+        ],
+        jpeg,
+    )
+        .into_response())
+}
+
+/// The picture from the cache, else made on the blocking pool, one at a time.
+async fn make_picture(
+    shared: &Arc<Shared>,
+    path: std::path::PathBuf,
+    kind: Kind,
+    region: Region,
+) -> Result<Bytes, ApiError> {
+    if let Some(hit) = shared.pictures.cached(&path, kind, region) {
+        return Ok(hit);
+    }
+    let _turn = shared
+        .encode
+        .acquire()
+        .await
+        .map_err(|_| ApiError(StatusCode::SERVICE_UNAVAILABLE, "shutting down".into()))?;
+    let s = shared.clone();
+    blocking(move || {
+        let info = s.info();
+        let rectification = info.as_ref().and_then(|i| i.rectification.as_ref());
+        s.pictures.picture(&path, kind, region, rectification)
+    })
+    .await?
+    .map_err(|e| match e {
+        PreviewError::NoCalibration => not_found(e.to_string()),
+        other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, other.to_string()),
+    })
+}
+
+/// Makes the previews of the newest layer before a page asks for them.
+pub(crate) async fn prepare_newest(shared: &Arc<Shared>) {
+    let newest = {
+        let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
+        timeline
+            .newest_with_frames()
+            .and_then(|n| timeline.layers.get(&n).cloned())
+    };
+    let Some(state) = newest else { return };
+    let kind = match shared.info() {
+        Some(info) if info.rectification.is_some() => Kind::Rectified,
+        _ => Kind::Raw,
+    };
+    for view in state.views.keys().filter_map(|v| parse_view(v).ok()) {
+        if let Ok(path) = original_path(shared, state.layer, view) {
+            let _ = make_picture(shared, path, kind, Region::WHOLE).await;
+        }
+    }
+}
+
+async fn original(
+    State(shared): State<Arc<Shared>>,
+    Path((layer, view)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    let (n, view) = (parse_layer(&layer)?, parse_view(&view)?);
+    let path = original_path(&shared, n, view)?;
+    let kind = match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+    {
+        Some(e) if e == "jpg" || e == "jpeg" => "image/jpeg",
+        Some(e) if e == "png" => "image/png",
+        Some(e) if e == "tif" || e == "tiff" => "image/tiff",
+        _ => "application/octet-stream",
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let bytes = blocking(move || std::fs::read(&path))
+        .await?
+        .map_err(|e| not_found(format!("{name}: {e}")))?;
+    let disposition = format!("inline; filename=\"{name}\"");
+    let mut headers = HeaderMap::new();
+    headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(kind));
+    if let Ok(v) = HeaderValue::from_str(&disposition) {
+        headers.insert(header::CONTENT_DISPOSITION, v);
+    }
+    Ok((headers, bytes).into_response())
+}
+
+/// Most vector segments drawn over a picture; beyond it hatches are thinned out evenly.
+const MAX_SEGMENTS: usize = 40_000;
+
+async fn vectors(
+    State(shared): State<Arc<Shared>>,
+    Path(layer): Path<String>,
+) -> Result<Response, ApiError> {
+    let n = parse_layer(&layer)?;
+    let info = shared
+        .info()
+        .ok_or_else(|| not_found("the build has no configuration snapshot yet"))?;
+    let svg = blocking(move || -> Result<String, ApiError> {
+        let index = info
+            .vectors()
+            .ok_or_else(|| not_found("the build has no vector file (build.vectors)"))?
+            .map_err(|e| not_found(format!("the build's vector file: {e}")))?;
+        let position = index
+            .layer_map(info.numbering)
+            .position(n)
+            .ok_or_else(|| not_found(format!("the vector file has no layer {n}")))?;
+        let layer = index
+            .read_layer(position)
+            .map_err(|e| not_found(e.to_string()))?;
+        Ok(layer_svg(&layer, &info.grid))
+    })
+    .await??;
+    Ok(([(header::CONTENT_TYPE, "image/svg+xml")], svg).into_response())
+}
+
+/// A layer's contours and hatches in the pixels of `grid` (viewBox = the whole grid).
+pub fn layer_svg(layer: &crate::vectors::Layer, grid: &crate::geometry::Grid) -> String {
+    use std::fmt::Write;
+    let at = |x: f64, y: f64| {
+        let (row, col) = grid.pixel_of(x, y);
+        (col + 0.5, row + 0.5)
+    };
+    let mut contours = String::new();
+    for polyline in &layer.polylines {
+        for (i, p) in polyline.points.iter().enumerate() {
+            let (x, y) = at(p[0], p[1]);
+            let _ = write!(contours, "{}{x:.1} {y:.1} ", if i == 0 { 'M' } else { 'L' });
+        }
+    }
+    let total: usize = layer.hatches.iter().map(|h| h.segments.len()).sum();
+    let step = total.div_ceil(MAX_SEGMENTS).max(1);
+    let mut hatches = String::new();
+    for s in layer.hatches.iter().flat_map(|h| &h.segments).step_by(step) {
+        let (x0, y0) = at(s[0], s[1]);
+        let (x1, y1) = at(s[2], s[3]);
+        let _ = write!(hatches, "M{x0:.1} {y0:.1} L{x1:.1} {y1:.1} ");
+    }
+    format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 {} {}\" preserveAspectRatio=\"none\">\
+         <path class=\"hatch\" d=\"{hatches}\" fill=\"none\" stroke=\"#29b6f6\" stroke-opacity=\"0.5\" vector-effect=\"non-scaling-stroke\"/>\
+         <path class=\"contour\" d=\"{contours}\" fill=\"none\" stroke=\"#ff4081\" stroke-width=\"1.5\" vector-effect=\"non-scaling-stroke\"/></svg>",
+        grid.columns(),
+        grid.rows()
+    )
+}
+
+async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError> {
+    let open = shared.streams.fetch_add(1, Ordering::SeqCst);
+    let guard = StreamGuard(shared.clone());
+    if open >= shared.config.max_event_streams {
+        return Err(ApiError(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("{open} pages are open already (web.max_event_streams); close one"),
+        ));
+    }
+    let updates = shared.updates.subscribe();
+    let stop = shared.stop.clone();
+    let stream = futures_util::stream::unfold(
+        (updates, stop, guard, true),
+        |(mut updates, mut stop, guard, first)| async move {
+            if !first {
+                tokio::select! {
+                    changed = updates.changed() => changed.ok()?,
+                    _ = stop.wait_for(|s| *s) => return None,
+                }
+            }
+            let version = *updates.borrow_and_update();
+            let event = update_event(&guard.0, version);
+            Some((
+                Ok::<_, std::convert::Infallible>(event),
+                (updates, stop, guard, false),
+            ))
+        },
+    );
+    Ok(Sse::new(stream)
+        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .into_response())
+}
+
+/// Counts an open event stream until it ends.
+struct StreamGuard(Arc<Shared>);
+
+impl Drop for StreamGuard {
+    fn drop(&mut self) {
+        self.0.streams.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// What an open page is told on every change: the newest layer and the status.
+fn update_event(shared: &Shared, version: u64) -> Event {
+    let newest = shared
+        .timeline
+        .read()
+        .unwrap_or_else(|e| e.into_inner())
+        .newest_with_frames();
+    let status = shared
+        .status
+        .read()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    let data = json!({ "version": version, "newest": newest, "status": status.as_deref() });
+    Event::default().event("update").data(data.to_string())
+}
+
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> T + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(f).await.map_err(|e| {
+        ApiError(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            format!("request failed: {e}"),
+        )
+    })
+}
+
+#[derive(Deserialize)]
+struct CalibrationRequest {
+    layer: u32,
+    view: String,
+    points: Vec<super::calibration::ClickedPair>,
+}
+
+/// The calibration page's save: a new points file, then the registration (when enabled).
+async fn calibrate(
+    State(shared): State<Arc<Shared>>,
+    Json(request): Json<CalibrationRequest>,
+) -> Result<Json<super::calibration::CalibrationResult>, ApiError> {
+    if !shared.config.calibration_page {
+        return Err(ApiError(
+            StatusCode::FORBIDDEN,
+            "the calibration page is off: set web.calibration_page = true (or serve --calibration-page)".into(),
+        ));
+    }
+    let n = parse_layer(&request.layer.to_string())?;
+    let view = parse_view(&request.view)?;
+    let original = original_path(&shared, n, view)?;
+    let (vectors, numbering) = shared
+        .info()
+        .and_then(|i| Some((i.vectors_file.clone()?, i.numbering)))
+        .ok_or_else(|| bad("the build has no vector file (build.vectors) to register to"))?;
+    let _turn = shared
+        .encode
+        .acquire()
+        .await
+        .map_err(|_| ApiError(StatusCode::SERVICE_UNAVAILABLE, "shutting down".into()))?;
+    let dir = shared.dir.clone();
+    blocking(move || {
+        super::calibration::save_and_register(
+            &dir,
+            (&vectors, numbering),
+            &original,
+            n,
+            &view.to_string(),
+            &request.points,
+            chrono::Utc::now(),
+        )
+    })
+    .await?
+    .map(Json)
+    .map_err(|e| bad(e.to_string()))
+}
+
+async fn overlay(
+    State(shared): State<Arc<Shared>>,
+    Path(stamp): Path<String>,
+) -> Result<Response, ApiError> {
+    if !super::calibration::is_stamp(&stamp) {
+        return Err(bad("not a calibration of this page"));
+    }
+    let path = shared
+        .dir
+        .join(super::calibration::CALIBRATION_DIR)
+        .join(format!("overlay-{stamp}.png"));
+    let png = blocking(move || std::fs::read(path))
+        .await?
+        .map_err(|_| not_found("no such overlay"))?;
+    Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
+}

@@ -1,0 +1,482 @@
+//! The operator page over HTTP: `layerwise serve` on a finished build (JSON, pictures, crops,
+//! originals, vectors, events; requests that try to leave the build directory), and the daemon
+//! serving its page while it captures, with many connections open.
+
+mod common;
+
+use common::*;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// One HTTP/1.1 request on its own connection: (status, body).
+fn http(addr: SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, Vec<u8>) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+    write!(
+        s,
+        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    )
+    .unwrap();
+    // The server may answer (413, 405) before reading a large body and close.
+    let _ = s.write_all(body);
+    let mut response = Vec::new();
+    let _ = s.read_to_end(&mut response);
+    let split = response
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .unwrap_or_else(|| {
+            panic!(
+                "{path}: no HTTP head in {:?}",
+                String::from_utf8_lossy(&response)
+            )
+        });
+    let head = String::from_utf8_lossy(&response[..split]).to_ascii_lowercase();
+    let status = head[9..12].parse().unwrap();
+    let mut body = response[split + 4..].to_vec();
+    if head.contains("transfer-encoding: chunked") {
+        body = dechunk(&body);
+    }
+    (status, body)
+}
+
+fn dechunk(mut data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let line_end = data.windows(2).position(|w| w == b"\r\n").unwrap();
+        let size =
+            usize::from_str_radix(std::str::from_utf8(&data[..line_end]).unwrap().trim(), 16)
+                .unwrap();
+        if size == 0 {
+            return out;
+        }
+        out.extend_from_slice(&data[line_end + 2..line_end + 2 + size]);
+        data = &data[line_end + 4 + size..];
+    }
+}
+
+fn get_json(addr: SocketAddr, path: &str) -> serde_json::Value {
+    let (status, body) = http(addr, "GET", path, b"");
+    assert_eq!(status, 200, "{path}: {}", String::from_utf8_lossy(&body));
+    serde_json::from_slice(&body).unwrap()
+}
+
+fn get_jpeg(addr: SocketAddr, path: &str) -> image::DynamicImage {
+    let (status, body) = http(addr, "GET", path, b"");
+    assert_eq!(status, 200, "{path}: {}", String::from_utf8_lossy(&body));
+    image::load_from_memory_with_format(&body, image::ImageFormat::Jpeg).unwrap()
+}
+
+/// A calibrated mock build of `layers` layers with a synthetic vector file.
+fn web_config(dir: &Path, layers: u32) -> layerwise::config::Config {
+    let mut config = calibrated_config(dir, layers, layerwise::dicom::Compression::None);
+    let vectors = dir.join("part.cli");
+    let mut out = std::fs::File::create(&vectors).unwrap();
+    layerwise::vectors::write_ascii(
+        &layerwise::vectors::synth::generate(layers as usize, 40, 32),
+        &mut out,
+    )
+    .unwrap();
+    config.build.vectors = Some(vectors);
+    config
+}
+
+/// Reads a child's stream on a thread (so the child never blocks on a full pipe) and returns
+/// the first `http://…/` address it prints, and the whole text once the stream ends.
+fn watch_output(
+    stream: impl Read + Send + 'static,
+) -> (SocketAddr, std::thread::JoinHandle<String>) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(stream).lines().map_while(Result::ok) {
+            if let Some(at) = line.find("http://") {
+                let rest = &line[at + 7..];
+                let _ = tx.send(rest[..rest.find('/').unwrap()].to_string());
+            }
+            all.push_str(&line);
+            all.push('\n');
+        }
+        all
+    });
+    let addr = rx
+        .recv_timeout(Duration::from_secs(60))
+        .expect("the page's address is printed")
+        .parse()
+        .unwrap();
+    (addr, reader)
+}
+
+/// A finished mock build of `layers` layers in `tmp/build` (see [`web_config`]).
+fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
+    let dir = tmp.join("build");
+    let config_path = tmp.join("layerwise.toml");
+    write_config(&web_config(&dir, layers), &config_path);
+    run_build(&config_path);
+    dir
+}
+
+/// A `layerwise serve` that is stopped when dropped, also when a test fails half-way.
+struct Served(std::process::Child);
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `layerwise serve` of `dir` on a free port, with `extra` arguments.
+fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
+    let mut child = layerwise()
+        .args(["serve", "--listen", "127.0.0.1:0", "--build"])
+        .arg(dir)
+        .args(extra)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (addr, _) = watch_output(child.stdout.take().unwrap());
+    (Served(child), addr)
+}
+
+#[test]
+fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 3);
+    let (child, addr) = serve(&dir, &[]);
+
+    let (status, page) = http(addr, "GET", "/", b"");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&page).contains("id=\"layer-number\""));
+    assert_eq!(http(addr, "GET", "/app.js", b"").0, 200);
+
+    let report = get_json(addr, "/api/status");
+    assert_eq!(report["layer"], 3);
+    assert_eq!(report["frames"], 18);
+    let layers = get_json(addr, "/api/layers");
+    assert_eq!(layers["newest"], 3);
+    assert_eq!(layers["views"].as_array().unwrap().len(), 6);
+    assert_eq!(
+        (layers["rectified"].as_bool(), layers["vectors"].as_bool()),
+        (Some(true), Some(true))
+    );
+    let timeline = layers["layers"].as_array().unwrap();
+    assert_eq!(timeline.len(), 3);
+    for l in timeline {
+        assert_eq!(
+            (
+                l["stored"].as_u64(),
+                l["processed"].as_u64(),
+                l["missing"].as_u64()
+            ),
+            (Some(6), Some(6), Some(0)),
+            "{l}"
+        );
+        assert!(l["lag_ms"].as_i64().unwrap() >= 0);
+    }
+    let layer = get_json(addr, "/api/layers/2");
+    assert_eq!(layer["views"]["post_top"]["state"], "processed");
+    assert_eq!(
+        layer["views"]["post_top"]["file"],
+        "raw/L00002_post_top.jpg"
+    );
+
+    // Previews: rectified on the 550 x 550 grid, the oblique frame at its 320 x 214; a crop of a
+    // tenth of the plate at full resolution.
+    let rectified = get_jpeg(
+        addr,
+        layer["pictures"]["post_top"]["rectified"].as_str().unwrap(),
+    );
+    assert_eq!((rectified.width(), rectified.height()), (550, 550));
+    let raw = get_jpeg(addr, layer["pictures"]["post_top"]["raw"].as_str().unwrap());
+    assert_eq!((raw.width(), raw.height()), (320, 214));
+    let crop = get_jpeg(
+        addr,
+        "/api/layers/2/post_top/picture.jpg?kind=rectified&x=0.45&y=0.45&w=0.1&h=0.1",
+    );
+    assert_eq!((crop.width(), crop.height()), (55, 55));
+    // The preview shows the frame: the middle of the plate is not the fill of pixels off the frame.
+    assert!(rectified.to_luma8().get_pixel(275, 275)[0] > 0);
+    let (status, original) = http(addr, "GET", "/api/layers/2/post_top/original", b"");
+    assert_eq!(status, 200);
+    assert_eq!(
+        original,
+        std::fs::read(dir.join("raw/L00002_post_top.jpg")).unwrap()
+    );
+    let (status, svg) = http(addr, "GET", "/api/layers/2/vectors.svg", b"");
+    let svg = String::from_utf8(svg).unwrap();
+    assert_eq!(status, 200);
+    assert!(
+        svg.contains("viewBox=\"0 0 550 550\"") && svg.contains("class=\"contour\" d=\"M"),
+        "{svg:.300}"
+    );
+
+    // The event stream tells a page where the build stands as soon as it connects.
+    let mut events = TcpStream::connect(addr).unwrap();
+    events
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    )
+    .unwrap();
+    let mut seen = String::new();
+    let mut buf = [0u8; 4096];
+    while !seen.contains("\"newest\":3") {
+        let n = events.read(&mut buf).expect("an update event arrives");
+        assert!(n > 0, "stream closed: {seen}");
+        seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+    }
+    assert!(
+        seen.contains("text/event-stream") && seen.contains("event: update"),
+        "{seen}"
+    );
+
+    // Only layer numbers and view names reach the disk.
+    let journal = std::fs::read_to_string(dir.join("journal.jsonl")).unwrap();
+    for path in [
+        "/api/layers/..",
+        "/api/layers/0",
+        "/api/layers/100000",
+        "/api/layers/4294967297",
+        "/api/layers/99999999999999999999999",
+        "/api/layers/-1",
+        "/api/layers/+2",
+        "/api/layers/2.0",
+        "/api/layers/%2e%2e",
+        "/api/layers/..%2F..%2Fjournal.jsonl",
+        "/api/layers/2/..%2F..%2Fjournal.jsonl/original",
+        "/api/layers/2/post_top%2F..%2F..%2Fjournal.jsonl/original",
+        "/api/layers/2/%2Fetc%2Fpasswd/original",
+        "/api/layers/2/..%5C..%5Cjournal.jsonl/original",
+        "/api/layers/2/POST_TOP/original",
+        "/api/layers/2/post_top/../../../journal.jsonl",
+        "/api/layers/2/post_top/picture.jpg?kind=..%2F..%2Fjournal.jsonl",
+        "/api/layers/2/post_top/picture.jpg?x=0.9&y=0&w=0.5&h=0.1",
+        "/api/layers/2/post_top/picture.jpg?x=NaN&y=0&w=0.1&h=0.1",
+        "/api/layers/2/post_top/picture.jpg?x=0&y=0&w=1e-300&h=0.1",
+        "/api/layers/2/post_top/picture.jpg?x=0",
+        "/api/layers/99/post_top/original",
+        "/api/layers/99/vectors.svg",
+        "/journal.jsonl",
+        "/raw/L00002_post_top.jpg",
+        "//etc/passwd",
+        "/../journal.jsonl",
+    ] {
+        let (status, body) = http(addr, "GET", path, b"");
+        let text = String::from_utf8_lossy(&body);
+        assert!(matches!(status, 400 | 404), "{path}: {status} {text:.200}");
+        assert!(
+            !text.contains("\"kind\":\"frame\"") && !text.contains("root:"),
+            "{path}: {text:.200}"
+        );
+        assert!(!journal.is_empty());
+    }
+    // Read-only, with bounded request bodies.
+    let (status, _) = http(addr, "POST", "/api/layers", &vec![b'x'; 1 << 20]);
+    assert!(matches!(status, 405 | 413), "{status}");
+    let (status, _) = http(addr, "PUT", "/api/layers/2/post_top/original", b"x");
+    assert_eq!(status, 405);
+    // Still serving after all that.
+    assert_eq!(get_json(addr, "/api/layers/3")["layer"], 3);
+    drop(child);
+}
+
+#[test]
+fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_slow_capture() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let mut config = web_config(&dir, 8);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 150;
+    }
+    config.web.listen = "127.0.0.1:0".into();
+    config.web.max_connections = 8;
+    config.web.max_event_streams = 4;
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let started = Instant::now();
+    let mut child = spawn_build(&config_path, std::process::Stdio::piped());
+    let (addr, stderr) = watch_output(child.stderr.take().unwrap());
+    // Four open pages, then two hundred connections that never send a request: far beyond
+    // web.max_connections. They wait in the backlog; capture does not notice.
+    let mut streams = Vec::new();
+    for _ in 0..4 {
+        let mut s = TcpStream::connect(addr).unwrap();
+        write!(s, "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n").unwrap();
+        streams.push(s);
+    }
+    let idle: Vec<TcpStream> = (0..200)
+        .filter_map(|_| TcpStream::connect(addr).ok())
+        .collect();
+    assert!(idle.len() >= 100, "only {} connections", idle.len());
+    let status = child.wait().unwrap();
+    let log = stderr.join().unwrap();
+    assert!(status.success(), "{log}");
+    let elapsed = started.elapsed();
+    let replay = replay(&dir);
+    assert_eq!(
+        (replay.frames.len(), replay.missing.len()),
+        (48, 0),
+        "{log}"
+    );
+    // 16 signals 150 ms apart: the build takes its signals' time plus capture, not more.
+    assert!(elapsed < Duration::from_secs(30), "{elapsed:?}\n{log}");
+    for entry in std::fs::read_dir(dir.join("raw")).unwrap().flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "json") {
+            let sidecar = read_json(&path);
+            let ms = sidecar["capture_ms"].as_f64().unwrap();
+            assert!(ms < 2000.0, "{}: capture took {ms} ms", path.display());
+        }
+    }
+    drop(idle);
+    drop(streams);
+}
+
+/// Headless Chromium drives the page of a running build (tests/web_browser.py): the layer
+/// advances without a reload, the newest layer's picture loads, a click on an earlier layer of
+/// the timeline shows it. The screenshot is kept in target/test-artifacts/live-page.png.
+#[test]
+fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
+    let chromedriver = ["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"]
+        .into_iter()
+        .find(|p| Path::new(p).exists())
+        .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)");
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let mut config = web_config(&dir, 100);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 400;
+    }
+    config.web.listen = "127.0.0.1:0".into();
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let mut child = spawn_build(&config_path, std::process::Stdio::piped());
+    let (addr, stderr) = watch_output(child.stderr.take().unwrap());
+    let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-artifacts");
+    std::fs::create_dir_all(&artifacts).unwrap();
+    let screenshot = artifacts.join("live-page.png");
+    let _ = std::fs::remove_file(&screenshot);
+    let out = std::process::Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/web_browser.py"))
+        .arg(format!("http://{addr}/"))
+        .arg(chromedriver)
+        .arg(&screenshot)
+        .output()
+        .unwrap();
+    let daemon = terminate(child);
+    let log = stderr.join().unwrap();
+    assert!(out.status.success(), "{}\n--- daemon\n{log}", report(&out));
+    assert!(daemon.status.success(), "{log}");
+    let png = image::open(&screenshot).unwrap();
+    assert!(
+        png.width() >= 1000 && png.height() >= 600,
+        "{}x{}",
+        png.width(),
+        png.height()
+    );
+    println!("{}", String::from_utf8_lossy(&out.stdout));
+}
+
+/// POST /api/calibration as the calibration page sends it.
+fn post_pairs(addr: SocketAddr, layer: u32, pairs: &[[f64; 4]]) -> (u16, serde_json::Value) {
+    let points: Vec<_> = pairs
+        .iter()
+        .map(|p| serde_json::json!({"fx": p[0], "fy": p[1], "x": p[2], "y": p[3]}))
+        .collect();
+    let body = serde_json::json!({"layer": layer, "view": "post_top", "points": points});
+    let (status, answer) = http(
+        addr,
+        "POST",
+        "/api/calibration",
+        body.to_string().as_bytes(),
+    );
+    (status, serde_json::from_slice(&answer).unwrap_or_default())
+}
+
+#[test]
+fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 2);
+    // The clicks of an operator who hit the true points: build corners seen through the mock
+    // camera's homography, as fractions of the 320 x 214 frame.
+    let truth = mock_camera::Homography::oblique_view(320, 214);
+    let image_from_build = truth.inverse().unwrap();
+    let pairs: Vec<[f64; 4]> = [
+        (-60.0, -50.0),
+        (60.0, -50.0),
+        (60.0, 50.0),
+        (-60.0, 50.0),
+        (0.0, 0.0),
+    ]
+    .iter()
+    .map(|&(x, y)| {
+        let (u, v) = image_from_build.apply(x, y).unwrap();
+        [u / 320.0, v / 214.0, x, y]
+    })
+    .collect();
+    assert!(pairs
+        .iter()
+        .all(|p| (0.0..=1.0).contains(&p[0]) && (0.0..=1.0).contains(&p[1])));
+
+    let (off, addr) = serve(&dir, &[]);
+    let (status, body) = post_pairs(addr, 1, &pairs);
+    assert_eq!(status, 403, "{body}");
+    assert!(!dir.join("calibration").exists());
+    drop(off);
+
+    let (on, addr) = serve(&dir, &["--calibration-page"]);
+    let (status, page) = http(addr, "GET", "/calibrate", b"");
+    assert_eq!(status, 200);
+    assert!(String::from_utf8_lossy(&page).contains("Save &amp; register"));
+    assert_eq!(post_pairs(addr, 1, &pairs[..3]).0, 400);
+    assert_eq!(post_pairs(addr, 99, &pairs).0, 404);
+    let (status, first) = post_pairs(addr, 1, &pairs);
+    assert_eq!(status, 200, "{first}");
+    let points_file = dir.join(first["points_file"].as_str().unwrap());
+    assert!(first["points_file"]
+        .as_str()
+        .unwrap()
+        .starts_with("calibration/points-L00001-post_top-"));
+    let saved = std::fs::read_to_string(&points_file).unwrap();
+    let read = layerwise::calibrate::parse_points(&saved, &points_file).unwrap();
+    assert_eq!(read.len(), 5);
+    for (c, p) in read.iter().zip(&pairs) {
+        assert!((c.image.u - p[0] * 320.0).abs() < 0.01 && (c.image.v - p[1] * 214.0).abs() < 0.01);
+        assert!((c.build.x - p[2]).abs() < 1e-3 && (c.build.y - p[3]).abs() < 1e-3);
+    }
+    // The registration ran: a new calibration with its overlay and one residual per pair, or
+    // the registration's own error with the points kept.
+    match first["calibration_file"].as_str() {
+        Some(calibration) => {
+            assert!(dir.join(calibration).is_file());
+            assert_eq!(first["click_residuals_px"].as_array().unwrap().len(), 5);
+            let (status, png) = http(addr, "GET", first["overlay"].as_str().unwrap(), b"");
+            assert_eq!(status, 200);
+            assert!(png.starts_with(b"\x89PNG"));
+        }
+        None => assert!(
+            first["error"].as_str().is_some_and(|e| !e.is_empty()),
+            "{first}"
+        ),
+    }
+    // Saving again writes another file; the first stays as it was.
+    let (_, second) = post_pairs(addr, 1, &pairs);
+    assert_ne!(second["points_file"], first["points_file"]);
+    assert_eq!(std::fs::read_to_string(&points_file).unwrap(), saved);
+    assert_eq!(
+        http(
+            addr,
+            "GET",
+            "/api/calibration/..%2F..%2Fjournal/overlay.png",
+            b""
+        )
+        .0,
+        400
+    );
+    drop(on);
+}
