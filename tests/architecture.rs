@@ -13,7 +13,7 @@ const LAYERS: &[&[&str]] = &[
     &["build_dir", "config", "raster"],
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
-    &["export", "locate", "hardware"],
+    &["export", "locate", "hardware", "inspect"],
     &["acquisition"],
     &["sim"],
 ];

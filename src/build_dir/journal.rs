@@ -351,50 +351,60 @@ impl Journal {
     /// Calls `each` for every record and returns the byte offset after the last good one. Only
     /// the last line may be damaged (a write torn by a crash: cut short, or garbage after the last
     /// newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped.
-    fn scan(
-        path: &Path,
-        file: &mut File,
-        mut each: impl FnMut(Record),
-    ) -> Result<u64, JournalError> {
-        let io = |source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        file.seek(SeekFrom::Start(0)).map_err(io)?;
-        let mut data = Vec::new();
-        file.read_to_end(&mut data).map_err(io)?;
-        let mut offset = 0usize;
-        let mut number = 0usize;
-        while offset < data.len() {
-            number += 1;
-            let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
-                Some(i) => (offset + i, true),
-                None => (data.len(), false),
-            };
-            let next = if complete { end + 1 } else { end };
-            let last = next >= data.len();
-            let parsed = std::str::from_utf8(&data[offset..end])
-                .map_err(|e| format!("invalid UTF-8 ({e})"))
-                .and_then(|text| serde_json::from_str::<Record>(text).map_err(|e| e.to_string()));
-            match parsed {
-                Ok(record) if complete => each(record),
-                // A last line without its newline was torn even when it parses.
-                Ok(_) => return Ok(offset as u64),
-                Err(_) if last => return Ok(offset as u64),
-                Err(message) => {
-                    return Err(JournalError::Corrupt {
-                        path: path.to_path_buf(),
-                        offset: offset as u64,
-                        line: number,
-                        message,
-                    })
-                }
-            }
-            offset = next;
-        }
-        Ok(offset as u64)
+    fn scan(path: &Path, file: &mut File, each: impl FnMut(Record)) -> Result<u64, JournalError> {
+        scan_lines(path, file, each)
     }
+}
 
+/// Calls `each` for every JSON line of `file` and returns the byte offset after the last good
+/// one. Only the last line may be damaged (a write torn by a crash: cut short, or garbage after the
+/// last newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped. The
+/// journal and the inspection log share it.
+pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    file: &mut File,
+    mut each: impl FnMut(T),
+) -> Result<u64, JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    let mut data = Vec::new();
+    file.read_to_end(&mut data).map_err(io)?;
+    let mut offset = 0usize;
+    let mut number = 0usize;
+    while offset < data.len() {
+        number += 1;
+        let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
+            Some(i) => (offset + i, true),
+            None => (data.len(), false),
+        };
+        let next = if complete { end + 1 } else { end };
+        let last = next >= data.len();
+        let parsed = std::str::from_utf8(&data[offset..end])
+            .map_err(|e| format!("invalid UTF-8 ({e})"))
+            .and_then(|text| serde_json::from_str::<T>(text).map_err(|e| e.to_string()));
+        match parsed {
+            Ok(record) if complete => each(record),
+            // A last line without its newline was torn even when it parses.
+            Ok(_) => return Ok(offset as u64),
+            Err(_) if last => return Ok(offset as u64),
+            Err(message) => {
+                return Err(JournalError::Corrupt {
+                    path: path.to_path_buf(),
+                    offset: offset as u64,
+                    line: number,
+                    message,
+                })
+            }
+        }
+        offset = next;
+    }
+    Ok(offset as u64)
+}
+
+impl Journal {
     pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
         let io = |source| JournalError::Io {
             path: self.path.clone(),

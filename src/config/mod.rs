@@ -1,6 +1,8 @@
 //! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
 //! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
 
+pub mod inspection;
+
 use crate::fsutil::parse_toml;
 use crate::shot::{Light, Phase, View};
 use serde::{Deserialize, Serialize};
@@ -29,6 +31,9 @@ pub struct Config {
     pub calibration: CalibrationConfig,
     #[serde(default)]
     pub storage: StorageConfig,
+    /// Per-layer inspection and its alarm (src/config/inspection.rs).
+    #[serde(default)]
+    pub inspection: inspection::InspectionConfig,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -242,6 +247,9 @@ pub struct MockCameraConfig {
     /// Faults to inject, for tests and demonstrations.
     #[serde(default)]
     pub faults: Vec<MockFaultConfig>,
+    /// Anomalies to render, e.g. `["streak@40", "no-fusion@120/part=1"]` (inspection tests).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inject: Vec<inspection::MockInjection>,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -693,6 +701,9 @@ impl Config {
                 "calibration.crop_part",
                 "needs build.vectors: the part's outline comes from the vector file".into(),
             ));
+        }
+        if let Err((key, message)) = self.inspection.check() {
+            return Err(invalid(&key, message));
         }
         if self.storage.queue_capacity == 0 || self.storage.queue_capacity > MAX_QUEUE {
             return Err(invalid(
