@@ -156,11 +156,13 @@ pub fn streaks(
             .collect();
         let residual: Vec<f64> = (0..lines.lines)
             .map(|l| {
-                if !profile[l].is_finite() {
+                // A window centred on the line (shrinking toward the ends, so a slope in the
+                // lighting does not bias it); lines too near an end are not judged.
+                let h = half.min(l).min(lines.lines - 1 - l);
+                if !profile[l].is_finite() || h < 3 {
                     return f64::NAN;
                 }
-                let lo = l.saturating_sub(half);
-                let hi = (l + half + 1).min(lines.lines);
+                let (lo, hi) = (l - h, l + h + 1);
                 let mut window: Vec<f64> = profile[lo..hi]
                     .iter()
                     .copied()
@@ -243,9 +245,18 @@ pub fn streaks(
 /// Mean of the middle 60% of the values: a spot does not move it, and unlike a median of 8-bit
 /// grey levels it is not quantised.
 fn trimmed_mean(values: &mut [f64]) -> f64 {
-    values.sort_by(|a, b| a.total_cmp(b));
-    let cut = values.len() / 5;
-    let middle = &values[cut..values.len() - cut];
+    let n = values.len();
+    let cut = n / 5;
+    if n == 0 {
+        return f64::NAN;
+    }
+    if cut > 0 {
+        values.select_nth_unstable_by(cut, |a, b| a.total_cmp(b));
+        let upper = &mut values[cut..];
+        let keep = n - 2 * cut;
+        upper.select_nth_unstable_by(keep, |a, b| a.total_cmp(b));
+    }
+    let middle = &values[cut..n - cut];
     middle.iter().sum::<f64>() / middle.len().max(1) as f64
 }
 
@@ -429,41 +440,41 @@ pub fn elevation(
     let others = all.dilate(cells_of(2.0, grid).max(1));
     let mut found = Vec::new();
     let mut means = Vec::new();
-    for (part, foot) in footprints {
-        let inside = foot.and(valid);
+    let (rows, cols) = (cells.rows, cells.cols);
+    let ring_cells = cells_of(5.0, grid).max(3);
+    for (part, whole) in footprints {
+        let Some(part_box) = whole.bbox() else {
+            continue;
+        };
+        let window = part_box.expand(ring_cells + 2, rows, cols);
+        let (foot, valid, others) = (whole.crop(window), valid.crop(window), others.crop(window));
+        let at = |i: usize| (window.r0 + i / valid.cols) * cols + window.c0 + i % valid.cols;
+        let inside = foot.and(&valid);
         if inside.count() == 0 {
             continue;
         }
-        let m = inside
-            .on
-            .iter()
-            .zip(&cells.mean)
-            .filter(|(on, _)| **on)
-            .map(|(_, v)| f64::from(*v))
+        let m = (0..inside.on.len())
+            .filter(|&i| inside.on[i])
+            .map(|i| f64::from(cells.mean[at(i)]))
             .sum::<f64>()
             / inside.count() as f64;
         means.push((*part, m));
-        let region = foot.dilate(cells_of(1.0, grid).max(1)).and(valid);
-        let ring = foot
-            .dilate(cells_of(5.0, grid).max(3))
-            .minus(&others)
-            .and(valid);
+        let region = foot.dilate(cells_of(1.0, grid).max(1)).and(&valid);
+        let ring = foot.dilate(ring_cells).minus(&others).and(&valid);
         if ring.count() < 20 {
             continue;
         }
         let (center, sigma) = robust(
-            ring.on
-                .iter()
-                .zip(&smooth)
-                .filter(|(on, _)| **on)
-                .map(|(_, v)| *v),
+            (0..ring.on.len())
+                .filter(|&i| ring.on[i])
+                .map(|i| smooth[at(i)]),
             0.1,
         );
-        let mut hot = Mask::new(cells.rows, cells.cols);
+        let mut hot = Mask::new(region.rows, region.cols);
         let mut score = 0f64;
         let mut sign = 0f64;
         for (i, _) in region.on.iter().enumerate().filter(|(_, on)| **on) {
-            let z = (smooth[i] - center) / sigma;
+            let z = (smooth[at(i)] - center) / sigma;
             if z.abs() > score {
                 score = z.abs();
                 sign = z.signum();
@@ -475,7 +486,9 @@ pub fn elevation(
         if score < thr {
             continue;
         }
-        let Some(b) = hot.bbox() else { continue };
+        let Some(b) = hot.bbox().map(|b| b.within(window)) else {
+            continue;
+        };
         let [x0, y0, x1, y1] = box_mm(grid, b);
         found.push(Found {
             kind: FlagKind::Elevation,
@@ -514,36 +527,55 @@ pub fn fusion(
     cfg: &InspectionConfig,
 ) -> Fusion {
     let cell_mm2 = grid.pixel_mm * grid.pixel_mm;
-    let (texture_median, _) = robust(
-        valid
-            .on
-            .iter()
-            .zip(&cells.texture)
-            .filter(|(on, _)| **on)
-            .map(|(_, t)| f64::from(*t)),
-        1e-3,
-    );
-    let cut = (cfg.fused_texture_factor * texture_median) as f32;
-    let fused = Mask {
-        rows: cells.rows,
-        cols: cells.cols,
-        on: cells
-            .texture
-            .iter()
-            .zip(&valid.on)
-            .map(|(t, v)| *v && *t > cut)
-            .collect(),
+    let texture_of = |range: std::ops::Range<usize>| {
+        robust(
+            valid.on[range.clone()]
+                .iter()
+                .zip(&cells.texture[range])
+                .filter(|(on, _)| **on)
+                .map(|(_, t)| f64::from(*t)),
+            1e-3,
+        )
+        .0
     };
+    let texture_median = texture_of(0..cells.texture.len());
+    // The camera resolves the plate differently from near to far edge: the powder's texture is
+    // judged per row of cells (parts fill only a little of a row).
+    let mut fused = Mask::new(cells.rows, cells.cols);
+    for r in 0..cells.rows {
+        let range = r * cells.cols..(r + 1) * cells.cols;
+        let row = texture_of(range.clone());
+        let cut = cfg.fused_texture_factor * if row.is_finite() { row } else { texture_median };
+        for i in range {
+            fused.on[i] = valid.on[i] && f64::from(cells.texture[i]) > cut;
+        }
+    }
     let tol = cells_of(cfg.fusion_tolerance_mm, grid);
     let reach = tol + cells_of(3.0, grid).max(2);
     let near_any = all.dilate(tol);
     let mut found = Vec::new();
     let mut metrics = Vec::new();
-    for (part, v) in parts {
-        let area = v.count();
-        if area == 0 {
+    let (rows, cols) = (cells.rows, cells.cols);
+    for (part, whole) in parts {
+        let area = whole.count();
+        let Some(part_box) = whole.bbox() else {
             continue;
-        }
+        };
+        // Everything about a part happens near it: work in a window around it.
+        let window = part_box.expand(reach + 2, rows, cols);
+        let v = &whole.crop(window);
+        let fused = fused.crop(window);
+        let near_any = near_any.crop(window);
+        let in_window = |data: &[f32]| -> Vec<f32> {
+            (window.r0..=window.r1)
+                .flat_map(|r| {
+                    data[r * cols + window.c0..=r * cols + window.c1]
+                        .iter()
+                        .copied()
+                })
+                .collect()
+        };
+        let (mean, texture) = (in_window(&cells.mean), in_window(&cells.texture));
         let zone = v.dilate(tol);
         let fused_in = fused.and(&zone).count();
         let inter = fused.and(v).count();
@@ -570,12 +602,12 @@ pub fn fusion(
             iou: inter as f64 / union.max(1) as f64,
             unfused,
             excess_mm2,
-            post_mean: over(|x| f64::from(*x), &cells.mean),
-            post_contrast: over(|x| f64::from(*x), &cells.texture),
+            post_mean: over(|x| f64::from(*x), &mean),
+            post_contrast: over(|x| f64::from(*x), &texture),
             fused_fraction: inter as f64 / area as f64,
             pre_mean: None,
         });
-        let Some(b) = v.bbox() else { continue };
+        let b = part_box;
         let [x0, y0, x1, y1] = box_mm(grid, b);
         if let Some(u) = unfused.filter(|u| *u > cfg.max_unfused) {
             found.push(Found {
@@ -594,7 +626,7 @@ pub fn fusion(
         let allowed = cfg.max_excess.max(cfg.min_excess_mm2 / vector_mm2);
         let ratio = excess_mm2 / vector_mm2;
         if ratio > allowed {
-            if let Some(eb) = excess.bbox() {
+            if let Some(eb) = excess.bbox().map(|b| b.within(window)) {
                 let [ex0, ey0, ex1, ey1] = box_mm(grid, eb);
                 found.push(Found {
                     kind: FlagKind::OverFusion,

@@ -33,6 +33,24 @@ impl CellBox {
         self.c0 = self.c0.min(c);
         self.c1 = self.c1.max(c);
     }
+    /// Grown by `k` cells on every side, within `rows` x `cols`.
+    pub fn expand(self, k: usize, rows: usize, cols: usize) -> CellBox {
+        CellBox {
+            r0: self.r0.saturating_sub(k),
+            c0: self.c0.saturating_sub(k),
+            r1: (self.r1 + k).min(rows.saturating_sub(1)),
+            c1: (self.c1 + k).min(cols.saturating_sub(1)),
+        }
+    }
+    /// A box in the coordinates of a window back in the whole grid's.
+    pub fn within(self, window: CellBox) -> CellBox {
+        CellBox {
+            r0: self.r0 + window.r0,
+            c0: self.c0 + window.c0,
+            r1: self.r1 + window.r0,
+            c1: self.c1 + window.c0,
+        }
+    }
     pub fn union(self, o: CellBox) -> CellBox {
         CellBox {
             r0: self.r0.min(o.r0),
@@ -73,6 +91,23 @@ impl Mask {
             rows: self.rows,
             cols: self.cols,
             on: self.on.iter().zip(&o.on).map(|(&a, &b)| f(a, b)).collect(),
+        }
+    }
+
+    /// The cells of `window` as a mask of their own.
+    pub fn crop(&self, window: CellBox) -> Mask {
+        let cols = window.c1 + 1 - window.c0;
+        let on = (window.r0..=window.r1)
+            .flat_map(|r| {
+                self.on[r * self.cols + window.c0..=r * self.cols + window.c1]
+                    .iter()
+                    .copied()
+            })
+            .collect();
+        Mask {
+            rows: window.r1 + 1 - window.r0,
+            cols,
+            on,
         }
     }
 

@@ -15,6 +15,7 @@ pub mod cells;
 pub mod detect;
 pub mod drift;
 pub mod mask;
+pub mod offline;
 
 use crate::build_dir::inspection::{Flag, FlagKind, InspectionRecord, PartMetrics, Severity};
 use crate::config::inspection::InspectionConfig;
@@ -105,6 +106,16 @@ impl Inspector {
     /// Whether the inspection looks at `view` (the others need no reduction).
     pub fn needs(&self, view: View) -> bool {
         self.needed.contains(&view)
+    }
+
+    /// What reduces views to cells, apart from the inspector (so views reduce in parallel while
+    /// the inspector is locked elsewhere).
+    pub fn reducer(&self) -> Reducer {
+        Reducer {
+            view_grid: self.view_grid,
+            bin: self.bin,
+            needed: self.needed.clone(),
+        }
     }
 
     /// Whether `layer` was inspected already (in this run or before a restart).
@@ -378,6 +389,23 @@ impl Inspector {
             threshold: f.threshold,
             message: f.message,
         }
+    }
+}
+
+/// Reduces views to the inspector's cells.
+#[derive(Clone, Debug)]
+pub struct Reducer {
+    view_grid: Grid,
+    bin: usize,
+    needed: BTreeSet<View>,
+}
+
+impl Reducer {
+    pub fn needs(&self, view: View) -> bool {
+        self.needed.contains(&view)
+    }
+    pub fn cells(&self, luma: &FrameLuma) -> Cells {
+        Cells::from_luma(luma, &self.view_grid, self.bin)
     }
 }
 
