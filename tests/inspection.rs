@@ -243,3 +243,106 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
+
+/// The daemon through the binary: a part left unfused on layer 6 shows in inspection.jsonl, as a
+/// WARN line in the log, in `layerwise status`, switches the (mock) stack light on, and
+/// `layerwise inspect --build` over the stored build finds the same flags.
+#[test]
+fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
+    use common::Run;
+    use layerwise::config::{CameraConfig, LightsConfig};
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().join("build");
+    let layers = 8;
+    let mut config = common::calibrated_config(&dir, layers, layerwise::dicom::Compression::None);
+    let (w, h) = (640, 427);
+    if let CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = w;
+        mock.height = h;
+        mock.inject = vec!["no-fusion@6/part=3".parse().expect("injection")];
+    }
+    config.calibration.file = Some(common::write_true_calibration(
+        tmp.path(),
+        &mock_camera::Homography::oblique_view(w, h),
+    ));
+    let vectors = tmp.path().join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    config.inspection.alarm.output = LightsConfig::Mock;
+    let path = tmp.path().join("layerwise.toml");
+    common::write_config(&config, &path);
+    let out = common::run_build(&path);
+    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+
+    let live = layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .expect("inspection.jsonl");
+    assert_eq!(
+        live.iter().map(|r| r.layer).collect::<Vec<_>>(),
+        (1..=layers).collect::<Vec<_>>()
+    );
+    let flagged: Vec<(u32, FlagKind, Option<i64>)> = live
+        .iter()
+        .flat_map(|r| r.flags.iter().map(move |f| (r.layer, f.kind, f.part)))
+        .filter(|(_, kind, _)| *kind == FlagKind::UnderFusion)
+        .collect();
+    assert_eq!(
+        flagged,
+        vec![(6, FlagKind::UnderFusion, Some(3))],
+        "{live:#?}"
+    );
+    let flag = live[5]
+        .flags
+        .iter()
+        .find(|f| f.kind == FlagKind::UnderFusion)
+        .expect("flag");
+    assert_eq!(flag.severity, Severity::Critical);
+    let [x0, y0, x1, y1] = flag.bbox_mm;
+    assert!(
+        (x0 - 40.0).abs() < 1.0 && (x1 - 60.0).abs() < 1.0,
+        "{:?}",
+        flag.bbox_mm
+    );
+    assert!(
+        (y0 - 44.0).abs() < 1.0 && (y1 - 56.0).abs() < 1.0,
+        "{:?}",
+        flag.bbox_mm
+    );
+    assert!(
+        log.contains("layer 6: part 3 at x = 40..60 mm, y = 44..56 mm is not fused"),
+        "{log}"
+    );
+    assert!(log.contains("WARN"), "{log}");
+    assert!(log.contains("inspection alarm ON: layer 6"), "{log}");
+
+    let status = common::layerwise()
+        .args(["status", "--build"])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(
+        status.contains("L00006 under_fusion (critical): part 3"),
+        "{status}"
+    );
+
+    let again = common::layerwise()
+        .args(["inspect", "--json", "--build"])
+        .arg(&dir)
+        .stdout_ok();
+    let offline: Vec<InspectionRecord> = again
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("record"))
+        .collect();
+    let flags =
+        |records: &[InspectionRecord]| -> Vec<(u32, layerwise::build_dir::inspection::Flag)> {
+            records
+                .iter()
+                .flat_map(|r| r.flags.iter().map(move |f| (r.layer, f.clone())))
+                .collect()
+        };
+    assert_eq!(flags(&offline), flags(&live));
+    let parts = |records: &[InspectionRecord]| -> Vec<_> {
+        records.iter().map(|r| r.parts.clone()).collect()
+    };
+    assert_eq!(parts(&offline), parts(&live));
+}

@@ -166,3 +166,83 @@ impl FrameProcessor for InspectingSeries {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build_dir::inspection::{Flag, FlagKind};
+    use crate::hardware::lights::LightsError;
+    use std::sync::{Arc, Mutex};
+
+    /// Records what it is told.
+    struct Recorder(Arc<Mutex<Vec<(Light, bool)>>>);
+
+    impl Lights for Recorder {
+        fn switch(&mut self, light: Light, on: bool) -> Result<(), LightsError> {
+            self.0.lock().unwrap().push((light, on));
+            Ok(())
+        }
+        fn all_off(&mut self) -> Result<(), LightsError> {
+            Ok(())
+        }
+    }
+
+    fn record(layer: u32, severity: Option<Severity>) -> InspectionRecord {
+        InspectionRecord {
+            layer,
+            at: chrono::DateTime::from_timestamp(0, 0).unwrap(),
+            ms: 0.0,
+            views: vec![],
+            plate: Default::default(),
+            parts: vec![],
+            flags: severity
+                .map(|severity| Flag {
+                    kind: FlagKind::Spatter,
+                    severity,
+                    part: None,
+                    view: "post_top".into(),
+                    bbox_mm: [0.0; 4],
+                    bbox_px: [0; 4],
+                    score: 2.0,
+                    threshold: 1.0,
+                    message: "spot".into(),
+                })
+                .into_iter()
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_alarm_switches_at_its_severity_and_latches_or_not() {
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let mut config = AlarmConfig {
+            channel: Light::Side,
+            ..AlarmConfig::default()
+        };
+        let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
+        alarm.after_layer(&record(1, Some(Severity::Warning)));
+        assert!(
+            log.lock().unwrap().is_empty(),
+            "below the default (critical)"
+        );
+        alarm.after_layer(&record(2, Some(Severity::Critical)));
+        alarm.after_layer(&record(3, Some(Severity::Critical)));
+        alarm.after_layer(&record(4, None));
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![(Light::Side, true)],
+            "latched, switched once"
+        );
+
+        log.lock().unwrap().clear();
+        config.latch = false;
+        config.severity = AlarmSeverity::Warning;
+        let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
+        alarm.after_layer(&record(1, Some(Severity::Warning)));
+        alarm.after_layer(&record(2, None));
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![(Light::Side, true), (Light::Side, false)]
+        );
+    }
+}

@@ -120,6 +120,8 @@ pub struct StatusReport {
     pub bytes_needed: Option<u64>,
     /// The layer signal's source, when the daemon reported it.
     pub trigger: Option<TriggerHealth>,
+    /// Inspection flags at warning or above, oldest first (`inspection.jsonl`).
+    pub inspection_flags: Vec<String>,
     pub warning: Option<String>,
 }
 
@@ -243,6 +245,7 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         free_bytes: free,
         bytes_needed,
         trigger: live.trigger.clone(),
+        inspection_flags: super::inspection::open_flags(dir),
         warning,
     })
 }
@@ -338,6 +341,16 @@ impl fmt::Display for StatusReport {
                 write!(f, ", the rest of the build needs about {}", gb(needed))?;
             }
             writeln!(f)?;
+        }
+        if !self.inspection_flags.is_empty() {
+            writeln!(f, "inspection {} flags", self.inspection_flags.len())?;
+            let skip = self.inspection_flags.len().saturating_sub(10);
+            if skip > 0 {
+                writeln!(f, "  … {skip} earlier ones")?;
+            }
+            for line in &self.inspection_flags[skip..] {
+                writeln!(f, "  {line}")?;
+            }
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

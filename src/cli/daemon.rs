@@ -145,12 +145,21 @@ pub struct DemoArgs {
     /// The build directory to write (run again on it to resume).
     #[arg(long, default_value = "demo-build")]
     out: PathBuf,
+    /// Anomalies for the mock camera to render, comma-separated `kind@layer[..last][/key=value…]`:
+    /// streak (y, from, to, w, c), short-feed (x, c), elevation (part, w, c), no-fusion (part),
+    /// wide-fusion (part, d), spatter (n, r, x, y); e.g. `streak@40,short-feed@75,elevation@90..95`.
+    #[arg(long, default_value = "")]
+    inject: String,
 }
 
 impl DemoArgs {
     pub fn run(self) -> Result<()> {
         let (layers, out) = (self.layers, self.out.as_path());
-        let config = demo_config(layers, out)?;
+        let mut config = demo_config(layers, out)?;
+        if let CameraConfig::Mock(mock) = &mut config.camera {
+            mock.inject = layerwise::config::inspection::parse_injections(&self.inject)
+                .map_err(|e| anyhow::anyhow!("--inject: {e}"))?;
+        }
         let started = std::time::Instant::now();
         let mut options = RunOptions::new();
         options.clock = SystemClock::shared();
@@ -196,6 +205,12 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
         let path = out.join("calibration.toml");
         layerwise::fsutil::write_atomic(&path, calibration.to_toml().as_bytes(), true)?;
         config.calibration.file = Some(path);
+        // The parts the mock camera prints, as the build's vector file: the inspection checks
+        // each layer's fusion against it.
+        let vectors = out.join("demo-vectors.cli");
+        layerwise::sim::inject::write_demo_vectors(&vectors, layers.max(1))
+            .with_context(|| format!("cannot write {}", vectors.display()))?;
+        config.build.vectors = Some(vectors);
     }
     Ok(config)
 }

@@ -5,6 +5,7 @@
 mod build;
 mod daemon;
 mod files;
+mod inspect;
 mod register;
 
 use anyhow::{Context, Result};
@@ -60,6 +61,9 @@ pub enum Command {
     },
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
+    /// Inspect a stored build (or a folder of frames) for streaks, short feed, super-elevation,
+    /// fusion against the vectors and drift, as the daemon does live.
+    Inspect(inspect::InspectArgs),
 }
 
 impl Command {
@@ -77,6 +81,7 @@ impl Command {
             Command::Dicom { command } => command.run(),
             Command::Register { command } => command.run(),
             Command::Demo(args) => args.run(),
+            Command::Inspect(args) => args.run(),
         }
     }
 }

@@ -244,7 +244,7 @@ fn d_elevation_z() -> f64 {
     8.0
 }
 fn d_fused_factor() -> f64 {
-    2.5
+    3.5
 }
 fn d_tolerance() -> f64 {
     0.75
@@ -259,7 +259,7 @@ fn d_min_excess() -> f64 {
     4.0
 }
 fn d_spatter() -> f64 {
-    1.0
+    1.5
 }
 fn d_drift_z() -> f64 {
     10.0

@@ -137,6 +137,7 @@ pub fn streaks(
     let mut runs: Vec<(usize, usize, usize, f64, f64, usize, usize)> = Vec::new();
     for s in 0..nseg {
         let (p0, p1) = (s * lines.along / nseg, (s + 1) * lines.along / nseg);
+        let mut counts = vec![0usize; lines.lines];
         let profile: Vec<f64> = (0..lines.lines)
             .map(|l| {
                 let (mut sum, mut n) = (0f64, 0usize);
@@ -147,6 +148,7 @@ pub fn streaks(
                         n += 1;
                     }
                 }
+                counts[l] = n;
                 if n >= 3 && 2 * n >= p1 - p0 {
                     sum / n as f64
                 } else {
@@ -170,6 +172,15 @@ pub fn streaks(
                     .collect();
                 profile[l] - median(&mut window)
             })
+            .collect();
+        // A line with fewer cells (a part's footprint left out) has a noisier mean: weigh each
+        // residual by the square root of its cell count so one scale fits all lines.
+        let mut n: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
+        let n_ref = median(&mut n).max(1.0);
+        let residual: Vec<f64> = residual
+            .iter()
+            .zip(&counts)
+            .map(|(r, &c)| r * (c as f64 / n_ref).sqrt())
             .collect();
         let (m, sigma) = robust(residual.iter().copied(), 0.05);
         let z: Vec<f64> = residual.iter().map(|r| (r - m) / sigma).collect();

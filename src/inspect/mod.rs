@@ -16,6 +16,7 @@ pub mod detect;
 pub mod drift;
 pub mod mask;
 pub mod offline;
+pub mod plot;
 
 use crate::build_dir::inspection::{Flag, FlagKind, InspectionRecord, PartMetrics, Severity};
 use crate::config::inspection::InspectionConfig;
