@@ -346,3 +346,19 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
     };
     assert_eq!(parts(&offline), parts(&live));
 }
+
+#[test]
+fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out = common::layerwise()
+        .args(["demo", "--layers", "1", "--inject", "streak@2,blob@3", "--out"])
+        .arg(tmp.path().join("demo"))
+        .output()
+        .expect("runs");
+    let text = common::assert_exit_1(&out);
+    assert!(
+        text.contains("--inject: blob@3: unknown anomaly `blob` (one of streak, short-feed"),
+        "{text}"
+    );
+    assert!(!tmp.path().join("demo").exists(), "nothing written");
+}

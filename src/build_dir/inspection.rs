@@ -2,13 +2,12 @@
 //! appended and fsynced per record like the journal, a torn last record cut on reopening. The
 //! daemon and `layerwise inspect` write it; `layerwise status` reads its open flags.
 
-use super::journal::{scan_lines, JournalError};
+use super::journal::{append_line, scan_lines, JournalError};
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::fs::{File, OpenOptions};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// How bad a flag is.
@@ -197,17 +196,7 @@ impl InspectionLog {
 
     /// Appends one record as one line, in one write, fsynced.
     pub fn append(&mut self, record: &InspectionRecord) -> Result<(), JournalError> {
-        let io = |source| JournalError::Io {
-            path: self.path.clone(),
-            source,
-        };
-        let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
-        line.push(b'\n');
-        self.file.write_all(&line).map_err(io)?;
-        if self.fsync {
-            self.file.sync_data().map_err(io)?;
-        }
-        Ok(())
+        append_line(&mut self.file, &self.path, self.fsync, record)
     }
 }
 
@@ -230,6 +219,7 @@ pub fn open_flags(dir: &Path) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write;
 
     fn record(layer: u32) -> InspectionRecord {
         InspectionRecord {

@@ -404,19 +404,30 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
     Ok(offset as u64)
 }
 
+/// Appends `record` to `file` as one JSON line in one write, fsynced when asked: the journal's and
+/// the inspection log's way of writing.
+pub(crate) fn append_line<T: serde::Serialize>(
+    file: &mut File,
+    path: &Path,
+    fsync: bool,
+    record: &T,
+) -> Result<(), JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
+    line.push(b'\n');
+    file.write_all(&line).map_err(io)?;
+    if fsync {
+        file.sync_data().map_err(io)?;
+    }
+    Ok(())
+}
+
 impl Journal {
     pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
-        let io = |source| JournalError::Io {
-            path: self.path.clone(),
-            source,
-        };
-        let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
-        line.push(b'\n');
-        self.file.write_all(&line).map_err(io)?;
-        if self.fsync {
-            self.file.sync_data().map_err(io)?;
-        }
-        Ok(())
+        append_line(&mut self.file, &self.path, self.fsync, record)
     }
 
     pub fn path(&self) -> &Path {

@@ -250,6 +250,18 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
     })
 }
 
+/// The last ten lines of a list, indented, after a count of the earlier ones.
+fn last_ten(f: &mut fmt::Formatter<'_>, lines: &[String]) -> fmt::Result {
+    let skip = lines.len().saturating_sub(10);
+    if skip > 0 {
+        writeln!(f, "  … {skip} earlier ones")?;
+    }
+    for line in &lines[skip..] {
+        writeln!(f, "  {line}")?;
+    }
+    Ok(())
+}
+
 fn gb(bytes: u64) -> String {
     format!("{:.2} GB", bytes as f64 / 1e9)
 }
@@ -301,13 +313,7 @@ impl fmt::Display for StatusReport {
         }
         if !self.irregular.is_empty() {
             writeln!(f, "signals    {} irregular", self.irregular.len())?;
-            let skip = self.irregular.len().saturating_sub(10);
-            if skip > 0 {
-                writeln!(f, "  … {skip} earlier ones")?;
-            }
-            for line in &self.irregular[skip..] {
-                writeln!(f, "  {line}")?;
-            }
+            last_ten(f, &self.irregular)?;
         }
         writeln!(
             f,
@@ -344,13 +350,7 @@ impl fmt::Display for StatusReport {
         }
         if !self.inspection_flags.is_empty() {
             writeln!(f, "inspection {} flags", self.inspection_flags.len())?;
-            let skip = self.inspection_flags.len().saturating_sub(10);
-            if skip > 0 {
-                writeln!(f, "  … {skip} earlier ones")?;
-            }
-            for line in &self.inspection_flags[skip..] {
-                writeln!(f, "  {line}")?;
-            }
+            last_ten(f, &self.inspection_flags)?;
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

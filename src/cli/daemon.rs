@@ -155,10 +155,11 @@ pub struct DemoArgs {
 impl DemoArgs {
     pub fn run(self) -> Result<()> {
         let (layers, out) = (self.layers, self.out.as_path());
+        let inject = layerwise::config::inspection::parse_injections(&self.inject)
+            .map_err(|e| anyhow::anyhow!("--inject: {e}"))?;
         let mut config = demo_config(layers, out)?;
         if let CameraConfig::Mock(mock) = &mut config.camera {
-            mock.inject = layerwise::config::inspection::parse_injections(&self.inject)
-                .map_err(|e| anyhow::anyhow!("--inject: {e}"))?;
+            mock.inject = inject;
         }
         let started = std::time::Instant::now();
         let mut options = RunOptions::new();
