@@ -351,7 +351,14 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
 fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
     let tmp = tempfile::tempdir().expect("tmp");
     let out = common::layerwise()
-        .args(["demo", "--layers", "1", "--inject", "streak@2,blob@3", "--out"])
+        .args([
+            "demo",
+            "--layers",
+            "1",
+            "--inject",
+            "streak@2,blob@3",
+            "--out",
+        ])
         .arg(tmp.path().join("demo"))
         .output()
         .expect("runs");

@@ -58,8 +58,8 @@ impl Cells {
         }
     }
 
-    /// From row-major samples `w` x `h`.
-    pub fn from_samples<T: Copy + Into<f64> + Sync>(
+    /// From row-major samples `w` x `h` (8 or 16 bits: sums stay integer, so the pass is cheap).
+    pub fn from_samples<T: Copy + Into<u32> + Sync>(
         px: &[T],
         w: usize,
         h: usize,
@@ -87,32 +87,41 @@ impl Cells {
                 let r1 = ((i + 1) * bin).min(h);
                 let (e0, e1) = (r0.saturating_sub(1), (r1 + 1).min(h));
                 // Per column: sum over the cell's rows; sum and sum of squares over the grown rows.
-                let mut core = vec![0f64; w];
-                let mut s1 = vec![0f64; w];
-                let mut s2 = vec![0f64; w];
+                let mut core = vec![0u64; w];
+                let mut s1 = vec![0u64; w];
+                let mut s2 = vec![0u64; w];
                 for r in e0..e1 {
                     let line = &px[r * w..(r + 1) * w];
-                    let in_core = r >= r0 && r < r1;
-                    for (c, &v) in line.iter().enumerate() {
-                        let v: f64 = v.into();
-                        s1[c] += v;
-                        s2[c] += v * v;
-                        if in_core {
-                            core[c] += v;
+                    if r >= r0 && r < r1 {
+                        for (((&v, a), b), c) in
+                            line.iter().zip(&mut s1).zip(&mut s2).zip(&mut core)
+                        {
+                            let v = u64::from(v.into());
+                            *a += v;
+                            *b += v * v;
+                            *c += v;
+                        }
+                    } else {
+                        for ((&v, a), b) in line.iter().zip(&mut s1).zip(&mut s2) {
+                            let v = u64::from(v.into());
+                            *a += v;
+                            *b += v * v;
                         }
                     }
                 }
                 let core_rows = (r1 - r0).max(1);
-                for j in 0..cols {
+                for (j, (mean_cell, tex_cell)) in
+                    mean_row.iter_mut().zip(tex_row.iter_mut()).enumerate()
+                {
                     let c0 = (j * bin).min(w - 1);
                     let c1 = ((j + 1) * bin).min(w).max(c0 + 1);
-                    let sum: f64 = core[c0..c1].iter().sum();
-                    mean_row[j] = (scale * sum / ((c1 - c0) * core_rows) as f64) as f32;
+                    let sum: u64 = core[c0..c1].iter().sum();
+                    *mean_cell = (scale * sum as f64 / ((c1 - c0) * core_rows) as f64) as f32;
                     let (g0, g1) = (c0.saturating_sub(1), (c1 + 1).min(w));
                     let n = ((g1 - g0) * (e1 - e0)) as f64;
-                    let a: f64 = s1[g0..g1].iter().sum::<f64>() / n;
-                    let b: f64 = s2[g0..g1].iter().sum::<f64>() / n;
-                    tex_row[j] = (scale * (b - a * a).max(0.0).sqrt()) as f32;
+                    let a = s1[g0..g1].iter().sum::<u64>() as f64 / n;
+                    let b = s2[g0..g1].iter().sum::<u64>() as f64 / n;
+                    *tex_cell = (scale * (b - a * a).max(0.0).sqrt()) as f32;
                 }
             });
         Cells {

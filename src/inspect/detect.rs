@@ -116,6 +116,18 @@ fn along_text(axis: Axis, mm: [f64; 4]) -> String {
     }
 }
 
+/// Lines of one segment above the threshold (a streak candidate).
+struct Run {
+    segment: usize,
+    first: usize,
+    last: usize,
+    score: f64,
+    sign: f64,
+    /// Positions along the lines the segment covers.
+    from: usize,
+    to: usize,
+}
+
 /// Recoater streaks: in segments along the recoating axis, the profile of line means across it,
 /// less its running median, in robust z. Runs of lines above the threshold no wider than
 /// `streak_max_width_mm` are streaks; runs in neighbouring segments on the same lines merge.
@@ -133,8 +145,7 @@ pub fn streaks(
     let max_width = cells_of(cfg.streak_max_width_mm, grid).max(1);
     let half = (3 * max_width).max(7);
     let mut best = 0f64;
-    // (segment, first line, last line, score, sign, first pos, last pos)
-    let mut runs: Vec<(usize, usize, usize, f64, f64, usize, usize)> = Vec::new();
+    let mut runs: Vec<Run> = Vec::new();
     for s in 0..nseg {
         let (p0, p1) = (s * lines.along / nseg, (s + 1) * lines.along / nseg);
         let mut counts = vec![0usize; lines.lines];
@@ -186,7 +197,7 @@ pub fn streaks(
         let z: Vec<f64> = residual.iter().map(|r| (r - m) / sigma).collect();
         let mut l = 0;
         while l < lines.lines {
-            if !(z[l].abs() >= thr) {
+            if z[l].is_nan() || z[l].abs() < thr {
                 l += 1;
                 continue;
             }
@@ -201,7 +212,15 @@ pub fn streaks(
             }
             let score = z[a..=b].iter().map(|v| v * sign).fold(0.0, f64::max);
             if b - a < max_width {
-                runs.push((s, a, b, score, sign, p0, p1 - 1));
+                runs.push(Run {
+                    segment: s,
+                    first: a,
+                    last: b,
+                    score,
+                    sign,
+                    from: p0,
+                    to: p1 - 1,
+                });
             }
             l = b + 1;
         }
@@ -212,40 +231,43 @@ pub fn streaks(
         );
     }
     // Merge runs on overlapping lines in neighbouring segments.
-    runs.sort_by_key(|r| (r.1, r.0));
-    let mut merged: Vec<(usize, usize, usize, f64, f64, usize, usize)> = Vec::new();
+    runs.sort_by_key(|r| (r.first, r.segment));
+    let mut merged: Vec<Run> = Vec::new();
     for r in runs {
         let joined = merged.iter_mut().find(|m| {
-            m.4 == r.4 && r.1 <= m.2 + 1 && m.1 <= r.2 + 1 && (r.0 == m.0 + 1 || m.0 == r.0 + 1)
+            m.sign == r.sign
+                && r.first <= m.last + 1
+                && m.first <= r.last + 1
+                && (r.segment == m.segment + 1 || m.segment == r.segment + 1)
         });
         match joined {
             Some(m) => {
-                m.0 = m.0.max(r.0);
-                m.1 = m.1.min(r.1);
-                m.2 = m.2.max(r.2);
-                m.3 = m.3.max(r.3);
-                m.5 = m.5.min(r.5);
-                m.6 = m.6.max(r.6);
+                m.segment = m.segment.max(r.segment);
+                m.first = m.first.min(r.first);
+                m.last = m.last.max(r.last);
+                m.score = m.score.max(r.score);
+                m.from = m.from.min(r.from);
+                m.to = m.to.max(r.to);
             }
             None => merged.push(r),
         }
     }
     let found = merged
         .into_iter()
-        .map(|(_, a, b, score, sign, p0, p1)| {
-            let cells = lines.cell_box(a, b, p0, p1);
+        .map(|r| {
+            let cells = lines.cell_box(r.first, r.last, r.from, r.to);
             let mm = box_mm(grid, cells);
-            let width = (b - a + 1) as f64 * grid.pixel_mm;
+            let width = (r.last - r.first + 1) as f64 * grid.pixel_mm;
             Found {
                 kind: FlagKind::Streak,
                 part: None,
                 cells,
-                score,
+                score: r.score,
                 threshold: thr,
                 message: format!(
                     "recoater streak {} ({width:.1} mm wide, {})",
                     along_text(cfg.recoat_axis, mm),
-                    if sign > 0.0 { "brighter" } else { "darker" }
+                    if r.sign > 0.0 { "brighter" } else { "darker" }
                 ),
             }
         })

@@ -195,19 +195,8 @@ impl Inspector {
                     .chain(vector_layer.hatches.iter().map(|h| h.part))
                     .collect();
                 for id in ids {
-                    let opts = RasterOptions {
-                        part: Some(id),
-                        ..RasterOptions::default()
-                    };
-                    if let Ok(img) = crate::raster::mask(&vector_layer, &self.grid, &opts) {
-                        let m = Mask {
-                            rows: img.height() as usize,
-                            cols: img.width() as usize,
-                            on: img.as_raw().iter().map(|&v| v > 0).collect(),
-                        };
-                        if m.count() > 0 {
-                            parts.push((id, m));
-                        }
+                    if let Some(m) = self.part_mask(&vector_layer, id) {
+                        parts.push((id, m));
                     }
                 }
             }
@@ -218,6 +207,43 @@ impl Inspector {
             self.parts.pop_first();
         }
         parts
+    }
+
+    /// A part's mask on the inspection grid, rasterised only over its bounding box (the grid's
+    /// own pixel centres, so the same cells as a whole-grid raster).
+    fn part_mask(&self, layer: &crate::vectors::Layer, id: i64) -> Option<Mask> {
+        let g = self.grid;
+        let (rows, cols) = (g.rows(), g.columns());
+        let [x0, y0, x1, y1] = crate::raster::layer_bbox(layer, Some(id))?;
+        let (ra, ca) = g.pixel_of(x0, y1);
+        let (rb, cb) = g.pixel_of(x1, y0);
+        let clamp = |v: f64, n: usize| (v.max(0.0) as usize).min(n.saturating_sub(1));
+        let (r0, c0) = (clamp(ra.floor() - 2.0, rows), clamp(ca.floor() - 2.0, cols));
+        let (r1, c1) = (clamp(rb.ceil() + 2.0, rows), clamp(cb.ceil() + 2.0, cols));
+        if rb < 0.0 || cb < 0.0 || ra > rows as f64 || ca > cols as f64 {
+            return None;
+        }
+        let p = g.pixel_mm;
+        let sub = Grid {
+            x_min: g.x_min + c0 as f64 * p,
+            x_max: g.x_min + (c1 + 1) as f64 * p,
+            y_min: g.y_max - (r1 + 1) as f64 * p,
+            y_max: g.y_max - r0 as f64 * p,
+            pixel_mm: p,
+        };
+        let opts = RasterOptions {
+            part: Some(id),
+            ..RasterOptions::default()
+        };
+        let img = crate::raster::mask(layer, &sub, &opts).ok()?;
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let mut m = Mask::new(rows, cols);
+        for r in 0..h.min(rows - r0) {
+            for c in 0..w.min(cols - c0) {
+                m.on[(r0 + r) * cols + c0 + c] = img.as_raw()[r * w + c] > 0;
+            }
+        }
+        (m.count() > 0).then_some(m)
     }
 
     fn union(&self, parts: &Parts) -> Mask {

@@ -1,14 +1,14 @@
 //! `layerwise inspect --plot OUT.svg`: per-part metrics against layer, one panel per metric, with
 //! the layers that raised a flag at warning or above marked.
 
-use crate::build_dir::inspection::{InspectionRecord, Severity};
+use crate::build_dir::inspection::{InspectionRecord, PartMetrics, Severity};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-const PANELS: [(
-    &str,
-    fn(&crate::build_dir::inspection::PartMetrics) -> Option<f64>,
-); 3] = [
+/// A panel: its title and the metric it draws.
+type Panel = (&'static str, fn(&PartMetrics) -> Option<f64>);
+
+const PANELS: [Panel; 3] = [
     ("fused area / vector area", |m| Some(m.area_ratio)),
     ("post-scan contrast (grey levels)", |m| {
         Some(m.post_contrast)

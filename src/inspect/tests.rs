@@ -92,7 +92,7 @@ fn a_partial_streak_is_found_where_it_is_and_clean_powder_is_quiet() {
         "{y0} {y1}"
     );
     // Found per 33 mm segment: the streak's segments, not the plate's whole width.
-    assert!(x0 <= -17.0 && x0 >= -50.0 && x1 >= 40.0, "{x0} {x1}");
+    assert!((-50.0..=-17.0).contains(&x0) && x1 >= 40.0, "{x0} {x1}");
     assert!(found[0].score >= c.streak_z && best >= found[0].score);
     assert!(
         found[0].message.contains("at y = 12.5 mm"),
