@@ -2,12 +2,12 @@
 //! appended and fsynced per record like the journal, a torn last record cut on reopening. The
 //! daemon and `layerwise inspect` write it; `layerwise status` reads its open flags.
 
-use super::journal::{append_line, scan_lines, JournalError};
+use super::journal::{append_line, open_lines, scan_lines, JournalError};
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 /// How bad a flag is.
@@ -156,23 +156,8 @@ impl InspectionLog {
         path: &Path,
         fsync: bool,
     ) -> Result<(InspectionLog, Vec<InspectionRecord>), JournalError> {
-        let io = |source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = OpenOptions::new()
-            .create(true)
-            .read(true)
-            .append(true)
-            .open(path)
-            .map_err(io)?;
         let mut records = Vec::new();
-        let good_end = scan_lines(path, &mut file, |r| records.push(r))?;
-        let len = file.metadata().map_err(io)?.len();
-        if good_end < len {
-            tracing::warn!(log = %path.display(), offset = good_end, "inspection log: cutting off a torn last record left by a crash");
-            file.set_len(good_end).map_err(io)?;
-        }
+        let file = open_lines(path, |r| records.push(r))?;
         Ok((
             InspectionLog {
                 path: path.to_path_buf(),

@@ -295,17 +295,8 @@ impl Journal {
     /// Opens (creating) the journal and replays it. A torn last line, left by a crash in the middle
     /// of a write, is cut off; damage anywhere else is an error, since it may hide frames.
     pub fn open(path: &Path, fsync: bool) -> Result<(Journal, Replay), JournalError> {
-        let io = |source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = OpenOptions::new()
-            .create(true)
-            .read(true)
-            .append(true)
-            .open(path)
-            .map_err(io)?;
-        let replay = Self::replay_file(path, &mut file)?;
+        let mut replay = Replay::default();
+        let file = open_lines(path, |r| replay.apply(&r))?;
         Ok((
             Journal {
                 path: path.to_path_buf(),
@@ -328,32 +319,38 @@ impl Journal {
         Ok(replay)
     }
 
-    fn replay_file(path: &Path, file: &mut File) -> Result<Replay, JournalError> {
-        let mut replay = Replay::default();
-        let good_end = Self::scan(path, file, |r| replay.apply(&r))?;
-        let len = file
-            .metadata()
-            .map_err(|source| JournalError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?
-            .len();
-        if good_end < len {
-            warn!(journal = %path.display(), offset = good_end, bytes = len - good_end, "journal: cutting off a torn last record left by a crash");
-            file.set_len(good_end).map_err(|source| JournalError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        }
-        Ok(replay)
-    }
-
     /// Calls `each` for every record and returns the byte offset after the last good one. Only
     /// the last line may be damaged (a write torn by a crash: cut short, or garbage after the last
     /// newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped.
     fn scan(path: &Path, file: &mut File, each: impl FnMut(Record)) -> Result<u64, JournalError> {
         scan_lines(path, file, each)
     }
+}
+
+/// Opens (creating) a JSON-lines file for appending after calling `each` for every record in it;
+/// a torn last record, left by a crash in the middle of a write, is cut off. The journal and the
+/// inspection log open this way.
+pub(crate) fn open_lines<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    each: impl FnMut(T),
+) -> Result<File, JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = OpenOptions::new()
+        .create(true)
+        .read(true)
+        .append(true)
+        .open(path)
+        .map_err(io)?;
+    let good_end = scan_lines(path, &mut file, each)?;
+    let len = file.metadata().map_err(io)?.len();
+    if good_end < len {
+        warn!(file = %path.display(), offset = good_end, bytes = len - good_end, "cutting off a torn last record left by a crash");
+        file.set_len(good_end).map_err(io)?;
+    }
+    Ok(file)
 }
 
 /// Calls `each` for every JSON line of `file` and returns the byte offset after the last good
