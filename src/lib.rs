@@ -11,7 +11,7 @@
 //! | 2 records | [`build_dir`], [`config`], [`raster`] | the build directory, the configuration, vectors on a grid |
 //! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
 //! | 4 registration | [`calibrate`], [`ct`], [`series`] | image ↔ vectors, CT ↔ vectors, the live DICOM series of a view |
-//! | 5 products | [`export`], [`locate`], [`hardware`], [`pacs`] | one study per build, a point in every view, camera/lights/trigger, the push to archives |
+//! | 5 products | [`export`], [`flaws`], [`locate`], [`hardware`], [`inspect`], [`pacs`] | one study per build, CT flaws, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives |
 //! | 6 daemon | [`acquisition`], [`web`] | the acquisition daemon; the operator page |
 //! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
 
@@ -27,6 +27,7 @@ pub mod flaws;
 pub mod fsutil;
 pub mod geometry;
 pub mod hardware;
+pub mod inspect;
 pub mod locate;
 pub mod logging;
 pub mod optics;

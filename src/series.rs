@@ -277,11 +277,22 @@ impl LiveSeries {
         original: &[u8],
         acquired: Option<chrono::DateTime<chrono::Utc>>,
     ) -> Result<PathBuf, SeriesError> {
+        let rectified = self.rectified_luma(original)?;
+        self.write_rectified(build_dir, shot, rectified, acquired)
+    }
+
+    /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]).
+    pub fn write_rectified(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        rectified: FrameLuma,
+        acquired: Option<chrono::DateTime<chrono::Utc>>,
+    ) -> Result<PathBuf, SeriesError> {
         let series = self
             .series
             .get(&shot.view())
             .ok_or(SeriesError::UnknownView(shot.view()))?;
-        let rectified = self.rectified_luma(original)?;
         let (window, derivation) = (rectified.window(), rectified.derivation());
         let pixels = rectified.into_u16();
         let grid = self.rectifier.grid();
@@ -318,17 +329,25 @@ impl LiveSeries {
         shot: Shot,
         original: &Path,
     ) -> Result<PathBuf, SeriesError> {
-        let bytes = std::fs::read(original).map_err(|source| SeriesError::Read {
-            path: original.to_path_buf(),
-            source,
-        })?;
-        let sidecar = original.with_extension("json");
-        let acquired = std::fs::read(&sidecar)
-            .ok()
-            .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
-            .map(|s| s.captured_at);
+        let (bytes, acquired) = read_original(original)?;
         self.write(build_dir, shot, &bytes, acquired)
     }
+}
+
+/// A stored original's bytes and, from its sidecar, when it was captured.
+pub fn read_original(
+    original: &Path,
+) -> Result<(Vec<u8>, Option<chrono::DateTime<chrono::Utc>>), SeriesError> {
+    let bytes = std::fs::read(original).map_err(|source| SeriesError::Read {
+        path: original.to_path_buf(),
+        source,
+    })?;
+    let sidecar = original.with_extension("json");
+    let acquired = std::fs::read(&sidecar)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
+        .map(|s| s.captured_at);
+    Ok((bytes, acquired))
 }
 
 impl FrameProcessor for LiveSeries {

@@ -13,7 +13,7 @@ const LAYERS: &[&[&str]] = &[
     &["build_dir", "config", "raster"],
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
-    &["export", "flaws", "locate", "hardware", "pacs"],
+    &["export", "flaws", "locate", "hardware", "inspect", "pacs"],
     &["acquisition", "web"],
     &["sim"],
 ];

@@ -198,6 +198,11 @@ impl MockCamera {
         self.attempts.get(key).copied().unwrap_or(0)
     }
 
+    /// The anomalies the next frames show (see [`crate::Defect`]).
+    pub fn set_defects(&mut self, defects: Vec<crate::Defect>) {
+        self.renderer.defects = defects;
+    }
+
     /// The renderer, e.g. for its ground-truth homography.
     pub fn renderer(&self) -> &Renderer {
         &self.renderer

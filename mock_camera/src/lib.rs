@@ -15,5 +15,5 @@ mod shape;
 
 pub use camera::{Fault, FaultSchedule, MockCamera, MockError, ShotKey};
 pub use homography::Homography;
-pub use render::{Illumination, Renderer, Scene};
+pub use render::{Defect, Illumination, Renderer, Scene};
 pub use shape::{demo_parts, Shape, DEMO_LAYER_THICKNESS_MM, DEMO_WALL_PERIOD_LAYERS};

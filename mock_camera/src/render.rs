@@ -66,6 +66,40 @@ pub struct Renderer {
     pub plate_half_mm: f64,
     /// Noise seed: same seed, same scene → identical pixels.
     pub seed: u64,
+    /// Anomalies drawn on every frame until changed (none by default).
+    pub defects: Vec<Defect>,
+}
+
+/// Something wrong on the plate for the camera to see: a region of the powder brighter or darker
+/// (a recoater streak, a shadow), or bare metal showing (a short feed uncovering the layer below,
+/// a part standing above the powder).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Defect {
+    pub region: Shape,
+    /// Only the part of `region` inside this box `(x_min, y_min, x_max, y_max)`, mm.
+    pub clip: Option<(f64, f64, f64, f64)>,
+    /// Bare (speckled) metal instead of powder.
+    pub metal: bool,
+    /// Grey levels added.
+    pub delta: f64,
+    /// Seen only under this light (`None`: every light).
+    pub light: Option<Illumination>,
+}
+
+impl Defect {
+    fn bbox(&self) -> BBox {
+        let b = self.region.bbox();
+        match self.clip {
+            Some(c) => (b.0.max(c.0), b.1.max(c.1), b.2.min(c.2), b.3.min(c.3)),
+            None => b,
+        }
+    }
+    fn contains(&self, x: f64, y: f64) -> bool {
+        let inside_clip = self
+            .clip
+            .is_none_or(|c| x >= c.0 && x <= c.2 && y >= c.1 && y <= c.3);
+        inside_clip && self.region.contains(x, y)
+    }
 }
 
 /// Grey levels and noise amplitudes of one light. Noise is uniform in ±amplitude, so its
@@ -173,6 +207,7 @@ impl Renderer {
             homography,
             plate_half_mm: 137.5,
             seed: 0,
+            defects: Vec::new(),
         }
     }
 
@@ -191,6 +226,12 @@ impl Renderer {
         } else {
             Vec::new()
         };
+        let defects: Vec<(&Defect, BBox)> = self
+            .defects
+            .iter()
+            .filter(|d| d.light.is_none_or(|l| l == scene.illumination))
+            .map(|d| (d, d.bbox()))
+            .collect();
         let frame_key = splitmix64(splitmix64(self.seed) ^ u64::from(scene.layer));
         let metal_salt = splitmix64(scene.illumination as u64 + 1);
         let row_len = self.width as usize * 3;
@@ -219,6 +260,11 @@ impl Renderer {
                     .filter(|(_, b)| b.0 <= x1 && b.2 >= x0 && b.1 <= y1 && b.3 >= y0)
                     .map(|(s, _)| *s)
                     .collect();
+                let row_defects: Vec<&Defect> = defects
+                    .iter()
+                    .filter(|(_, b)| b.0 <= x1 && b.2 >= x0 && b.1 <= y1 && b.3 >= y0)
+                    .map(|(d, _)| *d)
+                    .collect();
                 let row_key = frame_key ^ ((row_idx as u64) << 32);
                 for (col, (px, xy)) in row.chunks_exact_mut(3).zip(build.iter()).enumerate() {
                     let h = splitmix64(row_key ^ col as u64);
@@ -227,15 +273,20 @@ impl Renderer {
                             let (nx, ny) = (x / half, y / half);
                             let gain =
                                 1.0 + look.gx * nx + look.gy * ny + look.gr * (nx * nx + ny * ny);
-                            if candidates.iter().any(|s| s.contains(x, y)) {
+                            let (mut delta, mut bare) = (0.0, false);
+                            for d in row_defects.iter().filter(|d| d.contains(x, y)) {
+                                delta += d.delta;
+                                bare |= d.metal;
+                            }
+                            if bare || candidates.iter().any(|s| s.contains(x, y)) {
                                 let hm = splitmix64(h ^ metal_salt);
                                 if (hm & 0xFF) < look.glint_per_256 {
                                     look.glint + 5.0 * unit(hm, 8)
                                 } else {
-                                    gain * (look.metal + look.metal_amp * unit(hm, 16))
+                                    gain * (look.metal + look.metal_amp * unit(hm, 16)) + delta
                                 }
                             } else {
-                                gain * look.powder + look.powder_amp * unit(h, 0)
+                                gain * look.powder + look.powder_amp * unit(h, 0) + delta
                             }
                         }
                         _ => look.chamber + look.chamber_amp * unit(h, 24),

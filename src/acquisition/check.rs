@@ -59,6 +59,7 @@ pub fn check_machine(
         trigger,
         lights,
         camera,
+        ..
     } = machine;
     let trigger = trigger.health().get().source;
     let mut lights = LightsGuard::new(lights);

@@ -3,6 +3,7 @@
 //! journal after any stop; never waits for processing.
 
 pub mod check;
+pub mod inspection;
 pub mod processing;
 mod sequencer;
 pub mod storage;
@@ -207,6 +208,7 @@ pub async fn run(
         mut trigger,
         lights,
         camera,
+        alarm,
     } = machine;
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
@@ -225,7 +227,7 @@ pub async fn run(
         .collect();
     let processor = match options.processor.take() {
         Some(p) => p,
-        None => default_processor(config, &manifest)?,
+        None => default_processor(config, &manifest, alarm, &clock)?,
     };
     let queue = ProcessingQueue::start(
         processor,
@@ -390,6 +392,8 @@ fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), Acqu
 fn default_processor(
     config: &Config,
     manifest: &BuildManifest,
+    alarm: Box<dyn crate::hardware::lights::Lights>,
+    clock: &SharedClock,
 ) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
     let Some(path) = &config.calibration.file else {
         warn!("no calibration.file: frames are kept but not rectified; run `layerwise register images` and set it");
@@ -402,7 +406,18 @@ fn default_processor(
     let settings = crate::series::SeriesSettings::from_config(config)?;
     let live =
         crate::series::LiveSeries::new(manifest, &config.views.all(), &calibration, settings)?;
-    Ok(Arc::new(live))
+    if !config.inspection.enabled {
+        return Ok(Arc::new(live));
+    }
+    let alarm = inspection::Alarm::new(alarm, &config.inspection.alarm);
+    let dir = &config.build.output_dir;
+    Ok(Arc::new(inspection::InspectingSeries::open(
+        config,
+        dir,
+        live,
+        alarm,
+        clock.clone(),
+    )?))
 }
 
 fn watchdog_period(enabled: bool) -> Option<Duration> {

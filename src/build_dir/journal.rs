@@ -304,12 +304,8 @@ impl Journal {
     /// Opens (creating) the journal and replays it. A torn last line, left by a crash in the middle
     /// of a write, is cut off; damage anywhere else is an error, since it may hide frames.
     pub fn open(path: &Path, fsync: bool) -> Result<(Journal, Replay), JournalError> {
-        let io = |source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = open_append(path).map_err(io)?;
-        let replay = Self::replay_file(path, &mut file)?;
+        let mut replay = Replay::default();
+        let file = open_lines(path, |r| replay.apply(&r))?;
         Ok((
             Journal {
                 path: path.to_path_buf(),
@@ -332,85 +328,107 @@ impl Journal {
         Ok(replay)
     }
 
-    fn replay_file(path: &Path, file: &mut File) -> Result<Replay, JournalError> {
-        let mut replay = Replay::default();
-        let good_end = Self::scan(path, file, |r| replay.apply(&r))?;
-        let len = file
-            .metadata()
-            .map_err(|source| JournalError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?
-            .len();
-        if good_end < len {
-            warn!(journal = %path.display(), offset = good_end, bytes = len - good_end, "journal: cutting off a torn last record left by a crash");
-            file.set_len(good_end).map_err(|source| JournalError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        }
-        Ok(replay)
-    }
-
     /// Calls `each` for every record and returns the byte offset after the last good one. Only
     /// the last line may be damaged (a write torn by a crash: cut short, or garbage after the last
     /// newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped.
-    fn scan(
-        path: &Path,
-        file: &mut File,
-        mut each: impl FnMut(Record),
-    ) -> Result<u64, JournalError> {
-        let io = |source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        file.seek(SeekFrom::Start(0)).map_err(io)?;
-        let mut data = Vec::new();
-        file.read_to_end(&mut data).map_err(io)?;
-        let mut offset = 0usize;
-        let mut number = 0usize;
-        while offset < data.len() {
-            number += 1;
-            let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
-                Some(i) => (offset + i, true),
-                None => (data.len(), false),
-            };
-            let next = if complete { end + 1 } else { end };
-            let last = next >= data.len();
-            let parsed = std::str::from_utf8(&data[offset..end])
-                .map_err(|e| format!("invalid UTF-8 ({e})"))
-                .and_then(|text| serde_json::from_str::<Record>(text).map_err(|e| e.to_string()));
-            match parsed {
-                Ok(record) if complete => each(record),
-                // A last line without its newline was torn even when it parses.
-                Ok(_) => return Ok(offset as u64),
-                Err(_) if last => return Ok(offset as u64),
-                Err(message) => {
-                    return Err(JournalError::Corrupt {
-                        path: path.to_path_buf(),
-                        offset: offset as u64,
-                        line: number,
-                        message,
-                    })
-                }
-            }
-            offset = next;
-        }
-        Ok(offset as u64)
+    fn scan(path: &Path, file: &mut File, each: impl FnMut(Record)) -> Result<u64, JournalError> {
+        scan_lines(path, file, each)
     }
+}
 
-    pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
-        let io = |source| JournalError::Io {
-            path: self.path.clone(),
-            source,
+/// Opens (creating) a JSON-lines file for appending after calling `each` for every record in it;
+/// a torn last record, left by a crash in the middle of a write, is cut off. The journal and the
+/// inspection log open this way.
+pub(crate) fn open_lines<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    each: impl FnMut(T),
+) -> Result<File, JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = open_append(path).map_err(io)?;
+    let good_end = scan_lines(path, &mut file, each)?;
+    let len = file.metadata().map_err(io)?.len();
+    if good_end < len {
+        warn!(file = %path.display(), offset = good_end, bytes = len - good_end, "cutting off a torn last record left by a crash");
+        file.set_len(good_end).map_err(io)?;
+    }
+    Ok(file)
+}
+
+/// Calls `each` for every JSON line of `file` and returns the byte offset after the last good
+/// one. Only the last line may be damaged (a write torn by a crash: cut short, or garbage after the
+/// last newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped. The
+/// journal and the inspection log share it.
+pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    file: &mut File,
+    mut each: impl FnMut(T),
+) -> Result<u64, JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    let mut data = Vec::new();
+    file.read_to_end(&mut data).map_err(io)?;
+    let mut offset = 0usize;
+    let mut number = 0usize;
+    while offset < data.len() {
+        number += 1;
+        let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
+            Some(i) => (offset + i, true),
+            None => (data.len(), false),
         };
-        let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
-        line.push(b'\n');
-        self.file.write_all(&line).map_err(io)?;
-        if self.fsync {
-            self.file.sync_data().map_err(io)?;
+        let next = if complete { end + 1 } else { end };
+        let last = next >= data.len();
+        let parsed = std::str::from_utf8(&data[offset..end])
+            .map_err(|e| format!("invalid UTF-8 ({e})"))
+            .and_then(|text| serde_json::from_str::<T>(text).map_err(|e| e.to_string()));
+        match parsed {
+            Ok(record) if complete => each(record),
+            // A last line without its newline was torn even when it parses.
+            Ok(_) => return Ok(offset as u64),
+            Err(_) if last => return Ok(offset as u64),
+            Err(message) => {
+                return Err(JournalError::Corrupt {
+                    path: path.to_path_buf(),
+                    offset: offset as u64,
+                    line: number,
+                    message,
+                })
+            }
         }
-        Ok(())
+        offset = next;
+    }
+    Ok(offset as u64)
+}
+
+/// Appends `record` to `file` as one JSON line in one write, fsynced when asked: the journal's and
+/// the inspection log's way of writing.
+pub(crate) fn append_line<T: serde::Serialize>(
+    file: &mut File,
+    path: &Path,
+    fsync: bool,
+    record: &T,
+) -> Result<(), JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
+    line.push(b'\n');
+    file.write_all(&line).map_err(io)?;
+    if fsync {
+        file.sync_data().map_err(io)?;
+    }
+    Ok(())
+}
+
+impl Journal {
+    pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
+        append_line(&mut self.file, &self.path, self.fsync, record)
     }
 
     pub fn path(&self) -> &Path {

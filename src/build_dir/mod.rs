@@ -2,6 +2,7 @@
 //! build's start, the append-only journal and the live status. The daemon writes it; `status`,
 //! export, locate and registration read it.
 
+pub mod inspection;
 pub mod journal;
 pub mod manifest;
 pub mod pushlog;
@@ -19,6 +20,8 @@ use std::path::{Path, PathBuf};
 pub const MANIFEST: &str = "build.json";
 pub const STATUS: &str = "status.json";
 pub const JOURNAL: &str = "journal.jsonl";
+/// One record per inspected layer (build_dir::inspection).
+pub const INSPECTION: &str = "inspection.jsonl";
 /// The configuration the daemon last ran with.
 pub const CONFIG_SNAPSHOT: &str = "config.toml";
 /// The calibration the daemon last ran with.

@@ -122,6 +122,8 @@ pub struct StatusReport {
     pub trigger: Option<TriggerHealth>,
     /// The push to each archive (`[[pacs]]`): pushed, pending, failed, last error.
     pub pacs: Vec<super::pushlog::PushSummary>,
+    /// Inspection flags at warning or above, oldest first (`inspection.jsonl`).
+    pub inspection_flags: Vec<String>,
     pub warning: Option<String>,
 }
 
@@ -246,8 +248,21 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         bytes_needed,
         trigger: live.trigger.clone(),
         pacs: super::pushlog::summaries(dir),
+        inspection_flags: super::inspection::open_flags(dir),
         warning,
     })
+}
+
+/// The last ten lines of a list, indented, after a count of the earlier ones.
+fn last_ten(f: &mut fmt::Formatter<'_>, lines: &[String]) -> fmt::Result {
+    let skip = lines.len().saturating_sub(10);
+    if skip > 0 {
+        writeln!(f, "  … {skip} earlier ones")?;
+    }
+    for line in &lines[skip..] {
+        writeln!(f, "  {line}")?;
+    }
+    Ok(())
 }
 
 fn gb(bytes: u64) -> String {
@@ -301,13 +316,7 @@ impl fmt::Display for StatusReport {
         }
         if !self.irregular.is_empty() {
             writeln!(f, "signals    {} irregular", self.irregular.len())?;
-            let skip = self.irregular.len().saturating_sub(10);
-            if skip > 0 {
-                writeln!(f, "  … {skip} earlier ones")?;
-            }
-            for line in &self.irregular[skip..] {
-                writeln!(f, "  {line}")?;
-            }
+            last_ten(f, &self.irregular)?;
         }
         writeln!(
             f,
@@ -344,6 +353,10 @@ impl fmt::Display for StatusReport {
         }
         for push in &self.pacs {
             write!(f, "{push}")?;
+        }
+        if !self.inspection_flags.is_empty() {
+            writeln!(f, "inspection {} flags", self.inspection_flags.len())?;
+            last_ten(f, &self.inspection_flags)?;
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

@@ -182,12 +182,22 @@ pub struct DemoArgs {
     /// Time between layer signals in ms (0: as fast as the machine goes).
     #[arg(long, default_value_t = 0)]
     interval_ms: u64,
+    /// Anomalies for the mock camera to render, comma-separated `kind@layer[..last][/key=value…]`:
+    /// streak (y, from, to, w, c), short-feed (x, c), elevation (part, w, c), no-fusion (part),
+    /// wide-fusion (part, d), spatter (n, r, x, y); e.g. `streak@40,short-feed@75,elevation@90..95`.
+    #[arg(long, default_value = "")]
+    inject: String,
 }
 
 impl DemoArgs {
     pub fn run(self) -> Result<()> {
         let (layers, out) = (self.layers, self.out.as_path());
+        let inject = layerwise::config::inspection::parse_injections(&self.inject)
+            .map_err(|e| anyhow::anyhow!("--inject: {e}"))?;
         let mut config = demo_config(layers, out)?;
+        if let CameraConfig::Mock(mock) = &mut config.camera {
+            mock.inject = inject;
+        }
         if let TriggerConfig::Mock(mock) = &mut config.trigger {
             mock.interval_ms = self.interval_ms;
         }
@@ -230,13 +240,13 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
     if let CameraConfig::Mock(mock) = &config.camera {
         use layerwise::sim::demo;
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-        let vectors = demo::demo_vectors(layers, config.build.layer_thickness_mm);
-        let mut bytes = Vec::new();
-        layerwise::vectors::write_ascii(&vectors, &mut bytes)?;
+        // The parts the mock camera prints, as the build's vector file: the inspection checks
+        // each layer's fusion against it, and the README's tutorial registers to it.
         let vectors_path = std::fs::canonicalize(out)
             .with_context(|| format!("cannot resolve {}", out.display()))?
             .join(demo::DEMO_VECTORS);
-        layerwise::fsutil::write_atomic(&vectors_path, &bytes, true)?;
+        layerwise::sim::inject::write_demo_vectors(&vectors_path, layers.max(1))
+            .with_context(|| format!("cannot write {}", vectors_path.display()))?;
         config.build.vectors = Some(vectors_path);
         layerwise::fsutil::write_atomic(
             &out.join(demo::DEMO_POINTS),

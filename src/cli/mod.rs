@@ -6,6 +6,7 @@ mod build;
 mod daemon;
 mod files;
 mod flaws;
+mod inspect;
 mod numbering;
 mod register;
 // The push to archives (PACS).
@@ -72,6 +73,9 @@ pub enum Command {
     Serve(serve::ServeArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
+    /// Inspect a stored build (or a folder of frames) for streaks, short feed, super-elevation,
+    /// fusion against the vectors and drift, as the daemon does live.
+    Inspect(inspect::InspectArgs),
 }
 
 impl Command {
@@ -92,6 +96,7 @@ impl Command {
             Command::Serve(args) => args.run(),
             Command::Demo(args) => args.run(),
             Command::Push(args) => args.run(),
+            Command::Inspect(args) => args.run(),
         }
     }
 }

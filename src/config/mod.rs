@@ -1,6 +1,7 @@
 //! The daemon's configuration: one TOML file, unknown keys rejected, every error naming the file,
 //! the key and what was expected. `layerwise check-config FILE` runs exactly this validation.
 
+pub mod inspection;
 pub mod pacs;
 
 use crate::fsutil::parse_toml;
@@ -41,6 +42,9 @@ pub struct Config {
     /// The operator page (src/web).
     #[serde(default)]
     pub web: WebConfig,
+    /// Per-layer inspection and its alarm (src/config/inspection.rs).
+    #[serde(default)]
+    pub inspection: inspection::InspectionConfig,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -274,6 +278,9 @@ pub struct MockCameraConfig {
     /// Faults to inject, for tests and demonstrations.
     #[serde(default)]
     pub faults: Vec<MockFaultConfig>,
+    /// Anomalies to render, e.g. `["streak@40", "no-fusion@120/part=1"]` (inspection tests).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inject: Vec<inspection::MockInjection>,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -726,6 +733,9 @@ impl Config {
                 "calibration.crop_part",
                 "needs build.vectors: the part's outline comes from the vector file".into(),
             ));
+        }
+        if let Err((key, message)) = self.inspection.check() {
+            return Err(invalid(&key, message));
         }
         if self.storage.queue_capacity == 0 || self.storage.queue_capacity > MAX_QUEUE {
             return Err(invalid(

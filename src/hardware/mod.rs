@@ -21,6 +21,8 @@ pub struct Machine {
     pub lights: Box<dyn Lights>,
     /// Called once, on the camera's own thread.
     pub camera: CameraFactory,
+    /// The inspection's stack light (`inspection.alarm.output`; no output by default).
+    pub alarm: Box<dyn Lights>,
 }
 
 /// A part of the machine could not be opened.
@@ -38,6 +40,7 @@ pub fn open(config: &Config, clock: SharedClock) -> Result<Machine, HardwareErro
         trigger: open_trigger(config, clock)?,
         lights: open_lights(config)?,
         camera: camera_factory(config),
+        alarm: lights::open(&config.inspection.alarm.output)?,
     })
 }
 

@@ -99,7 +99,8 @@ impl Camera for MockCameraBody {
             ),
             _ => (Illumination::Top, "several".to_string()),
         };
-        let fused = mock_camera::demo_parts(layer);
+        let (fused, defects) = super::inject::scene(&self.config.inject, layer, phase);
+        self.body.set_defects(defects);
         let scene = Scene {
             layer,
             fused: &fused,

@@ -6,6 +6,7 @@
 
 pub mod camera;
 pub mod demo;
+pub mod inject;
 pub mod lights;
 pub mod trigger;
 
@@ -57,6 +58,8 @@ pub struct Simulation {
     pub world: MockWorld,
     /// The mock lights' log, when the lights are simulated.
     pub lights_log: Option<MockLightsLog>,
+    /// The inspection alarm's log, when `inspection.alarm.output` is simulated.
+    pub alarm_log: Option<MockLightsLog>,
 }
 
 /// The machine a configuration describes, with the simulated part wherever it says
@@ -66,6 +69,7 @@ pub fn open(config: &Config, clock: SharedClock) -> Result<(Machine, Simulation)
     let mut simulation = Simulation {
         world: world.clone(),
         lights_log: None,
+        alarm_log: None,
     };
     let trigger: Box<dyn hardware::trigger::Trigger> = match &config.trigger {
         TriggerConfig::Mock(mock) => Box::new(MockTrigger::from_config(mock, clock.clone())?),
@@ -86,11 +90,20 @@ pub fn open(config: &Config, clock: SharedClock) -> Result<(Machine, Simulation)
         }
         _ => hardware::camera_factory(config),
     };
+    let alarm: Box<dyn hardware::lights::Lights> = match &config.inspection.alarm.output {
+        LightsConfig::Mock => {
+            let alarm = MockLights::new(None);
+            simulation.alarm_log = Some(alarm.log());
+            Box::new(alarm)
+        }
+        other => hardware::lights::open(other)?,
+    };
     Ok((
         Machine {
             trigger,
             lights,
             camera,
+            alarm,
         },
         simulation,
     ))

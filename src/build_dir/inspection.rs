@@ -1,0 +1,254 @@
+//! `inspection.jsonl`: one record per inspected layer (its metrics, its flags, the time it took),
+//! appended and fsynced per record like the journal, a torn last record cut on reopening. The
+//! daemon and `layerwise inspect` write it; `layerwise status` reads its open flags.
+
+use super::journal::{append_line, open_lines, scan_lines, JournalError};
+use chrono::{DateTime, Utc};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+/// How bad a flag is.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Severity {
+    /// Recorded only.
+    Info,
+    /// Logged at WARN, listed by `layerwise status`.
+    #[default]
+    Warning,
+    /// Worth stopping the build for; switches the alarm at its default setting.
+    Critical,
+}
+
+impl fmt::Display for Severity {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Severity::Info => "info",
+            Severity::Warning => "warning",
+            Severity::Critical => "critical",
+        })
+    }
+}
+
+/// What was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FlagKind {
+    /// A line along the recoating direction in the fresh powder.
+    Streak,
+    /// A band the new powder did not cover.
+    ShortFeed,
+    /// A part standing above the fresh powder (super-elevation, swelling).
+    Elevation,
+    /// Less fused than the vectors say (part not or partly fused).
+    UnderFusion,
+    /// Fused beyond the vectors' outline.
+    OverFusion,
+    /// Fused spots away from every part (spatter, a stray scan).
+    Spatter,
+    /// A part metric moved away from its running baseline.
+    Drift,
+}
+
+impl FlagKind {
+    pub const ALL: [FlagKind; 7] = [
+        FlagKind::Streak,
+        FlagKind::ShortFeed,
+        FlagKind::Elevation,
+        FlagKind::UnderFusion,
+        FlagKind::OverFusion,
+        FlagKind::Spatter,
+        FlagKind::Drift,
+    ];
+    pub fn name(self) -> &'static str {
+        match self {
+            FlagKind::Streak => "streak",
+            FlagKind::ShortFeed => "short_feed",
+            FlagKind::Elevation => "elevation",
+            FlagKind::UnderFusion => "under_fusion",
+            FlagKind::OverFusion => "over_fusion",
+            FlagKind::Spatter => "spatter",
+            FlagKind::Drift => "drift",
+        }
+    }
+}
+
+impl fmt::Display for FlagKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// One anomaly on one layer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Flag {
+    pub kind: FlagKind,
+    pub severity: Severity,
+    /// The vector file's part id, `None` for plate-wide findings.
+    pub part: Option<i64>,
+    /// The view it was seen in (`pre_top`, …).
+    pub view: String,
+    /// `[x_min, y_min, x_max, y_max]` in build mm.
+    pub bbox_mm: [f64; 4],
+    /// `[column_min, row_min, column_max, row_max]` (inclusive) on the series grid.
+    pub bbox_px: [u32; 4],
+    pub score: f64,
+    pub threshold: f64,
+    /// What an operator reads: "recoater streak across x = -40..95 mm at y = 12.3 mm".
+    pub message: String,
+}
+
+/// Per-part measurements of one layer.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PartMetrics {
+    pub part: i64,
+    /// Area of the part's vectors on the inspection grid, mm².
+    pub vector_mm2: f64,
+    /// Fused area within the tolerance around the part, mm².
+    pub fused_mm2: f64,
+    /// fused / vector area.
+    pub area_ratio: f64,
+    /// Intersection over union of fused and vector areas.
+    pub iou: f64,
+    /// Unfused fraction of the part's core (`None` when the part is too thin to judge).
+    pub unfused: Option<f64>,
+    /// Fused area beyond the tolerance around the part, mm².
+    pub excess_mm2: f64,
+    /// Mean grey level over the part after the scan, and its texture (local standard deviation).
+    pub post_mean: f64,
+    pub post_contrast: f64,
+    /// Fused fraction of the part's vector area.
+    pub fused_fraction: f64,
+    /// Mean grey level over the previous layer's footprint before the scan.
+    pub pre_mean: Option<f64>,
+}
+
+/// One inspected layer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InspectionRecord {
+    pub layer: u32,
+    pub at: DateTime<Utc>,
+    /// Wall time the inspection of the layer took, ms.
+    pub ms: f64,
+    /// Views that were inspected.
+    pub views: Vec<String>,
+    /// Plate-wide metrics (`pre_mean`, `pre_texture`, `post_texture`, best scores …).
+    pub plate: BTreeMap<String, f64>,
+    pub parts: Vec<PartMetrics>,
+    pub flags: Vec<Flag>,
+}
+
+/// The inspection log of a build, open for appending.
+pub struct InspectionLog {
+    path: PathBuf,
+    file: File,
+    fsync: bool,
+}
+
+impl InspectionLog {
+    /// Opens (creating) the log and returns the records it holds; a torn last record is cut off.
+    pub fn open(
+        path: &Path,
+        fsync: bool,
+    ) -> Result<(InspectionLog, Vec<InspectionRecord>), JournalError> {
+        let mut records = Vec::new();
+        let file = open_lines(path, |r| records.push(r))?;
+        Ok((
+            InspectionLog {
+                path: path.to_path_buf(),
+                file,
+                fsync,
+            },
+            records,
+        ))
+    }
+
+    /// The records of a log without opening it for writing (a torn last one ignored).
+    pub fn read(path: &Path) -> Result<Vec<InspectionRecord>, JournalError> {
+        let mut file = File::open(path).map_err(|source| JournalError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut records = Vec::new();
+        scan_lines(path, &mut file, |r| records.push(r))?;
+        Ok(records)
+    }
+
+    /// Appends one record as one line, in one write, fsynced.
+    pub fn append(&mut self, record: &InspectionRecord) -> Result<(), JournalError> {
+        append_line(&mut self.file, &self.path, self.fsync, record)
+    }
+}
+
+/// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`.
+pub fn open_flags(dir: &Path) -> Vec<String> {
+    let Ok(records) = InspectionLog::read(&dir.join(super::INSPECTION)) else {
+        return Vec::new();
+    };
+    records
+        .iter()
+        .flat_map(|r| {
+            r.flags
+                .iter()
+                .filter(|f| f.severity >= Severity::Warning)
+                .map(move |f| format!("L{:05} {} ({}): {}", r.layer, f.kind, f.severity, f.message))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn record(layer: u32) -> InspectionRecord {
+        InspectionRecord {
+            layer,
+            at: chrono::DateTime::from_timestamp(1_700_000_000, 0).unwrap(),
+            ms: 1.0,
+            views: vec!["pre_top".into()],
+            plate: BTreeMap::new(),
+            parts: vec![],
+            flags: vec![Flag {
+                kind: FlagKind::Streak,
+                severity: Severity::Warning,
+                part: None,
+                view: "pre_top".into(),
+                bbox_mm: [-40.0, 12.0, 95.0, 13.0],
+                bbox_px: [1, 2, 3, 4],
+                score: 7.1,
+                threshold: 6.0,
+                message: "recoater streak".into(),
+            }],
+        }
+    }
+
+    #[test]
+    fn appends_reopens_and_cuts_a_torn_tail() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::INSPECTION);
+        let (mut log, old) = InspectionLog::open(&path, false).unwrap();
+        assert!(old.is_empty());
+        log.append(&record(1)).unwrap();
+        log.append(&record(2)).unwrap();
+        drop(log);
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .unwrap()
+            .write_all(b"{\"layer\":3,\"at")
+            .unwrap();
+        assert_eq!(InspectionLog::read(&path).unwrap().len(), 2);
+        let (_, back) = InspectionLog::open(&path, false).unwrap();
+        assert_eq!(back, vec![record(1), record(2)]);
+        assert!(std::fs::read_to_string(&path).unwrap().ends_with("}\n"));
+        let flags = open_flags(dir.path());
+        assert_eq!(flags.len(), 2);
+        assert!(flags[1].starts_with("L00002 streak (warning)"), "{flags:?}");
+    }
+}

@@ -1,0 +1,164 @@
+//! `layerwise inspect`: the daemon's per-layer inspection over a stored build or a folder of
+//! frames, with the same results as the live run.
+
+use anyhow::{anyhow, Context, Result};
+use clap::Args;
+use layerwise::build_dir::inspection::{FlagKind, Severity};
+use layerwise::config::inspection::InspectionConfig;
+use layerwise::config::Config;
+use layerwise::inspect::{offline, Inspector};
+use layerwise::rectify::{Calibration, Grid, Rectifier};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct InspectArgs {
+    /// A build directory (the daemon's build.output_dir): its originals, configuration,
+    /// calibration and vectors.
+    #[arg(long, required_unless_present = "frames", conflicts_with = "frames")]
+    build: Option<PathBuf>,
+    /// Instead of a build: a folder of frames named L{layer:05}_{phase}_{light}.{ext}
+    /// (docs/frames.md); needs --calibration (and --vectors for the per-part checks).
+    #[arg(long, requires = "calibration")]
+    frames: Option<PathBuf>,
+    /// The build's laser vector file (default: the build's build.vectors).
+    #[arg(long)]
+    vectors: Option<PathBuf>,
+    /// calibration.toml (default: the build's copy); its grid is the rectified grid.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// A layerwise.toml whose [inspection], [rectify] and [views] to use (default: the build's).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// First layer to inspect (printer layers, from 1).
+    #[arg(long, default_value_t = 1)]
+    from: u32,
+    /// Last layer to inspect (default: the last one there is).
+    #[arg(long)]
+    to: Option<u32>,
+    /// One JSON record per layer, as inspection.jsonl holds them, instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Draw per-part metrics against layer with the flagged layers marked (SVG).
+    #[arg(long)]
+    plot: Option<PathBuf>,
+}
+
+impl InspectArgs {
+    pub fn run(self) -> Result<()> {
+        let given = self.config.as_deref().map(Config::load).transpose()?;
+        let (frames, calibration, grid, interpolation, fill, cfg, views, vectors) =
+            match &self.build {
+                Some(dir) => {
+                    let record = layerwise::series::BuildRecord::open(dir)?;
+                    let config = given.unwrap_or(record.config.clone());
+                    let calibration = match &self.calibration {
+                        Some(path) => Calibration::load(path)?,
+                        None => record.calibration.clone().ok_or_else(|| {
+                            anyhow!(
+                                "{}: the build has no calibration.toml; pass --calibration",
+                                dir.display()
+                            )
+                        })?,
+                    };
+                    (
+                        offline::build_frames(dir)?,
+                        calibration,
+                        record.grid,
+                        config.calibration.interpolation,
+                        config.calibration.fill,
+                        config.inspection.clone(),
+                        config.views.all(),
+                        self.vectors.clone().or(config.build.vectors.clone()),
+                    )
+                }
+                None => {
+                    let dir = self.frames.as_ref().context("--build or --frames")?;
+                    let path = self.calibration.as_ref().context("--calibration")?;
+                    let calibration = Calibration::load(path)?;
+                    let grid = match &given {
+                        Some(c) => c.rectify,
+                        None => calibration.grid.unwrap_or_else(Grid::plate),
+                    };
+                    let (cfg, views, interpolation, fill) = match &given {
+                        Some(c) => (
+                            c.inspection.clone(),
+                            c.views.all(),
+                            c.calibration.interpolation,
+                            c.calibration.fill,
+                        ),
+                        None => (
+                            InspectionConfig::default(),
+                            layerwise::config::ViewsConfig::default().all(),
+                            Default::default(),
+                            0,
+                        ),
+                    };
+                    (
+                        offline::folder_frames(dir)?,
+                        calibration,
+                        grid,
+                        interpolation,
+                        fill,
+                        cfg,
+                        views,
+                        self.vectors.clone(),
+                    )
+                }
+            };
+        let index = vectors
+            .as_deref()
+            .map(layerwise::vectors::LayerIndex::build)
+            .transpose()?;
+        let rectifier = Rectifier::new(&calibration.camera(), grid, interpolation, fill)
+            .map_err(|e| anyhow!("calibration: {e}"))?;
+        let mut inspector = Inspector::new(&cfg, grid, &views, index);
+        let to = self.to.unwrap_or(u32::MAX);
+        let (records, skipped) = offline::run(
+            &mut inspector,
+            &rectifier,
+            &frames,
+            self.from,
+            to,
+            chrono::Utc::now(),
+        );
+        for s in &skipped {
+            eprintln!("skipped {}: {}", s.shot, s.reason);
+        }
+        if let Some(out) = &self.plot {
+            layerwise::fsutil::write_atomic(
+                out,
+                layerwise::inspect::plot::svg(&records).as_bytes(),
+                false,
+            )?;
+        }
+        if self.json {
+            for r in &records {
+                println!("{}", serde_json::to_string(r)?);
+            }
+            return Ok(());
+        }
+        let mut kinds: BTreeMap<FlagKind, usize> = BTreeMap::new();
+        let mut critical = 0;
+        for r in &records {
+            for f in r.flags.iter().filter(|f| f.severity >= Severity::Warning) {
+                println!("{}", layerwise::inspect::describe(r.layer, f));
+                *kinds.entry(f.kind).or_default() += 1;
+                critical += usize::from(f.severity == Severity::Critical);
+            }
+        }
+        let span = match (records.first(), records.last()) {
+            (Some(a), Some(b)) => format!(" ({}..{})", a.layer, b.layer),
+            _ => String::new(),
+        };
+        let per_kind: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
+        println!(
+            "inspected {} layers{span}: {} flags ({critical} critical){}{}",
+            records.len(),
+            kinds.values().sum::<usize>(),
+            if per_kind.is_empty() { "" } else { ": " },
+            per_kind.join(", ")
+        );
+        Ok(())
+    }
+}

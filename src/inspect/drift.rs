@@ -1,0 +1,122 @@
+//! Drift: each part's metrics against a running baseline of its earlier layers (median and MAD
+//! of the last `drift_window` layers that raised no flag on the part), so a slow change shows
+//! before it becomes a crash.
+
+use super::detect::robust;
+use crate::build_dir::inspection::PartMetrics;
+use std::collections::{BTreeMap, VecDeque};
+
+/// The metrics followed, by name.
+pub const METRICS: [&str; 4] = ["post_mean", "post_contrast", "fused_fraction", "pre_mean"];
+
+fn values(m: &PartMetrics) -> [f64; 4] {
+    [
+        m.post_mean,
+        m.post_contrast,
+        m.fused_fraction,
+        m.pre_mean.unwrap_or(f64::NAN),
+    ]
+}
+
+/// A metric that left its baseline.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Drifted {
+    pub part: i64,
+    pub metric: &'static str,
+    pub value: f64,
+    pub median: f64,
+    pub sigma: f64,
+    pub z: f64,
+    pub layers: usize,
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct Baseline {
+    window: usize,
+    min_layers: usize,
+    history: BTreeMap<i64, VecDeque<[f64; 4]>>,
+}
+
+impl Baseline {
+    pub fn new(window: usize, min_layers: usize) -> Baseline {
+        Baseline {
+            window,
+            min_layers,
+            history: BTreeMap::new(),
+        }
+    }
+
+    /// The metrics of `m` that sit `z` robust sigmas or more from the part's baseline. The MAD is
+    /// floored at 2% of the median so a metric that never moved does not alarm on rounding.
+    pub fn check(&self, m: &PartMetrics, z_threshold: f64) -> Vec<Drifted> {
+        let Some(history) = self.history.get(&m.part) else {
+            return Vec::new();
+        };
+        let now = values(m);
+        let mut out = Vec::new();
+        for (k, name) in METRICS.iter().enumerate() {
+            let past = history.iter().map(|v| v[k]).filter(|v| v.is_finite());
+            if past.clone().count() < self.min_layers || !now[k].is_finite() {
+                continue;
+            }
+            let (median, _) = robust(past.clone(), 0.0);
+            let (_, sigma) = robust(past, 0.02 * median.abs() + 1e-3);
+            let z = (now[k] - median) / sigma;
+            if z.abs() >= z_threshold {
+                out.push(Drifted {
+                    part: m.part,
+                    metric: name,
+                    value: now[k],
+                    median,
+                    sigma,
+                    z,
+                    layers: history.len(),
+                });
+            }
+        }
+        out
+    }
+
+    /// Adds a layer's metrics of a part (call for layers that raised no flag on it).
+    pub fn push(&mut self, m: &PartMetrics) {
+        let h = self.history.entry(m.part).or_default();
+        h.push_back(values(m));
+        while h.len() > self.window {
+            h.pop_front();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn metrics(part: i64, contrast: f64) -> PartMetrics {
+        PartMetrics {
+            part,
+            post_mean: 100.0,
+            post_contrast: contrast,
+            fused_fraction: 0.97,
+            ..PartMetrics::default()
+        }
+    }
+
+    #[test]
+    fn a_step_away_from_a_noisy_baseline_is_drift_and_noise_is_not() {
+        let mut b = Baseline::new(30, 10);
+        for i in 0..9 {
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
+        }
+        assert!(b.check(&metrics(1, 5.0), 10.0).is_empty(), "warming up");
+        for i in 0..20 {
+            let m = metrics(1, 30.0 + (i % 3) as f64 * 0.3);
+            assert!(b.check(&m, 10.0).is_empty());
+            b.push(&m);
+        }
+        let d = b.check(&metrics(1, 18.0), 10.0);
+        assert_eq!(d.len(), 1);
+        assert_eq!(d[0].metric, "post_contrast");
+        assert!(d[0].z < -10.0, "{d:?}");
+        assert!(b.check(&metrics(2, 18.0), 10.0).is_empty(), "another part");
+    }
+}

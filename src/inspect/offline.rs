@@ -1,0 +1,119 @@
+//! Inspection after the fact: the originals of a stored build (from its journal) or a folder of
+//! frames named as docs/frames.md says, decoded and rectified exactly as the daemon's worker does
+//! (the build's calibration, grid, interpolation and fill), inspected in layer order.
+
+use super::Inspector;
+use crate::build_dir::inspection::InspectionRecord;
+use crate::build_dir::{Journal, JournalError};
+use crate::rectify::{Rectifier, RectifyError};
+use crate::shot::Shot;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum OfflineError {
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    #[error("{path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: no frames named L{{layer:05}}_{{phase}}_{{light}}.{{ext}} (docs/frames.md)")]
+    NoFrames { path: PathBuf },
+}
+
+/// The first takes of a stored build, from its journal.
+pub fn build_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+    let replay = Journal::read(&dir.join(crate::build_dir::JOURNAL))?;
+    Ok(replay
+        .frames
+        .iter()
+        .map(|(shot, entry)| (*shot, dir.join(&entry.file)))
+        .collect())
+}
+
+/// Frames in a folder named `L00042_post_top.jpg` (retakes `….r2.jpg` and sidecars left out).
+pub fn folder_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| OfflineError::Read {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let frames: BTreeMap<Shot, PathBuf> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e != "json"))
+        .filter_map(|p| {
+            let stem = p.file_stem()?.to_str()?;
+            let shot = Shot::from_stem(stem)?;
+            (shot.stem() == stem).then_some((shot, p))
+        })
+        .collect();
+    if frames.is_empty() {
+        return Err(OfflineError::NoFrames {
+            path: dir.to_path_buf(),
+        });
+    }
+    Ok(frames)
+}
+
+/// A frame that could not be inspected (the rest go on, as in the daemon).
+#[derive(Debug)]
+pub struct Skipped {
+    pub shot: Shot,
+    pub reason: String,
+}
+
+/// Inspects the layers `from..=to` of `frames` in order; returns the records and the frames
+/// that could not be read or decoded.
+pub fn run(
+    inspector: &mut Inspector,
+    rectifier: &Rectifier,
+    frames: &BTreeMap<Shot, PathBuf>,
+    from: u32,
+    to: u32,
+    at: chrono::DateTime<chrono::Utc>,
+) -> (Vec<InspectionRecord>, Vec<Skipped>) {
+    let reducer = inspector.reducer();
+    let mut by_layer: BTreeMap<u32, Vec<(Shot, &PathBuf)>> = BTreeMap::new();
+    for (shot, path) in frames.range(
+        Shot {
+            layer: from,
+            phase: crate::shot::Phase::Pre,
+            light: crate::shot::Light::Front,
+        }..,
+    ) {
+        if shot.layer > to {
+            break;
+        }
+        if reducer.needs(shot.view()) {
+            by_layer.entry(shot.layer).or_default().push((*shot, path));
+        }
+    }
+    let mut records = Vec::new();
+    let mut skipped = Vec::new();
+    for (layer, shots) in by_layer {
+        let cells: Vec<_> = shots
+            .par_iter()
+            .map(|(shot, path)| {
+                let cells = std::fs::read(path)
+                    .map_err(|e| format!("{}: {e}", path.display()))
+                    .and_then(|bytes| {
+                        crate::rectify::decode_frame_luma(&bytes)
+                            .map_err(|e: RectifyError| format!("{}: {e}", path.display()))
+                    })
+                    .map(|luma| reducer.cells(&luma.rectified(rectifier)));
+                (*shot, cells)
+            })
+            .collect();
+        for (shot, c) in cells {
+            match c {
+                Ok(cells) => records.extend(inspector.add(layer, shot.view(), cells, at)),
+                Err(reason) => skipped.push(Skipped { shot, reason }),
+            }
+        }
+    }
+    records.extend(inspector.flush(at));
+    (records, skipped)
+}
