@@ -429,6 +429,11 @@ pub fn encode_slice(
             )
             .map_err(|e| EncodeError::encoder("data set")(Box::new(e)))?;
             out.extend_from_slice(&deflate_parallel(&plain));
+            // PS3.5 A.5: an odd-length deflated bitstream gets one trailing NUL (archives such
+            // as Orthanc refuse the odd one over C-STORE). The preamble and meta group are even.
+            if out.len() % 2 == 1 {
+                out.push(0);
+            }
             return Ok(out);
         }
         Compression::JpegLs => {
@@ -718,6 +723,52 @@ mod tests {
                 .unwrap();
             assert_eq!(unpacked, input);
         }
+    }
+
+    /// Deflated files are whole even-length streams (one NUL pads an odd bitstream) and read back.
+    #[test]
+    fn deflated_files_have_even_length_and_read_back() {
+        let study = Study {
+            study_instance_uid: "2.25.1".into(),
+            frame_of_reference_uid: "2.25.2".into(),
+            date: "20261201".into(),
+            time: "120000".into(),
+            patient_name: "t^".into(),
+            patient_id: "t".into(),
+            study_id: "1".into(),
+            description: "t".into(),
+        };
+        let series = Series::named(&study, 1, "post_top");
+        let mut odd_before_pad = 0;
+        for k in 0..12u16 {
+            let pixels: Vec<u16> = (0..(40 + k as usize) * 37)
+                .map(|i| ((i as u16).wrapping_mul(31 + k)) % 997)
+                .collect();
+            let slice = Slice {
+                layer: u32::from(k) + 1,
+                plane: Plane {
+                    origin: [0.0, 0.0, 0.03],
+                    pixel_mm: 0.5,
+                    rows: 40 + k as usize,
+                    columns: 37,
+                    thickness_mm: 0.03,
+                },
+                pixels: &pixels,
+                acquired: None,
+                window: (500.0, 1000.0),
+                derivation: "test",
+            };
+            let bytes = encode_slice(&study, &series, &slice, Compression::Deflate).unwrap();
+            assert_eq!(bytes.len() % 2, 0, "slice {k}");
+            odd_before_pad += usize::from(bytes.last() == Some(&0));
+            let obj = dicom_object::from_reader(&bytes[128..]).unwrap();
+            assert_eq!(
+                obj.element(tags::ROWS).unwrap().to_int::<u16>().unwrap(),
+                40 + k
+            );
+        }
+        // Some of the twelve streams were odd: the padding was exercised.
+        assert!(odd_before_pad > 0);
     }
 
     #[test]
