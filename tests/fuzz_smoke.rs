@@ -7,6 +7,7 @@
 
 mod common;
 
+use common::Rng;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 
@@ -15,21 +16,6 @@ const MUTANTS: u64 = 250;
 /// Mutants of the DICOM seed: a mutated element length makes dicom-rs take up to ~2 s on a 2 KB
 /// file (it sizes its read by the header), so fewer of those keep CI short.
 const DICOM_MUTANTS: u64 = 40;
-
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // xorshift64*
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
 
 const SPLICES: &[&str] = &[
     "4294967295",

@@ -2,7 +2,7 @@
 //! generated and deliberately broken input.
 
 mod common;
-use common::{shared_cli, VECTORS_INFO_KEYS};
+use common::{shared_cli, Rng, VECTORS_INFO_KEYS};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -912,21 +912,6 @@ fn writers_refuse_what_the_format_cannot_hold() {
 
 // ---------------------------------------------------------------------------------------------
 // Robustness: mutated real files never panic
-
-/// A small deterministic generator (xorshift64*).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_f491_4f6c_dd1d)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-}
 
 #[test]
 fn mutated_and_cut_files_never_panic() {
