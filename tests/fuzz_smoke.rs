@@ -190,17 +190,10 @@ fn configuration_calibration_and_points_files() {
 
 #[test]
 fn camera_frames_jpeg_and_nef() {
-    let truth = mock_camera::Homography::oblique_view(96, 64);
-    let renderer = mock_camera::Renderer::new(96, 64, truth);
-    let parts = mock_camera::demo_parts(1);
-    let scene = mock_camera::Scene {
-        layer: 1,
-        fused: &parts,
-        scanned: true,
-        illumination: mock_camera::Illumination::Top,
-    };
-    let jpeg = renderer.render_jpeg(&scene, 90);
-    let nef = mock_camera::nef::encode_nef(&renderer.render(&scene), &Default::default());
+    let dir = tempfile::tempdir().unwrap();
+    let view = common::SmallView::new(dir.path());
+    let jpeg = view.jpeg();
+    let nef = mock_camera::nef::encode_nef(&view.picture(), &Default::default());
     assert_no_panics(fuzz("frames", &[jpeg, nef], |b| {
         let _ = layerwise::rectify::decode_frame_luma(b);
         let _ = layerwise::rectify::decode_frame(b);
