@@ -319,16 +319,28 @@ fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_s
         (48, 0),
         "{log}"
     );
-    // 16 signals 150 ms apart: the build takes its signals' time plus capture, not more.
-    assert!(elapsed < Duration::from_secs(30), "{elapsed:?}\n{log}");
+    // A guard against a hang, not a speed target (bench web_clients measures the capture
+    // path's overhead with pages open): 16 signals 150 ms apart end long before this.
+    assert!(elapsed < Duration::from_secs(120), "{elapsed:?}\n{log}");
+    // Every signal's three frames carry their sidecar (the per-frame capture times are
+    // there for the operator; their bound is the benchmark's business).
+    let mut layers = std::collections::BTreeMap::<u64, usize>::new();
     for entry in std::fs::read_dir(dir.join("raw")).unwrap().flatten() {
         let path = entry.path();
         if path.extension().is_some_and(|e| e == "json") {
             let sidecar = read_json(&path);
-            let ms = sidecar["capture_ms"].as_f64().unwrap();
-            assert!(ms < 2000.0, "{}: capture took {ms} ms", path.display());
+            assert!(
+                sidecar["capture_ms"].as_f64().is_some(),
+                "{}",
+                path.display()
+            );
+            *layers
+                .entry(sidecar["layer"].as_u64().unwrap())
+                .or_default() += 1;
         }
     }
+    assert_eq!(layers.len(), 8, "{layers:?}");
+    assert!(layers.values().all(|&n| n == 6), "{layers:?}");
     drop(idle);
     drop(streams);
 }
