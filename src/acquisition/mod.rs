@@ -4,6 +4,7 @@
 
 pub mod check;
 pub mod inspection;
+pub mod lifecycle;
 pub mod processing;
 mod sequencer;
 pub mod storage;
@@ -66,6 +67,9 @@ pub struct RunSummary {
     pub missing: u64,
     pub skipped: u64,
     pub stop_reason: String,
+    /// Stopped by `RunOptions::stop_when` (e.g. the operator ended the build), not by the
+    /// trigger or a signal.
+    pub stopped_on_request: bool,
 }
 
 /// How to run: what to do with frames, and the clock.
@@ -79,7 +83,13 @@ pub struct RunOptions {
     pub drain_at_end: bool,
     /// Where time comes from.
     pub clock: SharedClock,
+    /// Ends the run when it completes, with its reason (e.g. the operator ended the build,
+    /// `acquisition::lifecycle`); the frames taken are processed before the run returns.
+    pub stop_when: Option<StopWhen>,
 }
+
+/// A future that ends a run with its reason.
+pub type StopWhen = std::pin::Pin<Box<dyn std::future::Future<Output = String> + Send>>;
 
 impl Default for RunOptions {
     fn default() -> Self {
@@ -94,6 +104,7 @@ impl RunOptions {
             notify_systemd: false,
             drain_at_end: false,
             clock: SystemClock::shared(),
+            stop_when: None,
         }
     }
 }
@@ -269,29 +280,31 @@ pub async fn run(
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
     let events = crate::hardware::trigger::spawn(trigger);
-    let (sequencer, reason) =
-        event_loop(sequencer, events, only_phases, heartbeat, &options).await?;
+    let (sequencer, reason, asked) =
+        event_loop(sequencer, events, only_phases, heartbeat, &mut options).await?;
     if options.notify_systemd {
         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
     }
-    let drain = options.drain_at_end && reason == "the trigger ended";
-    let summary = tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
-        .await
-        .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
+    let drain = options.drain_at_end && (reason == "the trigger ended" || asked);
+    let mut summary =
+        tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
+            .await
+            .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
+    summary.stopped_on_request = asked;
     info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
     Ok(summary)
 }
 
 /// Feeds layer signals to the sequencer (one event at a time, on a blocking thread) until the
 /// trigger ends or a signal stops the daemon; pings the systemd watchdog while capture lives.
-/// Returns the idle sequencer and why the loop stopped.
+/// Returns the idle sequencer, why the loop stopped and whether `options.stop_when` stopped it.
 async fn event_loop(
     sequencer: Sequencer,
     mut events: tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>>,
     only_phases: BTreeSet<Phase>,
     heartbeat: Arc<AtomicU64>,
-    options: &RunOptions,
-) -> Result<(Sequencer, String), AcquisitionError> {
+    options: &mut RunOptions,
+) -> Result<(Sequencer, String, bool), AcquisitionError> {
     let clock = options.clock.clone();
     let watchdog = watchdog_period(options.notify_systemd);
     if options.notify_systemd {
@@ -311,6 +324,8 @@ async fn event_loop(
     let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> =
         None;
     let mut stop: Option<String> = None;
+    let mut stop_when = options.stop_when.take();
+    let mut asked = false;
     loop {
         if stop.is_some() && running.is_none() {
             break;
@@ -350,6 +365,12 @@ async fn event_loop(
             },
             _ = sigterm.recv() => { info!("SIGTERM: finishing the frame in hand, then stopping"); stop = Some("SIGTERM".into()); }
             _ = sigint.recv() => { info!("SIGINT: finishing the frame in hand, then stopping"); stop = Some("SIGINT".into()); }
+            reason = async { stop_when.as_mut().expect("guarded by the select condition").await }, if stop_when.is_some() && stop.is_none() => {
+                info!(reason = %reason, "finishing the frame in hand, then stopping");
+                stop_when = None;
+                asked = true;
+                stop = Some(reason);
+            }
             _ = tick.tick() => {
                 if let Some(sequencer) = idle.as_mut() {
                     sequencer.refresh_health();
@@ -365,7 +386,7 @@ async fn event_loop(
         }
     }
     let sequencer = idle.ok_or_else(|| AcquisitionError::Runtime("capture task lost".into()))?;
-    Ok((sequencer, stop.unwrap_or_default()))
+    Ok((sequencer, stop.unwrap_or_default(), asked))
 }
 
 /// Leaves the configuration in force (`config.toml`) and a copy of the calibration

@@ -4,6 +4,7 @@
 
 pub mod inspection;
 pub mod journal;
+pub mod lifecycle;
 pub mod manifest;
 pub mod pushlog;
 pub mod status;

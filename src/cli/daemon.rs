@@ -23,15 +23,63 @@ impl RunArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.config)?;
         config.check_backends(&self.config)?;
-        let mut options = RunOptions::new();
-        options.notify_systemd = true;
-        options.drain_at_end = true;
-        let summary = run_daemon(&config, options)?;
-        println!(
-            "stopped ({}): {} frames stored, {} missing",
-            summary.stop_reason, summary.stored, summary.missing
-        );
-        Ok(())
+        match config.build.builds_dir.clone() {
+            None => {
+                let summary = run_daemon(&config, service_options())?;
+                print_stopped(&summary);
+                Ok(())
+            }
+            Some(builds) => run_builds(&config, &builds),
+        }
+    }
+}
+
+fn service_options() -> RunOptions {
+    let mut options = RunOptions::new();
+    options.notify_systemd = true;
+    options.drain_at_end = true;
+    options
+}
+
+fn print_stopped(summary: &RunSummary) {
+    println!(
+        "stopped ({}): {} frames stored, {} missing",
+        summary.stop_reason, summary.stored, summary.missing
+    );
+}
+
+/// The daemon with `[build] builds_dir`: records into the build an operator started
+/// (`layerwise build start`), switches when the next one starts, waits while none is open.
+fn run_builds(config: &Config, builds: &Path) -> Result<()> {
+    use layerwise::acquisition::lifecycle::{self, Next};
+    std::fs::create_dir_all(builds)
+        .with_context(|| format!("cannot create [build] builds_dir {}", builds.display()))?;
+    loop {
+        let next = lifecycle::next(builds)?;
+        match &next {
+            Next::Wait => {
+                let started = runtime()?
+                    .block_on(lifecycle::wait_for_build(builds, true))
+                    .map_err(|e| anyhow::anyhow!(e))?;
+                if !started {
+                    println!("stopped (no build open)");
+                    return Ok(());
+                }
+            }
+            Next::Record(order) => {
+                let build_config = lifecycle::config_for(config, builds, order);
+                let mut options = service_options();
+                options.stop_when = Some(Box::pin(lifecycle::changed(
+                    builds.to_path_buf(),
+                    next.clone(),
+                )));
+                let summary = run_daemon(&build_config, options)?;
+                print_stopped(&summary);
+                if !summary.stopped_on_request {
+                    return Ok(());
+                }
+            }
+        }
     }
 }
 
@@ -52,11 +100,17 @@ fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
     // The page runs on a thread of its own and reads the build directory only.
     let _page = super::serve::start_for_daemon(config);
     let pusher = start_pusher(config, &options)?;
-    let summary = runtime()?.block_on(acquisition::run(config, machine, options));
+    let summary = runtime()?.block_on(acquisition::run(config, machine, options))?;
     if let Some(pusher) = pusher {
-        pusher.finish(PUSH_GRACE);
+        if summary.stopped_on_request {
+            // The next build starts now; this one's push goes on beside it (its queue is on
+            // disk: `layerwise push --build DIR` completes it after a restart).
+            std::thread::spawn(move || pusher.finish(PUSH_GRACE));
+        } else {
+            pusher.finish(PUSH_GRACE);
+        }
     }
-    Ok(summary?)
+    Ok(summary)
 }
 
 /// How long the push goes on after the build stops, to send what is still pending.
@@ -144,9 +198,13 @@ impl CheckConfigArgs {
 
 #[derive(Args)]
 pub struct StatusArgs {
-    /// The build directory (the daemon's build.output_dir).
+    /// The build directory (the daemon's build.output_dir); by default the configuration's
+    /// build (with `[build] builds_dir`: the builds, and the current or last one).
     #[arg(long)]
-    build: PathBuf,
+    build: Option<PathBuf>,
+    /// The daemon's configuration, when --build is not given.
+    #[arg(long, default_value = "/etc/layerwise/layerwise.toml")]
+    config: PathBuf,
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -157,14 +215,57 @@ pub struct StatusArgs {
 
 impl StatusArgs {
     pub fn run(self) -> Result<()> {
-        let report =
-            layerwise::build_dir::status::report(&self.build, (self.min_free_gb * 1e9) as u64)?;
+        let build = match self.build {
+            Some(build) => build,
+            None => match self.configured_build()? {
+                Some(build) => build,
+                None => return Ok(()),
+            },
+        };
+        let report = layerwise::build_dir::status::report(&build, (self.min_free_gb * 1e9) as u64)?;
         if self.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
             print!("{report}");
         }
         Ok(())
+    }
+}
+
+impl StatusArgs {
+    /// The configuration's build: `build.output_dir`, or with `builds_dir` the current build
+    /// (else the last one), after the list of builds (in text mode). None when there is none.
+    fn configured_build(&self) -> Result<Option<PathBuf>> {
+        use layerwise::build_dir::lifecycle;
+        let config = Config::load(&self.config)?;
+        let Some(builds) = &config.build.builds_dir else {
+            return Ok(Some(config.build.output_dir));
+        };
+        let list = lifecycle::list(builds)?;
+        if !self.json {
+            println!("builds in {} (layerwise build list):", builds.display());
+            for b in &list {
+                let mark = if b.current { "*" } else { " " };
+                println!("{mark} {}  {} frames, {}", b.folder, b.frames, b.state);
+            }
+        }
+        let current = list.iter().find(|b| b.current).or(list.last());
+        match current {
+            Some(b) => {
+                if !self.json {
+                    println!();
+                }
+                Ok(Some(builds.join(&b.folder)))
+            }
+            None if self.json => anyhow::bail!(
+                "no builds in {} yet: start one with `layerwise build start --name NAME`",
+                builds.display()
+            ),
+            None => {
+                println!("  none yet: start one with `layerwise build start --name NAME`");
+                Ok(None)
+            }
+        }
     }
 }
 

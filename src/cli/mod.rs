@@ -7,6 +7,7 @@ mod daemon;
 mod files;
 mod flaws;
 mod inspect;
+mod lifecycle;
 mod numbering;
 mod register;
 // The push to archives (PACS).
@@ -40,6 +41,11 @@ pub enum Command {
     Check(daemon::CheckArgs),
     /// Where a build stands: layer, frames, missing frames, processing, disk.
     Status(daemon::StatusArgs),
+    /// Start, end and list builds without editing the configuration (`[build] builds_dir`).
+    Build {
+        #[command(subcommand)]
+        command: lifecycle::BuildCommand,
+    },
     /// Laser scan vector files (CLI, ASCII or binary).
     Vectors {
         #[command(subcommand)]
@@ -85,6 +91,7 @@ impl Command {
             Command::CheckConfig(args) => args.run(),
             Command::Check(args) => args.run(),
             Command::Status(args) => args.run(),
+            Command::Build { command } => command.run(),
             Command::Vectors { command } => command.run(),
             Command::Rectify(args) => args.run(),
             Command::Optics(args) => args.run(),

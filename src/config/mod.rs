@@ -75,6 +75,13 @@ pub struct BuildConfig {
     /// Printer layers before the vector file's first (geometry, position): may be negative.
     #[serde(default)]
     pub layer_offset: i64,
+    /// With this set, operators start and end builds with `layerwise build start|stop`: the
+    /// daemon records into the folder (under this directory) of the build last started, with
+    /// its name, vectors and layers; `output_dir`, `name` and `vectors` above are the
+    /// defaults of a build that does not give its own. Without it, the daemon records into
+    /// `output_dir`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub builds_dir: Option<PathBuf>,
 }
 
 impl BuildConfig {
@@ -542,6 +549,17 @@ impl Config {
         }
         if self.build.output_dir.as_os_str().is_empty() {
             return Err(invalid("build.output_dir", "must name a directory".into()));
+        }
+        if self
+            .build
+            .builds_dir
+            .as_ref()
+            .is_some_and(|d| d.as_os_str().is_empty())
+        {
+            return Err(invalid(
+                "build.builds_dir",
+                "must name a directory (or leave the key out)".into(),
+            ));
         }
         pacs::validate(&self.pacs, file)?;
         match &self.trigger {
