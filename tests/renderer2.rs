@@ -1,0 +1,385 @@
+//! `layerwise register images` on frames of a second, independently written renderer
+//! (tests/common/render2.rs: its own camera, lens, textures, halo, previous layer, light and
+//! JPEG), judged against the renderer's known truth over the parts' pixels. Prints the accuracy
+//! table of the README (`cargo test --release --test renderer2 -- --nocapture`).
+
+mod common;
+#[path = "common/render2.rs"]
+mod render2;
+
+use std::f64::consts::TAU;
+use std::path::PathBuf;
+
+use layerwise::geometry::BuildPoint;
+use layerwise::rectify::calibration::Calibration;
+use layerwise::vectors::{
+    self, Direction, Format, Header, Layer, LayerMap, LayerNumbering, Polyline, VectorFile,
+};
+use render2::{Shot, View};
+
+const W: u32 = 1600;
+const H: u32 = 1100;
+/// The lens of the radial cases.
+const K1: f64 = -0.2;
+
+type Ring = Vec<(f64, f64)>;
+
+fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Ring {
+    vec![(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+}
+
+fn turned(ring: Ring, deg: f64) -> Ring {
+    let n = ring.len() as f64;
+    let cx = ring.iter().map(|p| p.0).sum::<f64>() / n;
+    let cy = ring.iter().map(|p| p.1).sum::<f64>() / n;
+    let (s, c) = deg.to_radians().sin_cos();
+    ring.into_iter()
+        .map(|(x, y)| {
+            let (dx, dy) = (x - cx, y - cy);
+            (cx + c * dx - s * dy, cy + s * dx + c * dy)
+        })
+        .collect()
+}
+
+fn disc(cx: f64, cy: f64, r: f64) -> Ring {
+    (0..180)
+        .map(|i| {
+            let a = TAU * f64::from(i) / 180.0;
+            (cx + r * a.cos(), cy + r * a.sin())
+        })
+        .collect()
+}
+
+/// Parts (each a list of rings, outer first) of printer layers 1, 2, 3: most parts go through
+/// all three, one ends after layer 1, one starts at layer 2, one replaces the triangle at 3.
+/// Spread out to the plate's corners so a lens distortion shows; some edges along the axes.
+fn build() -> Vec<Vec<Vec<Ring>>> {
+    let mut hole = rect(67.0, -63.0, 83.0, -47.0);
+    hole.reverse();
+    let common = vec![
+        vec![disc(-70.0, 50.0, 9.0)],
+        vec![turned(rect(40.0, 40.0, 70.0, 60.0), 17.0)],
+        vec![vec![
+            (-20.0, -80.0),
+            (20.0, -80.0),
+            (20.0, -70.0),
+            (-10.0, -70.0),
+            (-10.0, -40.0),
+            (-20.0, -40.0),
+        ]],
+        vec![rect(60.0, -70.0, 90.0, -40.0), hole],
+        vec![turned(rect(-107.0, -107.0, -93.0, -93.0), 10.0)],
+        vec![rect(93.0, -107.0, 107.0, -93.0)],
+        vec![turned(rect(93.0, 93.0, 107.0, 107.0), -25.0)],
+        vec![rect(-107.0, 93.0, -93.0, 107.0)],
+    ];
+    let triangle = vec![vec![(-90.0, -30.0), (-50.0, -30.0), (-70.0, 0.0)]];
+    let bar = vec![turned(rect(-45.0, 88.0, 5.0, 96.0), 4.0)];
+    let new_disc = vec![disc(100.0, 10.0, 10.0)];
+    let hexagon = vec![(0..6)
+        .map(|i| {
+            let a = TAU * f64::from(i) / 6.0 + 0.2;
+            (-70.0 + 16.0 * a.cos(), -18.0 + 16.0 * a.sin())
+        })
+        .collect()];
+    let mut l1 = common.clone();
+    l1.extend([triangle.clone(), bar]);
+    let mut l2 = common.clone();
+    l2.extend([triangle, new_disc.clone()]);
+    let mut l3 = common;
+    l3.extend([hexagon, new_disc]);
+    vec![l1, l2, l3]
+}
+
+fn layer_of(index: usize, parts: &[Vec<Ring>]) -> Layer {
+    let mut layer = Layer::new(index, 0.03 * (index as f64 + 1.0));
+    for (k, rings) in parts.iter().enumerate() {
+        for (i, ring) in rings.iter().enumerate() {
+            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
+            points.push(points[0]);
+            layer.polylines.push(Polyline {
+                part: k as i64 + 1,
+                direction: if i == 0 {
+                    Direction::CounterClockwise
+                } else {
+                    Direction::Clockwise
+                },
+                points,
+            });
+        }
+    }
+    layer
+}
+
+/// Part corners a person would click (the box, the L, the frame, the triangle), in mm, and how
+/// far off each click lands, px.
+const CLICKS: [((f64, f64), (f64, f64)); 4] = [
+    ((70.0, 60.0), (4.8, -3.9)),
+    ((-20.0, -80.0), (-5.5, 3.1)),
+    ((90.0, -70.0), (4.1, 5.6)),
+    ((-90.0, -30.0), (-3.4, -5.2)),
+];
+
+/// The points file: the clicks where the camera shows them (the box's corner turned with it).
+fn points_text(view: &View) -> String {
+    let boxed = turned(rect(40.0, 40.0, 70.0, 60.0), 17.0)[2];
+    let mut s = String::from("# u v x y: part corners clicked in the frame\n");
+    for (k, &((x, y), (du, dv))) in CLICKS.iter().enumerate() {
+        let (x, y) = if k == 0 { boxed } else { (x, y) };
+        let (u, v) = view.true_pixel(x, y);
+        s += &format!("{:.2} {:.2} {x} {y}\n", u + du, v + dv);
+    }
+    s
+}
+
+/// Build points over a part: its contours every 0.5 mm and its inside on a 0.5 mm grid.
+fn part_samples(rings: &[Ring]) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for ring in rings {
+        for i in 0..ring.len() {
+            let (a, b) = (ring[i], ring[(i + 1) % ring.len()]);
+            (x0, y0, x1, y1) = (x0.min(a.0), y0.min(a.1), x1.max(a.0), y1.max(a.1));
+            let steps = ((b.0 - a.0).hypot(b.1 - a.1) / 0.5).ceil().max(1.0) as usize;
+            for s in 0..steps {
+                let t = s as f64 / steps as f64;
+                out.push((a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1)));
+            }
+        }
+    }
+    let inside = |x: f64, y: f64| {
+        let mut odd = false;
+        for ring in rings {
+            for i in 0..ring.len() {
+                let (a, b) = (ring[i], ring[(i + 1) % ring.len()]);
+                if (a.1 > y) != (b.1 > y) && x < a.0 + (y - a.1) * (b.0 - a.0) / (b.1 - a.1) {
+                    odd = !odd;
+                }
+            }
+        }
+        odd
+    };
+    let mut y = y0 + 0.25;
+    while y < y1 {
+        let mut x = x0 + 0.25;
+        while x < x1 {
+            if inside(x, y) {
+                out.push((x, y));
+            }
+            x += 0.5;
+        }
+        y += 0.5;
+    }
+    out
+}
+
+/// One row of the table.
+struct Row {
+    case: String,
+    mean: f64,
+    max: f64,
+    worst_part: f64,
+    k1_true: f64,
+    k1_fit: Option<f64>,
+    seconds: f64,
+}
+
+/// Error of the written calibration against the truth, px, over the parts of `layers`: mean,
+/// max, and the worst per-part mean.
+fn accuracy(cal: &Calibration, view: &View, layers: &[&[Vec<Ring>]]) -> (f64, f64, f64) {
+    let camera = cal.camera();
+    let (mut sum, mut n, mut max, mut worst) = (0.0, 0usize, 0.0f64, 0.0f64);
+    for parts in layers {
+        for rings in parts.iter() {
+            let (mut ps, mut pn) = (0.0, 0usize);
+            for (x, y) in part_samples(rings) {
+                let (tu, tv) = view.true_pixel(x, y);
+                let e = camera
+                    .image_point(BuildPoint::new(x, y))
+                    .expect("in front of the camera");
+                let d = (e.u - tu).hypot(e.v - tv);
+                ps += d;
+                pn += 1;
+                max = max.max(d);
+            }
+            sum += ps;
+            n += pn;
+            worst = worst.max(ps / pn as f64);
+        }
+    }
+    (sum / n as f64, max, worst)
+}
+
+struct Case {
+    dir: tempfile::TempDir,
+    vectors: PathBuf,
+    parts: Vec<Vec<Vec<Ring>>>,
+}
+
+impl Case {
+    fn new() -> Case {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let parts = build();
+        let file = VectorFile {
+            header: Header::new(Format::Ascii, 0.001),
+            layers: parts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| layer_of(i, p))
+                .collect(),
+        };
+        let vectors = dir.path().join("build.cli");
+        let mut out = std::fs::File::create(&vectors).expect("create CLI");
+        vectors::write_ascii(&file, &mut out).expect("write CLI");
+        Case {
+            dir,
+            vectors,
+            parts,
+        }
+    }
+
+    /// Renders printer layers `numbers` through `view` from the vector file, as JPEGs named as
+    /// the daemon names them; returns their paths.
+    fn frames(&self, view: &View, numbers: &[u32], tag: &str) -> Vec<PathBuf> {
+        let file = vectors::read(&self.vectors).expect("read CLI");
+        let map = LayerMap::of_file(&file, LayerNumbering::default());
+        let layer = |n: u32| map.position(n).map(|k| &file.layers[k]);
+        numbers
+            .iter()
+            .map(|&n| {
+                let shot = Shot {
+                    layer: layer(n).expect("layer in the file"),
+                    previous: n.checked_sub(1).and_then(layer),
+                    number: n,
+                };
+                let img = render2::render(view, &shot, 0x2EED + u64::from(n));
+                let path = self
+                    .dir
+                    .path()
+                    .join(format!("{tag}_L{n:05}_post_top.jpg"));
+                std::fs::write(&path, render2::jpeg90(&img)).expect("write JPEG");
+                path
+            })
+            .collect()
+    }
+
+    /// `layerwise register images` on `frames` (printer layers `numbers`), as a user runs it.
+    fn register(
+        &self,
+        view: &View,
+        frames: &[PathBuf],
+        numbers: &[u32],
+        radial: bool,
+        tag: &str,
+    ) -> (Calibration, f64) {
+        let points = self.dir.path().join(format!("{tag}_points.txt"));
+        std::fs::write(&points, points_text(view)).expect("write points");
+        let out = self.dir.path().join(format!("{tag}_calibration.toml"));
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_layerwise"));
+        cmd.args(["register", "images", "--vectors"])
+            .arg(&self.vectors)
+            .arg("--init")
+            .arg(&points)
+            .arg("--out")
+            .arg(&out);
+        for (frame, n) in frames.iter().zip(numbers) {
+            cmd.arg("--layer").arg(n.to_string()).arg("--image").arg(frame);
+        }
+        if radial {
+            cmd.args(["--distortion", "radial", "--focal-px"])
+                .arg(view.focal_px.to_string());
+        }
+        let started = std::time::Instant::now();
+        let output = cmd.output().expect("runs");
+        let seconds = started.elapsed().as_secs_f64();
+        eprintln!("{tag}:\n{}", String::from_utf8_lossy(&output.stdout));
+        common::assert_success(&output);
+        (Calibration::load(&out).expect("calibration written"), seconds)
+    }
+
+    fn row(&self, view: &View, numbers: &[u32], radial: bool, case: &str) -> Row {
+        let tag = case.replace([' ', ','], "_");
+        let frames = self.frames(view, numbers, &tag);
+        let (cal, seconds) = self.register(view, &frames, numbers, radial, &tag);
+        let layers: Vec<&[Vec<Ring>]> = numbers
+            .iter()
+            .map(|&n| self.parts[n as usize - 1].as_slice())
+            .collect();
+        let (mean, max, worst_part) = accuracy(&cal, view, &layers);
+        Row {
+            case: case.to_string(),
+            mean,
+            max,
+            worst_part,
+            k1_true: view.k1,
+            k1_fit: cal.distortion.map(|d| d.k1),
+            seconds,
+        }
+    }
+}
+
+fn table(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "| case | mean px | max px | worst part, mean px | k1 true | k1 fitted |\n\
+         | --- | --- | --- | --- | --- | --- |\n",
+    );
+    for r in rows {
+        s += &format!(
+            "| {} | {:.3} | {:.3} | {:.3} | {} | {} |\n",
+            r.case,
+            r.mean,
+            r.max,
+            r.worst_part,
+            r.k1_true,
+            r.k1_fit.map_or("–".to_string(), |k| format!("{k:.3}"))
+        );
+    }
+    s
+}
+
+fn view(k1: f64) -> View {
+    View::oblique(W, H, 560.0, 28.0, 12.0, 3.0, (4.0, -6.0), k1)
+}
+
+#[test]
+fn registration_is_accurate_on_a_second_renderer() {
+    let case = Case::new();
+    let plain = view(0.0);
+    let lens = view(K1);
+    // The plate must be in the frame, as on the machine.
+    for v in [&plain, &lens] {
+        for (x, y) in [(-137.5, -137.5), (137.5, -137.5), (137.5, 137.5), (-137.5, 137.5)] {
+            let (u, w) = v.true_pixel(x, y);
+            assert!(
+                u > 0.0 && w > 0.0 && u < f64::from(W) && w < f64::from(H),
+                "plate corner ({x}, {y}) at ({u:.0}, {w:.0})"
+            );
+        }
+    }
+    let rows = vec![
+        case.row(&plain, &[2], false, "plain, one layer"),
+        case.row(&plain, &[1, 2, 3], false, "plain, three layers"),
+        case.row(&lens, &[2], true, "radial, one layer"),
+        case.row(&lens, &[1, 2, 3], true, "radial, three layers"),
+    ];
+    let text = table(&rows);
+    eprintln!(
+        "second renderer, {W} x {H} JPEG q90, register images through the binary:\n{text}"
+    );
+    for r in &rows {
+        eprintln!("{}: {:.1} s", r.case, r.seconds);
+    }
+    for r in &rows {
+        assert!(
+            r.mean <= 0.25 && r.max <= 0.75,
+            "{}: mean {:.3} px, max {:.3} px\n{text}",
+            r.case,
+            r.mean,
+            r.max
+        );
+    }
+    for r in rows.iter().filter(|r| r.k1_true != 0.0) {
+        let k1 = r.k1_fit.expect("the distortion is fitted");
+        assert!((k1 - r.k1_true).abs() <= 0.05, "{}: k1 {k1}\n{text}", r.case);
+    }
+}
