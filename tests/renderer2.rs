@@ -10,6 +10,9 @@ mod render2;
 use std::f64::consts::TAU;
 use std::path::PathBuf;
 
+use layerwise::calibrate::{
+    register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
+};
 use layerwise::geometry::BuildPoint;
 use layerwise::rectify::calibration::Calibration;
 use layerwise::vectors::{
@@ -204,6 +207,11 @@ fn accuracy(cal: &Calibration, view: &View, layers: &[&[Vec<Ring>]]) -> (f64, f6
             }
             sum += ps;
             n += pn;
+            eprintln!(
+                "  part {:?}: mean {:.3} px over {pn}",
+                rings[0][0],
+                ps / pn as f64
+            );
             worst = worst.max(ps / pn as f64);
         }
     }
@@ -253,10 +261,7 @@ impl Case {
                     number: n,
                 };
                 let img = render2::render(view, &shot, 0x2EED + u64::from(n));
-                let path = self
-                    .dir
-                    .path()
-                    .join(format!("{tag}_L{n:05}_post_top.jpg"));
+                let path = self.dir.path().join(format!("{tag}_L{n:05}_post_top.jpg"));
                 std::fs::write(&path, render2::jpeg90(&img)).expect("write JPEG");
                 path
             })
@@ -283,7 +288,10 @@ impl Case {
             .arg("--out")
             .arg(&out);
         for (frame, n) in frames.iter().zip(numbers) {
-            cmd.arg("--layer").arg(n.to_string()).arg("--image").arg(frame);
+            cmd.arg("--layer")
+                .arg(n.to_string())
+                .arg("--image")
+                .arg(frame);
         }
         if radial {
             cmd.args(["--distortion", "radial", "--focal-px"])
@@ -294,7 +302,53 @@ impl Case {
         let seconds = started.elapsed().as_secs_f64();
         eprintln!("{tag}:\n{}", String::from_utf8_lossy(&output.stdout));
         common::assert_success(&output);
-        (Calibration::load(&out).expect("calibration written"), seconds)
+        (
+            Calibration::load(&out).expect("calibration written"),
+            seconds,
+        )
+    }
+
+    /// As [`Case::row`], but in the library with the dilation fit switched off: what the
+    /// registration did before it modelled the halo.
+    fn row_without_dilation(&self, view: &View, numbers: &[u32], case: &str) -> Row {
+        let tag = case.replace([' ', ',', '(', ')'], "_");
+        let frames = self.frames(view, numbers, &tag);
+        let points = self.dir.path().join(format!("{tag}_points.txt"));
+        std::fs::write(&points, points_text(view)).expect("write points");
+        let mut options = RegistrationOptions::default();
+        options.lm.fit_dilation = false;
+        let report = register_images(&ImageRegistration {
+            vectors: self.vectors.clone(),
+            numbering: LayerNumbering::default(),
+            images: frames
+                .iter()
+                .zip(numbers)
+                .map(|(path, &layer)| RegistrationImage {
+                    path: path.clone(),
+                    layer,
+                })
+                .collect(),
+            init_points: points,
+            out: None,
+            overlay: None,
+            distortion: DistortionChoice::None,
+            options,
+        })
+        .expect("registers");
+        let layers: Vec<&[Vec<Ring>]> = numbers
+            .iter()
+            .map(|&n| self.parts[n as usize - 1].as_slice())
+            .collect();
+        let (mean, max, worst_part) = accuracy(&report.calibration, view, &layers);
+        Row {
+            case: case.to_string(),
+            mean,
+            max,
+            worst_part,
+            k1_true: view.k1,
+            k1_fit: None,
+            seconds: report.seconds,
+        }
     }
 
     fn row(&self, view: &View, numbers: &[u32], radial: bool, case: &str) -> Row {
@@ -348,7 +402,12 @@ fn registration_is_accurate_on_a_second_renderer() {
     let lens = view(K1);
     // The plate must be in the frame, as on the machine.
     for v in [&plain, &lens] {
-        for (x, y) in [(-137.5, -137.5), (137.5, -137.5), (137.5, 137.5), (-137.5, 137.5)] {
+        for (x, y) in [
+            (-137.5, -137.5),
+            (137.5, -137.5),
+            (137.5, 137.5),
+            (-137.5, 137.5),
+        ] {
             let (u, w) = v.true_pixel(x, y);
             assert!(
                 u > 0.0 && w > 0.0 && u < f64::from(W) && w < f64::from(H),
@@ -362,10 +421,14 @@ fn registration_is_accurate_on_a_second_renderer() {
         case.row(&lens, &[2], true, "radial, one layer"),
         case.row(&lens, &[1, 2, 3], true, "radial, three layers"),
     ];
+    let before = case.row_without_dilation(&plain, &[2], "plain, one layer, no dilation fit");
     let text = table(&rows);
+    let reference = table(std::slice::from_ref(&before));
     eprintln!(
-        "second renderer, {W} x {H} JPEG q90, register images through the binary:\n{text}"
+        "for reference, without the dilation fit (library):\n{}",
+        reference.lines().nth(2).unwrap_or_default()
     );
+    eprintln!("second renderer, {W} x {H} JPEG q90, register images through the binary:\n{text}");
     for r in &rows {
         eprintln!("{}: {:.1} s", r.case, r.seconds);
     }
@@ -378,8 +441,21 @@ fn registration_is_accurate_on_a_second_renderer() {
             r.max
         );
     }
+    // The halo is what the dilation fit is for: without it the same frame fits worse.
+    assert!(
+        rows[0].mean < before.mean && rows[0].max < before.max,
+        "with the dilation fit {:.3}/{:.3} px, without {:.3}/{:.3} px",
+        rows[0].mean,
+        rows[0].max,
+        before.mean,
+        before.max
+    );
     for r in rows.iter().filter(|r| r.k1_true != 0.0) {
         let k1 = r.k1_fit.expect("the distortion is fitted");
-        assert!((k1 - r.k1_true).abs() <= 0.05, "{}: k1 {k1}\n{text}", r.case);
+        assert!(
+            (k1 - r.k1_true).abs() <= 0.05,
+            "{}: k1 {k1}\n{text}",
+            r.case
+        );
     }
 }

@@ -10,7 +10,8 @@
 //!   noise on a 0.08 mm lattice and sparse bright grains;
 //! - the fused layer: anisotropic track texture along the layer's hatch direction (turning
 //!   67° per layer) with a bright contour track at the edge;
-//! - a halo of partially fused powder (darker, grainy sinter) up to 0.45 mm outside the parts;
+//! - a halo of partially fused powder (darker, grainy sinter, as rough as the part next to it)
+//!   up to 0.8 mm outside the parts;
 //! - the previous layer faintly visible through the thin fresh powder where the current layer
 //!   does not cover it;
 //! - pixels within 1.5 px of an edge are supersampled 4 x 4 (area coverage, not point sampling);
@@ -27,7 +28,12 @@ use rayon::prelude::*;
 /// Half the ProX320 plate's side, mm.
 const PLATE_HALF: f64 = 137.5;
 /// How far outside a part the partially fused powder reaches, mm.
-const HALO_MM: f64 = 0.45;
+const HALO_MM: f64 = 0.8;
+/// Weight of the sintered powder at a part's edge (falling quadratically to 0 at `HALO_MM`).
+const HALO_EDGE: f64 = 0.9;
+/// Amplitude of the fused tracks' texture and of the powder's per-grain noise, grey levels.
+const TRACK_AMPLITUDE: f64 = 26.0;
+const GRAIN_AMPLITUDE: f64 = 8.0;
 
 /// A pinhole camera over the plate with a radial lens: the known truth of a rendered frame.
 #[derive(Clone, Copy, Debug)]
@@ -129,7 +135,10 @@ impl View {
         ];
         let y = cross(z, x);
         let f = 1.25 * f64::from(width);
-        let (cu, cv) = (0.5 * (f64::from(width) - 1.0), 0.5 * (f64::from(height) - 1.0));
+        let (cu, cv) = (
+            0.5 * (f64::from(width) - 1.0),
+            0.5 * (f64::from(height) - 1.0),
+        );
         // Camera coordinates of a plate point p: (x·(p − eye), y·(p − eye), z·(p − eye)).
         let col = |axis: [f64; 3]| [axis[0], axis[1], -dot(axis, eye)];
         let (rx, ry, rz) = (col(x), col(y), col(z));
@@ -224,7 +233,12 @@ fn outlines(layer: &Layer) -> Vec<Outline> {
     by_part
         .into_values()
         .map(|edges| {
-            let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+            let mut b = [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ];
             for e in &edges {
                 b[0] = b[0].min(e[0]).min(e[2]);
                 b[1] = b[1].min(e[1]).min(e[3]);
@@ -304,7 +318,7 @@ fn powder(x: f64, y: f64, seed: u64) -> f64 {
     112.0
         + 6.0 * value_noise(x / 0.9, y / 0.9, seed ^ 0x11)
         + 4.0 * value_noise(x / 0.3, y / 0.3, seed ^ 0x12)
-        + 5.0 * cell(gi, gj, seed ^ 0x13)
+        + GRAIN_AMPLITUDE * cell(gi, gj, seed ^ 0x13)
         + bright
 }
 
@@ -314,7 +328,7 @@ fn fused(x: f64, y: f64, angle: f64, seed: u64) -> f64 {
     // Across the tracks (0.11 mm pitch) and along them (ripples ~0.6 mm long).
     let across = (x * c + y * s) / 0.11;
     let along = (-x * s + y * c) / 0.6;
-    92.0 + 38.0 * value_noise(across, along, seed ^ 0x21)
+    92.0 + TRACK_AMPLITUDE * value_noise(across, along, seed ^ 0x21)
         + 14.0 * value_noise(x / 0.5, y / 0.5, seed ^ 0x22)
 }
 
@@ -334,14 +348,7 @@ pub struct Shot<'a> {
 }
 
 /// Scene radiance at build point (x, y) mm.
-fn radiance(
-    x: f64,
-    y: f64,
-    now: &[Outline],
-    before: &[Outline],
-    number: u32,
-    seed: u64,
-) -> f64 {
+fn radiance(x: f64, y: f64, now: &[Outline], before: &[Outline], number: u32, seed: u64) -> f64 {
     if x.abs() > PLATE_HALF || y.abs() > PLATE_HALF {
         // The chamber floor around the plate.
         return 35.0 + 6.0 * value_noise(x / 2.0, y / 2.0, seed ^ 0x41);
@@ -366,7 +373,7 @@ fn radiance(
         p += fade * (-7.0 + 0.15 * ghost);
     }
     if d < HALO_MM {
-        let w = 0.7 * (1.0 - d / HALO_MM).powi(2);
+        let w = HALO_EDGE * (1.0 - d / HALO_MM).powi(2);
         p = (1.0 - w) * p + w * sinter(x, y, seed);
     }
     p
@@ -389,7 +396,9 @@ pub fn render(view: &View, shot: &Shot, seed: u64) -> RgbImage {
             let (_, d) = region(&now, x, y);
             let (_, db) = region(&before, x, y);
             let near = 1.5 * mm_px + HALO_MM;
-            *out = if d < near || db < 1.5 * mm_px || (x.abs() - PLATE_HALF).abs() < 2.0 * mm_px
+            *out = if d < near
+                || db < 1.5 * mm_px
+                || (x.abs() - PLATE_HALF).abs() < 2.0 * mm_px
                 || (y.abs() - PLATE_HALF).abs() < 2.0 * mm_px
             {
                 // Area coverage: 4 x 4 samples over the pixel.
@@ -435,8 +444,8 @@ pub fn render(view: &View, shot: &Shot, seed: u64) -> RgbImage {
         let vignette = 1.0 - 0.32 * r2;
         let gradient = 0.82 + 0.3 * uf / f64::from(view.width) + 0.06 * vf / f64::from(view.height);
         let (hu, hv) = (0.3 * f64::from(view.width), 0.35 * f64::from(view.height));
-        let spot = 1.0
-            + 0.12 * (-((uf - hu).powi(2) + (vf - hv).powi(2)) / (2.0 * 300f64.powi(2))).exp();
+        let spot =
+            1.0 + 0.12 * (-((uf - hu).powi(2) + (vf - hv).powi(2)) / (2.0 * 300f64.powi(2))).exp();
         let g = f64::from(scene[v as usize * w + u as usize]) * vignette * gradient * spot
             + 2.0 * cell(i64::from(u), i64::from(v), noise_seed);
         let px = |k: f64| (g * k).round().clamp(0.0, 255.0) as u8;

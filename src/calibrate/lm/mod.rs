@@ -96,6 +96,9 @@ pub struct LmOptions {
     /// Keep the distortion's k2 at its start value (fit k1 only): set when the frames cannot
     /// tell k2 from k1 and the homography (`calibrate::identify`).
     pub fix_k2: bool,
+    /// Fit, per frame, how far the frame's parts look wider than their vectors (a halo of
+    /// partly fused powder; `pass::fit_photometric`), so it is not taken for a scale.
+    pub fit_dilation: bool,
 }
 
 impl Default for LmOptions {
@@ -111,6 +114,7 @@ impl Default for LmOptions {
             photometric_degree: 3,
             support_margin_px: Some(24.0),
             fix_k2: false,
+            fit_dilation: true,
         }
     }
 }
@@ -163,6 +167,9 @@ pub struct LevelReport {
 pub struct PairFit {
     /// φ: `I_E ≈ Σ_k photometric[k]·I_B^k`.
     pub photometric: Vec<f64>,
+    /// How far the frame's parts look wider than the vectors (edges moved outward), exemplar
+    /// pixels at full resolution; 0 when not fitted.
+    pub dilation_px: f64,
     /// Correlation R of I_E with φ(I_B(W)) at the starting warp and at the result.
     pub initial_correlation: f64,
     pub correlation: f64,
