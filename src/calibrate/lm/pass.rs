@@ -284,8 +284,19 @@ pub(super) fn fit_photometric(pre: &Pre, s: &Sums, deg: usize, dilation: bool) -
             };
             let explained: f64 = (0..n).map(|i| c[i] * rhs[i]).sum();
             let cost = 0.5 * (pre.see - explained).max(0.0);
-            let r2 = if var_e > 0.0 {
-                (1.0 - 2.0 * cost / var_e).max(0.0)
+            let delta = if h { c[d + 1] } else { 0.0 };
+            // The correlation is that of the dilated exemplar I_E + δh with φ(I_B): δ alone
+            // can explain part of I_E by its own gradient (an unrelated image would otherwise
+            // look matched).
+            let var = if h {
+                let sum = pre.se + delta * s.sht[0];
+                let sq = pre.see + 2.0 * delta * s.she + delta * delta * s.shh;
+                (sq - sum * sum / pre.n).max(0.0)
+            } else {
+                var_e
+            };
+            let r2 = if var > 0.0 {
+                (1.0 - 2.0 * cost / var).max(0.0)
             } else {
                 0.0
             };
@@ -293,7 +304,7 @@ pub(super) fn fit_photometric(pre: &Pre, s: &Sums, deg: usize, dilation: bool) -
             coeffs[..=d].copy_from_slice(&c.as_slice()[..=d]);
             return Photometric {
                 coeffs,
-                dilation: if h { c[d + 1] } else { 0.0 },
+                dilation: delta,
                 cost,
                 correlation: r2.sqrt(),
             };
