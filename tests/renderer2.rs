@@ -114,23 +114,22 @@ fn layer_of(index: usize, parts: &[Vec<Ring>]) -> Layer {
     layer
 }
 
-/// Part corners a person would click (the box, the L, the frame, the triangle), in mm, and how
-/// far off each click lands, px.
-const CLICKS: [((f64, f64), (f64, f64)); 4] = [
-    ((70.0, 60.0), (4.8, -3.9)),
-    ((-20.0, -80.0), (-5.5, 3.1)),
-    ((90.0, -70.0), (4.1, 5.6)),
-    ((-90.0, -30.0), (-3.4, -5.2)),
-];
+/// How far off each of the four clicks lands, px.
+const CLICK_ERRORS: [(f64, f64); 4] = [(4.8, -3.9), (-5.5, 3.1), (4.1, 5.6), (-3.4, -5.2)];
 
-/// The points file: the clicks where the camera shows them (the box's corner turned with it).
-fn points_text(view: &View) -> String {
+/// Part corners a person would click in [`build`]'s parts (the box, the L, the frame, the
+/// triangle), mm.
+fn clicks() -> Vec<(f64, f64)> {
     let boxed = turned(rect(40.0, 40.0, 70.0, 60.0), 17.0)[2];
+    vec![boxed, (-20.0, -80.0), (90.0, -70.0), (-90.0, -30.0)]
+}
+
+/// The points file: the clicks where the camera shows them, `scale` x [`CLICK_ERRORS`] off.
+fn points_text(view: &View, clicks: &[(f64, f64)], scale: f64) -> String {
     let mut s = String::from("# u v x y: part corners clicked in the frame\n");
-    for (k, &((x, y), (du, dv))) in CLICKS.iter().enumerate() {
-        let (x, y) = if k == 0 { boxed } else { (x, y) };
+    for (&(x, y), &(du, dv)) in clicks.iter().zip(CLICK_ERRORS.iter().cycle()) {
         let (u, v) = view.true_pixel(x, y);
-        s += &format!("{:.2} {:.2} {x} {y}\n", u + du, v + dv);
+        s += &format!("{:.2} {:.2} {x} {y}\n", u + scale * du, v + scale * dv);
     }
     s
 }
@@ -222,12 +221,16 @@ struct Case {
     dir: tempfile::TempDir,
     vectors: PathBuf,
     parts: Vec<Vec<Vec<Ring>>>,
+    clicks: Vec<(f64, f64)>,
+    /// Scale of [`CLICK_ERRORS`] (on small parts a person clicks closer).
+    click_error: f64,
 }
 
 impl Case {
-    fn new() -> Case {
+    /// A vector file of `parts` (per printer layer, from 1) in a fresh folder; `clicks` are the
+    /// part corners the start points name.
+    fn new(parts: Vec<Vec<Vec<Ring>>>, clicks: Vec<(f64, f64)>) -> Case {
         let dir = tempfile::tempdir().expect("tempdir");
-        let parts = build();
         let file = VectorFile {
             header: Header::new(Format::Ascii, 0.001),
             layers: parts
@@ -243,6 +246,8 @@ impl Case {
             dir,
             vectors,
             parts,
+            clicks,
+            click_error: 1.0,
         }
     }
 
@@ -268,17 +273,19 @@ impl Case {
             .collect()
     }
 
-    /// `layerwise register images` on `frames` (printer layers `numbers`), as a user runs it.
-    fn register(
+    /// `layerwise register images` on `frames` (printer layers `numbers`), as a user runs it:
+    /// its output, the calibration file and the seconds it took.
+    fn run(
         &self,
         view: &View,
         frames: &[PathBuf],
         numbers: &[u32],
         radial: bool,
         tag: &str,
-    ) -> (Calibration, f64) {
+    ) -> (std::process::Output, PathBuf, f64) {
         let points = self.dir.path().join(format!("{tag}_points.txt"));
-        std::fs::write(&points, points_text(view)).expect("write points");
+        std::fs::write(&points, points_text(view, &self.clicks, self.click_error))
+            .expect("write points");
         let out = self.dir.path().join(format!("{tag}_calibration.toml"));
         let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_layerwise"));
         cmd.args(["register", "images", "--vectors"])
@@ -300,7 +307,24 @@ impl Case {
         let started = std::time::Instant::now();
         let output = cmd.output().expect("runs");
         let seconds = started.elapsed().as_secs_f64();
-        eprintln!("{tag}:\n{}", String::from_utf8_lossy(&output.stdout));
+        eprintln!(
+            "{tag}:\n{}{}",
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
+        (output, out, seconds)
+    }
+
+    /// [`Case::run`], which must succeed: the calibration it wrote and the seconds it took.
+    fn register(
+        &self,
+        view: &View,
+        frames: &[PathBuf],
+        numbers: &[u32],
+        radial: bool,
+        tag: &str,
+    ) -> (Calibration, f64) {
+        let (output, out, seconds) = self.run(view, frames, numbers, radial, tag);
         common::assert_success(&output);
         (
             Calibration::load(&out).expect("calibration written"),
@@ -314,7 +338,8 @@ impl Case {
         let tag = case.replace([' ', ',', '(', ')'], "_");
         let frames = self.frames(view, numbers, &tag);
         let points = self.dir.path().join(format!("{tag}_points.txt"));
-        std::fs::write(&points, points_text(view)).expect("write points");
+        std::fs::write(&points, points_text(view, &self.clicks, self.click_error))
+            .expect("write points");
         let mut options = RegistrationOptions::default();
         options.lm.fit_dilation = false;
         let report = register_images(&ImageRegistration {
@@ -397,7 +422,7 @@ fn view(k1: f64) -> View {
 
 #[test]
 fn registration_is_accurate_on_a_second_renderer() {
-    let case = Case::new();
+    let case = Case::new(build(), clicks());
     let plain = view(0.0);
     let lens = view(K1);
     // The plate must be in the frame, as on the machine.
@@ -457,5 +482,53 @@ fn registration_is_accurate_on_a_second_renderer() {
             "{}: k1 {k1}\n{text}",
             r.case
         );
+    }
+}
+
+/// The runaway case on this renderer: three small parts near the plate centre, a lens with
+/// k1 = −0.3. `--distortion radial` must refuse (the parts cannot show the lens) or do no worse
+/// than the plain homography.
+#[test]
+fn clustered_small_parts_do_not_run_away() {
+    let parts = vec![
+        vec![turned(rect(-19.0, -2.0, -11.0, 6.0), 17.0)],
+        vec![turned(rect(9.0, 4.0, 19.0, 14.0), 17.0)],
+        vec![disc(1.0, -14.0, 4.0)],
+    ];
+    let clicks = vec![
+        parts[0][0][0],
+        parts[0][0][2],
+        parts[1][0][1],
+        parts[1][0][3],
+    ];
+    // Corners 10 px apart: clicks within 2 px, or the start is no homography at all.
+    let mut case = Case::new(vec![parts.clone()], clicks);
+    case.click_error = 0.4;
+    let lens = view(-0.3);
+    let frames = case.frames(&lens, &[1], "clustered");
+    let (plain, _) = case.register(&lens, &frames, &[1], false, "clustered_plain");
+    let (pm, px, _) = accuracy(&plain, &lens, &[&parts]);
+    eprintln!("clustered, k1 = -0.3, plain: mean {pm:.3} px, max {px:.3} px");
+    let (output, out, _) = case.run(&lens, &frames, &[1], true, "clustered_radial");
+    if output.status.success() {
+        let radial = Calibration::load(&out).expect("calibration written");
+        let (rm, rx, _) = accuracy(&radial, &lens, &[&parts]);
+        eprintln!(
+            "plain {pm:.3}/{px:.3} px, radial {rm:.3}/{rx:.3} px: {:?}",
+            radial.distortion
+        );
+        assert!(
+            rm <= pm + 0.02 && rx <= px + 0.1,
+            "radial {rm}/{rx}, plain {pm}/{px}"
+        );
+    } else {
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{stderr}");
+        assert!(
+            stderr.contains("cannot tell a lens distortion")
+                && stderr.contains("--distortion none"),
+            "{stderr}"
+        );
+        assert!(!out.exists(), "nothing written");
     }
 }
