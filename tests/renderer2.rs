@@ -18,7 +18,7 @@ use layerwise::rectify::calibration::Calibration;
 use layerwise::vectors::{
     self, Direction, Format, Header, Layer, LayerMap, LayerNumbering, Polyline, VectorFile,
 };
-use render2::{Shot, View};
+use render2::{Pose, Shot, View};
 
 const W: u32 = 1600;
 const H: u32 = 1100;
@@ -417,7 +417,14 @@ fn table(rows: &[Row]) -> String {
 }
 
 fn view(k1: f64) -> View {
-    View::oblique(W, H, 560.0, 28.0, 12.0, 3.0, (4.0, -6.0), k1)
+    let pose = Pose {
+        distance_mm: 560.0,
+        tilt_deg: 28.0,
+        azimuth_deg: 12.0,
+        roll_deg: 3.0,
+        target: (4.0, -6.0),
+    };
+    View::oblique(W, H, pose, k1)
 }
 
 #[test]

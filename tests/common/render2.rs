@@ -35,6 +35,17 @@ const HALO_EDGE: f64 = 0.9;
 const TRACK_AMPLITUDE: f64 = 26.0;
 const GRAIN_AMPLITUDE: f64 = 8.0;
 
+/// Where the camera stands: `distance_mm` from `target` (a plate point, mm), `tilt_deg` off
+/// the plate normal towards azimuth `azimuth_deg` (0: from −y), rolled by `roll_deg`.
+#[derive(Clone, Copy, Debug)]
+pub struct Pose {
+    pub distance_mm: f64,
+    pub tilt_deg: f64,
+    pub azimuth_deg: f64,
+    pub roll_deg: f64,
+    pub target: (f64, f64),
+}
+
 /// A pinhole camera over the plate with a radial lens: the known truth of a rendered frame.
 #[derive(Clone, Copy, Debug)]
 pub struct View {
@@ -94,19 +105,16 @@ fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 impl View {
-    /// A camera `distance_mm` from the plate centre, `tilt_deg` off the plate normal towards
-    /// azimuth `azimuth_deg` (0: from −y), rolled by `roll_deg`, focal length 1.25 image widths
-    /// (a 45 mm lens on a full-frame sensor), looking at `target` on the plate.
-    pub fn oblique(
-        width: u32,
-        height: u32,
-        distance_mm: f64,
-        tilt_deg: f64,
-        azimuth_deg: f64,
-        roll_deg: f64,
-        target: (f64, f64),
-        k1: f64,
-    ) -> View {
+    /// A camera placed by `pose`, focal length 1.25 image widths (a 45 mm lens on a full-frame
+    /// sensor), with radial distortion `k1`.
+    pub fn oblique(width: u32, height: u32, pose: Pose, k1: f64) -> View {
+        let Pose {
+            distance_mm,
+            tilt_deg,
+            azimuth_deg,
+            roll_deg,
+            target,
+        } = pose;
         let (t, a, roll) = (
             tilt_deg.to_radians(),
             azimuth_deg.to_radians(),
