@@ -15,9 +15,7 @@ use layerwise::calibrate::{
 };
 use layerwise::geometry::BuildPoint;
 use layerwise::rectify::calibration::Calibration;
-use layerwise::vectors::{
-    self, Direction, Format, Header, Layer, LayerMap, LayerNumbering, Polyline, VectorFile,
-};
+use layerwise::vectors::{self, Format, Header, Layer, LayerMap, LayerNumbering, VectorFile};
 use render2::{Pose, Shot, View};
 
 const W: u32 = 1600;
@@ -63,12 +61,14 @@ fn build() -> Vec<Vec<Vec<Ring>>> {
         vec![disc(-70.0, 50.0, 9.0)],
         vec![turned(rect(40.0, 40.0, 70.0, 60.0), 17.0)],
         vec![vec![
-            (-20.0, -80.0),
-            (20.0, -80.0),
-            (20.0, -70.0),
-            (-10.0, -70.0),
-            (-10.0, -40.0),
-            (-20.0, -40.0),
+            (-25.0, -80.0),
+            (25.0, -80.0),
+            (25.0, -70.0),
+            (5.0, -70.0),
+            (5.0, -40.0),
+            (-5.0, -40.0),
+            (-5.0, -70.0),
+            (-25.0, -70.0),
         ]],
         vec![rect(60.0, -70.0, 90.0, -40.0), hole],
         vec![turned(rect(-107.0, -107.0, -93.0, -93.0), 10.0)],
@@ -95,33 +95,18 @@ fn build() -> Vec<Vec<Vec<Ring>>> {
 }
 
 fn layer_of(index: usize, parts: &[Vec<Ring>]) -> Layer {
-    let mut layer = Layer::new(index, 0.03 * (index as f64 + 1.0));
-    for (k, rings) in parts.iter().enumerate() {
-        for (i, ring) in rings.iter().enumerate() {
-            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
-            points.push(points[0]);
-            layer.polylines.push(Polyline {
-                part: k as i64 + 1,
-                direction: if i == 0 {
-                    Direction::CounterClockwise
-                } else {
-                    Direction::Clockwise
-                },
-                points,
-            });
-        }
-    }
-    layer
+    let rings: Vec<&[Ring]> = parts.iter().map(Vec::as_slice).collect();
+    common::contour_layer(index, &rings)
 }
 
 /// How far off each of the four clicks lands, px.
 const CLICK_ERRORS: [(f64, f64); 4] = [(4.8, -3.9), (-5.5, 3.1), (4.1, 5.6), (-3.4, -5.2)];
 
-/// Part corners a person would click in [`build`]'s parts (the box, the L, the frame, the
+/// Part corners a person would click in [`build`]'s parts (the box, the T, the frame, the
 /// triangle), mm.
 fn clicks() -> Vec<(f64, f64)> {
     let boxed = turned(rect(40.0, 40.0, 70.0, 60.0), 17.0)[2];
-    vec![boxed, (-20.0, -80.0), (90.0, -70.0), (-90.0, -30.0)]
+    vec![boxed, (-25.0, -80.0), (90.0, -70.0), (-90.0, -30.0)]
 }
 
 /// The points file: the clicks where the camera shows them, `scale` x [`CLICK_ERRORS`] off.
@@ -315,23 +300,6 @@ impl Case {
         (output, out, seconds)
     }
 
-    /// [`Case::run`], which must succeed: the calibration it wrote and the seconds it took.
-    fn register(
-        &self,
-        view: &View,
-        frames: &[PathBuf],
-        numbers: &[u32],
-        radial: bool,
-        tag: &str,
-    ) -> (Calibration, f64) {
-        let (output, out, seconds) = self.run(view, frames, numbers, radial, tag);
-        common::assert_success(&output);
-        (
-            Calibration::load(&out).expect("calibration written"),
-            seconds,
-        )
-    }
-
     /// As [`Case::row`], but in the library with the dilation fit switched off: what the
     /// registration did before it modelled the halo.
     fn row_without_dilation(&self, view: &View, numbers: &[u32], case: &str) -> Row {
@@ -360,31 +328,31 @@ impl Case {
             options,
         })
         .expect("registers");
-        let layers: Vec<&[Vec<Ring>]> = numbers
-            .iter()
-            .map(|&n| self.parts[n as usize - 1].as_slice())
-            .collect();
-        let (mean, max, worst_part) = accuracy(&report.calibration, view, &layers);
-        Row {
-            case: case.to_string(),
-            mean,
-            max,
-            worst_part,
-            k1_true: view.k1,
-            k1_fit: None,
-            seconds: report.seconds,
-        }
+        self.measured(&report.calibration, view, numbers, case, report.seconds)
     }
 
     fn row(&self, view: &View, numbers: &[u32], radial: bool, case: &str) -> Row {
         let tag = case.replace([' ', ','], "_");
         let frames = self.frames(view, numbers, &tag);
-        let (cal, seconds) = self.register(view, &frames, numbers, radial, &tag);
+        let (cal, seconds) = loaded(self.run(view, &frames, numbers, radial, &tag));
+        self.measured(&cal, view, numbers, case, seconds)
+    }
+
+    /// The row of calibration `cal` of printer layers `numbers` against `view`'s truth.
+    fn measured(
+        &self,
+        cal: &Calibration,
+        view: &View,
+        numbers: &[u32],
+        case: &str,
+        seconds: f64,
+    ) -> Row {
+        // self.parts holds printer layers 1, 2, … in order.
         let layers: Vec<&[Vec<Ring>]> = numbers
             .iter()
             .map(|&n| self.parts[n as usize - 1].as_slice())
             .collect();
-        let (mean, max, worst_part) = accuracy(&cal, view, &layers);
+        let (mean, max, worst_part) = accuracy(cal, view, &layers);
         Row {
             case: case.to_string(),
             mean,
@@ -395,6 +363,15 @@ impl Case {
             seconds,
         }
     }
+}
+
+/// What a successful [`Case::run`] wrote: the calibration, and the seconds it took.
+fn loaded((output, out, seconds): (std::process::Output, PathBuf, f64)) -> (Calibration, f64) {
+    common::assert_success(&output);
+    (
+        Calibration::load(&out).expect("calibration written"),
+        seconds,
+    )
 }
 
 fn table(rows: &[Row]) -> String {
@@ -513,7 +490,7 @@ fn clustered_small_parts_do_not_run_away() {
     case.click_error = 0.4;
     let lens = view(-0.3);
     let frames = case.frames(&lens, &[1], "clustered");
-    let (plain, _) = case.register(&lens, &frames, &[1], false, "clustered_plain");
+    let (plain, _) = loaded(case.run(&lens, &frames, &[1], false, "clustered_plain"));
     let (pm, px, _) = accuracy(&plain, &lens, &[&parts]);
     eprintln!("clustered, k1 = -0.3, plain: mean {pm:.3} px, max {px:.3} px");
     let (output, out, _) = case.run(&lens, &frames, &[1], true, "clustered_radial");
