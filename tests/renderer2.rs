@@ -409,8 +409,9 @@ fn registration_is_accurate_on_a_second_renderer() {
     let case = Case::new(build(), clicks());
     let plain = view(0.0);
     let lens = view(K1);
+    let (weak, strong) = (view(-0.1), view(-0.3));
     // The plate must be in the frame, as on the machine.
-    for v in [&plain, &lens] {
+    for v in [&plain, &lens, &weak, &strong] {
         for (x, y) in [
             (-137.5, -137.5),
             (137.5, -137.5),
@@ -429,6 +430,8 @@ fn registration_is_accurate_on_a_second_renderer() {
         case.row(&plain, &[1, 2, 3], false, "plain, three layers"),
         case.row(&lens, &[2], true, "radial, one layer"),
         case.row(&lens, &[1, 2, 3], true, "radial, three layers"),
+        case.row(&weak, &[2], true, "radial, one layer, weaker lens"),
+        case.row(&strong, &[2], true, "radial, one layer, stronger lens"),
     ];
     let before = case.row_without_dilation(&plain, &[2], "plain, one layer, no dilation fit");
     let text = table(&rows);
