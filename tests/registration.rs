@@ -139,7 +139,7 @@ const CLICK_ERRORS: [(f64, f64); 4] = [(5.2, -4.1), (-6.0, 3.3), (4.4, 5.9), (-3
 
 fn layer_of(index: usize, parts: &[Part]) -> Layer {
     let rings: Vec<&[Vec<(f64, f64)>]> = parts.iter().map(|p| p.rings.as_slice()).collect();
-    common::contour_layer(index, &rings)
+    vectors::synth::contour_layer(index, 0.03 * (index as f64 + 1.0), &rings)
 }
 
 fn vector_file(layers: &[Vec<Part>]) -> VectorFile {

@@ -96,7 +96,7 @@ fn build() -> Vec<Vec<Vec<Ring>>> {
 
 fn layer_of(index: usize, parts: &[Vec<Ring>]) -> Layer {
     let rings: Vec<&[Ring]> = parts.iter().map(Vec::as_slice).collect();
-    common::contour_layer(index, &rings)
+    vectors::synth::contour_layer(index, 0.03 * (index as f64 + 1.0), &rings)
 }
 
 /// How far off each of the four clicks lands, px.

@@ -428,26 +428,3 @@ impl Rng {
         (self.next() % n.max(1) as u64) as usize
     }
 }
-
-/// A vector layer of closed contours: per part (numbered from 1 in order) its rings in build
-/// mm, outer first (counter-clockwise), holes after (clockwise); each ring closed here.
-pub fn contour_layer(index: usize, parts: &[&[Vec<(f64, f64)>]]) -> layerwise::vectors::Layer {
-    use layerwise::vectors::{Direction, Layer, Polyline};
-    let mut layer = Layer::new(index, 0.03 * (index as f64 + 1.0));
-    for (k, rings) in parts.iter().enumerate() {
-        for (i, ring) in rings.iter().enumerate() {
-            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
-            points.push(points[0]);
-            layer.polylines.push(Polyline {
-                part: k as i64 + 1,
-                direction: if i == 0 {
-                    Direction::CounterClockwise
-                } else {
-                    Direction::Clockwise
-                },
-                points,
-            });
-        }
-    }
-    layer
-}
