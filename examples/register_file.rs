@@ -21,7 +21,7 @@ use layerwise::calibrate::{
     LmOptions, Pair,
 };
 use layerwise::geometry::{BuildPoint, Grid, Homography, ImagePoint, Mat3};
-use layerwise::vectors::{Direction, Layer, Polyline};
+use layerwise::vectors::Layer;
 use mock_camera::{Illumination, Renderer, Scene, Shape};
 
 fn main() {
@@ -123,23 +123,8 @@ fn parts() -> Vec<Part> {
 }
 
 fn layer(parts: &[Part]) -> Layer {
-    let mut l = Layer::new(0, 0.03);
-    for (k, (_, rings)) in parts.iter().enumerate() {
-        for (i, ring) in rings.iter().enumerate() {
-            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
-            points.push(points[0]);
-            l.polylines.push(Polyline {
-                part: k as i64 + 1,
-                direction: if i == 0 {
-                    Direction::CounterClockwise
-                } else {
-                    Direction::Clockwise
-                },
-                points,
-            });
-        }
-    }
-    l
+    let rings: Vec<&[Vec<(f64, f64)>]> = parts.iter().map(|(_, r)| r.as_slice()).collect();
+    layerwise::vectors::synth::contour_layer(0, 0.03, &rings)
 }
 
 fn make(dir: &Path, size: u32, half_mm: f64) -> Result<()> {

@@ -18,9 +18,7 @@ use layerwise::calibrate::{
 };
 use layerwise::geometry::{BuildPoint, CameraModel};
 use layerwise::rectify::{calibration::Calibration, Interpolation, RadialDistortion, Rectifier};
-use layerwise::vectors::{
-    self, Direction, Format, Header, Layer, LayerNumbering, Polyline, VectorFile,
-};
+use layerwise::vectors::{self, Format, Header, Layer, LayerNumbering, VectorFile};
 use mock_camera::{Homography, Illumination, Renderer, Scene, Shape};
 
 const W: u32 = 1472;
@@ -140,23 +138,8 @@ fn clicks_mm() -> [(f64, f64); 4] {
 const CLICK_ERRORS: [(f64, f64); 4] = [(5.2, -4.1), (-6.0, 3.3), (4.4, 5.9), (-3.7, -5.5)];
 
 fn layer_of(index: usize, parts: &[Part]) -> Layer {
-    let mut layer = Layer::new(index, 0.03 * (index as f64 + 1.0));
-    for (k, p) in parts.iter().enumerate() {
-        for (i, ring) in p.rings.iter().enumerate() {
-            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
-            points.push(points[0]);
-            layer.polylines.push(Polyline {
-                part: k as i64 + 1,
-                direction: if i == 0 {
-                    Direction::CounterClockwise
-                } else {
-                    Direction::Clockwise
-                },
-                points,
-            });
-        }
-    }
-    layer
+    let rings: Vec<&[Vec<(f64, f64)>]> = parts.iter().map(|p| p.rings.as_slice()).collect();
+    vectors::synth::contour_layer(index, 0.03 * (index as f64 + 1.0), &rings)
 }
 
 fn vector_file(layers: &[Vec<Part>]) -> VectorFile {

@@ -155,6 +155,10 @@ pub(super) fn fit_table(
     );
     res.insert("rms".into(), floats(images.iter().map(|i| i.fit.rms)));
     res.insert(
+        "dilation_px".into(),
+        floats(images.iter().map(|i| i.fit.dilation_px)),
+    );
+    res.insert(
         "photometric".into(),
         Value::Array(
             images
@@ -241,6 +245,7 @@ mod tests {
                 layer: 1,
                 fit: PairFit {
                     photometric: vec![0.0, 1.0],
+                    dilation_px: 0.0,
                     initial_correlation: 0.61234,
                     correlation: 0.95678,
                     rms: 1.0,

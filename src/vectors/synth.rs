@@ -93,3 +93,28 @@ pub fn generate(layers: usize, hatches_per_layer: usize, points_per_contour: usi
         layers: out,
     }
 }
+
+/// A layer of closed contours only (test scenes drawn in code): per part, numbered from 1 in
+/// order, its rings in mm, the outer first (written counter-clockwise) and its holes after
+/// (clockwise); each ring is closed here.
+pub fn contour_layer(index: usize, z_mm: f64, parts: &[&[Vec<(f64, f64)>]]) -> Layer {
+    let mut layer = Layer::new(index, z_mm);
+    for (k, rings) in parts.iter().enumerate() {
+        for (i, ring) in rings.iter().enumerate() {
+            let mut points: Vec<[f64; 2]> = ring.iter().map(|&(x, y)| [x, y]).collect();
+            if let Some(&first) = points.first() {
+                points.push(first);
+            }
+            layer.polylines.push(Polyline {
+                part: k as i64 + 1,
+                direction: if i == 0 {
+                    Direction::CounterClockwise
+                } else {
+                    Direction::Clockwise
+                },
+                points,
+            });
+        }
+    }
+    layer
+}

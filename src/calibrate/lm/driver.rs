@@ -215,7 +215,7 @@ pub fn align(
             .ok_or_else(|| diverged(l, "the warp became degenerate between levels".into()))?;
         let mut d = dist.as_ref().map(|d| Dist::at_level(d, l));
         let deg = opts.photometric_degree.clamp(1, MAX_DEGREE);
-        let mut cur = evaluate(lv, &m, d.as_ref(), deg);
+        let mut cur = evaluate(lv, &m, d.as_ref(), deg, opts.fit_dilation);
         let outside0 = cur.outside;
         let initial_cost = cur.cost;
         let mut lambda = opts.lambda0;
@@ -256,7 +256,12 @@ pub fn align(
                 k2: dd.k2 + step[9],
                 ..dd
             });
-            let trial = trial_m.map(|tm| (tm, evaluate(lv, &tm, trial_d.as_ref(), deg)));
+            let trial = trial_m.map(|tm| {
+                (
+                    tm,
+                    evaluate(lv, &tm, trial_d.as_ref(), deg, opts.fit_dilation),
+                )
+            });
             match trial {
                 Some((tm, ev)) if ev.cost < cur.cost => {
                     if ev.outside > outside0 + opts.max_outside {
@@ -317,12 +322,19 @@ pub fn align(
     let start_warp = normalise_warp(&warp, ew, eh).unwrap_or(warp);
     let start_dist = distortion.as_ref().map(|d| Dist::at_level(d, 0));
     let deg = opts.photometric_degree.clamp(1, MAX_DEGREE);
-    let start = evaluate(fine, &start_warp, start_dist.as_ref(), deg);
+    let start = evaluate(
+        fine,
+        &start_warp,
+        start_dist.as_ref(),
+        deg,
+        opts.fit_dilation,
+    );
     let end = evaluate(
         fine,
         &m_final,
         dist.as_ref().map(|d| Dist::at_level(d, 0)).as_ref(),
         deg,
+        opts.fit_dilation,
     );
     if end.cost > start.cost {
         return Err(diverged(
@@ -345,6 +357,7 @@ pub fn align(
                 .enumerate()
                 .map(|(k, c)| c / pre.scale.powi(k as i32))
                 .collect(),
+            dilation_px: e.dilation,
             initial_correlation: s.correlation,
             correlation: e.correlation,
             rms: (2.0 * e.cost / pre.n).sqrt(),
