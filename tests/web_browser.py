@@ -85,8 +85,17 @@ try:
     print(f"picture of layer {n} loaded")
 
     # A click on an earlier layer of the timeline shows that layer.
-    cell = call("POST", s + "/element", {"using": "css selector", "value": '#timeline .cell[data-layer="2"]'})
-    call("POST", s + f"/element/{list(cell.values())[0]}/click", {})
+    # The timeline is redrawn as layers arrive: a cell found just before a redraw is stale by the
+    # click, so find it again and click again (a person's click lands on the redrawn cell).
+    for attempt in range(20):
+        try:
+            cell = call("POST", s + "/element", {"using": "css selector", "value": '#timeline .cell[data-layer="2"]'})
+            call("POST", s + f"/element/{list(cell.values())[0]}/click", {})
+            break
+        except RuntimeError as e:
+            if "stale element" not in str(e) or attempt == 19:
+                raise
+            time.sleep(0.05)
     wait_for("layer 2 to be shown", lambda: shown() == 2)
     wait_for("a picture of layer 2", lambda: js("""
         const imgs = [...document.querySelectorAll('#views img')];
