@@ -30,6 +30,7 @@
 //! Even-odd remains available for files whose inner contours are not reversed.
 
 mod draw;
+pub mod sheet;
 mod scan;
 mod stdfilt;
 
