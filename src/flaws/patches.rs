@@ -500,6 +500,18 @@ fn draw_sheet(
     let scale = (128 / px).max(1);
     let tile = px * scale;
     let views = record.config.views.all();
+    // Flaw and layer lead each row, on a line of their own when the tiles are too narrow.
+    let widest_view = views.iter().map(|v| v.to_string().len()).max().unwrap_or(2);
+    let longest = rows
+        .iter()
+        .map(|(_, job)| format!("F{} L{} ", job.flaw, job.layer).len() + widest_view)
+        .max()
+        .unwrap_or(0);
+    let separator = if longest > sheet::chars_in(tile) {
+        "\n"
+    } else {
+        " "
+    };
     let sheet_rows: Vec<Vec<RgbImage>> = rows
         .iter()
         .map(|(j, job)| {
@@ -538,10 +550,10 @@ fn draw_sheet(
                             img.put_pixel(bx1, y, Rgb([255, 0, 0]));
                         }
                     }
-                    let label = if c == 0 {
-                        format!("F{} L{} {name}", job.flaw, job.layer)
-                    } else {
-                        name.clone()
+                    let label = match (c, separator) {
+                        (0, _) => format!("F{} L{}{separator}{name}", job.flaw, job.layer),
+                        (_, "\n") => format!("\n{name}"),
+                        _ => name.clone(),
                     };
                     sheet::labelled(&img, &label)
                 })

@@ -90,12 +90,16 @@ pub fn chars_in(width: u32) -> usize {
     (width.saturating_sub(2) / ADVANCE) as usize
 }
 
-/// `tile` with a white strip of [`LABEL_PX`] above it holding `label` in black (clipped to the
-/// tile's width).
+/// `tile` with a white strip of [`LABEL_PX`] per line above it holding `label` in black (lines
+/// split at `\n`, each clipped to the tile's width).
 pub fn labelled(tile: &RgbImage, label: &str) -> RgbImage {
-    let mut out = RgbImage::from_pixel(tile.width(), tile.height() + LABEL_PX, Rgb([255; 3]));
-    image::imageops::replace(&mut out, tile, 0, i64::from(LABEL_PX));
-    draw_text(&mut out, 1, 2, label, Rgb([0, 0, 0]));
+    let lines: Vec<&str> = label.split('\n').collect();
+    let strip = LABEL_PX * lines.len() as u32;
+    let mut out = RgbImage::from_pixel(tile.width(), tile.height() + strip, Rgb([255; 3]));
+    image::imageops::replace(&mut out, tile, 0, i64::from(strip));
+    for (i, line) in lines.iter().enumerate() {
+        draw_text(&mut out, 1, 2 + i as u32 * LABEL_PX, line, Rgb([0, 0, 0]));
+    }
     out
 }
 
@@ -148,6 +152,7 @@ mod tests {
         assert!(ink > 20, "{ink}");
         assert_eq!(l.get_pixel(5, LABEL_PX + 5).0, [0, 128, 0]);
         assert_eq!(chars_in(40), 6);
+        assert_eq!(labelled(&tile, "a\nb").height(), 20 + 2 * LABEL_PX);
         let s = sheet(&[vec![l.clone(), l.clone()], vec![l]], 4);
         assert_eq!(s.dimensions(), (2 * 44 + 4, 2 * (31 + 4) + 4));
         assert_eq!(s.get_pixel(4 + 44 + 5, 4 + LABEL_PX + 5).0, [0, 128, 0]);
