@@ -222,7 +222,9 @@ pub fn mark(
     let mut tiles: Vec<(image::RgbImage, String)> = Vec::new();
     let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
     let on_grid = location.views.first().and_then(|v| v.rectified_pixel);
-    let layer_label = location.layer.map_or("no layer".into(), |k| format!("L{k}"));
+    let layer_label = location
+        .layer
+        .map_or("no layer".into(), |k| format!("L{k}"));
     // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.
     if let (Some(path), Some(k), Some([r, c])) =
         (&record.config.build.vectors, location.layer, on_grid)

@@ -391,10 +391,7 @@ fn locate_finds_a_point_in_every_view_and_marks_it() {
     }
     let sheet = image::open(&mark).unwrap().to_rgb8();
     // One row of labelled 161 px tiles, 4 px apart and around.
-    assert_eq!(
-        sheet.height(),
-        161 + layerwise::raster::sheet::LABEL_PX + 8
-    );
+    assert_eq!(sheet.height(), 161 + layerwise::raster::sheet::LABEL_PX + 8);
     // Each tile's label strip holds black text.
     assert!(
         (0..sheet.width()).any(|x| sheet.get_pixel(x, 6).0 == [0, 0, 0]),

@@ -434,9 +434,14 @@ fn an_axisymmetric_part_is_registered_with_a_warning_about_its_axis() {
         "{said}"
     );
     let log = String::from_utf8_lossy(&run.stderr);
-    assert!(log.contains("WARN") && log.contains("not determined"), "{log}");
+    assert!(
+        log.contains("WARN") && log.contains("not determined"),
+        "{log}"
+    );
     let result: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
-    let free = result["free_rotation"].as_array().expect("[[free_rotation]]");
+    let free = result["free_rotation"]
+        .as_array()
+        .expect("[[free_rotation]]");
     assert_eq!(free.len(), 1, "{free:?}");
     let axis: Vec<f64> = free[0]["axis"]
         .as_array()
@@ -451,7 +456,13 @@ fn an_axisymmetric_part_is_registered_with_a_warning_about_its_axis() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|r| r.as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect())
+        .map(|r| {
+            r.as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_float().unwrap())
+                .collect()
+        })
         .collect();
     // The CT point that the truth puts on the cylinder's axis at mid-height.
     let ct_point = {
@@ -460,9 +471,12 @@ fn an_axisymmetric_part_is_registered_with_a_warning_about_its_axis() {
         [0, 1, 2].map(|c| (0..3).map(|r| truth[r][c] * d[r]).sum::<f64>())
     };
     let p = [0, 1, 2].map(|i| {
-        found[i][0] * ct_point[0] + found[i][1] * ct_point[1] + found[i][2] * ct_point[2]
+        found[i][0] * ct_point[0]
+            + found[i][1] * ct_point[1]
+            + found[i][2] * ct_point[2]
             + found[i][3]
     });
-    let miss = ((p[0] - 20.0).powi(2) + (p[1] - 30.0).powi(2) + (p[2] - height / 2.0).powi(2)).sqrt();
+    let miss =
+        ((p[0] - 20.0).powi(2) + (p[1] - 30.0).powi(2) + (p[2] - height / 2.0).powi(2)).sqrt();
     assert!(miss < 0.03, "the axis point lands {miss} mm off");
 }

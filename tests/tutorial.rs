@@ -64,7 +64,10 @@ fn the_readme_tutorial_runs_as_written() {
         stdout.contains("wrote the CT surface coloured by distance to ct-surface.ply"),
         "{stdout}"
     );
-    assert!(!stdout.contains("not determined"), "the box has no free rotation: {stdout}");
+    assert!(
+        !stdout.contains("not determined"),
+        "the box has no free rotation: {stdout}"
+    );
 
     // The registration finds the CT's true placement (ct/box-truth.toml, written with the CT).
     let table = |name: &str| -> toml::Table {
@@ -87,11 +90,19 @@ fn the_readme_tutorial_runs_as_written() {
         [0, 1, 2].map(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3])
     };
     // Over the box's corners (CT mm from the truth's inverse), the two transforms agree to 20 µm.
-    for corner in [[40.0, 44.0, 0.0], [60.0, 44.0, 0.6], [60.0, 56.0, 0.0], [40.0, 56.0, 0.6]] {
+    for corner in [
+        [40.0, 44.0, 0.0],
+        [60.0, 44.0, 0.6],
+        [60.0, 56.0, 0.0],
+        [40.0, 56.0, 0.6],
+    ] {
         let d: Vec<f64> = (0..3).map(|i| corner[i] - expected[i][3]).collect();
         let c = [0, 1, 2].map(|j| (0..3).map(|i| expected[i][j] * d[i]).sum::<f64>());
         let b = apply(&found, c);
-        let miss = (0..3).map(|i| (b[i] - corner[i]).powi(2)).sum::<f64>().sqrt();
+        let miss = (0..3)
+            .map(|i| (b[i] - corner[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         assert!(miss < 0.02, "corner {corner:?} lands {miss} mm off");
     }
     let mean_um = as_f64(&ct["mean_abs_distance_um"]);
@@ -109,7 +120,12 @@ fn the_readme_tutorial_runs_as_written() {
     let pores = truth["pores"].as_array().unwrap();
     assert_eq!(found.len(), pores.len(), "{flaws:#}");
     for pore in pores {
-        let c: Vec<f64> = pore["center_mm"].as_array().unwrap().iter().map(as_f64).collect();
+        let c: Vec<f64> = pore["center_mm"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(as_f64)
+            .collect();
         let layer = pore["layer"].as_integer().unwrap() as u64;
         let f = found
             .iter()
@@ -123,7 +139,10 @@ fn the_readme_tutorial_runs_as_written() {
             })
             .unwrap_or_else(|| panic!("no flaw within 30 µm of the pore at {c:?}: {flaws:#}"));
         let span = f["first_layer"].as_u64().unwrap()..=f["last_layer"].as_u64().unwrap();
-        assert!(span.contains(&layer), "pore in layer {layer}, flaw spans {span:?}");
+        assert!(
+            span.contains(&layer),
+            "pore in layer {layer}, flaw spans {span:?}"
+        );
     }
     assert!(build.join("flaws/contact_sheet.png").is_file());
 

@@ -4,11 +4,11 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::symmetry::FreeRotation;
 use super::{
     io_err, read_volume, write_err, CtError, CtRegistration, RawSpec, Result, Termination, Volume,
     VolumeSource,
 };
-use super::symmetry::FreeRotation;
 use crate::geometry::Rigid3;
 
 /// The on-disk layout of `ct.toml`.

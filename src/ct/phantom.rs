@@ -213,4 +213,3 @@ pub fn uniform(seed: u64, i: u64) -> f64 {
     let a = mix(mix(seed ^ 0x5555_AAAA) ^ i.wrapping_mul(0xD6E8_FEB8_6659_FD93));
     2.0 * ((a >> 11) as f64 / (1u64 << 53) as f64) - 1.0
 }
-

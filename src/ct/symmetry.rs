@@ -110,7 +110,11 @@ mod tests {
             let mut v = d[0].max(d[1]).min(0.0) + d[0].max(0.0).hypot(d[1].max(0.0));
             if self.fin {
                 // A 2 x 1 mm fin on the +x side.
-                let q = [(p[0] - 5.0).abs() - 1.0, p[1].abs() - 0.5, (p[2] - 1.5).abs() - 1.5];
+                let q = [
+                    (p[0] - 5.0).abs() - 1.0,
+                    p[1].abs() - 0.5,
+                    (p[2] - 1.5).abs() - 1.5,
+                ];
                 let out = q.iter().map(|v| v.max(0.0).powi(2)).sum::<f64>().sqrt();
                 v = v.min(out + q[0].max(q[1]).max(q[2]).min(0.0));
             }

@@ -30,8 +30,8 @@
 //! Even-odd remains available for files whose inner contours are not reversed.
 
 mod draw;
-pub mod sheet;
 mod scan;
+pub mod sheet;
 mod stdfilt;
 
 use std::fmt;

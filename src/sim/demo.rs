@@ -143,7 +143,12 @@ impl DemoCt {
         let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
         let top = self.height_mm;
         let ct_from_build = self.build_from_ct.inverse();
-        let clicks = [[0.08, -0.05, 0.03], [-0.06, 0.09, -0.04], [0.1, 0.04, 0.05], [-0.03, -0.1, -0.02]];
+        let clicks = [
+            [0.08, -0.05, 0.03],
+            [-0.06, 0.09, -0.04],
+            [0.1, 0.04, 0.05],
+            [-0.03, -0.1, -0.02],
+        ];
         let mut text = String::from(
             "# Four top corners of the box (part 3) clicked in the CT: cx cy cz (CT mm) bx by bz (build mm).\n\
              # register ct --init reads this file; see the README's tutorial.\n",

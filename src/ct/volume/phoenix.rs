@@ -52,12 +52,13 @@ pub fn write_phoenix(pcr: &Path, volume: &Volume) -> Result<()> {
         "[VolumeData]\nVolume_SizeX={x}\nVolume_SizeY={y}\nVolume_SizeZ={z}\nVoxelSizeRec={vx}\nFormat={format}\n"
     );
     let vol = sibling(pcr, "vol");
-    crate::fsutil::write_atomic_all(&[(&vol, &bytes), (pcr, header.as_bytes())], false)
-        .map_err(|e| CtError::Io {
+    crate::fsutil::write_atomic_all(&[(&vol, &bytes), (pcr, header.as_bytes())], false).map_err(
+        |e| CtError::Io {
             path: e.path,
             action: "write",
             source: e.source,
-        })
+        },
+    )
 }
 
 /// The raw layout described by a phoenix `.pcr`.
