@@ -237,4 +237,41 @@ mod tests {
             assert!((x - p.build.x).hypot(y - p.build.y) < 2.0);
         }
     }
+
+    #[test]
+    fn the_demo_ct_has_its_pores_in_known_layers_and_clicks_near_the_truth() {
+        assert!(demo_ct(DEMO_CT_MIN_LAYERS - 1).is_none());
+        let ct = demo_ct(20).expect("20 layers hold the CT");
+        let layers: Vec<u32> = ct.pores.iter().map(|p| p.layer).collect();
+        assert_eq!(layers, [10, 11]);
+        assert_eq!(ct.volume.voxel_mm, [0.05; 3]);
+        // The clicks start a registration within 0.2 mm of the truth over the box.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("points.txt");
+        std::fs::write(&path, ct.points()).unwrap();
+        let pairs = crate::ct::read_points_file(&path).unwrap();
+        assert_eq!(pairs.len(), 4);
+        let start = crate::ct::horn(&pairs).unwrap();
+        let inverse = ct.build_from_ct.inverse();
+        for corner in [[40.0, 44.0, 0.0], [60.0, 56.0, 0.6]] {
+            let b = start.apply(inverse.apply(corner));
+            let miss = (0..3)
+                .map(|a| (b[a] - corner[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(miss < 0.2, "{corner:?}: {miss} mm");
+        }
+        // The pore centres are void in the CT, the box's material around them is not.
+        let index = crate::ct::resample::index_from_ct(&ct.volume).unwrap();
+        let value = |p: [f64; 3]| {
+            let [i, j, k] = index.apply(inverse.apply(p)).map(|v| v.round() as usize);
+            let [nx, ny, _] = ct.volume.dims;
+            ct.volume.value(i + nx * (j + ny * k))
+        };
+        for pore in &ct.pores {
+            let c = pore.center_mm;
+            assert!(value(c) < 12000.0, "pore at {c:?}: {}", value(c));
+            assert!(value([c[0] + 1.0, c[1], c[2]]) > 28000.0);
+        }
+    }
 }
