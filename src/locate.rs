@@ -2,8 +2,9 @@
 //! in each rectified view and original frame, and its voxel in the registered CT; `mark` draws it
 //! side by side (the paper's Fig. 9).
 
-use crate::ct::CtLocation;
-use crate::geometry::BuildPoint;
+use crate::ct::{CtLocation, Volume};
+use crate::geometry::{BuildPoint, Rigid3};
+use crate::raster::sheet;
 use crate::rectify::Rectifier;
 use crate::series::{series_dir, BuildRecord};
 use crate::shot::{Shot, View};
@@ -194,10 +195,23 @@ impl std::fmt::Display for Location {
     }
 }
 
-/// Draws the point in each view, side by side: the rectified view (re-rectified from the original,
-/// the same pixels as its DICOM slice) and the original frame, cropped around the point, with a
-/// green marker (the paper's Fig. 9).
-pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(), LocateError> {
+/// The registered CT for [`mark`]'s CT tile.
+pub struct CtSection<'a> {
+    pub volume: &'a Volume,
+    /// CT physical mm → build mm (ct.toml's `transform`).
+    pub build_from_ct: Rigid3,
+}
+
+/// Draws the point in each view, side by side: the layer's vectors, the CT's section through
+/// the point in the layer plane (with `ct`), then per view the rectified view (re-rectified from
+/// the original, the same pixels as its DICOM slice) and the original frame, cropped around the
+/// point, each with a green marker and a label (what, layer, pixel): the paper's Fig. 9.
+pub fn mark(
+    record: &BuildRecord,
+    location: &Location,
+    ct: Option<&CtSection>,
+    out: &Path,
+) -> Result<(), LocateError> {
     const HALF: i64 = 80;
     let calibration = record
         .calibration
@@ -205,14 +219,16 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
         .ok_or_else(|| LocateError::Invalid("the build has no calibration.toml".into()))?;
     let rectifier = Rectifier::new(&calibration.camera(), record.grid, Default::default(), 0)
         .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?;
-    let mut tiles: Vec<image::RgbImage> = Vec::new();
+    let mut tiles: Vec<(image::RgbImage, String)> = Vec::new();
     let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
+    let on_grid = location.views.first().and_then(|v| v.rectified_pixel);
+    let layer_label = location
+        .layer
+        .map_or("no layer".into(), |k| format!("L{k}"));
     // First the laser vectors of the layer (contours blue, hatches red), as in the paper's Fig. 9.
-    if let (Some(path), Some(k), Some([r, c])) = (
-        &record.config.build.vectors,
-        location.layer,
-        location.views.first().and_then(|v| v.rectified_pixel),
-    ) {
+    if let (Some(path), Some(k), Some([r, c])) =
+        (&record.config.build.vectors, location.layer, on_grid)
+    {
         let file = crate::vectors::read(path).map_err(|e| LocateError::Invalid(e.to_string()))?;
         let map = crate::vectors::LayerMap::of_file(&file, record.config.build.numbering());
         if let Some(layer) = map.position(k).and_then(|p| file.layers.get(p)) {
@@ -222,7 +238,34 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
                 &crate::raster::RasterOptions::default(),
             )
             .map_err(|e| LocateError::Invalid(e.to_string()))?;
-            tiles.push(crop_with_marker(&picture, r, c, HALF));
+            tiles.push((
+                crop_with_marker(&picture, r, c, HALF),
+                format!("vectors {layer_label}"),
+            ));
+        }
+    }
+    // The CT through the point, in the layer plane, on the same pixels.
+    if let (Some(ct), Some(_)) = (ct, on_grid) {
+        let [x, y, z] = location.build_mm;
+        let side = (2 * HALF + 1) as usize;
+        let crop = record.grid.patch_around([x, y], side);
+        let thickness = location.layer.map_or(0.03, |k| record.heights.thickness(k));
+        let slices = crate::ct::resample::resample_slices(
+            ct.volume,
+            &ct.build_from_ct,
+            crop,
+            &[(location.layer.unwrap_or(0), z, thickness)],
+        )
+        .map_err(|e| LocateError::Invalid(format!("CT: {e}")))?;
+        if let Some(slice) = slices.first() {
+            let gray = image::GrayImage::from_fn(side as u32, side as u32, |c, r| {
+                image::Luma([(slice.pixels[r as usize * side + c as usize] >> 8) as u8])
+            });
+            let h = HALF as f64;
+            tiles.push((
+                crop_with_marker(&rgb(gray), h, h, HALF),
+                format!("CT {layer_label} z {z:.3}"),
+            ));
         }
     }
     for v in &location.views {
@@ -239,10 +282,16 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
         })?;
         if let Some([r, c]) = v.rectified_pixel {
             let rect = luma.rectified(&rectifier).to_display8();
-            tiles.push(crop_with_marker(&rgb(rect), r, c, HALF));
+            tiles.push((
+                crop_with_marker(&rgb(rect), r, c, HALF),
+                format!("{} {layer_label} r{r:.0} c{c:.0}", v.view),
+            ));
         }
         if let Some([u, vv]) = v.image_pixel {
-            tiles.push(crop_with_marker(&rgb(luma.to_display8()), vv, u, HALF));
+            tiles.push((
+                crop_with_marker(&rgb(luma.to_display8()), vv, u, HALF),
+                format!("{} frame u{u:.0} v{vv:.0}", v.view),
+            ));
         }
     }
     if tiles.is_empty() {
@@ -250,19 +299,16 @@ pub fn mark(record: &BuildRecord, location: &Location, out: &Path) -> Result<(),
             "nothing to draw: no frame of that layer holds the point".into(),
         ));
     }
-    let side = (2 * HALF + 1) as u32;
-    let mut sheet = image::RgbImage::from_pixel(
-        side * tiles.len() as u32 + 4 * (tiles.len() as u32 - 1),
-        side,
-        image::Rgb([255, 255, 255]),
-    );
-    for (i, tile) in tiles.iter().enumerate() {
-        image::imageops::replace(&mut sheet, tile, (i as u32 * (side + 4)) as i64, 0);
-    }
-    sheet.save(out).map_err(|e| LocateError::Io {
-        path: out.to_path_buf(),
-        message: e.to_string(),
-    })
+    let row: Vec<image::RgbImage> = tiles
+        .iter()
+        .map(|(tile, label)| sheet::labelled(tile, label))
+        .collect();
+    sheet::sheet(&[row], 4)
+        .save(out)
+        .map_err(|e| LocateError::Io {
+            path: out.to_path_buf(),
+            message: e.to_string(),
+        })
 }
 
 /// A (2·half + 1)² crop centred on (row, col) with a green cross; outside the image is black.

@@ -390,7 +390,13 @@ fn locate_finds_a_point_in_every_view_and_marks_it() {
         assert!(view["original"].as_str().unwrap().ends_with(".jpg"));
     }
     let sheet = image::open(&mark).unwrap().to_rgb8();
-    assert_eq!(sheet.height(), 161);
+    // One row of labelled 161 px tiles, 4 px apart and around.
+    assert_eq!(sheet.height(), 161 + layerwise::raster::sheet::LABEL_PX + 8);
+    // Each tile's label strip holds black text.
+    assert!(
+        (0..sheet.width()).any(|x| sheet.get_pixel(x, 6).0 == [0, 0, 0]),
+        "no label drawn"
+    );
     assert!(
         sheet.pixels().any(|p| p.0 == [0, 255, 0]),
         "no marker drawn"

@@ -645,7 +645,9 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
     let sheet = image::open(&mark).unwrap();
     assert_eq!(
         sheet.height() as usize,
-        f1["sections"].as_array().unwrap().len() * (9 * 14 + 4) + 4
+        f1["sections"].as_array().unwrap().len()
+            * (9 * 14 + layerwise::raster::sheet::LABEL_PX as usize + 4)
+            + 4
     );
     let err = layerwise()
         .args(["locate", "--flaw", "99", "--flaws"])

@@ -73,8 +73,9 @@ pub struct LocateArgs {
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
-    /// Draw the point in each view, side by side (PNG); with --flaw, the flaw's patches of
-    /// every view of every layer it spans.
+    /// Draw the point in each view, side by side and labelled (PNG): the layer's vectors, with
+    /// --ct the CT through the point in the layer plane, then each view rectified and original;
+    /// with --flaw, the flaw's patches of every view of every layer it spans.
     #[arg(long)]
     mark: Option<PathBuf>,
     /// A flaw of `layerwise flaws` (its id in flaws.csv): locate its centroid.
@@ -116,7 +117,25 @@ impl LocateArgs {
             (Some(out), Some(flaw)) => {
                 layerwise::flaws::flaw_sheet(&record, flaw, self.patch_px, out)?
             }
-            (Some(out), None) => layerwise::locate::mark(&record, &location, out)?,
+            (Some(out), None) => {
+                // With --ct, a CT tile: the CT ct.toml names, through the point.
+                let registration = match &self.ct {
+                    Some(path) => Some(layerwise::ct::CtRegistration::read_toml(path)?),
+                    None => None,
+                };
+                let volume = match registration.as_ref().and_then(|r| r.source.as_ref()) {
+                    Some(source) => Some(source.read()?),
+                    None => None,
+                };
+                let section = match (&registration, &volume) {
+                    (Some(r), Some(volume)) => Some(layerwise::locate::CtSection {
+                        volume,
+                        build_from_ct: r.build_from_ct,
+                    }),
+                    _ => None,
+                };
+                layerwise::locate::mark(&record, &location, section.as_ref(), out)?
+            }
             _ => {}
         }
         if self.json {

@@ -354,6 +354,13 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
             demo::demo_points(mock.width, mock.height).as_bytes(),
             true,
         )?;
+        // A CT of the box with two pores, for `register ct`, `flaws` and `locate --ct`.
+        if demo::write_demo_ct(out, layers)?.is_none() {
+            tracing::info!(
+                "no demo CT: it needs at least {} layers (the box must be tall enough for pores)",
+                demo::DEMO_CT_MIN_LAYERS
+            );
+        }
         let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
         let mut fit = toml::Table::new();
         fit.insert(

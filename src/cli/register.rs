@@ -142,8 +142,11 @@ impl CtArgs {
             params,
         };
         let started = std::time::Instant::now();
-        let result = ct::register_ct(&request, &volume)?;
-        print!("{}", result.to_toml_string());
+        let outcome = ct::register_ct(&request, &volume)?;
+        print!("{}", outcome.registration.to_toml_string());
+        for free in &outcome.free_rotations {
+            println!("WARNING: {free}");
+        }
         println!(
             "wrote {} in {:.1} s",
             out.display(),

@@ -4,6 +4,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::symmetry::FreeRotation;
 use super::{
     io_err, read_volume, write_err, CtError, CtRegistration, RawSpec, Result, Termination, Volume,
     VolumeSource,
@@ -26,6 +27,10 @@ pub struct CtToml {
     /// Where the CT came from, so `layerwise export --ct ct.toml` can resample it again.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<CtSource>,
+    /// Axes about which the rotation is not determined (a part symmetric about them): the
+    /// angle about each is arbitrary.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub free_rotation: Vec<FreeRotation>,
 }
 
 /// How to read the registered CT volume again.
@@ -97,6 +102,11 @@ impl CtRegistration {
 
     /// `ct.toml` text, recording where the CT came from.
     pub fn to_toml_string_with(&self, source: Option<CtSource>) -> String {
+        self.to_toml_string_noting(source, &[])
+    }
+
+    /// `ct.toml` text, recording where the CT came from and the rotations it does not determine.
+    pub fn to_toml_string_noting(&self, source: Option<CtSource>, free: &[FreeRotation]) -> String {
         let file = CtToml {
             build_from_ct: self.build_from_ct,
             iterations: self.iterations,
@@ -116,6 +126,7 @@ impl CtRegistration {
                 outside_field: self.points_outside,
             },
             source,
+            free_rotation: free.to_vec(),
         };
         // Serialising plain numbers and tables cannot fail.
         toml::to_string(&file).unwrap_or_default()

@@ -26,10 +26,12 @@ pub mod align;
 mod ct_toml;
 mod error;
 pub mod frame;
+pub mod phantom;
 pub mod ply;
 pub mod register;
 pub mod resample;
 pub mod surface;
+pub mod symmetry;
 #[cfg(any(test, feature = "testkit"))]
 pub mod synth;
 pub mod volume;
@@ -43,7 +45,7 @@ pub use ct_toml::{CtSource, CtToml, Percentiles, PointCounts};
 pub(crate) use error::{io_err, write_err};
 pub use error::{CtError, Result};
 pub use frame::{CtFrame, CtLocation};
-pub use register::{register_ct, CtRequest};
+pub use register::{register_ct, CtOutcome, CtRequest};
 pub use surface::{PartShape, Threshold};
 pub use volume::{read_volume, RawDtype, RawSpec, Volume, VolumeSource, VoxelData};
 

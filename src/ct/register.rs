@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use super::resample::{layer_planes, resample_to_dicom};
+use super::symmetry::{free_rotations, FreeRotation};
 use super::{
     register, CtError, CtParams, CtRegistration, CtSource, DistanceField, InitialTransform,
     PartShape, Result, Volume,
@@ -59,8 +60,16 @@ pub struct CtRequest {
     pub numbering: crate::vectors::LayerNumbering,
 }
 
+/// What `register ct` found and wrote.
+#[derive(Debug, Clone)]
+pub struct CtOutcome {
+    pub registration: CtRegistration,
+    /// Axes about which the rotation is arbitrary (each also logged at WARN and noted in ct.toml).
+    pub free_rotations: Vec<FreeRotation>,
+}
+
 /// Registers `volume` to the vectors and writes ct.toml (and the PLY and resampled DICOM asked for).
-pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistration> {
+pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtOutcome> {
     let file = crate::vectors::read(&request.vectors).map_err(CtError::Vectors)?;
     let params = TsdfParams {
         voxel_mm: request.tsdf_voxel_mm,
@@ -73,9 +82,13 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
     })?;
     let nominal = nominal_shape(&field);
     let registered = register(volume, &field, &nominal, &request.init, &request.params)?;
+    let free_rotations = free_rotations(&registered.points_build_mm, &field, &nominal);
+    for free in &free_rotations {
+        tracing::warn!("{}: {free}", request.ct_name());
+    }
     let text = registered
         .registration
-        .to_toml_string_with(Some(request.source.clone()));
+        .to_toml_string_noting(Some(request.source.clone()), &free_rotations);
     std::fs::write(&request.out, text).map_err(super::write_err(&request.out))?;
     if let Some(ply) = &request.surface_ply {
         super::ply::write_ply(
@@ -117,7 +130,17 @@ pub fn register_ct(request: &CtRequest, volume: &Volume) -> Result<CtRegistratio
             dir,
         )?;
     }
-    Ok(registered.registration)
+    Ok(CtOutcome {
+        registration: registered.registration,
+        free_rotations,
+    })
+}
+
+impl CtRequest {
+    /// The CT's path as the user gave it to be recorded.
+    fn ct_name(&self) -> &str {
+        &self.source.path
+    }
 }
 
 /// The study of a build (its build.json).

@@ -14,6 +14,7 @@ use serde::Serialize;
 use super::{write_err, CtLabels, Flaw, FlawTable, FlawsError, Result};
 use crate::ct::Volume;
 use crate::geometry::Grid;
+use crate::raster::sheet;
 use crate::rectify::{FrameLuma, Gray16Image, Rectifier};
 use crate::series::BuildRecord;
 use crate::shot::{Shot, View};
@@ -93,18 +94,7 @@ impl Job {
 
 /// The `px` x `px` grid on `grid`'s lattice whose centre pixel holds `center` (build mm).
 pub fn patch_grid(grid: &Grid, center: [f64; 2], px: usize) -> Grid {
-    let p = grid.pixel_mm;
-    let (r, c) = grid.pixel_of(center[0], center[1]);
-    let half = (px / 2) as f64;
-    let x_min = grid.x_min + (c.round() - half) * p;
-    let y_max = grid.y_max - (r.round() - half) * p;
-    Grid {
-        x_min,
-        x_max: x_min + px as f64 * p,
-        y_min: y_max - px as f64 * p,
-        y_max,
-        pixel_mm: p,
-    }
+    grid.patch_around(center, px)
 }
 
 fn overlaps(g: &Grid, bbox: [f64; 4]) -> bool {
@@ -497,7 +487,8 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
 }
 
 /// Rows of tiles: the CT section (when the CT is at hand), then every view, each with the flaw's
-/// section box in red; views without a frame are grey.
+/// section box in red and a label (flaw and layer on the first, then the view); views without a
+/// frame are grey.
 fn draw_sheet(
     record: &BuildRecord,
     rows: &[(usize, &Job)],
@@ -508,51 +499,68 @@ fn draw_sheet(
     let px = rows[0].1.grid.columns() as u32;
     let scale = (128 / px).max(1);
     let tile = px * scale;
-    let gap = 4;
-    let columns = patches.first().map_or(0, |p| p.len()) as u32 + u32::from(ct.is_some());
-    let mut sheet = RgbImage::from_pixel(
-        columns * (tile + gap) + gap,
-        rows.len() as u32 * (tile + gap) + gap,
-        Rgb([255, 255, 255]),
-    );
-    for (r, (j, job)) in rows.iter().enumerate() {
-        let mut tiles: Vec<Option<GrayImage>> = Vec::new();
-        if let Some(ct) = ct {
-            tiles.push(Some(ct_section(record, job, ct)));
-        }
-        tiles.extend(
-            patches[*j]
+    let views = record.config.views.all();
+    // Flaw and layer lead each row, on a line of their own when the tiles are too narrow.
+    let widest_view = views.iter().map(|v| v.to_string().len()).max().unwrap_or(2);
+    let longest = rows
+        .iter()
+        .map(|(_, job)| format!("F{} L{} ", job.flaw, job.layer).len() + widest_view)
+        .max()
+        .unwrap_or(0);
+    let separator = if longest > sheet::chars_in(tile) {
+        "\n"
+    } else {
+        " "
+    };
+    let sheet_rows: Vec<Vec<RgbImage>> = rows
+        .iter()
+        .map(|(j, job)| {
+            let mut tiles: Vec<(Option<GrayImage>, String)> = Vec::new();
+            if let Some(ct) = ct {
+                tiles.push((Some(ct_section(record, job, ct)), "CT".into()));
+            }
+            tiles.extend(
+                patches[*j]
+                    .iter()
+                    .zip(&views)
+                    .map(|(p, view)| (p.as_ref().map(|p| display8(&p.0)), view.to_string())),
+            );
+            let boxes = annotations_in(&job.grid, job.layer, flaws);
+            tiles
                 .iter()
-                .map(|p| p.as_ref().map(|p| display8(&p.0))),
-        );
-        let boxes = annotations_in(&job.grid, job.layer, flaws);
-        for (c, t) in tiles.iter().enumerate() {
-            let (x0, y0) = (gap + c as u32 * (tile + gap), gap + r as u32 * (tile + gap));
-            for y in 0..tile {
-                for x in 0..tile {
-                    let v = t
-                        .as_ref()
-                        .map_or(128, |t| t.get_pixel(x / scale, y / scale)[0]);
-                    sheet.put_pixel(x0 + x, y0 + y, Rgb([v, v, v]));
-                }
-            }
-            for (_, _, b) in &boxes {
-                let s = scale as f64;
-                let (bx0, by0) = ((b[0] * s) as u32, (b[1] * s) as u32);
-                let bx1 = (((b[0] + b[2]) * s) as u32).min(tile - 1);
-                let by1 = (((b[1] + b[3]) * s) as u32).min(tile - 1);
-                for x in bx0..=bx1 {
-                    sheet.put_pixel(x0 + x, y0 + by0, Rgb([255, 0, 0]));
-                    sheet.put_pixel(x0 + x, y0 + by1, Rgb([255, 0, 0]));
-                }
-                for y in by0..=by1 {
-                    sheet.put_pixel(x0 + bx0, y0 + y, Rgb([255, 0, 0]));
-                    sheet.put_pixel(x0 + bx1, y0 + y, Rgb([255, 0, 0]));
-                }
-            }
-        }
-    }
-    sheet
+                .enumerate()
+                .map(|(c, (t, name))| {
+                    let mut img = RgbImage::from_fn(tile, tile, |x, y| {
+                        let v = t
+                            .as_ref()
+                            .map_or(128, |t| t.get_pixel(x / scale, y / scale)[0]);
+                        Rgb([v, v, v])
+                    });
+                    for (_, _, b) in &boxes {
+                        let s = scale as f64;
+                        let (bx0, by0) = ((b[0] * s) as u32, (b[1] * s) as u32);
+                        let bx1 = (((b[0] + b[2]) * s) as u32).min(tile - 1);
+                        let by1 = (((b[1] + b[3]) * s) as u32).min(tile - 1);
+                        for x in bx0..=bx1 {
+                            img.put_pixel(x, by0, Rgb([255, 0, 0]));
+                            img.put_pixel(x, by1, Rgb([255, 0, 0]));
+                        }
+                        for y in by0..=by1 {
+                            img.put_pixel(bx0, y, Rgb([255, 0, 0]));
+                            img.put_pixel(bx1, y, Rgb([255, 0, 0]));
+                        }
+                    }
+                    let label = match (c, separator) {
+                        (0, _) => format!("F{} L{}{separator}{name}", job.flaw, job.layer),
+                        (_, "\n") => format!("\n{name}"),
+                        _ => name.clone(),
+                    };
+                    sheet::labelled(&img, &label)
+                })
+                .collect()
+        })
+        .collect();
+    sheet::sheet(&sheet_rows, 4)
 }
 
 /// 8-bit for looking at: the patch's own range stretched.

@@ -87,6 +87,23 @@ impl Grid {
         )
     }
 
+    /// The `px` x `px` grid on this grid's lattice whose centre pixel holds `center` (build mm):
+    /// a patch or crop of the same pixels (docs/frames.md).
+    pub fn patch_around(&self, center: [f64; 2], px: usize) -> Grid {
+        let p = self.pixel_mm;
+        let (r, c) = self.pixel_of(center[0], center[1]);
+        let half = (px / 2) as f64;
+        let x_min = self.x_min + (c.round() - half) * p;
+        let y_max = self.y_max - (r.round() - half) * p;
+        Grid {
+            x_min,
+            x_max: x_min + px as f64 * p,
+            y_min: y_max - px as f64 * p,
+            y_max,
+            pixel_mm: p,
+        }
+    }
+
     /// Checks that the grid is finite, non-empty and of a size that can be allocated: at most
     /// [`MAX_SIDE`] pixels a side and [`MAX_PIXELS`] in all. Every user of a grid (rectifier,
     /// rasterizer, distance fields, configuration) runs this one check.

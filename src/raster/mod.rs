@@ -31,6 +31,7 @@
 
 mod draw;
 mod scan;
+pub mod sheet;
 mod stdfilt;
 
 use std::fmt;

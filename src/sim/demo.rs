@@ -1,8 +1,16 @@
 //! The files a demo build ships so that a new user can try every offline step on it: the vector
-//! file of the parts the mock camera photographs (`sim::inject::demo_vectors`), and a points file
-//! of four clicks (part corners in the frame, as a user would click them: a few pixels off).
+//! file of the parts the mock camera photographs (`sim::inject::demo_vectors`), a points file
+//! of four clicks (part corners in the frame, as a user would click them: a few pixels off), and
+//! a synthetic CT of the box (part 3) with two pores, in the CT's own frame.
 
-use mock_camera::Homography;
+use std::path::Path;
+
+use mock_camera::{demo_parts, Homography, DEMO_LAYER_THICKNESS_MM};
+use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
+
+use crate::ct::phantom::{self, ScanSpec};
+use crate::ct::{CtError, Volume};
+use crate::geometry::Rigid3;
 
 /// Name of the vector file in a demo build directory.
 pub const DEMO_VECTORS: &str = "demo-vectors.cli";
@@ -34,6 +42,185 @@ pub fn demo_points(width: u32, height: u32) -> String {
     text
 }
 
+/// Folder of the demo build's CT.
+pub const DEMO_CT_DIR: &str = "ct";
+/// The CT of the demo's box (part 3) as a GE phoenix volume: `ct/box.pcr` beside `ct/box.vol`.
+pub const DEMO_CT: &str = "ct/box.pcr";
+/// Point pairs `cx cy cz bx by bz` (CT mm, build mm) for `register ct --init`: the box's top
+/// corners, clicked up to 0.1 mm off.
+pub const DEMO_CT_POINTS: &str = "ct/box-points.txt";
+/// The true transform and pores of the CT, for comparing with what the tools find.
+pub const DEMO_CT_TRUTH: &str = "ct/box-truth.toml";
+/// The part of the demo vectors the CT shows.
+pub const DEMO_CT_PART: i64 = 3;
+/// The CT needs this many layers (0.6 mm of part) to hold pores with material all around.
+pub const DEMO_CT_MIN_LAYERS: u32 = 20;
+
+/// A pore of the demo CT: a sphere of missing material.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DemoPore {
+    /// Centre in build mm.
+    pub center_mm: [f64; 3],
+    pub radius_mm: f64,
+    /// The printer layer holding the centre.
+    pub layer: u32,
+}
+
+/// The demo's CT of the box and its ground truth.
+#[derive(Debug, Clone)]
+pub struct DemoCt {
+    pub volume: Volume,
+    /// The true transform, CT physical mm → build mm (what `register ct` should find).
+    pub build_from_ct: Rigid3,
+    pub pores: Vec<DemoPore>,
+    /// The box's height (its top in build z), mm.
+    pub height_mm: f64,
+}
+
+/// The CT of the demo's box (20 x 12 mm, as tall as `layers` layers) as a scanner would give it:
+/// turned 14° about an axis 4° off vertical and moved to the CT's own origin, 50 µm voxels (up to
+/// 1/12 of the height for tall builds), partial volume, blur and noise, with two pores of 2 voxels'
+/// radius at 47.5 % and 52.5 % of the height (layers 10 and 11 of the 20-layer demo). None below
+/// [`DEMO_CT_MIN_LAYERS`] layers: too thin a part for pores with material around them.
+pub fn demo_ct(layers: u32) -> Option<DemoCt> {
+    if layers < DEMO_CT_MIN_LAYERS {
+        return None;
+    }
+    let height = f64::from(layers) * DEMO_LAYER_THICKNESS_MM;
+    let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
+    let voxel_mm = (height / 12.0).max(0.05);
+    let radius_mm = 2.0 * voxel_mm;
+    let pores: Vec<DemoPore> = [(45.3, 48.1, 0.475), (54.6, 52.4, 0.525)]
+        .into_iter()
+        .map(|(x, y, f)| {
+            let z = f * height;
+            DemoPore {
+                center_mm: [x, y, z],
+                radius_mm,
+                layer: (z / DEMO_LAYER_THICKNESS_MM).ceil() as u32,
+            }
+        })
+        .collect();
+    let sdf = |p: [f64; 3]| {
+        let (lo, hi) = ([x0, y0, 0.0], [x1, y1, height]);
+        let (mut outside, mut inside) = (0.0f64, f64::NEG_INFINITY);
+        for a in 0..3 {
+            let e = (p[a] - 0.5 * (lo[a] + hi[a])).abs() - 0.5 * (hi[a] - lo[a]);
+            outside += e.max(0.0).powi(2);
+            inside = inside.max(e);
+        }
+        let mut d = outside.sqrt() + inside.min(0.0);
+        for pore in &pores {
+            let c = pore.center_mm;
+            let r = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
+            d = d.max(pore.radius_mm - r);
+        }
+        d
+    };
+    let axis = Unit::new_normalize(Vector3::new(0.06, -0.04, 1.0));
+    let rotation: Matrix3<f64> = *Rotation3::from_axis_angle(&axis, 14f64.to_radians()).matrix();
+    let spec = ScanSpec {
+        voxel_mm,
+        margin_mm: 0.4,
+        supersample: 3,
+        blur_voxels: 0.7,
+        noise: 0.04,
+        seed: 18,
+    };
+    let (volume, m) = phantom::render(&sdf, ([x0, y0, 0.0], [x1, y1, height]), &rotation, &spec);
+    Some(DemoCt {
+        volume,
+        build_from_ct: Rigid3::from_matrix_unchecked(m),
+        pores,
+        height_mm: height,
+    })
+}
+
+impl DemoCt {
+    /// The box's top corners in CT mm and build mm, each CT point moved up to 0.1 mm (a user's
+    /// clicks), as `register ct --init` reads them.
+    pub fn points(&self) -> String {
+        let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
+        let top = self.height_mm;
+        let ct_from_build = self.build_from_ct.inverse();
+        let clicks = [
+            [0.08, -0.05, 0.03],
+            [-0.06, 0.09, -0.04],
+            [0.1, 0.04, 0.05],
+            [-0.03, -0.1, -0.02],
+        ];
+        let mut text = String::from(
+            "# Four top corners of the box (part 3) clicked in the CT: cx cy cz (CT mm) bx by bz (build mm).\n\
+             # register ct --init reads this file; see the README's tutorial.\n",
+        );
+        for (b, e) in [[x0, y0, top], [x1, y0, top], [x1, y1, top], [x0, y1, top]]
+            .into_iter()
+            .zip(clicks)
+        {
+            let c = ct_from_build.apply(b);
+            text += &format!(
+                "{:.3} {:.3} {:.3} {} {} {:.2}\n",
+                c[0] + e[0],
+                c[1] + e[1],
+                c[2] + e[2],
+                b[0],
+                b[1],
+                b[2]
+            );
+        }
+        text
+    }
+
+    /// The ground truth as TOML: the transform (CT mm → build mm, rows) and the pores.
+    pub fn truth_toml(&self) -> String {
+        let m = self.build_from_ct.matrix();
+        let mut text = String::from(
+            "# The demo CT's ground truth: what `register ct` and `flaws` should find.\n\
+             # transform: CT physical mm -> build mm, 4x4 rows.\n",
+        );
+        text += &format!("part = {DEMO_CT_PART}\ntransform = [\n");
+        for row in m {
+            text += &format!("  [{}, {}, {}, {}],\n", row[0], row[1], row[2], row[3]);
+        }
+        text += "]\n";
+        for p in &self.pores {
+            let [x, y, z] = p.center_mm;
+            text += &format!(
+                "\n[[pores]]\ncenter_mm = [{x}, {y}, {z}]\nradius_mm = {}\nlayer = {}\n",
+                p.radius_mm, p.layer
+            );
+        }
+        text
+    }
+}
+
+/// Writes the demo's CT into `build` (`ct/box.pcr`, `.vol`, the points and the truth) when the
+/// build has enough layers for it; returns it.
+pub fn write_demo_ct(build: &Path, layers: u32) -> Result<Option<DemoCt>, CtError> {
+    let Some(ct) = demo_ct(layers) else {
+        return Ok(None);
+    };
+    let dir = build.join(DEMO_CT_DIR);
+    std::fs::create_dir_all(&dir).map_err(|source| CtError::Io {
+        path: dir.clone(),
+        action: "create",
+        source,
+    })?;
+    crate::ct::volume::write_phoenix(&build.join(DEMO_CT), &ct.volume)?;
+    for (name, text) in [
+        (DEMO_CT_POINTS, ct.points()),
+        (DEMO_CT_TRUTH, ct.truth_toml()),
+    ] {
+        let path = build.join(name);
+        crate::fsutil::write_atomic(&path, text.as_bytes(), false).map_err(|e| CtError::Io {
+            path: e.path,
+            action: "write",
+            source: e.source,
+        })?;
+    }
+    Ok(Some(ct))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -48,6 +235,43 @@ mod tests {
         for p in points {
             let (x, y) = truth.apply(p.image.u, p.image.v).unwrap();
             assert!((x - p.build.x).hypot(y - p.build.y) < 2.0);
+        }
+    }
+
+    #[test]
+    fn the_demo_ct_has_its_pores_in_known_layers_and_clicks_near_the_truth() {
+        assert!(demo_ct(DEMO_CT_MIN_LAYERS - 1).is_none());
+        let ct = demo_ct(20).expect("20 layers hold the CT");
+        let layers: Vec<u32> = ct.pores.iter().map(|p| p.layer).collect();
+        assert_eq!(layers, [10, 11]);
+        assert_eq!(ct.volume.voxel_mm, [0.05; 3]);
+        // The clicks start a registration within 0.2 mm of the truth over the box.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("points.txt");
+        std::fs::write(&path, ct.points()).unwrap();
+        let pairs = crate::ct::read_points_file(&path).unwrap();
+        assert_eq!(pairs.len(), 4);
+        let start = crate::ct::horn(&pairs).unwrap();
+        let inverse = ct.build_from_ct.inverse();
+        for corner in [[40.0, 44.0, 0.0], [60.0, 56.0, 0.6]] {
+            let b = start.apply(inverse.apply(corner));
+            let miss = (0..3)
+                .map(|a| (b[a] - corner[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(miss < 0.2, "{corner:?}: {miss} mm");
+        }
+        // The pore centres are void in the CT, the box's material around them is not.
+        let index = crate::ct::resample::index_from_ct(&ct.volume).unwrap();
+        let value = |p: [f64; 3]| {
+            let [i, j, k] = index.apply(inverse.apply(p)).map(|v| v.round() as usize);
+            let [nx, ny, _] = ct.volume.dims;
+            ct.volume.value(i + nx * (j + ny * k))
+        };
+        for pore in &ct.pores {
+            let c = pore.center_mm;
+            assert!(value(c) < 12000.0, "pore at {c:?}: {}", value(c));
+            assert!(value([c[0] + 1.0, c[1], c[2]]) > 28000.0);
         }
     }
 }

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use super::{io_err, CtError, Result};
 
 pub use dicom::read_dicom_series;
-pub use phoenix::{phoenix_spec, read_phoenix};
+pub use phoenix::{phoenix_spec, read_phoenix, write_phoenix};
 pub use raw::{read_raw, RawDtype, RawSpec};
 pub use tiff::read_tiff_stack;
 pub use vgi::{read_vgi, vgi_spec};

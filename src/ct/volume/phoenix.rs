@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use super::ini::Ini;
-use super::{read_raw, CtError, RawDtype, RawSpec, Result, Volume};
+use super::{read_raw, CtError, RawDtype, RawSpec, Result, Volume, VoxelData};
 
 /// The `.vol` next to a `.pcr` (or the `.pcr` next to a `.vol`).
 fn sibling(path: &Path, ext: &str) -> PathBuf {
@@ -22,6 +22,43 @@ pub fn read_phoenix(path: &Path) -> Result<Volume> {
     };
     let spec = phoenix_spec(&pcr)?;
     read_raw(&vol, &spec)
+}
+
+/// Writes `volume` as a GE phoenix volume: the `.pcr` header at `pcr` and the raw voxels in the
+/// `.vol` beside it (little endian, physical = index × voxel size). u8, u16 and f32 voxels with
+/// isotropic voxels only (what `.pcr` can describe); both files written atomically.
+pub fn write_phoenix(pcr: &Path, volume: &Volume) -> Result<()> {
+    let [vx, vy, vz] = volume.voxel_mm;
+    if vx != vy || vx != vz {
+        return Err(CtError::Invalid(format!(
+            "{}: a .pcr holds one voxel size, the volume has {:?} mm",
+            pcr.display(),
+            volume.voxel_mm
+        )));
+    }
+    let (format, bytes): (u8, Vec<u8>) = match &volume.data {
+        VoxelData::U8(v) => (1, v.clone()),
+        VoxelData::U16(v) => (5, v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        VoxelData::F32(v) => (10, v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        VoxelData::I16(_) => {
+            return Err(CtError::Invalid(format!(
+                "{}: a .pcr volume cannot hold signed 16-bit voxels",
+                pcr.display()
+            )))
+        }
+    };
+    let [x, y, z] = volume.dims;
+    let header = format!(
+        "[VolumeData]\nVolume_SizeX={x}\nVolume_SizeY={y}\nVolume_SizeZ={z}\nVoxelSizeRec={vx}\nFormat={format}\n"
+    );
+    let vol = sibling(pcr, "vol");
+    crate::fsutil::write_atomic_all(&[(&vol, &bytes), (pcr, header.as_bytes())], false).map_err(
+        |e| CtError::Io {
+            path: e.path,
+            action: "write",
+            source: e.source,
+        },
+    )
 }
 
 /// The raw layout described by a phoenix `.pcr`.
@@ -89,6 +126,21 @@ mod tests {
                 [0.0421, 0.0842, 0.0421]
             );
         }
+    }
+
+    #[test]
+    fn written_volumes_read_back() {
+        let d = scratch("pcr-write");
+        let data: Vec<u16> = (0..5 * 4 * 3).map(|i| (i * 1000) as u16).collect();
+        let vol = Volume::new_scaled([5, 4, 3], [0.07; 3], VoxelData::U16(data)).expect("vol");
+        write_phoenix(&d.join("ct.pcr"), &vol).expect("write");
+        let back = read_phoenix(&d.join("ct.pcr")).expect("read");
+        assert_eq!((back.dims, back.voxel_mm), (vol.dims, vol.voxel_mm));
+        assert_eq!(back.data, vol.data);
+        let anisotropic =
+            Volume::new_scaled([1, 1, 1], [0.1, 0.1, 0.2], VoxelData::U8(vec![1])).expect("vol");
+        let e = write_phoenix(&d.join("a.pcr"), &anisotropic).expect_err("one voxel size");
+        assert!(e.to_string().contains("a.pcr"), "{e}");
     }
 
     #[test]
