@@ -3,6 +3,8 @@
 //! journal after any stop; never waits for processing.
 
 pub mod check;
+pub mod disk;
+mod health;
 pub mod inspection;
 pub mod processing;
 mod sequencer;
@@ -79,6 +81,8 @@ pub struct RunOptions {
     pub drain_at_end: bool,
     /// Where time comes from.
     pub clock: SharedClock,
+    /// Where free space on the build disk is measured (`statvfs`; tests simulate it).
+    pub free_space: Arc<dyn crate::fsutil::FreeSpace>,
 }
 
 impl Default for RunOptions {
@@ -94,6 +98,7 @@ impl RunOptions {
             notify_systemd: false,
             drain_at_end: false,
             clock: SystemClock::shared(),
+            free_space: Arc::new(crate::fsutil::Statvfs),
         }
     }
 }
@@ -122,7 +127,14 @@ fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, Acqui
         frame_of_reference_uid: crate::dicom::new_uid(),
         software_version: env!("CARGO_PKG_VERSION").to_string(),
     })?;
-    snapshot_configuration(config, &storage)?;
+    match snapshot_configuration(config, &storage) {
+        // A restart on a full disk still captures when space returns: the snapshot of the last
+        // start stays.
+        Err(AcquisitionError::Storage(e)) if crate::fsutil::is_disk_full(&e.source) => {
+            warn!(error = %e, "disk full: the configuration snapshot is not updated")
+        }
+        result => result?,
+    }
     let (mut journal, mut replay) =
         Journal::open(&dir.join(build_dir::JOURNAL), config.storage.fsync)?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
@@ -264,7 +276,15 @@ pub async fn run(
         prev_signal: replay.last_event,
         catching_up: replay.last_event.is_some(),
         state: replay,
+        disk: disk::DiskGuard::open(
+            dir.clone(),
+            options.free_space.clone(),
+            (config.storage.min_free_gb * 1e9) as u64,
+            clock.clone(),
+        ),
+        parts: Default::default(),
     };
+    sequencer.apply_disk();
     sequencer.write_live("running");
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
