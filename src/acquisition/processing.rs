@@ -250,6 +250,12 @@ fn worker_loop(
                         Err(_) => break,
                     }
                 }
+                if paused() {
+                    // Paused while waiting: these wait on disk and are caught up from the
+                    // journal after the pause.
+                    shared.overflowed.store(true, Ordering::SeqCst);
+                    continue;
+                }
                 batch.retain(|(shot, _, _)| !caught_up.remove(shot));
                 batch
                     .par_iter()
