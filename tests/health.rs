@@ -23,19 +23,35 @@ fn status_health_fields_and_a_failed_camera_warning_in_status_and_sd_notify() {
     socket
         .set_read_timeout(Some(Duration::from_millis(200)))
         .unwrap();
+    // Read as systemd does, while the daemon runs (a full socket queue would block it).
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reader = {
+        let done = done.clone();
+        std::thread::spawn(move || {
+            let mut messages = Vec::new();
+            let mut buf = vec![0u8; 65536];
+            loop {
+                match socket.recv(&mut buf) {
+                    Ok(n) => messages.push(String::from_utf8_lossy(&buf[..n]).into_owned()),
+                    Err(_) if done.load(std::sync::atomic::Ordering::SeqCst) => break,
+                    Err(_) => {}
+                }
+            }
+            messages
+        })
+    };
     let out = run_command(&config_path)
         .env("NOTIFY_SOCKET", &socket_path)
-        .succeeds();
+        .output()
+        .unwrap();
+    done.store(true, std::sync::atomic::Ordering::SeqCst);
+    let messages = reader.join().unwrap();
+    assert_success(&out);
     assert!(
         String::from_utf8_lossy(&out.stdout).contains("1 missing"),
         "{}",
         report(&out)
     );
-    let mut messages = Vec::new();
-    let mut buf = vec![0u8; 65536];
-    while let Ok(n) = socket.recv(&mut buf) {
-        messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
-    }
     let statuses: Vec<&str> = messages
         .iter()
         .flat_map(|m| m.lines())

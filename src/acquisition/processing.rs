@@ -270,10 +270,20 @@ fn worker_loop(
         }
         // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
         if !paused() && shared.overflowed.swap(false, Ordering::SeqCst) {
+            let mut interrupted = false;
             while let Ok((shot, original, at)) = receiver.try_recv() {
+                if paused() {
+                    // What is left waits on disk; the journal finds it after the pause.
+                    interrupted = true;
+                    break;
+                }
                 if !caught_up.remove(&shot) {
                     run(shot, &original, at);
                 }
+            }
+            if interrupted {
+                shared.overflowed.store(true, Ordering::SeqCst);
+                continue;
             }
             // The channel is drained, so nothing left in the set can still come out of it.
             caught_up.clear();
@@ -282,7 +292,11 @@ fn worker_loop(
                 match Journal::read(&path) {
                     Ok(replay) => {
                         for shot in replay.unprocessed() {
-                            if shared.stop.load(Ordering::SeqCst) || paused() {
+                            if shared.stop.load(Ordering::SeqCst) {
+                                return;
+                            }
+                            if paused() {
+                                shared.overflowed.store(true, Ordering::SeqCst);
                                 break;
                             }
                             if let Some(entry) = replay.frames.get(&shot) {
