@@ -12,7 +12,8 @@ use std::time::Duration;
 fn status_health_fields_and_a_failed_camera_warning_in_status_and_sd_notify() {
     let dir = tempfile::tempdir().unwrap();
     let build = dir.path().join("build");
-    let mut config = demo_config(&build, 2);
+    let mut config = calibrated_config(&build, 2, layerwise::dicom::Compression::Deflate);
+    config.rectify.pixel_mm = 2.0;
     // The last frame of the build fails for good: the camera's error stands at the end.
     add_fault(&mut config, "fail", 2, "post", "top", 0, 0);
     let config_path = dir.path().join("layerwise.toml");
@@ -100,7 +101,7 @@ fn status_health_fields_and_a_failed_camera_warning_in_status_and_sd_notify() {
     assert_eq!(status["disk"]["state"], "ok");
     // The forecast counts every kind a layer writes, measured on this build.
     let kinds = &status["bytes_by_kind"];
-    for kind in ["originals", "journal"] {
+    for kind in ["originals", "dicom", "journal"] {
         assert!(kinds[kind].as_u64().unwrap() > 0, "{kinds}");
     }
     let per_layer = status["bytes_per_layer"].as_u64().unwrap();
