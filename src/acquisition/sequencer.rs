@@ -535,6 +535,15 @@ impl Sequencer {
         }) {
             error!(error = %e, "cannot journal the stop");
         }
+        let held = self.journal.lock().map_or(0, |j| j.held());
+        if held > 0 {
+            error!(
+                records = held,
+                "the disk is still full: {held} journal records could not be written; originals \
+                 they name are adopted again at the next start, frames recorded missing meanwhile \
+                 are not (free space before restarting)"
+            );
+        }
         self.live.queue_depth = 0;
         self.write_live(state);
         self.summary.stop_reason = reason.to_string();
