@@ -228,6 +228,41 @@ pub fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
+/// Free space on the filesystem holding a path: the daemon's disk guard and `status` ask through
+/// this, so tests can drive it (a simulated probe lives in `sim`).
+pub trait FreeSpace: Send + Sync {
+    /// Bytes an unprivileged writer can still use on the filesystem holding `path`.
+    fn free_bytes(&self, path: &Path) -> std::io::Result<u64>;
+}
+
+/// The real free space, from `statvfs(3)`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Statvfs;
+
+impl FreeSpace for Statvfs {
+    fn free_bytes(&self, path: &Path) -> std::io::Result<u64> {
+        use std::os::unix::ffi::OsStrExt;
+        let c_path = std::ffi::CString::new(path.as_os_str().as_bytes())
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        // SAFETY: statvfs is plain old data; all-zero is a valid value.
+        let mut stat: libc::statvfs = unsafe { std::mem::zeroed() };
+        // SAFETY: c_path is a valid NUL-terminated string and stat a valid out-pointer.
+        let rc = unsafe { libc::statvfs(c_path.as_ptr(), &mut stat) };
+        if rc != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        Ok((stat.f_bavail as u64).saturating_mul(stat.f_frsize as u64))
+    }
+}
+
+/// Whether a write failed because the disk (or the writer's quota) is full.
+pub fn is_disk_full(error: &std::io::Error) -> bool {
+    matches!(
+        error.raw_os_error(),
+        Some(libc::ENOSPC) | Some(libc::EDQUOT)
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -180,6 +180,20 @@ fn serial_port_vanished_status_says_so_with_the_right_hint() {
         std::thread::sleep(Duration::from_millis(200));
     };
     assert_eq!(status["trigger"]["connected"], false);
+    // The trigger's health: an error with the operator's warning, the same in the summary.
+    let trigger = &status["health"]["trigger"];
+    assert_eq!(trigger["state"], "error", "{status:#}");
+    assert!(
+        trigger["summary"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("NOT CONNECTED, last signal none yet"),
+        "{trigger}"
+    );
+    assert!(trigger["warning"]
+        .as_str()
+        .unwrap_or_default()
+        .contains("not connected"));
     let warning = status["warning"].as_str().unwrap_or_default();
     assert!(
         warning.contains("not connected") && warning.contains("USB adapter plugged in"),

@@ -3,6 +3,8 @@
 //! journal after any stop; never waits for processing.
 
 pub mod check;
+pub mod disk;
+mod health;
 pub mod inspection;
 pub mod lifecycle;
 pub mod processing;
@@ -86,6 +88,8 @@ pub struct RunOptions {
     /// Ends the run when it completes, with its reason (e.g. the operator ended the build,
     /// `acquisition::lifecycle`); the frames taken are processed before the run returns.
     pub stop_when: Option<StopWhen>,
+    /// Where free space on the build disk is measured (`statvfs`; tests simulate it).
+    pub free_space: Arc<dyn crate::fsutil::FreeSpace>,
 }
 
 /// A future that ends a run with its reason.
@@ -105,6 +109,7 @@ impl RunOptions {
             drain_at_end: false,
             clock: SystemClock::shared(),
             stop_when: None,
+            free_space: Arc::new(crate::fsutil::Statvfs),
         }
     }
 }
@@ -133,7 +138,14 @@ fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, Acqui
         frame_of_reference_uid: crate::dicom::new_uid(),
         software_version: env!("CARGO_PKG_VERSION").to_string(),
     })?;
-    snapshot_configuration(config, &storage)?;
+    match snapshot_configuration(config, &storage) {
+        // A restart on a full disk still captures when space returns: the snapshot of the last
+        // start stays.
+        Err(AcquisitionError::Storage(e)) if crate::fsutil::is_disk_full(&e.source) => {
+            warn!(error = %e, "disk full: the configuration snapshot is not updated")
+        }
+        result => result?,
+    }
     let (mut journal, mut replay) =
         Journal::open(&dir.join(build_dir::JOURNAL), config.storage.fsync)?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
@@ -275,7 +287,15 @@ pub async fn run(
         prev_signal: replay.last_event,
         catching_up: replay.last_event.is_some(),
         state: replay,
+        disk: disk::DiskGuard::open(
+            dir.clone(),
+            options.free_space.clone(),
+            (config.storage.min_free_gb * 1e9) as u64,
+            clock.clone(),
+        ),
+        parts: Default::default(),
     };
+    sequencer.apply_disk();
     sequencer.write_live("running");
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();

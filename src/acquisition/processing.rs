@@ -1,6 +1,7 @@
 //! Processing of stored frames (rectification and DICOM) behind a bounded queue of references.
 //! Capture never waits for it: when the queue is full, frames simply wait on disk and the worker
-//! finds them again from the journal once it has caught up.
+//! finds them again from the journal once it has caught up. While the disk is low the worker is
+//! paused (derived data waits; originals come first) and catches up from the journal afterwards.
 
 use crate::build_dir::{Journal, Record};
 use crate::clock::SharedClock;
@@ -8,7 +9,7 @@ pub use crate::series::{FrameProcessor, KeepOriginals};
 use crate::shot::Shot;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -19,10 +20,19 @@ struct Shared {
     depth: AtomicUsize,
     overflowed: AtomicBool,
     stop: AtomicBool,
+    /// Derived data waits (the disk is low).
+    paused: AtomicBool,
+    /// The sender is gone: a paused worker stops instead of waiting.
+    draining: AtomicBool,
+    /// From submission to the end of processing, for the last frame processed.
+    lag_ms: AtomicU64,
 }
 
+/// A stored frame handed over, with when (on the clock's monotonic time) it was.
+type Item = (Shot, PathBuf, Option<Duration>);
+
 pub struct ProcessingQueue {
-    sender: Option<SyncSender<(Shot, PathBuf)>>,
+    sender: Option<SyncSender<Item>>,
     shared: Arc<Shared>,
     worker: Option<JoinHandle<()>>,
 }
@@ -42,6 +52,9 @@ impl ProcessingQueue {
             depth: AtomicUsize::new(backlog.len()),
             overflowed: AtomicBool::new(false),
             stop: AtomicBool::new(false),
+            paused: AtomicBool::new(false),
+            draining: AtomicBool::new(false),
+            lag_ms: AtomicU64::new(0),
         });
         let worker_shared = shared.clone();
         let worker = std::thread::Builder::new()
@@ -68,11 +81,11 @@ impl ProcessingQueue {
         }
     }
 
-    /// Hands a stored frame over without ever blocking.
-    pub fn submit(&self, shot: Shot, original: PathBuf) {
+    /// Hands a stored frame over without ever blocking; `now` is the clock's monotonic time.
+    pub fn submit(&self, shot: Shot, original: PathBuf, now: Duration) {
         self.shared.depth.fetch_add(1, Ordering::SeqCst);
         let Some(sender) = &self.sender else { return };
-        match sender.try_send((shot, original)) {
+        match sender.try_send((shot, original, Some(now))) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 self.shared.overflowed.store(true, Ordering::SeqCst);
@@ -85,8 +98,28 @@ impl ProcessingQueue {
         self.shared.depth.load(Ordering::SeqCst)
     }
 
-    /// Waits until every submitted frame is processed, then stops the worker.
+    /// How long the last frame processed waited from its capture to the end of its processing.
+    pub fn lag(&self) -> Duration {
+        Duration::from_millis(self.shared.lag_ms.load(Ordering::SeqCst))
+    }
+
+    /// Pauses the derived data (the disk is low) or resumes it; on resuming, the frames left
+    /// waiting are caught up from the journal.
+    pub fn set_paused(&self, paused: bool) {
+        let was = self.shared.paused.swap(paused, Ordering::SeqCst);
+        if was && !paused {
+            self.shared.overflowed.store(true, Ordering::SeqCst);
+        }
+    }
+
+    pub fn paused(&self) -> bool {
+        self.shared.paused.load(Ordering::SeqCst)
+    }
+
+    /// Waits until every submitted frame is processed, then stops the worker. A worker paused
+    /// for disk space stops at once: its frames wait on disk for the next start.
     pub fn drain(mut self) {
+        self.shared.draining.store(true, Ordering::SeqCst);
         self.sender.take();
         if let Some(worker) = self.worker.take() {
             let _ = worker.join();
@@ -103,17 +136,39 @@ impl ProcessingQueue {
     }
 }
 
+/// Whether an error (or one of its sources) is a write that found the disk full.
+fn disk_full(error: &(dyn std::error::Error + 'static)) -> bool {
+    let mut current = Some(error);
+    while let Some(e) = current {
+        if e.downcast_ref::<std::io::Error>()
+            .is_some_and(crate::fsutil::is_disk_full)
+        {
+            return true;
+        }
+        current = e.source();
+    }
+    false
+}
+
 fn worker_loop(
     processor: Arc<dyn FrameProcessor>,
-    receiver: Receiver<(Shot, PathBuf)>,
+    receiver: Receiver<Item>,
     shared: Arc<Shared>,
     build_dir: PathBuf,
     journal: Arc<Mutex<Journal>>,
     backlog: Vec<(Shot, PathBuf)>,
     clock: SharedClock,
 ) {
-    let run = |shot: Shot, original: &Path| {
+    let run = |shot: Shot, original: &Path, submitted: Option<Duration>| {
         let record = match processor.process(&build_dir, shot, original) {
+            Err(reason) if disk_full(reason.as_ref()) => {
+                // Not a failure of the frame: it waits (paused) and is caught up from the
+                // journal once the disk has room again.
+                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %reason, "processing: the disk is full; derived data paused, the frame waits");
+                shared.paused.store(true, Ordering::SeqCst);
+                shared.overflowed.store(true, Ordering::SeqCst);
+                return;
+            }
             Ok(()) => Record::Processed {
                 layer: shot.layer,
                 phase: shot.phase,
@@ -142,7 +197,14 @@ fn worker_loop(
             .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
                 Some(d.saturating_sub(1))
             });
+        if let Some(at) = submitted {
+            let lag = clock.elapsed().saturating_sub(at);
+            shared
+                .lag_ms
+                .store(lag.as_millis() as u64, Ordering::SeqCst);
+        }
     };
+    let paused = || shared.paused.load(Ordering::SeqCst);
     // Shots a catch-up pass processed while they were still queued: skipped when they come out.
     let mut caught_up = std::collections::BTreeSet::new();
     if !backlog.is_empty() {
@@ -151,15 +213,31 @@ fn worker_loop(
             "processing: catching up on frames stored before the restart"
         );
     }
-    for (shot, original) in backlog {
+    for (i, (shot, original)) in backlog.iter().enumerate() {
         if shared.stop.load(Ordering::SeqCst) {
             return;
         }
-        run(shot, &original);
+        if paused() {
+            // The rest waits on disk; the catch-up after the pause finds it in the journal.
+            info!(
+                frames = backlog.len() - i,
+                "processing: disk low, catching up later"
+            );
+            shared.overflowed.store(true, Ordering::SeqCst);
+            break;
+        }
+        run(*shot, original, None);
     }
     loop {
         if shared.stop.load(Ordering::SeqCst) {
             return;
+        }
+        if paused() {
+            if shared.draining.load(Ordering::SeqCst) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+            continue;
         }
         match receiver.recv_timeout(Duration::from_millis(200)) {
             Ok(first) => {
@@ -172,10 +250,16 @@ fn worker_loop(
                         Err(_) => break,
                     }
                 }
-                batch.retain(|(shot, _)| !caught_up.remove(shot));
+                if paused() {
+                    // Paused while waiting: these wait on disk and are caught up from the
+                    // journal after the pause.
+                    shared.overflowed.store(true, Ordering::SeqCst);
+                    continue;
+                }
+                batch.retain(|(shot, _, _)| !caught_up.remove(shot));
                 batch
                     .par_iter()
-                    .for_each(|(shot, original)| run(*shot, original));
+                    .for_each(|(shot, original, at)| run(*shot, original, *at));
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {
@@ -185,11 +269,21 @@ fn worker_loop(
             }
         }
         // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
-        if shared.overflowed.swap(false, Ordering::SeqCst) {
-            while let Ok((shot, original)) = receiver.try_recv() {
-                if !caught_up.remove(&shot) {
-                    run(shot, &original);
+        if !paused() && shared.overflowed.swap(false, Ordering::SeqCst) {
+            let mut interrupted = false;
+            while let Ok((shot, original, at)) = receiver.try_recv() {
+                if paused() {
+                    // What is left waits on disk; the journal finds it after the pause.
+                    interrupted = true;
+                    break;
                 }
+                if !caught_up.remove(&shot) {
+                    run(shot, &original, at);
+                }
+            }
+            if interrupted {
+                shared.overflowed.store(true, Ordering::SeqCst);
+                continue;
             }
             // The channel is drained, so nothing left in the set can still come out of it.
             caught_up.clear();
@@ -201,8 +295,12 @@ fn worker_loop(
                             if shared.stop.load(Ordering::SeqCst) {
                                 return;
                             }
+                            if paused() {
+                                shared.overflowed.store(true, Ordering::SeqCst);
+                                break;
+                            }
                             if let Some(entry) = replay.frames.get(&shot) {
-                                run(shot, &build_dir.join(&entry.file));
+                                run(shot, &build_dir.join(&entry.file), None);
                                 caught_up.insert(shot);
                             }
                         }

@@ -2,6 +2,8 @@
 //! original stored and journaled, handed to processing; irregular signals flagged, repeated ones
 //! retaken; status.json and systemd's STATUS= kept current.
 
+use super::disk::DiskGuard;
+use super::health::{Parts, Processing};
 use super::processing::ProcessingQueue;
 use super::storage::Storage;
 use super::{AcquisitionError, RunSummary};
@@ -59,6 +61,10 @@ pub(super) struct Sequencer {
     pub(super) notify: bool,
     /// The trigger's health, updated on its thread.
     pub(super) trigger_health: SharedHealth,
+    /// Free space on the build disk: derived data paused when low, capture waits when full.
+    pub(super) disk: DiskGuard,
+    /// What the camera and the lights did, for status.json.
+    pub(super) parts: Parts,
 }
 
 impl Sequencer {
@@ -287,11 +293,16 @@ impl Sequencer {
     /// Captures take `take` of `shot` (1: the frame; more: a retake kept beside it).
     fn take(&mut self, shot: Shot, take: u32) -> Result<(), AcquisitionError> {
         self.beat();
+        self.check_disk();
+        if !self.disk.may_capture() {
+            return self.missed_for_space(shot, self.disk.missing_reason());
+        }
         let event_at = self
             .open
             .as_ref()
             .map_or_else(|| self.clock.now(), |o| o.at);
         if let Err(e) = self.lights.switch(shot.light, true) {
+            self.parts.lights_switched(Err(e.to_string()));
             self.lights.all_off_logged();
             return self.record_missing(
                 shot,
@@ -300,14 +311,18 @@ impl Sequencer {
         }
         self.clock.sleep(self.settle);
         let result = capture_with_retries(&self.camera, &self.policy, &shot);
-        if let Err(e) = self.lights.switch(shot.light, false) {
-            warn!(light = %shot.light, error = %e, "lights: could not switch off; switching all off");
-            self.lights.all_off_logged();
+        match self.lights.switch(shot.light, false) {
+            Ok(()) => self.parts.lights_switched(Ok(())),
+            Err(e) => {
+                warn!(light = %shot.light, error = %e, "lights: could not switch off; switching all off");
+                self.parts.lights_switched(Err(e.to_string()));
+                self.lights.all_off_logged();
+            }
         }
         self.beat();
         match result {
             Ok((frame, attempts)) => {
-                let sidecar = self.storage.store_frame(
+                let stored = self.storage.store_frame(
                     &shot,
                     take,
                     &frame,
@@ -315,7 +330,21 @@ impl Sequencer {
                     self.clock.now(),
                     attempts,
                     self.camera.settings(),
-                )?;
+                );
+                self.parts.captured(self.clock.now(), attempts);
+                let sidecar = match stored {
+                    Ok(sidecar) => sidecar,
+                    Err(e) if crate::fsutil::is_disk_full(&e.source) => {
+                        self.disk.filled();
+                        self.apply_disk();
+                        return self.missed_for_space(
+                            shot,
+                            format!("captured but not stored: the disk is full ({e})"),
+                        );
+                    }
+                    Err(e) => return Err(e.into()),
+                };
+                self.disk.stored(sidecar.bytes);
                 let retake = take > 1 && self.state.frames.contains_key(&shot);
                 let record = if retake {
                     Record::Retake {
@@ -348,7 +377,8 @@ impl Sequencer {
                     self.summary.retakes += 1;
                 } else {
                     if let Some(queue) = &self.queue {
-                        queue.submit(shot, self.storage.root().join(&sidecar.file));
+                        let original = self.storage.root().join(&sidecar.file);
+                        queue.submit(shot, original, self.clock.elapsed());
                         self.live.queue_depth = queue.depth();
                     }
                     self.summary.stored += 1;
@@ -375,14 +405,14 @@ impl Sequencer {
                 Ok(())
             }
             Err(CaptureFailure::Missing { attempts, last }) => {
-                self.record_missing(
-                    shot,
-                    format!("camera failed after {attempts} attempts: {last}"),
-                )?;
+                let reason = format!("camera failed after {attempts} attempts: {last}");
+                self.parts.capture_failed(shot, reason.clone());
+                self.record_missing(shot, reason)?;
                 self.write_live("running");
                 Ok(())
             }
             Err(CaptureFailure::Hung(e)) => {
+                self.parts.capture_failed(shot, format!("camera hung: {e}"));
                 self.lights.all_off_logged();
                 self.record_missing(shot, format!("camera hung: {e}"))?;
                 Err(AcquisitionError::CameraHung(e))
@@ -390,13 +420,55 @@ impl Sequencer {
         }
     }
 
-    /// Rewrites status.json when the trigger's health changed (called while idle).
+    /// A frame not captured (or not stored) for want of disk space: journaled as missing,
+    /// counted, status.json says so.
+    fn missed_for_space(&mut self, shot: Shot, reason: String) -> Result<(), AcquisitionError> {
+        self.disk.missed();
+        self.record_missing(shot, reason)?;
+        self.write_live("running");
+        Ok(())
+    }
+
+    /// Probes the disk (through its back-off while full): pauses or resumes the derived data and,
+    /// once space returns, writes the journal records held meanwhile. Returns whether the disk's
+    /// state changed.
+    fn check_disk(&mut self) -> bool {
+        let changed = self.disk.poll().is_some();
+        self.apply_disk();
+        changed
+    }
+
+    pub(super) fn apply_disk(&mut self) {
+        if let Some(queue) = &self.queue {
+            queue.set_paused(!self.disk.derived_allowed());
+        }
+        if self.disk.may_capture() {
+            if let Ok(mut journal) = self.journal.lock() {
+                if journal.held() > 0 {
+                    if let Err(e) = journal.flush_held() {
+                        if !e.is_disk_full() {
+                            warn!(error = %e, "journal: cannot write the records held while the disk was full");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Rewrites status.json when a part's health changed, and while the disk is not ok (called
+    /// about once a second while idle).
     pub(super) fn refresh_health(&mut self) {
+        let disk_changed = self.check_disk();
         let health = self.trigger_health.get();
-        if self.live.trigger.as_ref() != Some(&health) {
+        let trigger_changed = self.live.trigger.as_ref() != Some(&health);
+        if trigger_changed {
             if let Some(w) = health.warning() {
                 warn!("{w}");
             }
+        }
+        let disk_not_ok = self.disk.state() != crate::build_dir::status::DiskState::Ok;
+        let paused = self.queue.as_ref().is_some_and(ProcessingQueue::paused);
+        if trigger_changed || disk_changed || disk_not_ok || paused {
             let state = self.live.state.clone();
             self.write_live(&state);
         }
@@ -409,6 +481,21 @@ impl Sequencer {
         if let Some(queue) = &self.queue {
             self.live.queue_depth = queue.depth();
         }
+        let mut disk = self.disk.health();
+        disk.journal_held = self.journal.lock().map_or(0, |j| j.held());
+        let processing = Processing {
+            backlog: self.live.queue_depth,
+            lag: self
+                .queue
+                .as_ref()
+                .map_or(Duration::ZERO, ProcessingQueue::lag),
+            paused: self.queue.as_ref().is_some_and(ProcessingQueue::paused),
+        };
+        let trigger = self.live.trigger.clone().unwrap_or_default();
+        self.live.health = self
+            .parts
+            .health(self.clock.now(), &trigger, &processing, &disk);
+        self.live.disk = Some(disk);
         if let Err(e) = self.live.write(self.storage.root()) {
             warn!(error = %e, "status: cannot write status.json");
         }
@@ -419,12 +506,13 @@ impl Sequencer {
                 _ => "waiting for the first layer".into(),
             };
             let status = format!(
-                "{state}: {layer}; {} frames, {} missing, {} retakes, {} irregular signals; processing backlog {}",
+                "{state}: {layer}; {} frames, {} missing, {} retakes, {} irregular signals; processing backlog {}; {}",
                 self.state.frames.len(),
                 self.state.missing.len(),
                 self.state.retakes.values().map(Vec::len).sum::<usize>(),
                 self.state.irregular.len(),
-                self.live.queue_depth
+                self.live.queue_depth,
+                crate::build_dir::status::health_line(&self.live.health)
             );
             let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Status(&status)]);
         }
@@ -446,6 +534,15 @@ impl Sequencer {
             at: self.clock.now(),
         }) {
             error!(error = %e, "cannot journal the stop");
+        }
+        let held = self.journal.lock().map_or(0, |j| j.held());
+        if held > 0 {
+            error!(
+                records = held,
+                "the disk is still full: {held} journal records could not be written; originals \
+                 they name are adopted again at the next start, frames recorded missing meanwhile \
+                 are not (free space before restarting)"
+            );
         }
         self.live.queue_depth = 0;
         self.write_live(state);

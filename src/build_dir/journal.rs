@@ -298,6 +298,9 @@ pub struct Journal {
     path: PathBuf,
     file: File,
     fsync: bool,
+    /// Records that could not be written because the disk was full, oldest first: written
+    /// before anything else once space returns.
+    held: Vec<Record>,
 }
 
 impl Journal {
@@ -311,6 +314,7 @@ impl Journal {
                 path: path.to_path_buf(),
                 file,
                 fsync,
+                held: Vec::new(),
             },
             replay,
         ))
@@ -406,7 +410,8 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
 }
 
 /// Appends `record` to `file` as one JSON line in one write, fsynced when asked: the journal's and
-/// the inspection log's way of writing.
+/// the inspection log's way of writing. A write that fails half way (a full disk) is cut back off,
+/// so the file never holds a torn line before a later record.
 pub(crate) fn append_line<T: serde::Serialize>(
     file: &mut File,
     path: &Path,
@@ -419,16 +424,59 @@ pub(crate) fn append_line<T: serde::Serialize>(
     };
     let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
     line.push(b'\n');
-    file.write_all(&line).map_err(io)?;
-    if fsync {
-        file.sync_data().map_err(io)?;
+    let before = file.metadata().map_err(io)?.len();
+    let written = file
+        .write_all(&line)
+        .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
+    if let Err(e) = written {
+        if let Err(cut) = file.set_len(before) {
+            warn!(file = %path.display(), error = %cut, "cannot cut off a failed write");
+        }
+        return Err(io(e));
     }
     Ok(())
 }
 
+impl JournalError {
+    /// Whether the write failed for want of disk space.
+    pub fn is_disk_full(&self) -> bool {
+        matches!(self, JournalError::Io { source, .. } if crate::fsutil::is_disk_full(source))
+    }
+}
+
 impl Journal {
+    /// Appends a record. On a full disk the record is held in memory (nothing torn is left in
+    /// the file) and written, in order, before the next record once space returns; a crash in
+    /// between loses only held records, whose originals `Storage::recover` adopts again.
     pub fn append(&mut self, record: &Record) -> Result<(), JournalError> {
-        append_line(&mut self.file, &self.path, self.fsync, record)
+        let result = self
+            .flush_held()
+            .and_then(|()| append_line(&mut self.file, &self.path, self.fsync, record));
+        match result {
+            Err(e) if e.is_disk_full() => {
+                if self.held.is_empty() {
+                    warn!(file = %self.path.display(), "disk full: journal records are held in memory until space returns");
+                }
+                self.held.push(record.clone());
+                Ok(())
+            }
+            other => other,
+        }
+    }
+
+    /// Writes the records held while the disk was full; stops (keeping the rest) while it
+    /// still is.
+    pub fn flush_held(&mut self) -> Result<(), JournalError> {
+        while let Some(record) = self.held.first() {
+            append_line(&mut self.file, &self.path, self.fsync, record)?;
+            self.held.remove(0);
+        }
+        Ok(())
+    }
+
+    /// Records waiting for disk space.
+    pub fn held(&self) -> usize {
+        self.held.len()
     }
 
     pub fn path(&self) -> &Path {

@@ -28,6 +28,10 @@ pub const CONFIG_SNAPSHOT: &str = "config.toml";
 /// The calibration the daemon last ran with.
 pub const CALIBRATION_COPY: &str = "calibration.toml";
 
+/// Space the daemon keeps in hand (real blocks, zeros) and gives up when the disk fills, so that
+/// it can still journal the frames it misses and say so in status.json.
+pub const DISK_RESERVE: &str = ".disk-reserve";
+
 /// Originals and their sidecars: `raw/L{layer:05}_{phase}_{light}.{ext}` and `.json`.
 pub const RAW_DIR: &str = "raw";
 /// The live series, one folder per view.

@@ -56,6 +56,145 @@ impl TriggerHealth {
     }
 }
 
+/// How a part of the machine is doing, as status.json, `layerwise status` and systemd show it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HealthState {
+    #[default]
+    Ok,
+    Warning,
+    Error,
+}
+
+impl fmt::Display for HealthState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            HealthState::Ok => "ok",
+            HealthState::Warning => "WARNING",
+            HealthState::Error => "ERROR",
+        })
+    }
+}
+
+/// One part's health: its state, one line on what it does, and what an operator must act on.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Health {
+    pub state: HealthState,
+    pub summary: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
+}
+
+impl Health {
+    pub fn ok(summary: String) -> Health {
+        Health {
+            state: HealthState::Ok,
+            summary,
+            warning: None,
+        }
+    }
+
+    /// A state other than ok, with the warning that goes with it.
+    pub fn raise(state: HealthState, summary: String, warning: String) -> Health {
+        Health {
+            state,
+            summary,
+            warning: Some(warning),
+        }
+    }
+}
+
+/// The parts in the order an operator reads them.
+pub const HEALTH_PARTS: [&str; 5] = ["trigger", "camera", "lights", "processing", "disk"];
+
+/// One line for systemd's STATUS= and the log: the parts not ok with their warnings, or that all
+/// are ok.
+pub fn health_line(health: &BTreeMap<String, Health>) -> String {
+    let raised: Vec<String> = HEALTH_PARTS
+        .iter()
+        .filter_map(|part| health.get(*part).map(|h| (part, h)))
+        .filter(|(_, h)| h.state != HealthState::Ok)
+        .map(|(part, h)| {
+            format!(
+                "{part} {}: {}",
+                h.state,
+                h.warning.as_deref().unwrap_or(&h.summary)
+            )
+        })
+        .collect();
+    if raised.is_empty() {
+        "all parts ok".to_string()
+    } else {
+        raised.join("; ")
+    }
+}
+
+/// Where the build directory's disk stands for the daemon.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DiskState {
+    /// Above `storage.min_free_gb`: everything is written.
+    #[default]
+    Ok,
+    /// Below `storage.min_free_gb`: originals are captured, derived data (DICOM series,
+    /// inspection) waits and is caught up once space returns.
+    Low,
+    /// An original could not be written: frames are recorded as missing until space returns.
+    Full,
+}
+
+/// The disk as the daemon sees it (status.json `disk`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DiskHealth {
+    pub state: DiskState,
+    pub free_bytes: Option<u64>,
+    /// `storage.min_free_gb` in bytes.
+    pub min_free_bytes: u64,
+    /// Free space the daemon waits for after the disk filled.
+    pub need_bytes: u64,
+    /// When the state last changed.
+    pub since: Option<DateTime<Utc>>,
+    /// Frames not captured because the disk was full (this run).
+    pub frames_missed: u64,
+    /// Whether the derived data (DICOM series, inspection) waits for space.
+    pub derived_paused: bool,
+    /// Journal records held in memory until space returns.
+    pub journal_held: usize,
+}
+
+fn mb(bytes: u64) -> String {
+    format!("{:.1} MB", bytes as f64 / 1e6)
+}
+
+impl DiskHealth {
+    pub fn health(&self) -> Health {
+        let free = self.free_bytes.map_or_else(|| "? MB".into(), mb);
+        match self.state {
+            DiskState::Ok => Health::ok(format!("{free} free")),
+            DiskState::Low => Health::raise(
+                HealthState::Warning,
+                format!("{free} free, below storage.min_free_gb"),
+                format!(
+                    "disk low: {free} free, below storage.min_free_gb ({}): DICOM series and \
+                     inspection paused (caught up once space returns), originals still \
+                     captured; free space on the build disk",
+                    mb(self.min_free_bytes)
+                ),
+            ),
+            DiskState::Full => Health::raise(
+                HealthState::Error,
+                format!("full, {} frames missed", self.frames_missed),
+                format!(
+                    "waiting for disk space: {free} free, need {}; {} frames missed so far; \
+                     free space on the build disk now",
+                    mb(self.need_bytes),
+                    self.frames_missed
+                ),
+            ),
+        }
+    }
+}
+
 /// The daemon's live state, rewritten atomically after every frame.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LiveStatus {
@@ -69,6 +208,12 @@ pub struct LiveStatus {
     /// The layer signal's source (absent in status files of older versions).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trigger: Option<TriggerHealth>,
+    /// The disk guard's view (absent in status files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub disk: Option<DiskHealth>,
+    /// Each part's health: trigger, camera, lights, processing, disk.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub health: BTreeMap<String, Health>,
 }
 
 impl LiveStatus {
@@ -112,14 +257,25 @@ pub struct StatusReport {
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
     pub bytes_stored: u64,
-    /// What the build derived from the originals so far (the DICOM series).
+    /// What the build derived from the originals so far: DICOM series, inspection records, push
+    /// logs.
     pub bytes_derived: u64,
+    /// Bytes on disk per kind: `originals` (raw/: originals, retakes, sidecars), `dicom`,
+    /// `inspection`, `push_log`, `journal`.
+    pub bytes_by_kind: BTreeMap<String, u64>,
+    /// What one layer writes, all kinds together, measured on this build so far.
+    pub bytes_per_layer: Option<u64>,
     pub layers_seen: usize,
     pub layers_expected: Option<u32>,
     pub free_bytes: Option<u64>,
     pub bytes_needed: Option<u64>,
     /// The layer signal's source, when the daemon reported it.
     pub trigger: Option<TriggerHealth>,
+    /// Each part's health as the daemon last reported it (trigger, camera, lights, processing,
+    /// disk).
+    pub health: BTreeMap<String, Health>,
+    /// The daemon's disk guard (free space, paused derived data, waiting for space).
+    pub disk: Option<DiskHealth>,
     /// The push to each archive (`[[pacs]]`): pushed, pending, failed, last error.
     pub pacs: Vec<super::pushlog::PushSummary>,
     /// Inspection flags at warning or above, oldest first (`inspection.jsonl`).
@@ -129,12 +285,8 @@ pub struct StatusReport {
 
 /// Free bytes for an unprivileged writer on the filesystem holding `path`.
 pub fn free_bytes(path: &Path) -> Option<u64> {
-    use std::os::unix::ffi::OsStrExt;
-    let c_path = std::ffi::CString::new(path.as_os_str().as_bytes()).ok()?;
-    let mut stat: libc::statvfs = unsafe { std::mem::zeroed() };
-    // SAFETY: c_path is a valid NUL-terminated string and stat a valid out-pointer.
-    let rc = unsafe { libc::statvfs(c_path.as_ptr(), &mut stat) };
-    (rc == 0).then(|| stat.f_bavail as u64 * stat.f_frsize as u64)
+    use crate::fsutil::FreeSpace;
+    crate::fsutil::Statvfs.free_bytes(path).ok()
 }
 
 /// Bytes of the files below `dir` (0 when it does not exist); symlinks are not followed.
@@ -150,6 +302,69 @@ fn dir_size(dir: &Path) -> u64 {
             _ => 0,
         })
         .sum()
+}
+
+/// What a build has written so far, per kind of file.
+struct Written {
+    originals: u64,
+    dicom: u64,
+    inspection: u64,
+    push_log: u64,
+    journal: u64,
+}
+
+/// What one layer writes on average: everything, and the derived part of it.
+#[derive(Clone, Copy)]
+struct PerLayer {
+    total: f64,
+    derived: f64,
+}
+
+impl Written {
+    fn measure(dir: &Path) -> Written {
+        let file = |name: &str| std::fs::metadata(dir.join(name)).map_or(0, |m| m.len());
+        Written {
+            originals: dir_size(&dir.join(super::RAW_DIR)),
+            dicom: dir_size(&dir.join(super::DICOM_DIR)),
+            inspection: file(super::INSPECTION),
+            push_log: dir_size(&dir.join(super::pushlog::PACS_DIR)),
+            journal: file(JOURNAL),
+        }
+    }
+
+    fn derived(&self) -> u64 {
+        self.dicom + self.inspection + self.push_log
+    }
+
+    fn by_kind(&self) -> BTreeMap<String, u64> {
+        [
+            ("originals", self.originals),
+            ("dicom", self.dicom),
+            ("inspection", self.inspection),
+            ("push_log", self.push_log),
+            ("journal", self.journal),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+    }
+
+    /// Originals and the journal per captured layer, derived data per processed layer.
+    fn per_layer(&self, captured: usize, processed: usize) -> Option<PerLayer> {
+        if captured == 0 {
+            return None;
+        }
+        let captured_part = (self.originals + self.journal) as f64 / captured as f64;
+        let derived = if processed == 0 {
+            0.0
+        } else {
+            self.derived() as f64 / processed as f64
+        };
+        Some(PerLayer {
+            total: captured_part + derived,
+            derived,
+        })
+    }
 }
 
 /// Builds the report for `layerwise status` from the journal, the manifest and status.json.
@@ -179,20 +394,27 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
             .flatten()
             .map(|f| f.bytes)
             .sum::<u64>();
-    let bytes_derived = dir_size(&dir.join(super::DICOM_DIR));
     let layers: std::collections::BTreeSet<u32> = replay.frames.keys().map(|s| s.layer).collect();
+    let processed_layers: std::collections::BTreeSet<u32> =
+        replay.processed.iter().map(|s| s.layer).collect();
+    let written = Written::measure(dir);
+    let bytes_derived = written.derived();
     let layers_expected = manifest.as_ref().and_then(|m| m.layers_expected);
     let current_layer = replay.last_event.map(|(l, _)| l).or(live.layer);
     let free = free_bytes(dir);
-    let bytes_needed = match (layers_expected, current_layer, layers.len()) {
-        (Some(expected), Some(current), seen) if seen > 0 => {
-            // Everything a layer writes: originals and the series made from them.
-            let per_layer = (bytes_stored + bytes_derived) as f64 / seen as f64;
-            Some((expected.saturating_sub(current) as f64 * per_layer).ceil() as u64)
+    let per_layer = written.per_layer(layers.len(), processed_layers.len());
+    let bytes_needed = match (layers_expected, current_layer, per_layer) {
+        (Some(expected), Some(current), Some(per_layer)) => {
+            // Everything a layer writes, for the layers still to come, and the derived data of
+            // the layers captured but not processed yet.
+            let to_come = expected.saturating_sub(current) as f64 * per_layer.total;
+            let behind =
+                layers.len().saturating_sub(processed_layers.len()) as f64 * per_layer.derived;
+            Some((to_come + behind).ceil() as u64)
         }
         _ => None,
     };
-    let warning = match (free, bytes_needed) {
+    let forecast_warning = match (free, bytes_needed) {
         (Some(free), Some(needed)) if needed.saturating_add(min_free_bytes) > free => Some(format!(
             "the rest of the build needs about {:.1} GB but only {:.1} GB are free (keeping {:.1} GB spare): free space before it runs out",
             needed as f64 / 1e9,
@@ -202,12 +424,20 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         (Some(free), _) if free < min_free_bytes => Some(format!("only {:.1} GB free", free as f64 / 1e9)),
         _ => None,
     };
-    // A trigger that lost its source while the daemon lives is the first thing to act on.
-    let trigger_warning = live.trigger.as_ref().and_then(TriggerHealth::warning);
-    let warning = match (trigger_warning, warning) {
-        (Some(t), Some(w)) => Some(format!("{t}; {w}")),
-        (t, w) => t.or(w),
+    // What the daemon reports first (the parts an operator must act on), then the forecast.
+    let mut warnings: Vec<String> = if live.health.is_empty() {
+        live.trigger
+            .iter()
+            .filter_map(TriggerHealth::warning)
+            .collect()
+    } else {
+        HEALTH_PARTS
+            .iter()
+            .filter_map(|p| live.health.get(*p).and_then(|h| h.warning.clone()))
+            .collect()
     };
+    warnings.extend(forecast_warning);
+    let warning = (!warnings.is_empty()).then(|| warnings.join("; "));
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
     let state = match live.state.as_str() {
         "running" if !alive => {
@@ -242,11 +472,15 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         last_frames: live.last_frames,
         bytes_stored,
         bytes_derived,
+        bytes_by_kind: written.by_kind(),
+        bytes_per_layer: per_layer.map(|p| p.total.ceil() as u64),
         layers_seen: layers.len(),
         layers_expected,
         free_bytes: free,
         bytes_needed,
         trigger: live.trigger.clone(),
+        health: live.health.clone(),
+        disk: live.disk.clone(),
         pacs: super::pushlog::summaries(dir),
         inspection_flags: super::inspection::open_flags(dir),
         warning,
@@ -349,7 +583,26 @@ impl fmt::Display for StatusReport {
             if let Some(needed) = self.bytes_needed {
                 write!(f, ", the rest of the build needs about {}", gb(needed))?;
             }
+            if let Some(per_layer) = self.bytes_per_layer {
+                let kinds: Vec<String> = self
+                    .bytes_by_kind
+                    .iter()
+                    .filter(|(_, &b)| b > 0)
+                    .map(|(k, &b)| format!("{k} {}", mb(b)))
+                    .collect();
+                write!(
+                    f,
+                    " ({} per layer; written so far: {})",
+                    mb(per_layer),
+                    kinds.join(", ")
+                )?;
+            }
             writeln!(f)?;
+        }
+        for part in HEALTH_PARTS {
+            if let Some(h) = self.health.get(part) {
+                writeln!(f, "  {part:<10} {:<7} {}", h.state, h.summary)?;
+            }
         }
         for push in &self.pacs {
             write!(f, "{push}")?;

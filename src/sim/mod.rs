@@ -6,6 +6,7 @@
 
 pub mod camera;
 pub mod demo;
+pub mod disk;
 pub mod inject;
 pub mod lights;
 pub mod trigger;

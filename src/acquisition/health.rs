@@ -1,0 +1,197 @@
+//! Each part's health (trigger, camera, lights, processing, disk) as status.json, `layerwise
+//! status` and systemd's STATUS= show it: a state, one line on what it does, and the warning an
+//! operator must act on.
+
+use crate::build_dir::status::{DiskHealth, Health, HealthState, TriggerHealth};
+use crate::shot::Shot;
+use chrono::{DateTime, Utc};
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// What the sequencer saw of the camera and the lights this run.
+#[derive(Debug, Default)]
+pub(super) struct Parts {
+    last_capture: Option<DateTime<Utc>>,
+    retries: u64,
+    failed: u64,
+    /// The last capture failure, until the next frame succeeds.
+    camera_error: Option<(Shot, String)>,
+    /// The last switching failure, until the next switch succeeds.
+    lights_error: Option<String>,
+}
+
+/// What the processing worker reports.
+pub(super) struct Processing {
+    pub(super) backlog: usize,
+    pub(super) lag: Duration,
+    pub(super) paused: bool,
+}
+
+fn age(now: DateTime<Utc>, at: DateTime<Utc>) -> String {
+    let seconds = (now - at).num_seconds().max(0);
+    match seconds {
+        0..=119 => format!("{seconds} s ago"),
+        120..=7199 => format!("{} min ago", seconds / 60),
+        _ => format!("{} h ago", seconds / 3600),
+    }
+}
+
+impl Parts {
+    pub(super) fn captured(&mut self, at: DateTime<Utc>, attempts: u32) {
+        self.last_capture = Some(at);
+        self.retries += u64::from(attempts.saturating_sub(1));
+        self.camera_error = None;
+    }
+
+    pub(super) fn capture_failed(&mut self, shot: Shot, error: String) {
+        self.failed += 1;
+        self.camera_error = Some((shot, error));
+    }
+
+    pub(super) fn lights_switched(&mut self, result: Result<(), String>) {
+        self.lights_error = result.err();
+    }
+
+    fn camera(&self, now: DateTime<Utc>) -> Health {
+        let summary = format!(
+            "last capture {}, {} retries, {} failed this run",
+            self.last_capture
+                .map_or_else(|| "none yet".into(), |at| age(now, at)),
+            self.retries,
+            self.failed
+        );
+        match &self.camera_error {
+            Some((shot, error)) => Health::raise(
+                HealthState::Error,
+                summary,
+                format!(
+                    "camera failed on {}: {error}; check its power, USB cable and settings \
+                     (frames are recorded as missing until it answers)",
+                    shot.stem()
+                ),
+            ),
+            None => Health::ok(summary),
+        }
+    }
+
+    fn lights(&self) -> Health {
+        match &self.lights_error {
+            Some(error) => Health::raise(
+                HealthState::Error,
+                "switching failed".into(),
+                format!("lights: {error}; check the relay board or GPIO lines and their wiring"),
+            ),
+            None => Health::ok("switching".into()),
+        }
+    }
+
+    /// Every part's health now.
+    pub(super) fn health(
+        &self,
+        now: DateTime<Utc>,
+        trigger: &TriggerHealth,
+        processing: &Processing,
+        disk: &DiskHealth,
+    ) -> BTreeMap<String, Health> {
+        BTreeMap::from([
+            ("trigger".to_string(), trigger_health(trigger, now)),
+            ("camera".to_string(), self.camera(now)),
+            ("lights".to_string(), self.lights()),
+            ("processing".to_string(), processing_health(processing)),
+            ("disk".to_string(), disk.health()),
+        ])
+    }
+}
+
+fn trigger_health(trigger: &TriggerHealth, now: DateTime<Utc>) -> Health {
+    let summary = format!(
+        "{} {}, last signal {}{}",
+        trigger.source,
+        if trigger.connected {
+            "connected"
+        } else {
+            "NOT CONNECTED"
+        },
+        trigger
+            .last_signal_at
+            .map_or_else(|| "none yet".into(), |at| age(now, at)),
+        if trigger.reopen_attempts > 0 {
+            format!(", {} reopen attempts", trigger.reopen_attempts)
+        } else {
+            String::new()
+        }
+    );
+    match trigger.warning() {
+        Some(warning) => Health::raise(HealthState::Error, summary, warning),
+        None => Health::ok(summary),
+    }
+}
+
+fn processing_health(p: &Processing) -> Health {
+    let summary = format!(
+        "backlog {} frames, lag {:.1} s",
+        p.backlog,
+        p.lag.as_secs_f64()
+    );
+    if p.paused {
+        Health::raise(
+            HealthState::Warning,
+            summary,
+            format!(
+                "processing paused for disk space: {} frames wait for their DICOM series \
+                 (caught up once space returns)",
+                p.backlog
+            ),
+        )
+    } else {
+        Health::ok(summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shot::{Light, Phase};
+
+    #[test]
+    fn a_failed_camera_and_a_lost_trigger_raise_errors_until_they_recover() {
+        let now = Utc::now();
+        let mut parts = Parts::default();
+        let trigger = TriggerHealth {
+            source: "serial /dev/ttyUSB0".into(),
+            connected: false,
+            reopen_attempts: 3,
+            last_error: Some("No such file or directory".into()),
+            last_signal_at: Some(now - chrono::Duration::seconds(42)),
+            ..TriggerHealth::default()
+        };
+        let processing = Processing {
+            backlog: 2,
+            lag: Duration::from_millis(1500),
+            paused: false,
+        };
+        let shot = Shot {
+            layer: 7,
+            phase: Phase::Post,
+            light: Light::Top,
+        };
+        parts.capture_failed(shot, "busy".into());
+        let health = parts.health(now, &trigger, &processing, &DiskHealth::default());
+        assert_eq!(health["trigger"].state, HealthState::Error);
+        assert!(health["trigger"]
+            .summary
+            .contains("last signal 42 s ago, 3 reopen attempts"));
+        assert_eq!(health["camera"].state, HealthState::Error);
+        assert!(health["camera"]
+            .warning
+            .as_ref()
+            .unwrap()
+            .contains("L00007_post_top"));
+        assert_eq!(health["processing"].summary, "backlog 2 frames, lag 1.5 s");
+        assert_eq!(health["disk"].state, HealthState::Ok);
+        parts.captured(now, 3);
+        let health = parts.health(now, &trigger, &processing, &DiskHealth::default());
+        assert_eq!(health["camera"].state, HealthState::Ok);
+        assert!(health["camera"].summary.contains("2 retries, 1 failed"));
+    }
+}
