@@ -325,8 +325,11 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
         "{status}"
     );
 
+    let plot = tmp.path().join("plot.png");
     let again = common::layerwise()
-        .args(["inspect", "--json", "--build"])
+        .args(["inspect", "--json", "--plot"])
+        .arg(&plot)
+        .arg("--build")
         .arg(&dir)
         .stdout_ok();
     let offline: Vec<InspectionRecord> = again
@@ -345,6 +348,34 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
         records.iter().map(|r| r.parts.clone()).collect()
     };
     assert_eq!(parts(&offline), parts(&live));
+    assert_flags_marked(&plot, &offline);
+}
+
+/// The PNG decodes, and in every panel the columns of the layers with a flag at warning or above
+/// hold the flag colour while the others do not.
+fn assert_flags_marked(plot: &std::path::Path, records: &[InspectionRecord]) {
+    use layerwise::inspect::plot;
+    let image = image::open(plot).expect("the PNG decodes").to_rgb8();
+    let flagged: Vec<u32> = records
+        .iter()
+        .filter(|r| r.flags.iter().any(|f| f.severity >= Severity::Warning))
+        .map(|r| r.layer)
+        .collect();
+    assert!(flagged.contains(&6), "{flagged:?}");
+    for r in records {
+        let x = plot::layer_x(records, r.layer).round() as u32;
+        for (top, bottom) in plot::panel_rows() {
+            let red = (top as u32 + 2..bottom as u32 - 2)
+                .filter(|&y| image.get_pixel(x, y).0 == plot::FLAG)
+                .count();
+            let height = (bottom - top) as usize;
+            if flagged.contains(&r.layer) {
+                assert!(red > height / 2, "layer {}: {red} red pixels", r.layer);
+            } else {
+                assert_eq!(red, 0, "layer {} is not flagged", r.layer);
+            }
+        }
+    }
 }
 
 #[test]
@@ -368,4 +399,121 @@ fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
         "{text}"
     );
     assert!(!tmp.path().join("demo").exists(), "nothing written");
+}
+
+/// The alarm through the binary: a part left unfused on layer 4 raises it, the printer gets one
+/// message on its serial line (a pty pair), `status` says it is raised, `layerwise alarm ack`
+/// acknowledges it and the running daemon switches the stack light off.
+#[test]
+fn the_alarm_messages_the_printer_once_and_an_operator_acknowledges_it() {
+    use common::pty::{PtyPair, PtyReader};
+    use common::Run;
+    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
+    use std::time::Duration;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let pair = PtyPair::start(tmp.path());
+    let printer = PtyReader::start(&pair.printer);
+    let dir = tmp.path().join("build");
+    let layers = 5;
+    let mut config = common::calibrated_config(&dir, layers, layerwise::dicom::Compression::None);
+    let (w, h) = (640, 427);
+    if let CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = w;
+        mock.height = h;
+        mock.inject = vec!["no-fusion@4/part=3".parse().expect("injection")];
+    }
+    config.calibration.file = Some(common::write_true_calibration(
+        tmp.path(),
+        &mock_camera::Homography::oblique_view(w, h),
+    ));
+    let vectors = tmp.path().join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    // The printer keeps the daemon waiting after the last layer, as a real build between layers.
+    let script: String = (1..=layers)
+        .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
+        .collect::<String>()
+        + "WAIT 120000\n";
+    let script_path = tmp.path().join("printer.txt");
+    std::fs::write(&script_path, script).expect("script");
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script_path);
+    }
+    config.inspection.alarm.output = LightsConfig::Mock;
+    config.inspection.alarm.serial = Some(layerwise::config::inspection::AlarmSerialConfig {
+        port: pair.daemon.display().to_string(),
+        baud: 9600,
+        message: "LAYERWISE ALARM {layer} {kind}\n".into(),
+    });
+    let path = tmp.path().join("layerwise.toml");
+    common::write_config(&config, &path);
+    let log_path = tmp.path().join("daemon.log");
+    let child = common::spawn_build(
+        &path,
+        std::process::Stdio::from(std::fs::File::create(&log_path).expect("log")),
+    );
+
+    printer.wait_for("\n", Duration::from_secs(120));
+    let status = || {
+        common::layerwise()
+            .args(["status", "--build"])
+            .arg(&dir)
+            .stdout_ok()
+    };
+    let raised = status();
+    assert!(
+        raised.contains("alarm      RAISED since layer 4") && raised.contains("under_fusion"),
+        "{raised}"
+    );
+    let ack = common::layerwise()
+        .args([
+            "alarm",
+            "ack",
+            "--by",
+            "ana",
+            "--note",
+            "build stopped",
+            "--build",
+        ])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(ack.contains("acknowledged by ana at"), "{ack}");
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while !std::fs::read_to_string(&log_path)
+        .unwrap_or_default()
+        .contains("inspection alarm off: acknowledged by ana")
+    {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the daemon did not pick up the acknowledgement: {}",
+            std::fs::read_to_string(&log_path).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let after = status();
+    assert!(
+        after.contains("alarm      acknowledged by ana at")
+            && after.contains("(raised at layer 4): build stopped"),
+        "{after}"
+    );
+    // A second acknowledgement has nothing to acknowledge.
+    let again = common::layerwise()
+        .args(["alarm", "ack", "--build"])
+        .arg(&dir)
+        .output()
+        .expect("runs");
+    assert!(
+        common::assert_exit_1(&again).contains("the alarm is not raised"),
+        "{again:?}"
+    );
+    let out = common::terminate(child);
+    common::assert_success(&out);
+    let log = std::fs::read_to_string(&log_path).expect("log");
+    assert!(log.contains("inspection alarm ON: layer 4"), "{log}");
+    assert_eq!(
+        printer.text(),
+        "LAYERWISE ALARM 4 under_fusion\n",
+        "one message for the one raise"
+    );
+    pair.stop();
 }
