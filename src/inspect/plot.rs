@@ -117,7 +117,13 @@ fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
             let path: Vec<(f64, f64)> = points.iter().map(|(l, v)| (x_of(*l), y_of(*v))).collect();
             canvas.polyline(&path, colour, *part);
             let label_y = y0 + 14.0 + 12.0 * i as f64;
-            canvas.text(WIDTH - 70.0, label_y, &format!("part {part}"), colour, false);
+            canvas.text(
+                WIDTH - 70.0,
+                label_y,
+                &format!("part {part}"),
+                colour,
+                false,
+            );
         }
         canvas.text(LEFT, y1 + 14.0, &format!("layer {l0}"), INK, false);
         canvas.text(WIDTH - RIGHT, y1 + 14.0, &format!("layer {l1}"), INK, true);
@@ -213,7 +219,11 @@ impl Canvas for Raster {
         for pair in points.windows(2) {
             // Two pixels wide, so a line reads at a glance.
             self.line(pair[0], pair[1], colour);
-            self.line((pair[0].0, pair[0].1 + 1.0), (pair[1].0, pair[1].1 + 1.0), colour);
+            self.line(
+                (pair[0].0, pair[0].1 + 1.0),
+                (pair[1].0, pair[1].1 + 1.0),
+                colour,
+            );
         }
     }
 }
@@ -227,8 +237,9 @@ pub fn png(records: &[InspectionRecord]) -> Result<Vec<u8>, image::ImageError> {
     ));
     draw(records, &mut canvas);
     let mut bytes = Vec::new();
-    canvas
-        .0
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)?;
+    canvas.0.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )?;
     Ok(bytes)
 }
