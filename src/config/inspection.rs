@@ -107,7 +107,8 @@ pub struct InspectionConfig {
     /// Spatter / stray scan: smallest fused blob away from every part, mm².
     #[serde(default = "d_spatter")]
     pub spatter_min_mm2: f64,
-    /// Drift: robust z of a part metric against the median/MAD of its earlier layers.
+    /// Drift: robust z of a part metric against the median/MAD of its earlier layers (a layer half
+    /// this far off does not enter the baseline).
     #[serde(default = "d_drift_z")]
     pub drift_z: f64,
     /// Drift: layers in the running baseline; the detector waits for `drift_min_layers`.
@@ -339,16 +340,20 @@ pub enum InjectKind {
     WideFusion,
     /// Fused spots away from every part.
     Spatter,
+    /// A part's post-scan grey level changes slowly: a linear ramp over the injection's layers,
+    /// reaching `c` grey levels on its last one (a drifting laser power or focus).
+    Drift,
 }
 
 impl InjectKind {
-    pub const ALL: [InjectKind; 6] = [
+    pub const ALL: [InjectKind; 7] = [
         InjectKind::Streak,
         InjectKind::ShortFeed,
         InjectKind::Elevation,
         InjectKind::NoFusion,
         InjectKind::WideFusion,
         InjectKind::Spatter,
+        InjectKind::Drift,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -358,6 +363,7 @@ impl InjectKind {
             InjectKind::NoFusion => "no-fusion",
             InjectKind::WideFusion => "wide-fusion",
             InjectKind::Spatter => "spatter",
+            InjectKind::Drift => "drift",
         }
     }
     /// Parameters each kind takes (`key=value`), with their defaults.
@@ -380,6 +386,8 @@ impl InjectKind {
             InjectKind::WideFusion => &[("part", 3.0), ("d", 1.5)],
             // spots, their radius in mm, and the center of the cloud.
             InjectKind::Spatter => &[("n", 4.0), ("r", 0.8), ("x", 0.0), ("y", 0.0)],
+            // demo part, change of its post-scan grey level reached on the last layer.
+            InjectKind::Drift => &[("part", 3.0), ("c", 40.0)],
         }
     }
 }

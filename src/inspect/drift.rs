@@ -1,6 +1,8 @@
 //! Drift: each part's metrics against a running baseline of its earlier layers (median and MAD
-//! of the last `drift_window` layers that raised no flag on the part), so a slow change shows
-//! before it becomes a crash.
+//! of the last `drift_window` layers that raised no flag on the part and stayed within half the
+//! drift threshold of it), so a slow change shows before it becomes a crash: the layers of a ramp
+//! stop entering the baseline once they are half-way to a flag, so the ramp cannot carry the
+//! baseline along (nor widen it for the next one).
 
 use super::detect::robust;
 use crate::build_dir::inspection::PartMetrics;
@@ -34,14 +36,17 @@ pub struct Drifted {
 pub struct Baseline {
     window: usize,
     min_layers: usize,
+    /// A layer with a metric this many robust sigmas from the baseline does not enter it.
+    admit_z: f64,
     history: BTreeMap<i64, VecDeque<[f64; 4]>>,
 }
 
 impl Baseline {
-    pub fn new(window: usize, min_layers: usize) -> Baseline {
+    pub fn new(window: usize, min_layers: usize, admit_z: f64) -> Baseline {
         Baseline {
             window,
             min_layers,
+            admit_z,
             history: BTreeMap::new(),
         }
     }
@@ -77,8 +82,12 @@ impl Baseline {
         out
     }
 
-    /// Adds a layer's metrics of a part (call for layers that raised no flag on it).
+    /// Adds a layer's metrics of a part (call for layers that raised no flag on it), unless one of
+    /// them is `admit_z` or more from the baseline.
     pub fn push(&mut self, m: &PartMetrics) {
+        if !self.check(m, self.admit_z).is_empty() {
+            return;
+        }
         let h = self.history.entry(m.part).or_default();
         h.push_back(values(m));
         while h.len() > self.window {
@@ -103,7 +112,7 @@ mod tests {
 
     #[test]
     fn a_step_away_from_a_noisy_baseline_is_drift_and_noise_is_not() {
-        let mut b = Baseline::new(30, 10);
+        let mut b = Baseline::new(30, 10, 5.0);
         for i in 0..9 {
             b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
         }
@@ -118,5 +127,21 @@ mod tests {
         assert_eq!(d[0].metric, "post_contrast");
         assert!(d[0].z < -10.0, "{d:?}");
         assert!(b.check(&metrics(2, 18.0), 10.0).is_empty(), "another part");
+    }
+
+    #[test]
+    fn a_ramp_does_not_carry_the_baseline_along() {
+        let mut b = Baseline::new(30, 10, 5.0);
+        for i in 0..30 {
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
+        }
+        // 1 grey level per layer: half-way to a flag after a few layers, flagged before 20.
+        let flagged = (1..=20).find(|&k| {
+            let m = metrics(1, 30.0 - f64::from(k));
+            let drifted = !b.check(&m, 10.0).is_empty();
+            b.push(&m);
+            drifted
+        });
+        assert!(flagged.is_some_and(|k| k <= 10), "{flagged:?}");
     }
 }

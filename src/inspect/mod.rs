@@ -94,7 +94,11 @@ impl Inspector {
             pending: BTreeMap::new(),
             done: BTreeSet::new(),
             references: VecDeque::new(),
-            baseline: drift::Baseline::new(cfg.drift_window, cfg.drift_min_layers),
+            baseline: drift::Baseline::new(
+                cfg.drift_window,
+                cfg.drift_min_layers,
+                cfg.drift_z / 2.0,
+            ),
             parts: BTreeMap::new(),
         }
     }
