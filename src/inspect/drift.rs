@@ -1,8 +1,9 @@
 //! Drift: each part's metrics against a running baseline of its earlier layers (median and MAD
-//! of the last `drift_window` layers that raised no flag on the part and stayed within half the
-//! drift threshold of it), so a slow change shows before it becomes a crash: the layers of a ramp
-//! stop entering the baseline once they are half-way to a flag, so the ramp cannot carry the
-//! baseline along (nor widen it for the next one).
+//! of the last `drift_window` layers that raised no flag on the part), so a slow change shows
+//! before it becomes a crash. A layer half-way to a drift flag is held back: it joins the baseline
+//! when a later layer is back near it (it was noise), and is dropped when the part is flagged
+//! (it was the run-up of a drift), so a ramp cannot carry the baseline along nor widen it for the
+//! next one.
 
 use super::detect::robust;
 use crate::build_dir::inspection::PartMetrics;
@@ -39,6 +40,8 @@ pub struct Baseline {
     /// A layer with a metric this many robust sigmas from the baseline does not enter it.
     admit_z: f64,
     history: BTreeMap<i64, VecDeque<[f64; 4]>>,
+    /// Layers held back, per part.
+    held: BTreeMap<i64, Vec<[f64; 4]>>,
 }
 
 impl Baseline {
@@ -48,6 +51,7 @@ impl Baseline {
             min_layers,
             admit_z,
             history: BTreeMap::new(),
+            held: BTreeMap::new(),
         }
     }
 
@@ -82,14 +86,26 @@ impl Baseline {
         out
     }
 
-    /// Adds a layer's metrics of a part (call for layers that raised no flag on it), unless one of
-    /// them is `admit_z` or more from the baseline.
-    pub fn push(&mut self, m: &PartMetrics) {
-        if !self.check(m, self.admit_z).is_empty() {
+    /// Adds a layer's metrics of a part: a layer that raised a flag on the part never, and drops
+    /// the layers held back; one `admit_z` or more from the baseline is held back; any other
+    /// joins, with the layers held back before it.
+    pub fn push(&mut self, m: &PartMetrics, flagged: bool) {
+        let off = !flagged && !self.check(m, self.admit_z).is_empty();
+        let held = self.held.entry(m.part).or_default();
+        if flagged {
+            held.clear();
             return;
         }
+        if off {
+            if held.len() < self.window {
+                held.push(values(m));
+            }
+            return;
+        }
+        let mut joining = std::mem::take(held);
+        joining.push(values(m));
         let h = self.history.entry(m.part).or_default();
-        h.push_back(values(m));
+        h.extend(joining);
         while h.len() > self.window {
             h.pop_front();
         }
@@ -114,13 +130,13 @@ mod tests {
     fn a_step_away_from_a_noisy_baseline_is_drift_and_noise_is_not() {
         let mut b = Baseline::new(30, 10, 5.0);
         for i in 0..9 {
-            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3), false);
         }
         assert!(b.check(&metrics(1, 5.0), 10.0).is_empty(), "warming up");
         for i in 0..20 {
             let m = metrics(1, 30.0 + (i % 3) as f64 * 0.3);
             assert!(b.check(&m, 10.0).is_empty());
-            b.push(&m);
+            b.push(&m, false);
         }
         let d = b.check(&metrics(1, 18.0), 10.0);
         assert_eq!(d.len(), 1);
@@ -133,15 +149,24 @@ mod tests {
     fn a_ramp_does_not_carry_the_baseline_along() {
         let mut b = Baseline::new(30, 10, 5.0);
         for i in 0..30 {
-            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3), false);
         }
         // 1 grey level per layer: half-way to a flag after a few layers, flagged before 20.
         let flagged = (1..=20).find(|&k| {
             let m = metrics(1, 30.0 - f64::from(k));
             let drifted = !b.check(&m, 10.0).is_empty();
-            b.push(&m);
+            b.push(&m, drifted);
             drifted
         });
         assert!(flagged.is_some_and(|k| k <= 10), "{flagged:?}");
+        assert_eq!(b.held[&1], Vec::<[f64; 4]>::new(), "the run-up is dropped");
+        // A lone outlier is noise: it joins once the next layer is back.
+        let before = b.history[&1].len();
+        b.push(&metrics(1, 26.0), false);
+        assert_eq!(b.held[&1].len(), 1);
+        b.push(&metrics(1, 30.3), false);
+        assert!(b.held[&1].is_empty());
+        assert_eq!(b.history[&1].len(), (before + 2).min(30));
+        assert!(b.history[&1].iter().any(|v| v[1] == 26.0));
     }
 }
