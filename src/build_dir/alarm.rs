@@ -4,12 +4,11 @@
 //! `layerwise status` shows the state the history ends in.
 
 use super::inspection::{FlagKind, Severity};
-use super::journal::{append_line, open_lines, scan_lines, JournalError};
+use super::journal::LinesLog;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::fmt;
-use std::fs::File;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// One change of the alarm.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -134,62 +133,7 @@ impl fmt::Display for AlarmState {
 }
 
 /// The alarm history of a build, open for appending.
-pub struct AlarmLog {
-    path: PathBuf,
-    file: File,
-    fsync: bool,
-}
-
-impl AlarmLog {
-    /// Opens (creating) the history and returns its events; a torn last record is cut off.
-    pub fn open(path: &Path, fsync: bool) -> Result<(AlarmLog, Vec<AlarmEvent>), JournalError> {
-        let mut events = Vec::new();
-        let file = open_lines(path, |e| events.push(e))?;
-        let path = path.to_path_buf();
-        Ok((AlarmLog { path, file, fsync }, events))
-    }
-
-    /// Opens the history for appending without reading or repairing it (another process, the
-    /// daemon, may be writing it).
-    pub fn append_only(path: &Path) -> Result<AlarmLog, JournalError> {
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(path)
-            .map_err(|source| JournalError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        let path = path.to_path_buf();
-        Ok(AlarmLog {
-            path,
-            file,
-            fsync: true,
-        })
-    }
-
-    /// The events of a history (none when there is no file; a torn last one ignored).
-    pub fn read(path: &Path) -> Result<Vec<AlarmEvent>, JournalError> {
-        let mut file = match File::open(path) {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(source) => {
-                return Err(JournalError::Io {
-                    path: path.to_path_buf(),
-                    source,
-                })
-            }
-        };
-        let mut events = Vec::new();
-        scan_lines(path, &mut file, |e| events.push(e))?;
-        Ok(events)
-    }
-
-    /// Appends one event as one line, in one write.
-    pub fn append(&mut self, event: &AlarmEvent) -> Result<(), JournalError> {
-        append_line(&mut self.file, &self.path, self.fsync, event)
-    }
-}
+pub type AlarmLog = LinesLog<AlarmEvent>;
 
 /// The alarm state of a build (`None` when it never had an alarm history).
 pub fn state(dir: &Path) -> Option<AlarmState> {

@@ -12,11 +12,18 @@ use std::collections::{BTreeMap, VecDeque};
 /// The metrics followed, by name.
 pub const METRICS: [&str; 4] = ["post_mean", "post_contrast", "fused_fraction", "pre_mean"];
 
+/// The followed metrics of a part; the fused fraction only when the part is wide enough to judge
+/// (it has a core), since a part a cell or two wide gains or loses half its fused cells as its
+/// edges move across the grid.
 fn values(m: &PartMetrics) -> [f64; 4] {
     [
         m.post_mean,
         m.post_contrast,
-        m.fused_fraction,
+        if m.unfused.is_some() {
+            m.fused_fraction
+        } else {
+            f64::NAN
+        },
         m.pre_mean.unwrap_or(f64::NAN),
     ]
 }
@@ -122,6 +129,7 @@ mod tests {
             post_mean: 100.0,
             post_contrast: contrast,
             fused_fraction: 0.97,
+            unfused: Some(0.0),
             ..PartMetrics::default()
         }
     }
