@@ -134,17 +134,15 @@ impl Alarm {
                     message: flag.message.clone(),
                 });
             }
-            None if self.on && !self.latch => {
-                if self.switch(false) {
-                    info!(
-                        layer = record.layer,
-                        "inspection alarm off: layer {} is clean", record.layer
-                    );
-                    self.journal(AlarmEvent::Cleared {
-                        at: now,
-                        layer: record.layer,
-                    });
-                }
+            None if self.on && !self.latch && self.switch(false) => {
+                info!(
+                    layer = record.layer,
+                    "inspection alarm off: layer {} is clean", record.layer
+                );
+                self.journal(AlarmEvent::Cleared {
+                    at: now,
+                    layer: record.layer,
+                });
             }
             _ => {}
         }
