@@ -75,6 +75,7 @@ fn flag_kind(kind: InjectKind) -> FlagKind {
         InjectKind::NoFusion => FlagKind::UnderFusion,
         InjectKind::WideFusion => FlagKind::OverFusion,
         InjectKind::Spatter => FlagKind::Spatter,
+        InjectKind::Drift => FlagKind::Drift,
     }
 }
 
@@ -129,6 +130,15 @@ fn injections() -> Vec<MockInjection> {
             -80.0 + 14.0 * f,
             if k % 2 == 0 { -20.0 } else { 90.0 }
         ));
+        // A ramp over the 8 layers after the slot's elevation, on a part no other injection
+        // touches then, brighter or darker.
+        list.push(format!(
+            "drift@{}..{}/part={}/c={}",
+            layer + 9,
+            layer + 16,
+            if k % 2 == 0 { 3 } else { 1 },
+            if k % 2 == 0 { 1.0 } else { -1.0 } * (44.0 + 4.0 * (f % 3.0))
+        ));
     }
     list.into_iter()
         .map(|s| s.parse().expect("injection"))
@@ -165,21 +175,23 @@ fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
     for kind in InjectKind::ALL {
         let of_kind: Vec<&MockInjection> = list.iter().filter(|i| i.kind == kind).collect();
         let want = flag_kind(kind);
-        let found = of_kind
-            .iter()
-            .filter(|i| {
-                by_layer
-                    .get(&i.first)
-                    .is_some_and(|r| r.flags.iter().any(|f| f.kind == want))
+        // A single-layer anomaly is found on its layer; a drift somewhere along its ramp, on
+        // its part, before the ramp ends.
+        let hit = |i: &MockInjection| {
+            let part = (kind == InjectKind::Drift).then(|| i.get("part") as i64);
+            let last = if part.is_some() { i.last } else { i.first };
+            (i.first..=last).any(|l| {
+                by_layer.get(&l).is_some_and(|r| {
+                    r.flags
+                        .iter()
+                        .any(|f| f.kind == want && (part.is_none() || f.part == part))
+                })
             })
-            .count();
+        };
+        let found = of_kind.iter().filter(|i| hit(i)).count();
         let missed: Vec<String> = of_kind
             .iter()
-            .filter(|i| {
-                !by_layer
-                    .get(&i.first)
-                    .is_some_and(|r| r.flags.iter().any(|f| f.kind == want))
-            })
+            .filter(|i| !hit(i))
             .map(|i| i.to_string())
             .collect();
         let false_clean = clean
@@ -203,6 +215,21 @@ fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
         if !missed.is_empty() {
             println!("  missed: {}", missed.join(", "));
         }
+        for i in of_kind
+            .iter()
+            .filter(|i| !hit(i) && i.kind == InjectKind::Drift)
+        {
+            let part = i.get("part") as i64;
+            for l in i.first.saturating_sub(3)..=i.last {
+                let Some(r) = by_layer.get(&l) else { continue };
+                let m = r.parts.iter().find(|m| m.part == part);
+                let flags: Vec<String> = r.flags.iter().map(|f| f.message.clone()).collect();
+                println!(
+                    "    layer {l}: part {part} post_mean {:?} flags {flags:?}",
+                    m.map(|m| m.post_mean)
+                );
+            }
+        }
         assert!(
             of_kind.len() >= 10,
             "{kind:?}: only {} injections",
@@ -215,12 +242,6 @@ fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
             failures.push(format!("{}: {false_other} false alarms", kind.name()));
         }
     }
-    let drift_clean = clean
-        .iter()
-        .flat_map(|r| &r.flags)
-        .filter(|f| f.kind == FlagKind::Drift)
-        .count();
-    println!("| drift (no injection) | – | – | – | {drift_clean} in {LAYERS} layers | – |");
     let ms: Vec<f64> = records.iter().map(|r| r.ms).collect();
     println!(
         "inspection per layer (3 views on {} x {} cells): median {:.1} ms",
@@ -245,13 +266,19 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 /// The daemon through the binary: a part left unfused on layer 6 shows in inspection.jsonl, as a
-/// WARN line in the log, in `layerwise status`, switches the (mock) stack light on, and
-/// `layerwise inspect --build` over the stored build finds the same flags.
+/// WARN line in the log, in `layerwise status`, and raises the alarm: the (mock) stack light goes
+/// on, the printer gets one message on its serial line (a pty pair), `status` says it is raised,
+/// `layerwise alarm ack` acknowledges it and the running daemon switches the light off. Then
+/// `layerwise inspect --build` over the stored build finds the same flags and plots them (PNG).
 #[test]
-fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
+fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agrees() {
+    use common::pty::{PtyPair, PtyReader};
     use common::Run;
-    use layerwise::config::{CameraConfig, LightsConfig};
+    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
+    use std::time::{Duration, Instant};
     let tmp = tempfile::tempdir().expect("tmp");
+    let pair = PtyPair::start(tmp.path());
+    let printer = PtyReader::start(&pair.printer);
     let dir = tmp.path().join("build");
     let layers = 8;
     let mut config = common::calibrated_config(&dir, layers, layerwise::dicom::Compression::None);
@@ -268,11 +295,102 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
     let vectors = tmp.path().join("demo.cli");
     layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
     config.build.vectors = Some(vectors);
+    // The printer keeps the daemon waiting after the last layer, as a real build between layers.
+    let script: String = (1..=layers)
+        .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
+        .collect::<String>()
+        + "WAIT 120000\n";
+    let script_path = tmp.path().join("printer.txt");
+    std::fs::write(&script_path, script).expect("script");
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script_path);
+    }
     config.inspection.alarm.output = LightsConfig::Mock;
+    config.inspection.alarm.serial = Some(layerwise::config::inspection::AlarmSerialConfig {
+        port: pair.daemon.display().to_string(),
+        baud: 9600,
+        message: "LAYERWISE ALARM {layer} {kind}\n".into(),
+    });
     let path = tmp.path().join("layerwise.toml");
     common::write_config(&config, &path);
-    let out = common::run_build(&path);
-    let log = String::from_utf8_lossy(&out.stderr).into_owned();
+    let log_path = tmp.path().join("daemon.log");
+    let child = common::spawn_build(
+        &path,
+        std::process::Stdio::from(std::fs::File::create(&log_path).expect("log")),
+    );
+    let wait_for_log = |text: &str| {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+            if log.contains(text) {
+                return log;
+            }
+            assert!(Instant::now() < deadline, "no {text:?} in the log: {log}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+
+    printer.wait_for("\n", Duration::from_secs(120));
+    let status = || {
+        common::layerwise()
+            .args(["status", "--build"])
+            .arg(&dir)
+            .stdout_ok()
+    };
+    let raised = status();
+    assert!(
+        raised.contains("alarm      RAISED since layer 6") && raised.contains("under_fusion"),
+        "{raised}"
+    );
+    let ack = common::layerwise()
+        .args([
+            "alarm",
+            "ack",
+            "--by",
+            "ana",
+            "--note",
+            "build stopped",
+            "--build",
+        ])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(ack.contains("acknowledged by ana at"), "{ack}");
+    wait_for_log("inspection alarm off: acknowledged by ana");
+    let after = status();
+    assert!(
+        after.contains("alarm      acknowledged by ana at")
+            && after.contains("(raised at layer 6): build stopped"),
+        "{after}"
+    );
+    // A second acknowledgement has nothing to acknowledge.
+    let again = common::layerwise()
+        .args(["alarm", "ack", "--build"])
+        .arg(&dir)
+        .output()
+        .expect("runs");
+    assert!(
+        common::assert_exit_1(&again).contains("the alarm is not raised"),
+        "{again:?}"
+    );
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .map_or(0, |r| r.len())
+        < layers as usize
+    {
+        assert!(Instant::now() < deadline, "not every layer inspected");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = common::terminate(child);
+    common::assert_success(&out);
+    assert_eq!(
+        printer.text(),
+        "LAYERWISE ALARM 6 under_fusion\n",
+        "one message for the one raise"
+    );
+    pair.stop();
+    let log = std::fs::read_to_string(&log_path).expect("log");
 
     let live = layerwise::build_dir::inspection::InspectionLog::read(
         &dir.join(layerwise::build_dir::INSPECTION),
@@ -325,8 +443,11 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
         "{status}"
     );
 
+    let plot = tmp.path().join("plot.png");
     let again = common::layerwise()
-        .args(["inspect", "--json", "--build"])
+        .args(["inspect", "--json", "--plot"])
+        .arg(&plot)
+        .arg("--build")
         .arg(&dir)
         .stdout_ok();
     let offline: Vec<InspectionRecord> = again
@@ -345,6 +466,34 @@ fn the_daemon_flags_an_unfused_part_everywhere_and_inspect_agrees() {
         records.iter().map(|r| r.parts.clone()).collect()
     };
     assert_eq!(parts(&offline), parts(&live));
+    assert_flags_marked(&plot, &offline);
+}
+
+/// The PNG decodes, and in every panel the columns of the layers with a flag at warning or above
+/// hold the flag colour while the others do not.
+fn assert_flags_marked(plot: &std::path::Path, records: &[InspectionRecord]) {
+    use layerwise::inspect::plot;
+    let image = image::open(plot).expect("the PNG decodes").to_rgb8();
+    let flagged: Vec<u32> = records
+        .iter()
+        .filter(|r| r.flags.iter().any(|f| f.severity >= Severity::Warning))
+        .map(|r| r.layer)
+        .collect();
+    assert!(flagged.contains(&6), "{flagged:?}");
+    for r in records {
+        let x = plot::layer_x(records, r.layer).round() as u32;
+        for (top, bottom) in plot::panel_rows() {
+            let red = (top as u32 + 2..bottom as u32 - 2)
+                .filter(|&y| image.get_pixel(x, y).0 == plot::FLAG)
+                .count();
+            let height = (bottom - top) as usize;
+            if flagged.contains(&r.layer) {
+                assert!(red > height / 2, "layer {}: {red} red pixels", r.layer);
+            } else {
+                assert_eq!(red, 0, "layer {} is not flagged", r.layer);
+            }
+        }
+    }
 }
 
 #[test]

@@ -3,60 +3,14 @@
 
 mod common;
 
+use common::pty::PtyPair;
 use common::*;
 use layerwise::config::{SerialTriggerConfig, TriggerConfig};
 use layerwise::hardware::trigger::{SerialTrigger, Trigger};
 use layerwise::shot::Phase;
-use std::io::Write;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
+use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-/// A pty pair: `printer` and `daemon` are symlinks to the two slave ends.
-struct PtyPair {
-    socat: Child,
-    printer: PathBuf,
-    daemon: PathBuf,
-}
-
-impl PtyPair {
-    fn start(dir: &Path) -> PtyPair {
-        let printer = dir.join("printer");
-        let daemon = dir.join("daemon");
-        let socat = Command::new("socat")
-            .arg(format!("pty,raw,echo=0,link={}", printer.display()))
-            .arg(format!("pty,raw,echo=0,link={}", daemon.display()))
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("socat is needed for this test: the README's test command installs it (apt-get install socat)");
-        let deadline = Instant::now() + Duration::from_secs(10);
-        while !(printer.exists() && daemon.exists()) {
-            assert!(Instant::now() < deadline, "socat made no pty pair");
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        PtyPair {
-            socat,
-            printer,
-            daemon,
-        }
-    }
-
-    fn send(&self, bytes: &[u8]) {
-        let mut port = std::fs::OpenOptions::new()
-            .write(true)
-            .open(&self.printer)
-            .expect("printer end");
-        port.write_all(bytes).expect("write to the printer end");
-        port.flush().unwrap();
-    }
-
-    fn stop(mut self) {
-        let _ = self.socat.kill();
-        let _ = self.socat.wait();
-        let _ = std::fs::remove_file(&self.printer);
-        let _ = std::fs::remove_file(&self.daemon);
-    }
-}
 
 fn serial_config(port: &Path) -> SerialTriggerConfig {
     SerialTriggerConfig {

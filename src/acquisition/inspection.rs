@@ -4,25 +4,36 @@
 //! flag at or above `inspection.alarm.severity` switches the stack light on. The capture path
 //! never waits for any of it.
 
+use crate::build_dir::alarm::{AlarmEvent, AlarmLog, AlarmState};
 use crate::build_dir::inspection::{InspectionLog, InspectionRecord, Severity};
+use crate::build_dir::JournalError;
 use crate::clock::SharedClock;
-use crate::config::inspection::{AlarmConfig, AlarmSeverity};
+use crate::config::inspection::{AlarmConfig, AlarmSerialConfig, AlarmSeverity};
 use crate::config::Config;
 use crate::hardware::lights::Lights;
+use crate::hardware::message::MessageLink;
 use crate::inspect::{Inspector, Reducer};
 use crate::series::{FrameProcessor, LiveSeries, ProcessError};
 use crate::shot::{Light, Shot};
-use std::path::Path;
-use std::sync::Mutex;
+use chrono::{DateTime, Utc};
+use std::path::{Path, PathBuf};
+use std::sync::{mpsc, Mutex};
+use std::time::Duration;
 use tracing::{error, info, warn};
 
-/// The stack light: one channel of a relay board or GPIO set, on while a flag is open.
+/// The stack light (one channel of a relay board or GPIO set) and the printer message, on while
+/// a flag is open. Its changes go to `alarm.jsonl`; an operator's acknowledgement there switches it
+/// off.
 pub struct Alarm {
     output: Box<dyn Lights>,
     channel: Light,
     level: Severity,
     latch: bool,
     on: bool,
+    message: Option<(Box<dyn MessageLink>, AlarmSerialConfig)>,
+    history: Option<AlarmLog>,
+    /// Events of the history already looked at.
+    seen: usize,
 }
 
 impl Alarm {
@@ -36,32 +47,175 @@ impl Alarm {
             },
             latch: config.latch,
             on: false,
+            message: None,
+            history: None,
+            seen: 0,
         }
     }
 
-    /// Switches on for a record with a flag at the alarm's severity; off after a clean layer
-    /// unless latched.
-    pub fn after_layer(&mut self, record: &InspectionRecord) {
+    /// Also sends `config.serial`'s message through `link` whenever the alarm is raised.
+    pub fn with_message(
+        mut self,
+        link: Option<Box<dyn MessageLink>>,
+        config: &AlarmConfig,
+    ) -> Alarm {
+        self.message = link.zip(config.serial.clone());
+        self
+    }
+
+    /// Journals to `alarm.jsonl` in `build_dir`; a latched alarm the history leaves raised (the
+    /// daemon stopped before anyone acknowledged it) is switched on again.
+    pub fn resume(&mut self, build_dir: &Path, fsync: bool) -> Result<(), JournalError> {
+        let (log, events) = AlarmLog::open(&build_dir.join(crate::build_dir::ALARM), fsync)?;
+        self.history = Some(log);
+        self.seen = events.len();
+        if let AlarmState::Raised { layer, kind, .. } = AlarmState::replay(&events) {
+            if self.latch {
+                warn!(layer, kind = %kind, "inspection alarm still raised from before the restart (acknowledge with `layerwise alarm ack`)");
+                self.switch(true);
+            }
+        }
+        Ok(())
+    }
+
+    fn switch(&mut self, on: bool) -> bool {
+        match self.output.switch(self.channel, on) {
+            Ok(()) => {
+                self.on = on;
+                true
+            }
+            Err(e) => {
+                error!(error = %e, on, "inspection alarm: cannot switch the stack light");
+                false
+            }
+        }
+    }
+
+    fn journal(&mut self, event: AlarmEvent) {
+        if let Some(log) = self.history.as_mut() {
+            match log.append(&event) {
+                Ok(()) => self.seen += 1,
+                Err(e) => error!(error = %e, "inspection alarm: cannot write its history"),
+            }
+        }
+    }
+
+    /// Switches on for a record with a flag at the alarm's severity (and sends the message);
+    /// off after a clean layer unless latched.
+    pub fn after_layer(&mut self, record: &InspectionRecord, now: DateTime<Utc>) {
         let raised = record.flags.iter().find(|f| f.severity >= self.level);
         match raised {
-            Some(flag) if !self.on => match self.output.switch(self.channel, true) {
-                Ok(()) => {
-                    self.on = true;
+            Some(flag) if !self.on => {
+                if self.switch(true) {
                     warn!(layer = record.layer, kind = %flag.kind, channel = %self.channel, "inspection alarm ON: layer {}: {}", record.layer, flag.message);
                 }
-                Err(e) => error!(error = %e, "inspection alarm: cannot switch the stack light on"),
-            },
-            None if self.on && !self.latch => match self.output.switch(self.channel, false) {
-                Ok(()) => {
-                    self.on = false;
-                    info!(
-                        layer = record.layer,
-                        "inspection alarm off: layer {} is clean", record.layer
+                self.on = true;
+                if let Some((link, config)) = self.message.as_mut() {
+                    let text = config.render(
+                        record.layer,
+                        flag.kind.name(),
+                        &flag.severity.to_string(),
+                        flag.part,
                     );
+                    match link.send(text.as_bytes()) {
+                        Ok(()) => {
+                            info!(layer = record.layer, port = %config.port, "inspection alarm: message sent to the printer")
+                        }
+                        Err(e) => {
+                            error!(error = %e, "inspection alarm: the printer did not get the message")
+                        }
+                    }
                 }
-                Err(e) => error!(error = %e, "inspection alarm: cannot switch the stack light off"),
-            },
+                self.journal(AlarmEvent::Raised {
+                    at: now,
+                    layer: record.layer,
+                    kind: flag.kind,
+                    severity: flag.severity,
+                    message: flag.message.clone(),
+                });
+            }
+            None if self.on && !self.latch && self.switch(false) => {
+                info!(
+                    layer = record.layer,
+                    "inspection alarm off: layer {} is clean", record.layer
+                );
+                self.journal(AlarmEvent::Cleared {
+                    at: now,
+                    layer: record.layer,
+                });
+            }
             _ => {}
+        }
+    }
+
+    /// Looks for acknowledgements appended to the history since the last look (by `layerwise
+    /// alarm ack`) and switches off for one.
+    pub fn poll_acknowledgements(&mut self, build_dir: &Path) {
+        if self.history.is_none() {
+            return;
+        }
+        let events = match AlarmLog::read(&build_dir.join(crate::build_dir::ALARM)) {
+            Ok(events) => events,
+            Err(e) => {
+                error!(error = %e, "inspection alarm: cannot read its history");
+                return;
+            }
+        };
+        let new = events.get(self.seen..).unwrap_or_default();
+        self.seen = events.len();
+        for event in new {
+            if let AlarmEvent::Acknowledged { by, .. } = event {
+                if self.on && self.switch(false) {
+                    info!(by = %by, "inspection alarm off: acknowledged by {by}");
+                }
+            }
+        }
+    }
+}
+
+/// The alarm on its own thread: layers' records come in over a channel, acknowledgements are
+/// looked for twice a second, and neither the stack light nor the serial line ever holds up the
+/// processing worker. Dropping it lets the thread finish what it was sent.
+pub struct AlarmThread {
+    sender: Option<mpsc::Sender<InspectionRecord>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl AlarmThread {
+    pub fn spawn(mut alarm: Alarm, build_dir: PathBuf, clock: SharedClock) -> AlarmThread {
+        let (sender, receiver) = mpsc::channel::<InspectionRecord>();
+        let thread = std::thread::Builder::new()
+            .name("alarm".into())
+            .spawn(move || loop {
+                let message = receiver.recv_timeout(Duration::from_millis(500));
+                if let Ok(record) = &message {
+                    alarm.after_layer(record, clock.now());
+                }
+                alarm.poll_acknowledgements(&build_dir);
+                if message == Err(mpsc::RecvTimeoutError::Disconnected) {
+                    break;
+                }
+            })
+            .map_err(|e| error!(error = %e, "inspection alarm: cannot start its thread"))
+            .ok();
+        AlarmThread {
+            sender: Some(sender),
+            thread,
+        }
+    }
+
+    pub fn after_layer(&self, record: &InspectionRecord) {
+        if let Some(sender) = &self.sender {
+            let _ = sender.send(record.clone());
+        }
+    }
+}
+
+impl Drop for AlarmThread {
+    fn drop(&mut self) {
+        self.sender.take();
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
         }
     }
 }
@@ -72,7 +226,7 @@ pub struct InspectingSeries {
     reducer: Reducer,
     inspector: Mutex<Inspector>,
     log: Mutex<InspectionLog>,
-    alarm: Mutex<Alarm>,
+    alarm: AlarmThread,
     clock: SharedClock,
 }
 
@@ -112,12 +266,15 @@ impl InspectingSeries {
             );
         }
         inspector.resume(&done);
+        let mut alarm = alarm;
+        alarm.resume(build_dir, config.storage.fsync)?;
+        let alarm = AlarmThread::spawn(alarm, build_dir.to_path_buf(), clock.clone());
         Ok(InspectingSeries {
             live,
             reducer: inspector.reducer(),
             inspector: Mutex::new(inspector),
             log: Mutex::new(log),
-            alarm: Mutex::new(alarm),
+            alarm,
             clock,
         })
     }
@@ -136,9 +293,7 @@ impl InspectingSeries {
                 error!(error = %e, layer = record.layer, "inspection: cannot write the record");
             }
         }
-        if let Ok(mut alarm) = self.alarm.lock() {
-            alarm.after_layer(record);
-        }
+        self.alarm.after_layer(record);
     }
 }
 
@@ -172,6 +327,7 @@ mod tests {
     use super::*;
     use crate::build_dir::inspection::{Flag, FlagKind};
     use crate::hardware::lights::LightsError;
+    use crate::hardware::message::MessageError;
     use std::sync::{Arc, Mutex};
 
     /// Records what it is told.
@@ -187,10 +343,23 @@ mod tests {
         }
     }
 
+    struct Printer(Arc<Mutex<Vec<u8>>>);
+
+    impl MessageLink for Printer {
+        fn send(&mut self, bytes: &[u8]) -> Result<(), MessageError> {
+            self.0.lock().unwrap().extend_from_slice(bytes);
+            Ok(())
+        }
+    }
+
+    fn at() -> DateTime<Utc> {
+        chrono::DateTime::from_timestamp(0, 0).unwrap()
+    }
+
     fn record(layer: u32, severity: Option<Severity>) -> InspectionRecord {
         InspectionRecord {
             layer,
-            at: chrono::DateTime::from_timestamp(0, 0).unwrap(),
+            at: at(),
             ms: 0.0,
             views: vec![],
             plate: Default::default(),
@@ -220,14 +389,14 @@ mod tests {
             ..AlarmConfig::default()
         };
         let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
-        alarm.after_layer(&record(1, Some(Severity::Warning)));
+        alarm.after_layer(&record(1, Some(Severity::Warning)), at());
         assert!(
             log.lock().unwrap().is_empty(),
             "below the default (critical)"
         );
-        alarm.after_layer(&record(2, Some(Severity::Critical)));
-        alarm.after_layer(&record(3, Some(Severity::Critical)));
-        alarm.after_layer(&record(4, None));
+        alarm.after_layer(&record(2, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(3, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(4, None), at());
         assert_eq!(
             *log.lock().unwrap(),
             vec![(Light::Side, true)],
@@ -238,11 +407,72 @@ mod tests {
         config.latch = false;
         config.severity = AlarmSeverity::Warning;
         let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
-        alarm.after_layer(&record(1, Some(Severity::Warning)));
-        alarm.after_layer(&record(2, None));
+        alarm.after_layer(&record(1, Some(Severity::Warning)), at());
+        alarm.after_layer(&record(2, None), at());
         assert_eq!(
             *log.lock().unwrap(),
             vec![(Light::Side, true), (Light::Side, false)]
         );
+    }
+
+    #[test]
+    fn one_message_per_raise_an_acknowledgement_switches_off_and_a_restart_relights() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let sent = Arc::new(Mutex::new(Vec::new()));
+        let config: AlarmConfig = toml::from_str(
+            r#"serial = { port = "/dev/null", message = "ALARM {layer} {kind} {severity} {part}\n" }"#,
+        )
+        .unwrap();
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config)
+            .with_message(Some(Box::new(Printer(sent.clone()))), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(6, Some(Severity::Critical)), at());
+        assert_eq!(
+            String::from_utf8_lossy(&sent.lock().unwrap()),
+            "ALARM 5 spatter critical -\n"
+        );
+        alarm.poll_acknowledgements(dir.path());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true)],
+            "no ack yet"
+        );
+
+        let path = dir.path().join(crate::build_dir::ALARM);
+        AlarmLog::append_only(&path)
+            .unwrap()
+            .append(&AlarmEvent::Acknowledged {
+                at: at(),
+                by: "ana".into(),
+                note: None,
+            })
+            .unwrap();
+        alarm.poll_acknowledgements(dir.path());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true), (Light::Top, false)]
+        );
+        alarm.after_layer(&record(9, Some(Severity::Critical)), at());
+        assert_eq!(
+            String::from_utf8_lossy(&sent.lock().unwrap()),
+            "ALARM 5 spatter critical -\nALARM 9 spatter critical -\n",
+            "raised again after the acknowledgement"
+        );
+        drop(alarm);
+
+        // Restarted with layer 9's raise open: the light comes back on, no message is resent.
+        lights.lock().unwrap().clear();
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
+        alarm.after_layer(&record(10, Some(Severity::Critical)), at());
+        assert_eq!(lights.lock().unwrap().len(), 1);
+        let events = AlarmLog::read(&path).unwrap();
+        assert!(matches!(
+            AlarmState::replay(&events),
+            AlarmState::Raised { layer: 9, .. }
+        ));
     }
 }

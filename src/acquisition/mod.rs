@@ -232,6 +232,7 @@ pub async fn run(
         lights,
         camera,
         alarm,
+        alarm_message,
     } = machine;
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
@@ -250,7 +251,7 @@ pub async fn run(
         .collect();
     let processor = match options.processor.take() {
         Some(p) => p,
-        None => default_processor(config, &manifest, alarm, &clock)?,
+        None => default_processor(config, &manifest, (alarm, alarm_message), &clock)?,
     };
     let queue = ProcessingQueue::start(
         processor,
@@ -433,7 +434,10 @@ fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), Acqu
 fn default_processor(
     config: &Config,
     manifest: &BuildManifest,
-    alarm: Box<dyn crate::hardware::lights::Lights>,
+    (alarm, message): (
+        Box<dyn crate::hardware::lights::Lights>,
+        Option<Box<dyn crate::hardware::message::MessageLink>>,
+    ),
     clock: &SharedClock,
 ) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
     let Some(path) = &config.calibration.file else {
@@ -450,7 +454,8 @@ fn default_processor(
     if !config.inspection.enabled {
         return Ok(Arc::new(live));
     }
-    let alarm = inspection::Alarm::new(alarm, &config.inspection.alarm);
+    let alarm = inspection::Alarm::new(alarm, &config.inspection.alarm)
+        .with_message(message, &config.inspection.alarm);
     let dir = &config.build.output_dir;
     Ok(Arc::new(inspection::InspectingSeries::open(
         config,

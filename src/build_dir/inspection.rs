@@ -2,13 +2,12 @@
 //! appended and fsynced per record like the journal, a torn last record cut on reopening. The
 //! daemon and `layerwise inspect` write it; `layerwise status` reads its open flags.
 
-use super::journal::{append_line, open_lines, scan_lines, JournalError};
+use super::journal::LinesLog;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
-use std::fs::File;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// How bad a flag is.
 #[derive(
@@ -144,46 +143,7 @@ pub struct InspectionRecord {
 }
 
 /// The inspection log of a build, open for appending.
-pub struct InspectionLog {
-    path: PathBuf,
-    file: File,
-    fsync: bool,
-}
-
-impl InspectionLog {
-    /// Opens (creating) the log and returns the records it holds; a torn last record is cut off.
-    pub fn open(
-        path: &Path,
-        fsync: bool,
-    ) -> Result<(InspectionLog, Vec<InspectionRecord>), JournalError> {
-        let mut records = Vec::new();
-        let file = open_lines(path, |r| records.push(r))?;
-        Ok((
-            InspectionLog {
-                path: path.to_path_buf(),
-                file,
-                fsync,
-            },
-            records,
-        ))
-    }
-
-    /// The records of a log without opening it for writing (a torn last one ignored).
-    pub fn read(path: &Path) -> Result<Vec<InspectionRecord>, JournalError> {
-        let mut file = File::open(path).map_err(|source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let mut records = Vec::new();
-        scan_lines(path, &mut file, |r| records.push(r))?;
-        Ok(records)
-    }
-
-    /// Appends one record as one line, in one write, fsynced.
-    pub fn append(&mut self, record: &InspectionRecord) -> Result<(), JournalError> {
-        append_line(&mut self.file, &self.path, self.fsync, record)
-    }
-}
+pub type InspectionLog = LinesLog<InspectionRecord>;
 
 /// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`.
 pub fn open_flags(dir: &Path) -> Vec<String> {

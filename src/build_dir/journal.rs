@@ -484,6 +484,67 @@ impl Journal {
     }
 }
 
+/// A JSON-lines log of `T` records open for appending, written like the journal: one record per
+/// line in one write, a torn last record cut off when the writer reopens it. `inspection.jsonl`
+/// and `alarm.jsonl` are kept this way.
+pub struct LinesLog<T> {
+    path: PathBuf,
+    file: File,
+    fsync: bool,
+    records: std::marker::PhantomData<fn(&T)>,
+}
+
+impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
+    /// Opens (creating) the log and returns the records it holds; a torn last record is cut off.
+    pub fn open(path: &Path, fsync: bool) -> Result<(LinesLog<T>, Vec<T>), JournalError> {
+        let mut records = Vec::new();
+        let file = open_lines(path, |r| records.push(r))?;
+        Ok((LinesLog::new(path, file, fsync), records))
+    }
+
+    fn new(path: &Path, file: File, fsync: bool) -> LinesLog<T> {
+        LinesLog {
+            path: path.to_path_buf(),
+            file,
+            fsync,
+            records: std::marker::PhantomData,
+        }
+    }
+
+    /// Opens the log for appending without reading or repairing it (another process may be
+    /// writing it); every record fsynced.
+    pub fn append_only(path: &Path) -> Result<LinesLog<T>, JournalError> {
+        let file = open_append(path).map_err(|source| JournalError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(LinesLog::new(path, file, true))
+    }
+
+    /// The records of a log without opening it for writing (none when there is no file yet; a
+    /// torn last one ignored).
+    pub fn read(path: &Path) -> Result<Vec<T>, JournalError> {
+        let mut file = match File::open(path) {
+            Ok(file) => file,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(source) => {
+                return Err(JournalError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })
+            }
+        };
+        let mut records = Vec::new();
+        scan_lines(path, &mut file, |r| records.push(r))?;
+        Ok(records)
+    }
+
+    /// Appends one record as one line, in one write (fsynced when the log was opened so).
+    pub fn append(&mut self, record: &T) -> Result<(), JournalError> {
+        append_line(&mut self.file, &self.path, self.fsync, record)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,6 +2,7 @@
 //! build's start, the append-only journal and the live status. The daemon writes it; `status`,
 //! export, locate and registration read it.
 
+pub mod alarm;
 pub mod inspection;
 pub mod journal;
 pub mod lifecycle;
@@ -23,6 +24,8 @@ pub const STATUS: &str = "status.json";
 pub const JOURNAL: &str = "journal.jsonl";
 /// One record per inspected layer (build_dir::inspection).
 pub const INSPECTION: &str = "inspection.jsonl";
+/// The inspection alarm's history: raised, acknowledged, cleared (build_dir::alarm).
+pub const ALARM: &str = "alarm.jsonl";
 /// The configuration the daemon last ran with.
 pub const CONFIG_SNAPSHOT: &str = "config.toml";
 /// The calibration the daemon last ran with.

@@ -280,6 +280,9 @@ pub struct StatusReport {
     pub pacs: Vec<super::pushlog::PushSummary>,
     /// Inspection flags at warning or above, oldest first (`inspection.jsonl`).
     pub inspection_flags: Vec<String>,
+    /// The inspection alarm: raised since layer N, or acknowledged by whom and when
+    /// (`alarm.jsonl`; none when it was never raised).
+    pub alarm: Option<super::alarm::AlarmState>,
     pub warning: Option<String>,
 }
 
@@ -483,6 +486,7 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
         disk: live.disk.clone(),
         pacs: super::pushlog::summaries(dir),
         inspection_flags: super::inspection::open_flags(dir),
+        alarm: super::alarm::state(dir),
         warning,
     })
 }
@@ -610,6 +614,9 @@ impl fmt::Display for StatusReport {
         if !self.inspection_flags.is_empty() {
             writeln!(f, "inspection {} flags", self.inspection_flags.len())?;
             last_ten(f, &self.inspection_flags)?;
+        }
+        if let Some(alarm) = &self.alarm {
+            writeln!(f, "alarm      {alarm}")?;
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

@@ -285,7 +285,8 @@ pub struct DemoArgs {
     interval_ms: u64,
     /// Anomalies for the mock camera to render, comma-separated `kind@layer[..last][/key=value…]`:
     /// streak (y, from, to, w, c), short-feed (x, c), elevation (part, w, c), no-fusion (part),
-    /// wide-fusion (part, d), spatter (n, r, x, y); e.g. `streak@40,short-feed@75,elevation@90..95`.
+    /// wide-fusion (part, d), spatter (n, r, x, y), drift (part, c: the post-scan grey level
+    /// ramps to c over the layers); e.g. `streak@40,short-feed@75,elevation@90..95,drift@100..110`.
     #[arg(long, default_value = "")]
     inject: String,
 }

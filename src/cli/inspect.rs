@@ -39,7 +39,8 @@ pub struct InspectArgs {
     /// One JSON record per layer, as inspection.jsonl holds them, instead of text.
     #[arg(long)]
     json: bool,
-    /// Draw per-part metrics against layer with the flagged layers marked (SVG).
+    /// Draw per-part metrics against layer with the flagged layers marked in red: SVG, or PNG
+    /// when the name ends in .png.
     #[arg(long)]
     plot: Option<PathBuf>,
 }
@@ -126,11 +127,16 @@ impl InspectArgs {
             eprintln!("skipped {}: {}", s.shot, s.reason);
         }
         if let Some(out) = &self.plot {
-            layerwise::fsutil::write_atomic(
-                out,
-                layerwise::inspect::plot::svg(&records).as_bytes(),
-                false,
-            )?;
+            let png = out
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+            let bytes = if png {
+                layerwise::inspect::plot::png(&records)
+                    .with_context(|| format!("--plot {}: cannot encode the PNG", out.display()))?
+            } else {
+                layerwise::inspect::plot::svg(&records).into_bytes()
+            };
+            layerwise::fsutil::write_atomic(out, &bytes, false)?;
         }
         if self.json {
             for r in &records {

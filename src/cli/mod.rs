@@ -2,6 +2,7 @@
 //! request and run; reports print through their `Display`. Errors get their context here, at the
 //! binary's edge, and are printed once with their causes.
 
+mod alarm;
 mod build;
 mod daemon;
 mod files;
@@ -82,6 +83,8 @@ pub enum Command {
     /// Inspect a stored build (or a folder of frames) for streaks, short feed, super-elevation,
     /// fusion against the vectors and drift, as the daemon does live.
     Inspect(inspect::InspectArgs),
+    /// The inspection alarm: acknowledge it (`alarm ack --build DIR`) or show it.
+    Alarm(alarm::AlarmArgs),
 }
 
 impl Command {
@@ -104,6 +107,7 @@ impl Command {
             Command::Demo(args) => args.run(),
             Command::Push(args) => args.run(),
             Command::Inspect(args) => args.run(),
+            Command::Alarm(args) => args.run(),
         }
     }
 }

@@ -107,7 +107,8 @@ pub struct InspectionConfig {
     /// Spatter / stray scan: smallest fused blob away from every part, mm².
     #[serde(default = "d_spatter")]
     pub spatter_min_mm2: f64,
-    /// Drift: robust z of a part metric against the median/MAD of its earlier layers.
+    /// Drift: robust z of a part metric against the median/MAD of its earlier layers (a layer half
+    /// this far off does not enter the baseline).
     #[serde(default = "d_drift_z")]
     pub drift_z: f64,
     /// Drift: layers in the running baseline; the detector waits for `drift_min_layers`.
@@ -136,9 +137,40 @@ pub struct AlarmConfig {
     /// Lowest severity that switches it on.
     #[serde(default = "d_alarm_severity")]
     pub severity: AlarmSeverity,
-    /// Keep it on until the daemon restarts (true), or switch it off after a clean layer.
+    /// Keep it on until an operator acknowledges it (`layerwise alarm ack`; it stays on across
+    /// a daemon restart), or (false) switch it off after a clean layer.
     #[serde(default = "yes")]
     pub latch: bool,
+    /// A message to the printer's controller on a serial line, sent once each time the alarm is
+    /// raised (none by default), e.g.
+    /// `serial = { port = "/dev/ttyUSB1", baud = 9600, message = "LAYERWISE ALARM {layer} {kind}\r\n" }`.
+    #[serde(default)]
+    pub serial: Option<AlarmSerialConfig>,
+}
+
+/// `[inspection.alarm] serial`: the alarm's message to the printer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AlarmSerialConfig {
+    /// The serial port (opened when the first message is due, reopened after an error).
+    pub port: String,
+    #[serde(default = "d_alarm_baud")]
+    pub baud: u32,
+    /// The text sent: `{layer}`, `{kind}`, `{severity}` and `{part}` are replaced by the flag
+    /// that raised the alarm; TOML escapes (`\r`, `\n`) end the line as the printer expects.
+    #[serde(default = "d_alarm_message")]
+    pub message: String,
+}
+
+impl AlarmSerialConfig {
+    /// The message for a flag: its placeholders filled in.
+    pub fn render(&self, layer: u32, kind: &str, severity: &str, part: Option<i64>) -> String {
+        self.message
+            .replace("{layer}", &layer.to_string())
+            .replace("{kind}", kind)
+            .replace("{severity}", severity)
+            .replace("{part}", &part.map_or("-".to_string(), |p| p.to_string()))
+    }
 }
 
 impl Default for AlarmConfig {
@@ -148,6 +180,7 @@ impl Default for AlarmConfig {
             channel: Light::Top,
             severity: d_alarm_severity(),
             latch: true,
+            serial: None,
         }
     }
 }
@@ -203,10 +236,24 @@ impl InspectionConfig {
                 "must be 3 or more (a median of fewer layers is no baseline)".into(),
             ));
         }
+        if let Some(serial) = &self.alarm.serial {
+            if serial.port.trim().is_empty() || serial.message.is_empty() || serial.baud == 0 {
+                return Err((
+                    "inspection.alarm.serial".into(),
+                    "needs a port, a baud rate above 0 and a non-empty message".into(),
+                ));
+            }
+        }
         Ok(())
     }
 }
 
+fn d_alarm_baud() -> u32 {
+    9600
+}
+fn d_alarm_message() -> String {
+    "LAYERWISE ALARM {layer} {kind} {severity}\r\n".into()
+}
 fn yes() -> bool {
     true
 }
@@ -293,16 +340,20 @@ pub enum InjectKind {
     WideFusion,
     /// Fused spots away from every part.
     Spatter,
+    /// A part's post-scan grey level changes slowly: a linear ramp over the injection's layers,
+    /// reaching `c` grey levels on its last one (a drifting laser power or focus).
+    Drift,
 }
 
 impl InjectKind {
-    pub const ALL: [InjectKind; 6] = [
+    pub const ALL: [InjectKind; 7] = [
         InjectKind::Streak,
         InjectKind::ShortFeed,
         InjectKind::Elevation,
         InjectKind::NoFusion,
         InjectKind::WideFusion,
         InjectKind::Spatter,
+        InjectKind::Drift,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -312,6 +363,7 @@ impl InjectKind {
             InjectKind::NoFusion => "no-fusion",
             InjectKind::WideFusion => "wide-fusion",
             InjectKind::Spatter => "spatter",
+            InjectKind::Drift => "drift",
         }
     }
     /// Parameters each kind takes (`key=value`), with their defaults.
@@ -334,6 +386,8 @@ impl InjectKind {
             InjectKind::WideFusion => &[("part", 3.0), ("d", 1.5)],
             // spots, their radius in mm, and the center of the cloud.
             InjectKind::Spatter => &[("n", 4.0), ("r", 0.8), ("x", 0.0), ("y", 0.0)],
+            // demo part, change of its post-scan grey level reached on the last layer.
+            InjectKind::Drift => &[("part", 3.0), ("c", 40.0)],
         }
     }
 }

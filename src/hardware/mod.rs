@@ -4,6 +4,7 @@
 
 pub mod camera;
 pub mod lights;
+pub mod message;
 pub mod trigger;
 
 use crate::clock::SharedClock;
@@ -23,6 +24,8 @@ pub struct Machine {
     pub camera: CameraFactory,
     /// The inspection's stack light (`inspection.alarm.output`; no output by default).
     pub alarm: Box<dyn Lights>,
+    /// The inspection alarm's message to the printer (`inspection.alarm.serial`; none by default).
+    pub alarm_message: Option<Box<dyn message::MessageLink>>,
 }
 
 /// A part of the machine could not be opened.
@@ -41,6 +44,7 @@ pub fn open(config: &Config, clock: SharedClock) -> Result<Machine, HardwareErro
         lights: open_lights(config)?,
         camera: camera_factory(config),
         alarm: lights::open(&config.inspection.alarm.output)?,
+        alarm_message: message::open(config.inspection.alarm.serial.as_ref()),
     })
 }
 

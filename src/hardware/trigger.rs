@@ -101,7 +101,7 @@ impl SharedHealth {
 }
 
 /// What to check when a serial port cannot be opened, by the kind of failure.
-fn open_hint(error: &serialport::Error) -> &'static str {
+pub(crate) fn open_hint(error: &serialport::Error) -> &'static str {
     match error.kind() {
         serialport::ErrorKind::NoDevice => "the port is gone: is the USB adapter plugged in?",
         serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {

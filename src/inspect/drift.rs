@@ -1,6 +1,9 @@
 //! Drift: each part's metrics against a running baseline of its earlier layers (median and MAD
 //! of the last `drift_window` layers that raised no flag on the part), so a slow change shows
-//! before it becomes a crash.
+//! before it becomes a crash. A layer half-way to a drift flag is held back: it joins the baseline
+//! when a later layer is back near it (it was noise), and is dropped when the part is flagged
+//! (it was the run-up of a drift), so a ramp cannot carry the baseline along nor widen it for the
+//! next one.
 
 use super::detect::robust;
 use crate::build_dir::inspection::PartMetrics;
@@ -9,11 +12,18 @@ use std::collections::{BTreeMap, VecDeque};
 /// The metrics followed, by name.
 pub const METRICS: [&str; 4] = ["post_mean", "post_contrast", "fused_fraction", "pre_mean"];
 
+/// The followed metrics of a part; the fused fraction only when the part is wide enough to judge
+/// (it has a core), since a part a cell or two wide gains or loses half its fused cells as its
+/// edges move across the grid.
 fn values(m: &PartMetrics) -> [f64; 4] {
     [
         m.post_mean,
         m.post_contrast,
-        m.fused_fraction,
+        if m.unfused.is_some() {
+            m.fused_fraction
+        } else {
+            f64::NAN
+        },
         m.pre_mean.unwrap_or(f64::NAN),
     ]
 }
@@ -34,15 +44,21 @@ pub struct Drifted {
 pub struct Baseline {
     window: usize,
     min_layers: usize,
+    /// A layer with a metric this many robust sigmas from the baseline does not enter it.
+    admit_z: f64,
     history: BTreeMap<i64, VecDeque<[f64; 4]>>,
+    /// Layers held back, per part.
+    held: BTreeMap<i64, Vec<[f64; 4]>>,
 }
 
 impl Baseline {
-    pub fn new(window: usize, min_layers: usize) -> Baseline {
+    pub fn new(window: usize, min_layers: usize, admit_z: f64) -> Baseline {
         Baseline {
             window,
             min_layers,
+            admit_z,
             history: BTreeMap::new(),
+            held: BTreeMap::new(),
         }
     }
 
@@ -77,10 +93,26 @@ impl Baseline {
         out
     }
 
-    /// Adds a layer's metrics of a part (call for layers that raised no flag on it).
-    pub fn push(&mut self, m: &PartMetrics) {
+    /// Adds a layer's metrics of a part: a layer that raised a flag on the part never, and drops
+    /// the layers held back; one `admit_z` or more from the baseline is held back; any other
+    /// joins, with the layers held back before it.
+    pub fn push(&mut self, m: &PartMetrics, flagged: bool) {
+        let off = !flagged && !self.check(m, self.admit_z).is_empty();
+        let held = self.held.entry(m.part).or_default();
+        if flagged {
+            held.clear();
+            return;
+        }
+        if off {
+            if held.len() < self.window {
+                held.push(values(m));
+            }
+            return;
+        }
+        let mut joining = std::mem::take(held);
+        joining.push(values(m));
         let h = self.history.entry(m.part).or_default();
-        h.push_back(values(m));
+        h.extend(joining);
         while h.len() > self.window {
             h.pop_front();
         }
@@ -97,26 +129,52 @@ mod tests {
             post_mean: 100.0,
             post_contrast: contrast,
             fused_fraction: 0.97,
+            unfused: Some(0.0),
             ..PartMetrics::default()
         }
     }
 
     #[test]
     fn a_step_away_from_a_noisy_baseline_is_drift_and_noise_is_not() {
-        let mut b = Baseline::new(30, 10);
+        let mut b = Baseline::new(30, 10, 5.0);
         for i in 0..9 {
-            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3));
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3), false);
         }
         assert!(b.check(&metrics(1, 5.0), 10.0).is_empty(), "warming up");
         for i in 0..20 {
             let m = metrics(1, 30.0 + (i % 3) as f64 * 0.3);
             assert!(b.check(&m, 10.0).is_empty());
-            b.push(&m);
+            b.push(&m, false);
         }
         let d = b.check(&metrics(1, 18.0), 10.0);
         assert_eq!(d.len(), 1);
         assert_eq!(d[0].metric, "post_contrast");
         assert!(d[0].z < -10.0, "{d:?}");
         assert!(b.check(&metrics(2, 18.0), 10.0).is_empty(), "another part");
+    }
+
+    #[test]
+    fn a_ramp_does_not_carry_the_baseline_along() {
+        let mut b = Baseline::new(30, 10, 5.0);
+        for i in 0..30 {
+            b.push(&metrics(1, 30.0 + (i % 3) as f64 * 0.3), false);
+        }
+        // 1 grey level per layer: half-way to a flag after a few layers, flagged before 20.
+        let flagged = (1..=20).find(|&k| {
+            let m = metrics(1, 30.0 - f64::from(k));
+            let drifted = !b.check(&m, 10.0).is_empty();
+            b.push(&m, drifted);
+            drifted
+        });
+        assert!(flagged.is_some_and(|k| k <= 10), "{flagged:?}");
+        assert_eq!(b.held[&1], Vec::<[f64; 4]>::new(), "the run-up is dropped");
+        // A lone outlier is noise: it joins once the next layer is back.
+        let before = b.history[&1].len();
+        b.push(&metrics(1, 26.0), false);
+        assert_eq!(b.held[&1].len(), 1);
+        b.push(&metrics(1, 30.3), false);
+        assert!(b.held[&1].is_empty());
+        assert_eq!(b.history[&1].len(), (before + 2).min(30));
+        assert!(b.history[&1].iter().any(|v| v[1] == 26.0));
     }
 }

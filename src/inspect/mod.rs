@@ -94,7 +94,11 @@ impl Inspector {
             pending: BTreeMap::new(),
             done: BTreeSet::new(),
             references: VecDeque::new(),
-            baseline: drift::Baseline::new(cfg.drift_window, cfg.drift_min_layers),
+            baseline: drift::Baseline::new(
+                cfg.drift_window,
+                cfg.drift_min_layers,
+                cfg.drift_z / 2.0,
+            ),
             parts: BTreeMap::new(),
         }
     }
@@ -135,9 +139,8 @@ impl Inspector {
         for r in records {
             self.done.insert(r.layer);
             for m in &r.parts {
-                if !r.flags.iter().any(|f| f.part == Some(m.part)) {
-                    self.baseline.push(m);
-                }
+                let flagged = r.flags.iter().any(|f| f.part == Some(m.part));
+                self.baseline.push(m, flagged);
             }
         }
     }
@@ -372,9 +375,8 @@ impl Inspector {
             }
         }
         for m in &parts {
-            if !found.iter().any(|(_, f)| f.part == Some(m.part)) {
-                self.baseline.push(m);
-            }
+            let flagged = found.iter().any(|(_, f)| f.part == Some(m.part));
+            self.baseline.push(m, flagged);
         }
         self.done.insert(layer);
         let flags = found

@@ -1,5 +1,6 @@
-//! `layerwise inspect --plot OUT.svg`: per-part metrics against layer, one panel per metric, with
-//! the layers that raised a flag at warning or above marked.
+//! `layerwise inspect --plot OUT.svg|OUT.png`: per-part metrics against layer, one panel per
+//! metric, with the layers that raised a flag at warning or above marked in red. One layout drawn
+//! on two canvases: SVG text, or pixels encoded as PNG (the PNG leaves the labels out).
 
 use crate::build_dir::inspection::{InspectionRecord, PartMetrics, Severity};
 use std::collections::BTreeMap;
@@ -16,36 +17,74 @@ const PANELS: [Panel; 3] = [
     ("pre-scan grey level over the part", |m| m.pre_mean),
 ];
 
-const COLOURS: [&str; 6] = [
-    "#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+const COLOURS: [[u8; 3]; 6] = [
+    [0x1f, 0x77, 0xb4],
+    [0x2c, 0xa0, 0x2c],
+    [0x94, 0x67, 0xbd],
+    [0x8c, 0x56, 0x4b],
+    [0xe3, 0x77, 0xc2],
+    [0x17, 0xbe, 0xcf],
 ];
+/// The colour of a flagged layer's mark.
+pub const FLAG: [u8; 3] = [0xff, 0x00, 0x00];
+const FRAME: [u8; 3] = [0x99, 0x99, 0x99];
+const INK: [u8; 3] = [0, 0, 0];
 
-/// The SVG text.
-pub fn svg(records: &[InspectionRecord]) -> String {
-    let (w, ph, left, top) = (960.0, 220.0, 70.0, 30.0);
-    let h = top + PANELS.len() as f64 * (ph + 40.0) + 20.0;
-    let layers: Vec<u32> = records.iter().map(|r| r.layer).collect();
-    let (l0, l1) = (
-        layers.iter().copied().min().unwrap_or(1),
-        layers
-            .iter()
-            .copied()
-            .max()
-            .unwrap_or(1)
-            .max(layers.first().copied().unwrap_or(1) + 1),
+/// Size of the drawing and of its panels, in pixels.
+const WIDTH: f64 = 960.0;
+const PANEL_HEIGHT: f64 = 220.0;
+const LEFT: f64 = 70.0;
+const TOP: f64 = 30.0;
+const RIGHT: f64 = 20.0;
+
+/// What the layout draws with.
+trait Canvas {
+    fn frame(&mut self, x: f64, y: f64, w: f64, h: f64);
+    /// A label at `(x, y)` (its baseline), ending there when `end`.
+    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], end: bool);
+    /// A flagged layer's vertical mark.
+    fn flag(&mut self, x: f64, y0: f64, y1: f64, layer: u32);
+    fn polyline(&mut self, points: &[(f64, f64)], colour: [u8; 3], part: i64);
+}
+
+/// Where `layer` sits on the drawing's x axis, in pixels (the same in SVG and PNG).
+pub fn layer_x(records: &[InspectionRecord], layer: u32) -> f64 {
+    let (l0, l1) = span(records);
+    LEFT + (f64::from(layer) - f64::from(l0)) / f64::from(l1 - l0) * (WIDTH - LEFT - RIGHT)
+}
+
+/// The rows `(top, bottom)` of each panel, in pixels.
+pub fn panel_rows() -> Vec<(f64, f64)> {
+    (0..PANELS.len())
+        .map(|k| {
+            let y0 = TOP + k as f64 * (PANEL_HEIGHT + 40.0) + 20.0;
+            (y0, y0 + PANEL_HEIGHT)
+        })
+        .collect()
+}
+
+fn height() -> f64 {
+    TOP + PANELS.len() as f64 * (PANEL_HEIGHT + 40.0) + 20.0
+}
+
+/// First and last layer (two apart at least, so the axis has a length).
+fn span(records: &[InspectionRecord]) -> (u32, u32) {
+    let l0 = records.iter().map(|r| r.layer).min().unwrap_or(1);
+    let l1 = records.iter().map(|r| r.layer).max().unwrap_or(1);
+    (l0, l1.max(l0 + 1))
+}
+
+fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
+    let (l0, l1) = span(records);
+    let x_of = |l: u32| layer_x(records, l);
+    canvas.text(
+        LEFT,
+        16.0,
+        "Inspection: per-part metrics by layer; red: a flag at warning or above",
+        INK,
+        false,
     );
-    let x_of = |l: u32| left + (f64::from(l - l0) / f64::from(l1 - l0)) * (w - left - 20.0);
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#
-    );
-    let _ = writeln!(
-        out,
-        r#"<text x="{left}" y="16" font-size="13">Inspection: per-part metrics by layer; red: a flag at warning or above</text>"#
-    );
-    for (k, (title, metric)) in PANELS.iter().enumerate() {
-        let y0 = top + k as f64 * (ph + 40.0) + 20.0;
+    for ((title, metric), (y0, y1)) in PANELS.iter().zip(panel_rows()) {
         let mut series: BTreeMap<i64, Vec<(u32, f64)>> = BTreeMap::new();
         for r in records {
             for m in &r.parts {
@@ -63,48 +102,144 @@ pub fn svg(records: &[InspectionRecord]) -> String {
         } else {
             (0.0, 1.0)
         };
-        let y_of = |v: f64| y0 + ph - (v - lo) / (hi - lo) * ph;
-        let _ = writeln!(
-            out,
-            r##"<rect x="{left}" y="{y0}" width="{}" height="{ph}" fill="none" stroke="#999"/><text x="{left}" y="{}">{title}</text><text x="4" y="{}">{hi:.2}</text><text x="4" y="{}">{lo:.2}</text>"##,
-            w - left - 20.0,
-            y0 - 4.0,
-            y0 + 10.0,
-            y0 + ph
-        );
+        let y_of = |v: f64| y1 - (v - lo) / (hi - lo) * PANEL_HEIGHT;
+        canvas.frame(LEFT, y0, WIDTH - LEFT - RIGHT, PANEL_HEIGHT);
+        canvas.text(LEFT, y0 - 4.0, title, INK, false);
+        canvas.text(4.0, y0 + 10.0, &format!("{hi:.2}"), INK, false);
+        canvas.text(4.0, y1, &format!("{lo:.2}"), INK, false);
         for r in records {
             if r.flags.iter().any(|f| f.severity >= Severity::Warning) {
-                let x = x_of(r.layer);
-                let _ = writeln!(
-                    out,
-                    r#"<line x1="{x:.1}" y1="{y0}" x2="{x:.1}" y2="{}" stroke="red" stroke-opacity="0.5"><title>layer {}</title></line>"#,
-                    y0 + ph,
-                    r.layer
-                );
+                canvas.flag(x_of(r.layer), y0, y1, r.layer);
             }
         }
         for (i, (part, points)) in series.iter().enumerate() {
             let colour = COLOURS[i % COLOURS.len()];
-            let path: Vec<String> = points
-                .iter()
-                .map(|(l, v)| format!("{:.1},{:.1}", x_of(*l), y_of(*v)))
-                .collect();
-            let _ = writeln!(
-                out,
-                r#"<polyline fill="none" stroke="{colour}" points="{}"><title>part {part}</title></polyline><text x="{}" y="{}" fill="{colour}">part {part}</text>"#,
-                path.join(" "),
-                w - 70.0,
-                y0 + 14.0 + 12.0 * i as f64
+            let path: Vec<(f64, f64)> = points.iter().map(|(l, v)| (x_of(*l), y_of(*v))).collect();
+            canvas.polyline(&path, colour, *part);
+            let label_y = y0 + 14.0 + 12.0 * i as f64;
+            canvas.text(
+                WIDTH - 70.0,
+                label_y,
+                &format!("part {part}"),
+                colour,
+                false,
             );
         }
+        canvas.text(LEFT, y1 + 14.0, &format!("layer {l0}"), INK, false);
+        canvas.text(WIDTH - RIGHT, y1 + 14.0, &format!("layer {l1}"), INK, true);
+    }
+}
+
+fn hex([r, g, b]: [u8; 3]) -> String {
+    format!("#{r:02x}{g:02x}{b:02x}")
+}
+
+struct Svg(String);
+
+impl Canvas for Svg {
+    fn frame(&mut self, x: f64, y: f64, w: f64, h: f64) {
+        let stroke = hex(FRAME);
         let _ = writeln!(
-            out,
-            r#"<text x="{left}" y="{}">layer {l0}</text><text x="{}" y="{}" text-anchor="end">layer {l1}</text>"#,
-            y0 + ph + 14.0,
-            w - 20.0,
-            y0 + ph + 14.0
+            self.0,
+            r#"<rect x="{x}" y="{y}" width="{w}" height="{h}" fill="none" stroke="{stroke}"/>"#
         );
     }
-    out.push_str("</svg>\n");
-    out
+    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], end: bool) {
+        let anchor = if end { r#" text-anchor="end""# } else { "" };
+        let _ = writeln!(
+            self.0,
+            r#"<text x="{x}" y="{y}" fill="{}"{anchor}>{text}</text>"#,
+            hex(colour)
+        );
+    }
+    fn flag(&mut self, x: f64, y0: f64, y1: f64, layer: u32) {
+        let _ = writeln!(
+            self.0,
+            r#"<line x1="{x:.1}" y1="{y0}" x2="{x:.1}" y2="{y1}" stroke="{}" stroke-opacity="0.5"><title>layer {layer}</title></line>"#,
+            hex(FLAG)
+        );
+    }
+    fn polyline(&mut self, points: &[(f64, f64)], colour: [u8; 3], part: i64) {
+        let path: Vec<String> = points
+            .iter()
+            .map(|(x, y)| format!("{x:.1},{y:.1}"))
+            .collect();
+        let _ = writeln!(
+            self.0,
+            r#"<polyline fill="none" stroke="{}" points="{}"><title>part {part}</title></polyline>"#,
+            hex(colour),
+            path.join(" ")
+        );
+    }
+}
+
+/// The SVG text.
+pub fn svg(records: &[InspectionRecord]) -> String {
+    let mut canvas = Svg(format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{WIDTH}" height="{}" font-family="sans-serif" font-size="11">"#,
+        height()
+    ));
+    canvas.0.push('\n');
+    draw(records, &mut canvas);
+    canvas.0.push_str("</svg>\n");
+    canvas.0
+}
+
+struct Raster(image::RgbImage);
+
+impl Raster {
+    fn put(&mut self, x: f64, y: f64, colour: [u8; 3]) {
+        let (x, y) = (x.round(), y.round());
+        if x >= 0.0 && y >= 0.0 && x < f64::from(self.0.width()) && y < f64::from(self.0.height()) {
+            self.0.put_pixel(x as u32, y as u32, image::Rgb(colour));
+        }
+    }
+    /// A straight line, one pixel wide, stepped along its longer axis.
+    fn line(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64), colour: [u8; 3]) {
+        let steps = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0);
+        for k in 0..=steps as u32 {
+            let t = f64::from(k) / steps;
+            self.put(x0 + t * (x1 - x0), y0 + t * (y1 - y0), colour);
+        }
+    }
+}
+
+impl Canvas for Raster {
+    fn frame(&mut self, x: f64, y: f64, w: f64, h: f64) {
+        let corners = [(x, y), (x + w, y), (x + w, y + h), (x, y + h), (x, y)];
+        for pair in corners.windows(2) {
+            self.line(pair[0], pair[1], FRAME);
+        }
+    }
+    fn text(&mut self, _x: f64, _y: f64, _text: &str, _colour: [u8; 3], _end: bool) {}
+    fn flag(&mut self, x: f64, y0: f64, y1: f64, _layer: u32) {
+        self.line((x, y0), (x, y1), FLAG);
+    }
+    fn polyline(&mut self, points: &[(f64, f64)], colour: [u8; 3], _part: i64) {
+        for pair in points.windows(2) {
+            // Two pixels wide, so a line reads at a glance.
+            self.line(pair[0], pair[1], colour);
+            self.line(
+                (pair[0].0, pair[0].1 + 1.0),
+                (pair[1].0, pair[1].1 + 1.0),
+                colour,
+            );
+        }
+    }
+}
+
+/// The same drawing as PNG bytes (without labels: the SVG has them).
+pub fn png(records: &[InspectionRecord]) -> Result<Vec<u8>, image::ImageError> {
+    let mut canvas = Raster(image::RgbImage::from_pixel(
+        WIDTH as u32,
+        height() as u32,
+        image::Rgb([255, 255, 255]),
+    ));
+    draw(records, &mut canvas);
+    let mut bytes = Vec::new();
+    canvas.0.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )?;
+    Ok(bytes)
 }

@@ -95,6 +95,19 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                     });
                 }
             }
+            (InjectKind::Drift, Phase::Post) => {
+                if let Some((_, s)) = part(&fused) {
+                    let steps = f64::from(inj.last - inj.first + 1);
+                    let step = f64::from(layer - inj.first + 1);
+                    defects.push(Defect {
+                        region: s,
+                        clip: None,
+                        metal: false,
+                        delta: inj.get("c") * step / steps,
+                        light: None,
+                    });
+                }
+            }
             _ => {}
         }
     }
@@ -206,6 +219,13 @@ mod tests {
         let (wide, _) = scene(&list, 7, Phase::Post);
         assert!(wide[2].contains(39.0, 50.0) && !demo_parts(7)[2].contains(39.0, 50.0));
         assert_eq!(scene(&list, 8, Phase::Post).0.len(), 7);
+        let drift = crate::config::inspection::parse_injections("drift@10..13/c=-40").unwrap();
+        let ramp: Vec<f64> = (9..=14)
+            .flat_map(|l| scene(&drift, l, Phase::Post).1)
+            .map(|d| d.delta)
+            .collect();
+        assert_eq!(ramp, vec![-10.0, -20.0, -30.0, -40.0]);
+        assert!(scene(&drift, 11, Phase::Pre).1.is_empty());
     }
 
     #[test]

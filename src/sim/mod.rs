@@ -105,6 +105,7 @@ pub fn open(config: &Config, clock: SharedClock) -> Result<(Machine, Simulation)
             lights,
             camera,
             alarm,
+            alarm_message: hardware::message::open(config.inspection.alarm.serial.as_ref()),
         },
         simulation,
     ))

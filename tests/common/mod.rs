@@ -1,6 +1,8 @@
 //! Shared helpers for the integration tests: configurations derived from the embedded demo.
 #![allow(dead_code)]
 
+pub mod pty;
+
 use layerwise::build_dir::journal::{Journal, Record};
 use layerwise::config::{CameraConfig, Config, MockFaultConfig, TriggerConfig, DEMO_CONFIG};
 
