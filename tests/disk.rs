@@ -23,6 +23,8 @@ use std::time::{Duration, Instant};
 fn small_calibrated(dir: &Path, layers: u32) -> layerwise::config::Config {
     let mut config = calibrated_config(dir, layers, layerwise::dicom::Compression::Deflate);
     config.rectify.pixel_mm = 2.0;
+    // The demo's limit (the tests' common configuration sets none).
+    config.storage.min_free_gb = 1.0;
     config
 }
 
