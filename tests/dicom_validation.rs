@@ -416,11 +416,13 @@ fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
     let sheet = image::open(&mark).unwrap().to_rgb8();
     assert_eq!(
         sheet.width(),
-        13 * 161 + 12 * 4,
-        "vectors + 6 views x (rectified, original)"
+        13 * 161 + 14 * 4,
+        "vectors + 6 views x (rectified, original), 4 px apart and around"
     );
-    let first_tile_blue = (0..161)
-        .flat_map(|x| (0..161).map(move |y| (x, y)))
+    // The first tile sits 4 px in, under its label strip.
+    let top = 4 + layerwise::raster::sheet::LABEL_PX;
+    let first_tile_blue = (4..4 + 161)
+        .flat_map(|x| (top..top + 161).map(move |y| (x, y)))
         .any(|(x, y)| sheet.get_pixel(x, y).0 == [0, 0, 255]);
     assert!(first_tile_blue, "the vectors tile shows the box's contour");
     // The vectors keep their colours in NRRD: contours blue where the box's outline is.
