@@ -10,8 +10,8 @@ fn sibling(path: &Path, ext: &str) -> PathBuf {
     path.with_extension(ext)
 }
 
-/// Read a GE phoenix volume: `path` is the `.pcr` or the `.vol`.
-pub fn read_phoenix(path: &Path) -> Result<Volume> {
+/// Read a GE phoenix volume: `path` is the `.pcr` or the `.vol`; at most `max_voxels` voxels.
+pub fn read_phoenix(path: &Path, max_voxels: usize) -> Result<Volume> {
     let is_pcr = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("pcr"));
@@ -21,7 +21,7 @@ pub fn read_phoenix(path: &Path) -> Result<Volume> {
         (sibling(path, "pcr"), path.to_path_buf())
     };
     let spec = phoenix_spec(&pcr)?;
-    read_raw(&vol, &spec)
+    read_raw(&vol, &spec, max_voxels)
 }
 
 /// The raw layout described by a phoenix `.pcr`.
@@ -78,7 +78,7 @@ mod tests {
         )
         .expect("pcr");
         for p in [d.join("part.pcr"), d.join("part.vol")] {
-            let vol = read_phoenix(&p).expect("read");
+            let vol = read_phoenix(&p, crate::ct::volume::MAX_VOXELS).expect("read");
             assert_eq!(vol.dims, [4, 3, 2]);
             assert_eq!(vol.voxel_mm, [0.0421; 3]);
             assert_eq!(vol.data, VoxelData::U16(v.clone()));
@@ -100,7 +100,8 @@ mod tests {
             "[VolumeData]\nVolume_SizeX=4\nVolume_SizeY=3\nVolume_SizeZ=2\nFormat=5\nVoxelSizeRec=0.05\n",
         )
         .expect("pcr");
-        let e = read_phoenix(&d.join("part.pcr")).expect_err("short file");
+        let e = read_phoenix(&d.join("part.pcr"), crate::ct::volume::MAX_VOXELS)
+            .expect_err("short file");
         let msg = e.to_string();
         assert!(msg.contains("part.vol"), "{msg}");
         assert!(

@@ -1,0 +1,206 @@
+//! A walk over a DICOM file's element headers that refuses a stated length the file cannot hold,
+//! before a parser sizes a read by it (dicom-rs allocates what an element claims: a 1 KB file
+//! whose PixelData claims 0xFFFFFFF0 bytes cost 4 GB).
+
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::Path;
+
+use super::DicomError;
+
+/// Value representations whose length is 32-bit in explicit VR (2 reserved bytes first).
+const LONG_VRS: [&[u8; 2]; 13] = [
+    b"OB", b"OD", b"OF", b"OL", b"OV", b"OW", b"SQ", b"SV", b"UC", b"UN", b"UR", b"UT", b"UV",
+];
+
+const UNDEFINED: u32 = 0xFFFF_FFFF;
+
+/// How the data set after the file meta group is encoded.
+#[derive(Clone, Copy)]
+enum Encoding {
+    Explicit {
+        big_endian: bool,
+    },
+    Implicit,
+    /// Deflated: the lengths are inside the compressed stream (bounded by the inflater).
+    Deflated,
+}
+
+/// Checks that every element of the DICOM Part-10 file at `path` fits in the file; `Ok(false)`
+/// when the file is not Part-10 (no `DICM` at byte 128), `Ok(true)` when every length fits.
+/// Undefined lengths (sequences, encapsulated pixel data) are walked into, so items and
+/// fragments are checked too.
+pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
+    let read_err = |message: String| DicomError::Damaged {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = crate::fsutil::open_regular(path).map_err(|e| read_err(e.to_string()))?;
+    let size = file.metadata().map_err(|e| read_err(e.to_string()))?.len();
+    let mut r = BufReader::with_capacity(8192, file);
+    let mut preamble = [0u8; 132];
+    if r.read_exact(&mut preamble).is_err() || &preamble[128..] != b"DICM" {
+        return Ok(false);
+    }
+    let mut pos = 132u64;
+    let mut encoding = Encoding::Explicit { big_endian: false };
+    let mut in_meta = true;
+    // Inside encapsulated pixel data, items are compressed fragments (skipped, not walked).
+    let mut in_fragments = false;
+    while pos < size {
+        let mut head = [0u8; 8];
+        if r.read_exact(&mut head).is_err() {
+            return Err(read_err(format!(
+                "an element header at byte {pos} is cut off by the end of the file"
+            )));
+        }
+        let big = matches!(encoding, Encoding::Explicit { big_endian: true }) && !in_meta;
+        let u16_at = |b: &[u8]| {
+            if big {
+                u16::from_be_bytes([b[0], b[1]])
+            } else {
+                u16::from_le_bytes([b[0], b[1]])
+            }
+        };
+        let (group, element) = (u16_at(&head[0..2]), u16_at(&head[2..4]));
+        if in_meta && group != 0x0002 {
+            in_meta = false;
+            if matches!(encoding, Encoding::Deflated) {
+                return Ok(true);
+            }
+            if matches!(encoding, Encoding::Explicit { big_endian: true }) {
+                // Re-read this header as big endian.
+                r.seek(SeekFrom::Start(pos))
+                    .map_err(|e| read_err(e.to_string()))?;
+                continue;
+            }
+        }
+        let u32_of = |b: [u8; 4]| {
+            if big {
+                u32::from_be_bytes(b)
+            } else {
+                u32::from_le_bytes(b)
+            }
+        };
+        let explicit = in_meta || matches!(encoding, Encoding::Explicit { .. });
+        let mut sequence = false;
+        let (length, header) = if group == 0xFFFE {
+            // Items and delimiters: tag and a 32-bit length in every encoding.
+            (u32_of([head[4], head[5], head[6], head[7]]), 8)
+        } else if explicit {
+            let vr = [head[4], head[5]];
+            sequence = &vr == b"SQ";
+            if LONG_VRS.contains(&&vr) {
+                let mut len = [0u8; 4];
+                r.read_exact(&mut len).map_err(|_| {
+                    read_err(format!(
+                        "the header of element ({group:04X},{element:04X}) at byte {pos} is cut \
+                         off by the end of the file"
+                    ))
+                })?;
+                (u32_of(len), 12)
+            } else {
+                (u32::from(u16_at(&head[6..8])), 8)
+            }
+        } else {
+            (u32_of([head[4], head[5], head[6], head[7]]), 8)
+        };
+        pos += header;
+        if group == 0xFFFE && element == 0xE0DD {
+            in_fragments = false;
+        }
+        if length == UNDEFINED {
+            // A sequence, an item or encapsulated pixel data: walk into it.
+            in_fragments |= (group, element) == (0x7FE0, 0x0010);
+            continue;
+        }
+        let left = size - pos.min(size);
+        if u64::from(length) > left {
+            return Err(read_err(format!(
+                "element ({group:04X},{element:04X}) at byte {} claims {length} bytes but only \
+                 {left} bytes follow in the {size}-byte file: the file is cut short or damaged; \
+                 export it again",
+                pos - header
+            )));
+        }
+        if in_meta && (group, element) == (0x0002, 0x0010) {
+            let mut uid = vec![0u8; length as usize];
+            r.read_exact(&mut uid)
+                .map_err(|e| read_err(e.to_string()))?;
+            let uid = String::from_utf8_lossy(&uid);
+            encoding = match uid.trim_end_matches(['\0', ' ']) {
+                "1.2.840.10008.1.2" => Encoding::Implicit,
+                "1.2.840.10008.1.2.2" => Encoding::Explicit { big_endian: true },
+                "1.2.840.10008.1.2.1.99" => Encoding::Deflated,
+                _ => Encoding::Explicit { big_endian: false },
+            };
+            pos += u64::from(length);
+        } else if sequence || (group == 0xFFFE && element == 0xE000 && !in_fragments) {
+            // A sequence or an item of defined length: its elements are walked too.
+        } else {
+            r.seek_relative(i64::from(length))
+                .map_err(|e| read_err(e.to_string()))?;
+            pos += u64::from(length);
+        }
+    }
+    Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn element(tag: (u16, u16), vr: &[u8; 2], value: &[u8], length: Option<u32>) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend(tag.0.to_le_bytes());
+        out.extend(tag.1.to_le_bytes());
+        out.extend(vr);
+        let len = length.unwrap_or(value.len() as u32);
+        if LONG_VRS.contains(&vr) {
+            out.extend([0, 0]);
+            out.extend(len.to_le_bytes());
+        } else {
+            out.extend((len as u16).to_le_bytes());
+        }
+        out.extend(value);
+        out
+    }
+
+    fn file(body: &[u8]) -> Vec<u8> {
+        let mut f = vec![0u8; 128];
+        f.extend(b"DICM");
+        let ts = element((2, 0x10), b"UI", b"1.2.840.10008.1.2.1\0", None);
+        f.extend(element(
+            (2, 0),
+            b"UL",
+            &(ts.len() as u32).to_le_bytes(),
+            None,
+        ));
+        f.extend(ts);
+        f.extend(body);
+        f
+    }
+
+    #[test]
+    fn lengths_that_fit_pass_and_a_lie_is_named() {
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("x.dcm");
+        let mut body = element((8, 0x60), b"CT", b"CT", None);
+        // A sequence of undefined length with one item of defined length.
+        body.extend(element((8, 0x1140), b"SQ", &[], Some(UNDEFINED)));
+        body.extend([0xFE, 0xFF, 0x00, 0xE0, 12, 0, 0, 0]);
+        body.extend(element((8, 0x1150), b"UI", b"1.2\0", None));
+        body.extend([0xFE, 0xFF, 0xDD, 0xE0, 0, 0, 0, 0]);
+        body.extend(element((0x7FE0, 0x10), b"OW", &[0; 8], None));
+        std::fs::write(&path, file(&body)).expect("write");
+        assert!(check_lengths(&path).expect("fits"));
+        body.extend(element((0x7FE1, 0x10), b"OB", &[0; 8], Some(0xFFFF_FFF0)));
+        std::fs::write(&path, file(&body)).expect("write");
+        let msg = check_lengths(&path).expect_err("lie").to_string();
+        assert!(
+            msg.contains("(7FE1,0010)") && msg.contains("4294967280"),
+            "{msg}"
+        );
+        std::fs::write(&path, b"not dicom").expect("write");
+        assert!(!check_lengths(&path).expect("not part 10"));
+    }
+}
