@@ -55,5 +55,12 @@ cargo test --workspace --all-features
 # The build without optional features (`--no-default-features`): how it treats a NEF, and
 # check-config refusing a gphoto2 camera it cannot drive.
 cargo test --no-default-features --lib -- rectify::frame config::
+# ...and the binary built without gphoto: check-config refuses a gphoto2 camera (issue 13).
+cargo test --no-default-features --test bounded_inputs -- config_gphoto2
+# Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the
+# seeds tests/fuzz_smoke.rs makes, then every target for LAYERWISE_FUZZ_SECONDS (default 25) s;
+# a crash, an abort, an allocation over 2 GB or an input taking over 10 s fails.
+LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds" cargo test --all-features --test fuzz_smoke
+bash fuzz/run.sh target/fuzz-seeds "${LAYERWISE_FUZZ_SECONDS:-25}"
 # Benchmarks are run by hand (cargo bench); here they only have to build.
 cargo bench --workspace --all-features --no-run
