@@ -226,6 +226,13 @@ fn dicom_slice(lie: Option<(u16, u16)>, z: f64) -> Vec<u8> {
     ds.extend(element(8, 0x60, b"CS", b"CT", None));
     ds.extend(element(9, 0x10, b"LO", b"ACME", None));
     ds.extend(element(9, 0x1000, b"OB", &[1, 2, 3, 4], lie_len(9, 0x1000)));
+    // A sequence of undefined length holding an item of defined length: walked into.
+    ds.extend(element(8, 0x1140, b"SQ", &[], Some(u32::MAX)));
+    let referenced = element(8, 0x1150, b"UI", class, None);
+    ds.extend([0xFE, 0xFF, 0x00, 0xE0]);
+    ds.extend((referenced.len() as u32).to_le_bytes());
+    ds.extend(referenced);
+    ds.extend([0xFE, 0xFF, 0xDD, 0xE0, 0, 0, 0, 0]);
     ds.extend(element(0x20, 0x0D, b"UI", b"1.2.3.1\0", None));
     ds.extend(element(0x20, 0x0E, b"UI", b"1.2.3.2\0", None));
     ds.extend(element(0x20, 0x13, b"IS", b"1 ", None));
@@ -320,7 +327,7 @@ fn dicom_symlink_loop_counts_each_file_once() {
 /// The SOF marker's offset in a JPEG (baseline or progressive).
 fn sof(jpeg: &[u8]) -> usize {
     jpeg.windows(2)
-        .position(|w| w[0] == 0xFF && matches!(w[1], 0xC0 | 0xC1 | 0xC2))
+        .position(|w| w[0] == 0xFF && matches!(w[1], 0xC0..=0xC2))
         .expect("a JPEG has a frame header")
 }
 
@@ -346,17 +353,7 @@ fn jpeg_whose_sof_claims_65500_by_65500_is_refused_to_png_and_to_dcm() {
 }
 
 fn rectify(view: &SmallView, image: &Path, out: &Path) -> Command {
-    let mut c = layerwise();
-    c.arg("rectify")
-        .arg("--calibration")
-        .arg(&view.calibration)
-        .arg("--config")
-        .arg(&view.config)
-        .arg("--image")
-        .arg(image)
-        .arg("--out")
-        .arg(out);
-    c
+    view.rectify_command(image, out)
 }
 
 #[test]
