@@ -49,9 +49,9 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
     while pos < size {
         let mut head = [0u8; 8];
         if r.read_exact(&mut head).is_err() {
-            return Err(read_err(format!(
-                "an element header at byte {pos} is cut off by the end of the file"
-            )));
+            // A few bytes after the last element (padding, or a cut header): no length to
+            // trust; the parser judges them.
+            return Ok(true);
         }
         let big = matches!(encoding, Encoding::Explicit { big_endian: true }) && !in_meta;
         let u16_at = |b: &[u8]| {
@@ -91,12 +91,9 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
             sequence = &vr == b"SQ";
             if LONG_VRS.contains(&&vr) {
                 let mut len = [0u8; 4];
-                r.read_exact(&mut len).map_err(|_| {
-                    read_err(format!(
-                        "the header of element ({group:04X},{element:04X}) at byte {pos} is cut \
-                         off by the end of the file"
-                    ))
-                })?;
+                if r.read_exact(&mut len).is_err() {
+                    return Ok(true);
+                }
                 (u32_of(len), 12)
             } else {
                 (u32::from(u16_at(&head[6..8])), 8)
@@ -160,7 +157,7 @@ mod tests {
         let mut short = vec![0u8; 128];
         short.extend(b"DICM\x02\x00");
         std::fs::write(&path, short).expect("write");
-        let msg = check_lengths(&path).expect_err("cut header").to_string();
-        assert!(msg.contains("byte 132"), "{msg}");
+        // A cut header states no length: left to the parser too.
+        assert!(check_lengths(&path).expect("cut header"));
     }
 }
