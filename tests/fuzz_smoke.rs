@@ -398,3 +398,28 @@ fn dicom_slices() {
         ));
     }));
 }
+
+/// Found by the libFuzzer target `frames` (fuzz/run.sh): the seeds' NEF with 7,579 bytes of its
+/// compressed data replaced by a span of the seeds' JPEG makes rawler panic ("Can't refill
+/// bitpump, buffer exhausted"). The frame decoders catch that and return an error, so `rectify`
+/// and the daemon see a bad frame, not a crash.
+#[test]
+fn nef_with_damaged_compressed_data_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = common::SmallView::new(dir.path());
+    let (jpeg, nef) = (
+        view.jpeg(),
+        mock_camera::nef::encode_nef(&view.picture(), &Default::default()),
+    );
+    assert!(layerwise::rectify::decode_frame_luma(&nef).is_ok());
+    let mut damaged = nef.clone();
+    damaged[14145..21724].copy_from_slice(&jpeg[4920..4920 + 7579]);
+    let luma = catch_unwind(|| layerwise::rectify::decode_frame_luma(&damaged).map(|_| ()));
+    let colour = catch_unwind(|| layerwise::rectify::decode_frame(&damaged).map(|_| ()));
+    assert!(
+        matches!(luma, Ok(Err(_))) && matches!(colour, Ok(Err(_))),
+        "{:?} {:?}",
+        luma.map(|r| r.err().map(|e| e.to_string())),
+        colour.map(|r| r.err().map(|e| e.to_string()))
+    );
+}
