@@ -310,6 +310,27 @@ fn dicom_private_ob_claiming_0xfffffff0_bytes_is_refused() {
     check_dicom_length_lie((0x9, 0x1000), "(0009,1000)");
 }
 
+/// Found by the libFuzzer target `ct_volume` (a timeout: 13 s, 1.9 GB): an element whose VR is
+/// unknown ("L~") has a 32-bit length, read from what was its value, so dicom-rs allocated
+/// ~1.9 GB. The length walk reads unknown VRs the same way and refuses the length.
+#[test]
+fn dicom_unknown_vr_with_a_long_length_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = dicom_folder(dir.path(), None);
+    let slice = folder.join("slice.dcm");
+    let mut bytes = std::fs::read(&slice).unwrap();
+    let at = bytes
+        .windows(8)
+        .position(|w| w == b"LO\x04\x00ACME")
+        .unwrap();
+    bytes[at + 1] = b'~';
+    std::fs::write(&slice, bytes).unwrap();
+    refused(
+        layerwise().args(["dicom", "info"]).arg(&folder),
+        &["slice.dcm", "(0009,0010)", "bytes"],
+    );
+}
+
 #[test]
 fn dicom_symlink_loop_counts_each_file_once() {
     let dir = tempfile::tempdir().unwrap();

@@ -7,9 +7,11 @@ use std::path::Path;
 
 use super::DicomError;
 
-/// Value representations whose length is 32-bit in explicit VR (2 reserved bytes first).
-const LONG_VRS: [&[u8; 2]; 13] = [
-    b"OB", b"OD", b"OF", b"OL", b"OV", b"OW", b"SQ", b"SV", b"UC", b"UN", b"UR", b"UT", b"UV",
+/// Value representations whose length is 16-bit in explicit VR. Every other VR, an unknown
+/// one included (PS3.5 6.2.2, as dicom-rs reads it), has 2 reserved bytes and a 32-bit length.
+const SHORT_VRS: [&[u8; 2]; 21] = [
+    b"AE", b"AS", b"AT", b"CS", b"DA", b"DS", b"DT", b"FL", b"FD", b"IS", b"LO", b"LT", b"PN",
+    b"SH", b"SL", b"SS", b"ST", b"TM", b"UI", b"UL", b"US",
 ];
 
 const UNDEFINED: u32 = 0xFFFF_FFFF;
@@ -89,7 +91,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
         } else if explicit {
             let vr = [head[4], head[5]];
             sequence = &vr == b"SQ";
-            if LONG_VRS.contains(&&vr) {
+            if !SHORT_VRS.contains(&&vr) {
                 let mut len = [0u8; 4];
                 if r.read_exact(&mut len).is_err() {
                     return Ok(true);
