@@ -159,22 +159,47 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
     Ok(())
 }
 
-/// Reads a small text file (a configuration, a calibration, a points file) whole: refused unless
-/// it is a regular file (a FIFO would block, `/dev/zero` never ends) of at most `max_bytes`.
-pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
-    use std::io::Read;
-    // O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused just below.
+/// Opens an input file for reading, refused unless it is a regular file: a FIFO would block
+/// (the open itself is non-blocking, so it cannot wait for a writer), `/dev/zero` never ends, a
+/// directory is not a file.
+pub fn open_regular(path: &Path) -> std::io::Result<File> {
     let file = OpenOptions::new()
         .read(true)
         .custom_flags(libc::O_NONBLOCK | libc::O_CLOEXEC)
         .open(path)?;
-    let meta = file.metadata()?;
-    if !meta.is_file() {
+    if !file.metadata()?.is_file() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             "not a regular file (a FIFO, device or directory cannot be read as a file)",
         ));
     }
+    // Reads from a regular file never block; back to ordinary blocking mode all the same.
+    // SAFETY: fcntl on a descriptor this function owns.
+    unsafe {
+        use std::os::fd::AsRawFd;
+        let flags = libc::fcntl(file.as_raw_fd(), libc::F_GETFL);
+        if flags >= 0 {
+            libc::fcntl(file.as_raw_fd(), libc::F_SETFL, flags & !libc::O_NONBLOCK);
+        }
+    }
+    Ok(file)
+}
+
+/// Reads a whole input file (a frame, a vector file) that must be a regular file (see
+/// [`open_regular`]).
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut file = open_regular(path)?;
+    let mut bytes = Vec::with_capacity(file.metadata()?.len().min(1 << 30) as usize);
+    file.read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// Reads a small text file (a configuration, a calibration, a points file) whole: refused unless
+/// it is a regular file (a FIFO would block, `/dev/zero` never ends) of at most `max_bytes`.
+pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
+    use std::io::Read;
+    let file = open_regular(path)?;
     let mut bytes = Vec::new();
     file.take(max_bytes + 1).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > max_bytes {

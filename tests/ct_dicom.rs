@@ -124,7 +124,7 @@ fn oblique_signed_series_geometry_and_values() {
         ct::Volume::new_scaled([nx, ny, nz], [h; 3], VoxelData::U16(data.clone())).expect("vol");
     write_series(&dir, &vol);
     std::fs::write(dir.join("README.txt"), "not dicom").expect("txt");
-    let back = volume::read_dicom_series(&dir).expect("read");
+    let back = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect("read");
     assert_eq!(back.dims, [nx, ny, nz]);
     assert!(
         matches!(back.data, VoxelData::I16(_)),
@@ -153,7 +153,7 @@ fn oblique_signed_series_geometry_and_values() {
 #[test]
 fn dicom_errors_name_the_file() {
     let dir = scratch("errors");
-    let e = volume::read_dicom_series(&dir).expect_err("empty folder");
+    let e = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect_err("empty folder");
     assert!(e.to_string().contains("no DICOM image"), "{e}");
     let px = vec![0i16; 4];
     let (r, _) = oblique();
@@ -167,7 +167,7 @@ fn dicom_errors_name_the_file() {
     ];
     write_slice(&dir, "a.dcm", 0, 2, 2, &px, iop, [0.0, 0.0, 0.0], 0.1);
     write_slice(&dir, "b.dcm", 1, 2, 2, &px, iop, [0.0, 0.0, 0.0], 0.1);
-    let e = volume::read_dicom_series(&dir).expect_err("same position");
+    let e = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect_err("same position");
     assert!(e.to_string().contains("same slice position"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -184,7 +184,7 @@ fn registration_through_an_oblique_dicom_series() {
     let ct = synth::render(&part, &spec);
     let dir = scratch("series");
     write_series(&dir, &ct.volume);
-    let vol = volume::read_dicom_series(&dir).expect("read series");
+    let vol = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect("read series");
     std::fs::remove_dir_all(&dir).ok();
 
     let (r_d, p0) = oblique();

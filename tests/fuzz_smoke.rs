@@ -1,6 +1,9 @@
 //! Every parser, fed mutated inputs: a deterministic mutational fuzzer that runs in CI on the
-//! stable toolchain (the coverage-guided targets of the same functions are in `fuzz/`, for
-//! `cargo +nightly fuzz run`). Seeds are valid inputs made by code; each mutant (bit flips,
+//! stable toolchain. The coverage-guided libFuzzer targets of the same functions are in `fuzz/`
+//! (`bash fuzz/run.sh SEEDS SECONDS`, in tests/run.sh): with `LAYERWISE_FUZZ_SEEDS=DIR` set,
+//! these tests also write their seeds there, one folder per fuzz target, as that corpus.
+//! `LAYERWISE_FUZZ_MUTANTS=N` runs N mutants per seed instead of the default (a longer run).
+//! Seeds are valid inputs made by code; each mutant (bit flips,
 //! extreme bytes, cuts, repeated spans, huge or odd numbers spliced into text) must give `Ok` or
 //! an error, never a panic (an allocation sized by a wild header shows up as a capacity panic or
 //! an abort). A mutant that panics is kept in target/fuzz-smoke/ and named in the failure.
@@ -92,12 +95,47 @@ fn fuzz(name: &str, seeds: &[Vec<u8>], parse: impl FnMut(&[u8])) -> Vec<PathBuf>
     fuzz_n(name, seeds, MUTANTS, parse)
 }
 
+/// The fuzz target (in fuzz/) that reads what the seeds of `name` are, and the byte that picks
+/// the reader in a target that holds several.
+fn fuzz_target_of(name: &str) -> (&'static str, Option<u8>) {
+    match name {
+        "config" => ("config", None),
+        "calibration" | "points" => ("calibration", None),
+        "frames" => ("frames", None),
+        "journal" | "ct-toml" => ("journal", None),
+        "scan.pcr" => ("ct_volume", Some(0)),
+        "scan.vgi" => ("ct_volume", Some(1)),
+        "tiff" => ("ct_volume", Some(2)),
+        "dicom" | "dicom-ct" => ("ct_volume", Some(3)),
+        _ => ("vectors", None),
+    }
+}
+
+/// With `LAYERWISE_FUZZ_SEEDS=DIR`: the seeds of `name` written to DIR/<fuzz target>/.
+fn save_seeds(name: &str, seeds: &[Vec<u8>]) {
+    let Some(root) = std::env::var_os("LAYERWISE_FUZZ_SEEDS") else {
+        return;
+    };
+    let (target, selector) = fuzz_target_of(name);
+    let dir = Path::new(&root).join(target);
+    std::fs::create_dir_all(&dir).unwrap();
+    for (s, seed) in seeds.iter().enumerate() {
+        let bytes: Vec<u8> = selector.into_iter().chain(seed.iter().copied()).collect();
+        std::fs::write(dir.join(format!("{name}-{s}")), bytes).unwrap();
+    }
+}
+
 fn fuzz_n(
     name: &str,
     seeds: &[Vec<u8>],
     mutants: u64,
     mut parse: impl FnMut(&[u8]),
 ) -> Vec<PathBuf> {
+    save_seeds(name, seeds);
+    let mutants = std::env::var("LAYERWISE_FUZZ_MUTANTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(mutants);
     let mut failures = Vec::new();
     let keep = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-smoke");
     for (s, seed) in seeds.iter().enumerate() {
@@ -304,6 +342,35 @@ fn ct_volume_headers() {
 }
 
 #[test]
+fn ct_tiff_slices() {
+    use layerwise::ct::volume::{read_volume, VolumeSource};
+    let dir = tempfile::tempdir().unwrap();
+    let stack = dir.path().join("stack");
+    std::fs::create_dir(&stack).unwrap();
+    let mut seeds = Vec::new();
+    for (k, img) in [
+        image::DynamicImage::ImageLuma16(image::ImageBuffer::from_fn(6, 5, |x, y| {
+            image::Luma([(x * 1000 + y) as u16])
+        })),
+        image::DynamicImage::ImageLuma8(image::ImageBuffer::from_fn(4, 4, |x, y| {
+            image::Luma([(x * 30 + y) as u8])
+        })),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let path = dir.path().join(format!("seed{k}.tif"));
+        img.save(&path).unwrap();
+        seeds.push(std::fs::read(&path).unwrap());
+    }
+    let target = stack.join("s000.tif");
+    assert_no_panics(fuzz("tiff", &seeds, |b| {
+        std::fs::write(&target, b).unwrap();
+        let _ = read_volume(&VolumeSource::Tiff(stack.clone(), 0.05));
+    }));
+}
+
+#[test]
 fn dicom_slices() {
     let dir = tempfile::tempdir().unwrap();
     let view = common::SmallView::new(dir.path());
@@ -325,5 +392,34 @@ fn dicom_slices() {
     assert_no_panics(fuzz_n("dicom", &[seed], DICOM_MUTANTS, |b| {
         std::fs::write(&target, b).unwrap();
         let _ = layerwise::dicom::series_info(&series);
+        // The CT reader of the same folder (pixels too).
+        let _ = layerwise::ct::volume::read_volume(&layerwise::ct::volume::VolumeSource::Dicom(
+            series.clone(),
+        ));
     }));
+}
+
+/// Found by the libFuzzer target `frames` (fuzz/run.sh): the seeds' NEF with 7,579 bytes of its
+/// compressed data replaced by a span of the seeds' JPEG makes rawler panic ("Can't refill
+/// bitpump, buffer exhausted"). The frame decoders catch that and return an error, so `rectify`
+/// and the daemon see a bad frame, not a crash.
+#[test]
+fn nef_with_damaged_compressed_data_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = common::SmallView::new(dir.path());
+    let (jpeg, nef) = (
+        view.jpeg(),
+        mock_camera::nef::encode_nef(&view.picture(), &Default::default()),
+    );
+    assert!(layerwise::rectify::decode_frame_luma(&nef).is_ok());
+    let mut damaged = nef.clone();
+    damaged[14145..21724].copy_from_slice(&jpeg[4920..4920 + 7579]);
+    let luma = catch_unwind(|| layerwise::rectify::decode_frame_luma(&damaged).map(|_| ()));
+    let colour = catch_unwind(|| layerwise::rectify::decode_frame(&damaged).map(|_| ()));
+    assert!(
+        matches!(luma, Ok(Err(_))) && matches!(colour, Ok(Err(_))),
+        "{:?} {:?}",
+        luma.map(|r| r.err().map(|e| e.to_string())),
+        colour.map(|r| r.err().map(|e| e.to_string()))
+    );
 }

@@ -55,5 +55,18 @@ cargo test --workspace --all-features
 # The build without optional features (`--no-default-features`): how it treats a NEF, and
 # check-config refusing a gphoto2 camera it cannot drive.
 cargo test --no-default-features --lib -- rectify::frame config::
+# ...and the binary built without gphoto: check-config refuses a gphoto2 camera (issue 13).
+cargo test --no-default-features --test bounded_inputs -- config_gphoto2
+# Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the
+# seeds tests/fuzz_smoke.rs makes, then every target for LAYERWISE_FUZZ_SECONDS s; a crash, an
+# abort, an allocation over 2 GB or an input taking over 10 s fails. Off unless asked for
+# (LAYERWISE_FUZZ_SECONDS=60 bash tests/run.sh): the instrumented build of every dependency alone
+# would take this run past its 30-minute budget on 2 cores. The deterministic mutation tests of
+# every parser (tests/fuzz_smoke.rs) run above in every run.
+fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-0}"
+if [ "$fuzz_seconds" != 0 ]; then
+  LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds" cargo test --all-features --test fuzz_smoke
+  bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds"
+fi
 # Benchmarks are run by hand (cargo bench); here they only have to build.
 cargo bench --workspace --all-features --no-run

@@ -64,6 +64,10 @@ pub struct CtArgs {
     /// Voxel size of the vectors' signed distance volume.
     #[arg(long, default_value_t = 0.05)]
     tsdf_voxel_mm: f64,
+    /// Largest CT read, in voxels (default 2 G, about 4 GB of 16-bit voxels): a bigger scan is
+    /// refused from its header unless this lifts the cap (the machine needs the memory).
+    #[arg(long, default_value_t = layerwise::ct::volume::MAX_VOXELS)]
+    max_voxels: usize,
     /// The resampled series' layer numbers (with --build: the build's configuration decides).
     #[command(flatten)]
     numbering: super::numbering::NumberingArgs,
@@ -109,7 +113,7 @@ impl CtArgs {
     fn run(self) -> Result<()> {
         use layerwise::ct;
         let recorded = self.layout.source(&self.ct)?;
-        let volume = recorded.read()?;
+        let volume = recorded.read_capped(self.max_voxels)?;
         let mut params = ct::CtParams::default();
         if let Some(v) = self.threshold {
             params.threshold = ct::surface::Threshold::Value(v);

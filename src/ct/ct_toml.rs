@@ -6,8 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::symmetry::FreeRotation;
 use super::{
-    io_err, read_volume, write_err, CtError, CtRegistration, RawSpec, Result, Termination, Volume,
-    VolumeSource,
+    io_err, write_err, CtError, CtRegistration, RawSpec, Result, Termination, Volume, VolumeSource,
 };
 use crate::geometry::Rigid3;
 
@@ -47,8 +46,13 @@ pub struct CtSource {
 }
 
 impl CtSource {
-    /// Reads the volume it names.
+    /// Reads the volume it names (at most the default [`super::volume::MAX_VOXELS`]).
     pub fn read(&self) -> Result<Volume> {
+        self.read_capped(super::volume::MAX_VOXELS)
+    }
+
+    /// Reads the volume it names, refusing one of more than `max_voxels` voxels from its header.
+    pub fn read_capped(&self, max_voxels: usize) -> Result<Volume> {
         let path = std::path::PathBuf::from(&self.path);
         let source = match (&self.size, &self.dtype, self.voxel_mm) {
             (Some(size), Some(dtype), Some(voxel)) => {
@@ -56,7 +60,7 @@ impl CtSource {
             }
             _ => VolumeSource::detect(&path, self.voxel_mm)?,
         };
-        read_volume(&source)
+        super::volume::read_volume_capped(&source, max_voxels)
     }
 }
 

@@ -12,7 +12,10 @@ use dicom_transfer_syntax_registry::TransferSyntaxIndex;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+// Element lengths checked against the file before a parser trusts them.
+mod lengths;
 pub mod uid;
+pub use lengths::check_lengths;
 pub use uid::{derived_uid, new_uid};
 
 /// CT Image Storage.
@@ -60,6 +63,9 @@ pub enum DicomError {
     Read { path: PathBuf, message: String },
     #[error("{path}: {message}")]
     Geometry { path: PathBuf, message: String },
+    /// A stated length the file cannot hold (checked before any parser trusts it).
+    #[error("{path}: {message}")]
+    Damaged { path: PathBuf, message: String },
     #[error(
         "{path}: cannot search this folder ({source}); give an existing folder of DICOM files"
     )]
@@ -571,6 +577,7 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
     files.sort();
     let mut series: BTreeMap<String, SeriesSummary> = BTreeMap::new();
     for path in files {
+        check_lengths(&path)?;
         let obj = OpenFileOptions::new()
             .read_until(tags::PIXEL_DATA)
             .open_file(&path)
@@ -642,8 +649,20 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
 }
 
 /// The `.dcm` files below `dir`: real folders only (a symbolic link to a folder is not followed,
-/// so a link loop cannot make the search endless), at most 32 levels deep.
+/// so a link loop cannot make the search endless), at most 32 levels deep, each file once (a
+/// link to a file already listed is not counted again).
 fn collect_dcm(dir: &Path, out: &mut Vec<PathBuf>, depth: usize) -> std::io::Result<()> {
+    let mut seen = std::collections::HashSet::new();
+    collect_dcm_once(dir, out, depth, &mut seen)
+}
+
+fn collect_dcm_once(
+    dir: &Path,
+    out: &mut Vec<PathBuf>,
+    depth: usize,
+    seen: &mut std::collections::HashSet<(u64, u64)>,
+) -> std::io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
     if depth > 32 {
         return Err(std::io::Error::other(format!(
             "{} is more than 32 folders deep",
@@ -654,9 +673,13 @@ fn collect_dcm(dir: &Path, out: &mut Vec<PathBuf>, depth: usize) -> std::io::Res
         let entry = entry?;
         let path = entry.path();
         if entry.file_type()?.is_dir() {
-            collect_dcm(&path, out, depth + 1)?;
+            collect_dcm_once(&path, out, depth + 1, seen)?;
         } else if path.extension().is_some_and(|e| e == "dcm") {
-            out.push(path);
+            // A dangling link is listed (and named when it cannot be read).
+            let id = std::fs::metadata(&path).map(|m| (m.dev(), m.ino())).ok();
+            if id.is_none_or(|id| seen.insert(id)) {
+                out.push(path);
+            }
         }
     }
     Ok(())

@@ -21,7 +21,7 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
         .set_max_height(usize::from(u16::MAX))
         // Truncated or corrupt entropy data is an error, not grey rows.
         .set_strict_mode(true);
-    let mut dec = JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+    let mut dec = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
     dec.decode_headers()
         .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
     let grey = matches!(dec.input_colorspace(), Some(ColorSpace::Luma));

@@ -38,7 +38,7 @@ pub fn rectify_file(
         path: image.display().to_string(),
         message,
     };
-    let bytes = std::fs::read(image).map_err(|e| bad_image(e.to_string()))?;
+    let bytes = crate::fsutil::read_regular(image).map_err(|e| bad_image(e.to_string()))?;
     match out
         .extension()
         .and_then(|e| e.to_str())

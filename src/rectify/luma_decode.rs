@@ -16,7 +16,7 @@ pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
         // Truncated or corrupt entropy data is an error, not grey rows.
         .set_strict_mode(true)
         .jpeg_set_out_colorspace(ColorSpace::Luma);
-    let mut decoder = JpegDecoder::new_with_options(ZCursor::new(bytes), options);
+    let mut decoder = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
     decoder
         .decode_headers()
         .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;

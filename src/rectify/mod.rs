@@ -91,6 +91,14 @@ pub enum RectifyError {
 /// claims more is refused before anything is allocated.
 pub const MAX_FRAME_PIXELS: usize = 1 << 27;
 
+/// The JPEG without its final end-of-image marker, for the decoder: zune-jpeg, even strict,
+/// fills a scan that meets an EOI early with zero bits (a frame cut short and closed by a proper
+/// EOI would decode to grey rows); where the data simply ends, strict mode reports the
+/// premature end instead. A complete scan needs no EOI to decode.
+pub(crate) fn scan_end(bytes: &[u8]) -> &[u8] {
+    bytes.strip_suffix(&[0xFF, 0xD9]).unwrap_or(bytes)
+}
+
 /// Refuses a frame header whose size no camera frame has.
 pub(crate) fn check_frame_size(width: usize, height: usize) -> Result<(), RectifyError> {
     match width.checked_mul(height) {

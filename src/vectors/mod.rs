@@ -193,7 +193,7 @@ pub struct VectorFile {
 /// Reads a whole CLI file (ASCII or binary, detected from the header).
 pub fn read(path: &Path) -> Result<VectorFile, VectorError> {
     let name = stream::display_name(path);
-    let bytes = std::fs::read(path).map_err(|source| VectorError::Io {
+    let bytes = crate::fsutil::read_regular(path).map_err(|source| VectorError::Io {
         file: name.clone(),
         source,
     })?;

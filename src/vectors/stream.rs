@@ -176,7 +176,7 @@ pub(crate) fn open_file(path: &Path) -> Result<(BufReader<File>, u64, String), V
         file: name.clone(),
         source,
     };
-    let file = File::open(path).map_err(io)?;
+    let file = crate::fsutil::open_regular(path).map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     Ok((BufReader::with_capacity(BUFFER, file), len, name))
 }

@@ -293,7 +293,13 @@ impl SmallView {
 
     /// `layerwise rectify` of one frame with this calibration.
     pub fn rectify(&self, image: &Path, out: &Path) -> std::process::Output {
-        layerwise()
+        self.rectify_command(image, out).output().unwrap()
+    }
+
+    /// The `layerwise rectify` command of [`SmallView::rectify`], not started.
+    pub fn rectify_command(&self, image: &Path, out: &Path) -> std::process::Command {
+        let mut command = layerwise();
+        command
             .arg("rectify")
             .arg("--calibration")
             .arg(&self.calibration)
@@ -302,9 +308,8 @@ impl SmallView {
             .arg("--image")
             .arg(image)
             .arg("--out")
-            .arg(out)
-            .output()
-            .unwrap()
+            .arg(out);
+        command
     }
 }
 

@@ -82,7 +82,7 @@ fn dicom_uint(obj: &DicomObject, path: &Path, tag: dicom_core::Tag, name: &str) 
 /// Geometry from ImagePositionPatient, ImageOrientationPatient and PixelSpacing; the slice axis
 /// is the step between consecutive positions (so gantry tilt is kept) and must be uniform.
 /// Values are RescaleSlope × stored + RescaleIntercept.
-pub fn read_dicom_series(dir: &Path) -> Result<Volume> {
+pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
     use dicom_dictionary_std::tags;
     let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(io_err(dir))?
@@ -93,12 +93,25 @@ pub fn read_dicom_series(dir: &Path) -> Result<Volume> {
     // Pass 1: headers only, to order the slices.
     let mut slices = Vec::new();
     for path in entries {
-        let Ok(obj) = dicom_object::OpenFileOptions::new()
+        // Every stated length must fit in the file before the parser sizes a read by it.
+        let part10 = crate::dicom::check_lengths(&path).map_err(|e| match e {
+            crate::dicom::DicomError::Damaged { message, .. } => dicom_err(&path, message),
+            other => dicom_err(&path, other.to_string()),
+        })?;
+        let obj = match dicom_object::OpenFileOptions::new()
             .read_until(tags::PIXEL_DATA)
             .open_file(&path)
-        else {
+        {
+            Ok(obj) => obj,
+            // A DICOM file that does not parse is damaged: named, never silently left out.
+            Err(e) if part10 => {
+                return Err(dicom_err(
+                    &path,
+                    format!("not a readable DICOM file ({e}): export the series again"),
+                ))
+            }
             // Not a DICOM file (a DICOMDIR's companions, notes, thumbnails): skip it.
-            continue;
+            Err(_) => continue,
         };
         if obj.element_opt(tags::ROWS).ok().flatten().is_none() {
             continue; // no image (e.g. a DICOMDIR or a structured report)
@@ -194,6 +207,7 @@ pub fn read_dicom_series(dir: &Path) -> Result<Volume> {
         }
     }
     let nz = slices.len();
+    super::check_voxels(dir, [columns, rows, nz], max_voxels)?;
     let p0 = nalgebra::Vector3::from(slices[0].position);
     let step = if nz > 1 {
         (nalgebra::Vector3::from(slices[nz - 1].position) - p0) / (nz - 1) as f64

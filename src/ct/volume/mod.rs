@@ -18,7 +18,7 @@ use super::{io_err, CtError, Result};
 
 pub use dicom::read_dicom_series;
 pub use phoenix::{phoenix_spec, read_phoenix, write_phoenix};
-pub use raw::{read_raw, RawDtype, RawSpec};
+pub use raw::{check_voxels, read_raw, RawDtype, RawSpec, MAX_VOXELS};
 pub use tiff::read_tiff_stack;
 pub use vgi::{read_vgi, vgi_spec};
 
@@ -228,14 +228,20 @@ impl VolumeSource {
     }
 }
 
-/// Read a CT volume from any supported source.
+/// Read a CT volume from any supported source, at most [`MAX_VOXELS`] voxels.
 pub fn read_volume(source: &VolumeSource) -> Result<Volume> {
+    read_volume_capped(source, MAX_VOXELS)
+}
+
+/// Read a CT volume from any supported source; a volume of more than `max_voxels` voxels is
+/// refused from its header, before anything is allocated.
+pub fn read_volume_capped(source: &VolumeSource, max_voxels: usize) -> Result<Volume> {
     match source {
-        VolumeSource::Phoenix(p) => read_phoenix(p),
-        VolumeSource::Vgi(p) => read_vgi(p),
-        VolumeSource::Raw(p, spec) => read_raw(p, spec),
-        VolumeSource::Tiff(p, v) => read_tiff_stack(p, [*v; 3]),
-        VolumeSource::Dicom(p) => read_dicom_series(p),
+        VolumeSource::Phoenix(p) => read_phoenix(p, max_voxels),
+        VolumeSource::Vgi(p) => read_vgi(p, max_voxels),
+        VolumeSource::Raw(p, spec) => read_raw(p, spec, max_voxels),
+        VolumeSource::Tiff(p, v) => read_tiff_stack(p, [*v; 3], max_voxels),
+        VolumeSource::Dicom(p) => read_dicom_series(p, max_voxels),
     }
 }
 

@@ -10,8 +10,8 @@ fn sibling(path: &Path, ext: &str) -> PathBuf {
     path.with_extension(ext)
 }
 
-/// Read a GE phoenix volume: `path` is the `.pcr` or the `.vol`.
-pub fn read_phoenix(path: &Path) -> Result<Volume> {
+/// Read a GE phoenix volume: `path` is the `.pcr` or the `.vol`; at most `max_voxels` voxels.
+pub fn read_phoenix(path: &Path, max_voxels: usize) -> Result<Volume> {
     let is_pcr = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("pcr"));
@@ -21,7 +21,7 @@ pub fn read_phoenix(path: &Path) -> Result<Volume> {
         (sibling(path, "pcr"), path.to_path_buf())
     };
     let spec = phoenix_spec(&pcr)?;
-    read_raw(&vol, &spec)
+    read_raw(&vol, &spec, max_voxels)
 }
 
 /// Writes `volume` as a GE phoenix volume: the `.pcr` header at `pcr` and the raw voxels in the
@@ -102,7 +102,7 @@ pub fn phoenix_spec(pcr: &Path) -> Result<RawSpec> {
 mod tests {
     use super::*;
     use crate::ct::volume::tests::{scratch, write_u16};
-    use crate::ct::volume::VoxelData;
+    use crate::ct::volume::{VoxelData, MAX_VOXELS};
 
     #[test]
     fn phoenix_pcr_and_vol() {
@@ -115,7 +115,7 @@ mod tests {
         )
         .expect("pcr");
         for p in [d.join("part.pcr"), d.join("part.vol")] {
-            let vol = read_phoenix(&p).expect("read");
+            let vol = read_phoenix(&p, crate::ct::volume::MAX_VOXELS).expect("read");
             assert_eq!(vol.dims, [4, 3, 2]);
             assert_eq!(vol.voxel_mm, [0.0421; 3]);
             assert_eq!(vol.data, VoxelData::U16(v.clone()));
@@ -134,7 +134,7 @@ mod tests {
         let data: Vec<u16> = (0..5 * 4 * 3).map(|i| (i * 1000) as u16).collect();
         let vol = Volume::new_scaled([5, 4, 3], [0.07; 3], VoxelData::U16(data)).expect("vol");
         write_phoenix(&d.join("ct.pcr"), &vol).expect("write");
-        let back = read_phoenix(&d.join("ct.pcr")).expect("read");
+        let back = read_phoenix(&d.join("ct.pcr"), MAX_VOXELS).expect("read");
         assert_eq!((back.dims, back.voxel_mm), (vol.dims, vol.voxel_mm));
         assert_eq!(back.data, vol.data);
         let anisotropic =
@@ -152,7 +152,8 @@ mod tests {
             "[VolumeData]\nVolume_SizeX=4\nVolume_SizeY=3\nVolume_SizeZ=2\nFormat=5\nVoxelSizeRec=0.05\n",
         )
         .expect("pcr");
-        let e = read_phoenix(&d.join("part.pcr")).expect_err("short file");
+        let e = read_phoenix(&d.join("part.pcr"), crate::ct::volume::MAX_VOXELS)
+            .expect_err("short file");
         let msg = e.to_string();
         assert!(msg.contains("part.vol"), "{msg}");
         assert!(

@@ -1,6 +1,5 @@
 //! Headerless little-endian raw volumes with an explicit layout.
 
-use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
@@ -76,35 +75,42 @@ impl RawSpec {
     }
 }
 
-/// Largest volume read, in voxels (2 G: 4 GB of 16-bit voxels; the registration bench's CT is
-/// 0.17 G voxels).
+/// Largest volume read by default, in voxels (2 G: 4 GB of 16-bit voxels; the registration
+/// bench's CT is 0.17 G voxels). `register ct --max-voxels N` lifts it for a bigger scan.
 pub const MAX_VOXELS: usize = 1 << 31;
 
-/// Read a raw volume, one slice at a time.
-pub fn read_raw(path: &Path, spec: &RawSpec) -> Result<Volume> {
+/// Refuses a volume of `dims` with more than `max_voxels` voxels, before anything is allocated;
+/// returns the voxel count.
+pub fn check_voxels(path: &Path, dims: [usize; 3], max_voxels: usize) -> Result<usize> {
+    let [nx, ny, nz] = dims;
+    nx.checked_mul(ny)
+        .and_then(|v| v.checked_mul(nz))
+        .filter(|&n| n <= max_voxels)
+        .ok_or_else(|| {
+            CtError::Invalid(format!(
+                "{}: {nx} x {ny} x {nz} voxels is more than the {max_voxels} voxels a CT may \
+                 have here (the default cap is {} G voxels): check the size, crop the volume, or \
+                 lift the cap with --max-voxels N if the machine has the memory",
+                path.display(),
+                MAX_VOXELS >> 30
+            ))
+        })
+}
+
+/// Read a raw volume, one slice at a time; at most `max_voxels` voxels.
+pub fn read_raw(path: &Path, spec: &RawSpec, max_voxels: usize) -> Result<Volume> {
     let [nx, ny, nz] = spec.dims;
     let bpv = spec.dtype.bytes();
     let slice_bytes = nx
         .checked_mul(ny)
         .and_then(|v| v.checked_mul(bpv))
         .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
-    let voxels = nx
-        .checked_mul(ny)
-        .and_then(|v| v.checked_mul(nz))
-        .filter(|&n| n <= MAX_VOXELS)
-        .ok_or_else(|| {
-            CtError::Invalid(format!(
-                "{}: {nx} x {ny} x {nz} voxels is more than the {} G voxels a CT may have here: \
-                 check the size, or crop the volume",
-                path.display(),
-                MAX_VOXELS >> 30
-            ))
-        })?;
+    let voxels = check_voxels(path, spec.dims, max_voxels)?;
     let expected = (slice_bytes as u64)
         .checked_mul(nz as u64)
         .and_then(|v| v.checked_add(spec.header_bytes))
         .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
-    let file = File::open(path).map_err(io_err(path))?;
+    let file = crate::fsutil::open_regular(path).map_err(io_err(path))?;
     let actual = file.metadata().map_err(io_err(path))?.len();
     if actual != expected {
         return Err(CtError::SizeMismatch {
@@ -155,7 +161,7 @@ mod tests {
         let d = scratch("explicit");
         let v = write_u16(&d.join("x.raw"), 24);
         let spec = RawSpec::from_args("4,3,2", 0.1, "u16").expect("spec");
-        let vol = read_raw(&d.join("x.raw"), &spec).expect("read");
+        let vol = read_raw(&d.join("x.raw"), &spec, MAX_VOXELS).expect("read");
         assert_eq!(vol.data, VoxelData::U16(v));
         assert!(RawSpec::from_args("4,3", 0.1, "u16").is_err());
         let msg = RawSpec::from_args("4,3,2", 0.1, "u12")
@@ -165,6 +171,7 @@ mod tests {
         let msg = read_raw(
             &d.join("x.raw"),
             &RawSpec::from_args("4,3,2", 0.1, "f32").expect("spec"),
+            MAX_VOXELS,
         )
         .expect_err("f32 needs 96 bytes")
         .to_string();

@@ -2,10 +2,12 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{io_err, CtError, Result, Volume, VoxelData};
+use super::{check_voxels, io_err, CtError, Result, Volume, VoxelData};
 
-/// Read a folder of `.tif`/`.tiff` slices sorted by name (slice k at z = k × voxel).
-pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3]) -> Result<Volume> {
+/// Read a folder of `.tif`/`.tiff` slices sorted by name (slice k at z = k × voxel); at most
+/// `max_voxels` voxels, checked from the first slice's header and the number of files before
+/// anything is reserved or decoded.
+pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3], max_voxels: usize) -> Result<Volume> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(io_err(dir))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -21,6 +23,17 @@ pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3]) -> Result<Volume> {
             message: "no .tif/.tiff files in the folder".into(),
         });
     }
+    let (w, h) = image::ImageReader::open(&files[0])
+        .map_err(io_err(&files[0]))?
+        .with_guessed_format()
+        .map_err(io_err(&files[0]))?
+        .into_dimensions()
+        .map_err(|e| CtError::Decode {
+            path: files[0].clone(),
+            what: "read the header of the TIFF slice",
+            source: Box::new(e),
+        })?;
+    check_voxels(dir, [w as usize, h as usize, files.len()], max_voxels)?;
     let mut data: Option<VoxelData> = None;
     let mut wh = (0u32, 0u32);
     for (k, f) in files.iter().enumerate() {
@@ -82,14 +95,14 @@ mod tests {
             img.save(d.join(name)).expect("tiff");
         }
         std::fs::write(d.join("notes.txt"), "ignored").expect("txt");
-        let vol = read_tiff_stack(&d, [0.05; 3]).expect("stack");
+        let vol = read_tiff_stack(&d, [0.05; 3], crate::ct::volume::MAX_VOXELS).expect("stack");
         assert_eq!(vol.dims, [5, 4, 3]);
         assert!(matches!(vol.data, VoxelData::U16(_)));
         // Voxel (3, 2, 2) comes from slice_010.tif.
         assert_eq!(vol.value(3 + 5 * 2 + 20 * 2), 2023.0);
         let small = image::ImageBuffer::<image::Luma<u16>, _>::new(3, 3);
         small.save(d.join("slice_011.tif")).expect("tiff");
-        let msg = read_tiff_stack(&d, [0.05; 3])
+        let msg = read_tiff_stack(&d, [0.05; 3], crate::ct::volume::MAX_VOXELS)
             .expect_err("size")
             .to_string();
         assert!(

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 use super::ini::Ini;
 use super::{read_raw, CtError, RawDtype, RawSpec, Result, Volume};
 
-/// Read a VGStudio `.vgi` and the raw file it names.
-pub fn read_vgi(path: &Path) -> Result<Volume> {
+/// Read a VGStudio `.vgi` and the raw file it names; at most `max_voxels` voxels.
+pub fn read_vgi(path: &Path, max_voxels: usize) -> Result<Volume> {
     let (raw, spec) = vgi_spec(path)?;
-    read_raw(&raw, &spec)
+    read_raw(&raw, &spec, max_voxels)
 }
 
 /// The raw file and layout a `.vgi` describes.
@@ -115,7 +115,7 @@ mod tests {
              [geometry]\nstatus = ok\nresolution = 0.03 0.03 0.04\nunit = mm\n",
         )
         .expect("vgi");
-        let vol = read_vgi(&d.join("scan.vgi")).expect("read");
+        let vol = read_vgi(&d.join("scan.vgi"), crate::ct::volume::MAX_VOXELS).expect("read");
         assert_eq!(vol.dims, [4, 3, 2]);
         assert_eq!(vol.voxel_mm, [0.03, 0.03, 0.04]);
         assert_eq!(vol.value(23), 11.5);
@@ -143,7 +143,7 @@ mod tests {
         .expect("vgi");
         let (raw, _) = vgi_spec(&d.join("evil.vgi")).expect("spec");
         assert_eq!(raw, d.join("secret.raw"), "confined to the .vgi's folder");
-        assert!(read_vgi(&d.join("evil.vgi")).is_err());
+        assert!(read_vgi(&d.join("evil.vgi"), crate::ct::volume::MAX_VOXELS).is_err());
     }
 
     #[test]
@@ -157,7 +157,7 @@ mod tests {
              BitsPerElement = 8\n[geometry]\nresolution = 0.1\n",
         )
         .expect("vgi");
-        let err = read_vgi(&d.join("big.vgi"))
+        let err = read_vgi(&d.join("big.vgi"), crate::ct::volume::MAX_VOXELS)
             .expect_err("refused")
             .to_string();
         assert!(err.contains("big.vgi") && err.contains("Size"), "{err}");
