@@ -262,7 +262,9 @@ fn a_truncated_file_is_named_by_dicom_info() {
         .arg(build.join("dicom"))
         .fails();
     assert!(
-        err.contains("pre_front/L00001.dcm") && err.contains("not a readable DICOM file"),
+        err.contains("pre_front/L00001.dcm")
+            && err.contains(" at byte ")
+            && err.contains("cut short or damaged"),
         "{err}"
     );
     // The other series are untouched.
