@@ -52,11 +52,9 @@ if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
 cargo test --workspace --all-features
-# The build without optional features (`--no-default-features`): how it treats a NEF, and
-# check-config refusing a gphoto2 camera it cannot drive.
-cargo test --no-default-features --lib -- rectify::frame config::
-# ...and the binary built without gphoto: check-config refuses a gphoto2 camera (issue 13).
-cargo test --no-default-features --test bounded_inputs -- config_gphoto2
+# The build without optional features (`--no-default-features`): how it treats a NEF, and the
+# binary built without gphoto: check-config refuses a gphoto2 camera it cannot drive (issue 13).
+cargo test --no-default-features --lib --test bounded_inputs -- rectify::frame config:: config_gphoto2
 # Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the
 # seeds tests/fuzz_smoke.rs makes, then every target for LAYERWISE_FUZZ_SECONDS s; a crash, an
 # abort, an allocation over 2 GB or an input taking over 10 s fails. Off unless asked for
@@ -68,5 +66,6 @@ if [ "$fuzz_seconds" != 0 ]; then
   LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds" cargo test --all-features --test fuzz_smoke
   bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds"
 fi
-# Benchmarks are run by hand (cargo bench); here they only have to build.
-cargo bench --workspace --all-features --no-run
+# Benchmarks are run by hand (cargo bench); here they only have to build, in the test profile
+# whose dependencies are built above (a release build of every dependency would add ~8 minutes).
+cargo test --workspace --all-features --benches --no-run
