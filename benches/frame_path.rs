@@ -3,12 +3,16 @@
 //! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 
+#[path = "support/manifest.rs"]
+mod manifest;
+
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
 use layerwise::rectify::{Calibration, Grid, Interpolation};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
+use manifest::bench_manifest;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -97,16 +101,7 @@ fn main() {
         .map(|m| m.len())
         .unwrap_or(0) as f64
         / 1e6;
-    let manifest = BuildManifest {
-        name: "bench".into(),
-        id: "bench".into(),
-        created_at: chrono::Utc::now(),
-        layers_expected: None,
-        views: views.iter().map(|v| v.to_string()).collect(),
-        study_instance_uid: "2.25.1".into(),
-        frame_of_reference_uid: "2.25.2".into(),
-        software_version: "bench".into(),
-    };
+    let manifest = bench_manifest(&views);
     let grid = if full {
         Grid::plate()
     } else {

@@ -4,9 +4,11 @@
 //! each view to 0.5 mm cells and inspecting the layer against the demo vectors). Target: inspection
 //! ≤ 0.5 s per layer on this 2-core machine. Run: `cargo bench --bench inspection`.
 
+#[path = "support/manifest.rs"]
+mod manifest;
+
 use layerwise::acquisition::inspection::{Alarm, InspectingSeries};
 use layerwise::acquisition::processing::FrameProcessor;
-use layerwise::build_dir::BuildManifest;
 use layerwise::clock::SystemClock;
 use layerwise::config::{Config, DEMO_CONFIG};
 use layerwise::dicom::Compression;
@@ -15,6 +17,7 @@ use layerwise::inspect::Inspector;
 use layerwise::rectify::{Calibration, Grid, Interpolation, Rectifier};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
+use manifest::bench_manifest;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -113,16 +116,7 @@ fn main() {
     config.rectify = grid;
     config.build.vectors = Some(vectors.clone());
     config.storage.fsync = false;
-    let manifest = BuildManifest {
-        name: "bench".into(),
-        id: "bench".into(),
-        created_at: chrono::Utc::now(),
-        layers_expected: None,
-        views: views.iter().map(|v| v.to_string()).collect(),
-        study_instance_uid: "2.25.1".into(),
-        frame_of_reference_uid: "2.25.2".into(),
-        software_version: "bench".into(),
-    };
+    let manifest = bench_manifest(&views);
     let live = || {
         let settings = SeriesSettings {
             grid,

@@ -130,10 +130,8 @@ pub fn current(builds_dir: &Path) -> Result<Option<BuildOrder>, LifecycleError> 
         path: path.clone(),
         message: e.to_string(),
     })?;
-    if Path::new(&order.folder).components().count() != 1
-        || order.folder.starts_with('.')
-        || order.folder.contains('/')
-    {
+    // One plain name below builds_dir: no separator, no `..`, nothing hidden.
+    if Path::new(&order.folder).components().count() != 1 || order.folder.starts_with('.') {
         return Err(LifecycleError::Parse {
             path,
             message: format!("folder {:?} is not a plain folder name", order.folder),
