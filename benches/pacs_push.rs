@@ -2,7 +2,8 @@
 //! dcmtk's `storescu` for C-STORE and `curl` posting the same files as one multipart STOW-RS
 //! request. Each run gets a fresh Orthanc (empty storage), in a private network namespace.
 //! Needs root, `orthanc`, `orthanc-dicomweb`, `dcmtk`, `curl`; skipped (said so) without them.
-//! Run: `cargo bench --bench pacs_push` (LAYERWISE_BENCH_LAYERS, default 20 layers x 6 views).
+//! Run: `cargo bench --bench pacs_push` (LAYERWISE_BENCH_LAYERS, default 20 layers x 6 views;
+//! LAYERWISE_BENCH_ROUNDS, default 3 rounds that alternate who goes first, medians compared).
 
 use layerwise::clock::SystemClock;
 use layerwise::dicom::{Compression, Plane, Series, Slice, Study};
@@ -147,6 +148,11 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(20);
+    let rounds: usize = std::env::var("LAYERWISE_BENCH_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3)
+        .max(1);
     let tmp = tempfile::tempdir().unwrap();
     let clock = SystemClock::new();
     for compression in [Compression::None, Compression::Deflate] {
@@ -158,7 +164,7 @@ fn main() {
             .sum();
         let count = files.len();
         println!(
-            "{count} instances ({compression:?}, {:.1} MB, {:.2} MB each) to Orthanc over loopback:",
+            "{count} instances ({compression:?}, {:.1} MB, {:.2} MB each) to Orthanc over loopback, median of {rounds} rounds:",
             bytes as f64 / 1e6,
             bytes as f64 / 1e6 / count as f64
         );
@@ -188,16 +194,6 @@ fn main() {
             let _ = child.wait();
             seconds
         };
-        let (cstore, disk) = ours(&format!("dicom://ORTHANC@127.0.0.1:{DICOM}"));
-        let ours_cstore = line("layerwise push (C-STORE)", cstore, count, bytes);
-        let storescu = peer(
-            Command::new("storescu")
-                .args(["-aec", "ORTHANC", "127.0.0.1", &DICOM.to_string()])
-                .args(&files),
-        );
-        let peer_cstore = line("dcmtk storescu", storescu, count, bytes);
-        let (stow, _) = ours(&format!("http://127.0.0.1:{HTTP}/dicom-web"));
-        let ours_stow = line("layerwise push (STOW-RS)", stow, count, bytes);
         // curl gets the whole multipart body ready-made in one file (its assembly not timed).
         let boundary = "benchboundary7f3a";
         let mut body = Vec::new();
@@ -211,16 +207,57 @@ fn main() {
         body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
         let body_path = tmp.path().join("body.multipart");
         std::fs::write(&body_path, &body).unwrap();
-        let curl = peer(
-            Command::new("curl")
-                .args(["-sf", "-X", "POST", "-H"])
-                .arg(format!(
-                    "Content-Type: multipart/related; type=\"application/dicom\"; boundary={boundary}"
-                ))
-                .args(["-H", "Accept: application/dicom+json", "--data-binary"])
-                .arg(format!("@{}", body_path.display()))
-                .arg(format!("http://127.0.0.1:{HTTP}/dicom-web/studies")),
-        );
+        let storescu = || {
+            peer(
+                Command::new("storescu")
+                    .args(["-aec", "ORTHANC", "127.0.0.1", &DICOM.to_string()])
+                    .args(&files),
+            )
+        };
+        let curl = || {
+            peer(
+                Command::new("curl")
+                    .args(["-sf", "-X", "POST", "-H"])
+                    .arg(format!(
+                        "Content-Type: multipart/related; type=\"application/dicom\"; boundary={boundary}"
+                    ))
+                    .args(["-H", "Accept: application/dicom+json", "--data-binary"])
+                    .arg(format!("@{}", body_path.display()))
+                    .arg(format!("http://127.0.0.1:{HTTP}/dicom-web/studies")),
+            )
+        };
+        // Rounds alternate who goes first, so that a load that comes and goes on the machine
+        // falls on both sides alike; the medians of the rounds are compared.
+        let (mut times, mut disk) = ([Vec::new(), Vec::new(), Vec::new(), Vec::new()], 0);
+        for round in 0..rounds {
+            let ours_first = round % 2 == 0;
+            for (ours_i, peer_i, url) in [
+                (0, 1, format!("dicom://ORTHANC@127.0.0.1:{DICOM}")),
+                (2, 3, format!("http://127.0.0.1:{HTTP}/dicom-web")),
+            ] {
+                let run_peer = |times: &mut [Vec<f64>; 4]| {
+                    let t = if peer_i == 1 { storescu() } else { curl() };
+                    times[peer_i].push(t);
+                };
+                if !ours_first {
+                    run_peer(&mut times);
+                }
+                let (t, d) = ours(&url);
+                times[ours_i].push(t);
+                disk = d;
+                if ours_first {
+                    run_peer(&mut times);
+                }
+            }
+        }
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let [cstore, storescu, stow, curl] = times.each_mut().map(median);
+        let ours_cstore = line("layerwise push (C-STORE)", cstore, count, bytes);
+        let peer_cstore = line("dcmtk storescu", storescu, count, bytes);
+        let ours_stow = line("layerwise push (STOW-RS)", stow, count, bytes);
         let peer_stow = line("curl multipart STOW-RS", curl, count, bytes);
         println!(
             "  ratio ours/peer (instances/s): C-STORE {:.2}, STOW-RS {:.2}; Orthanc storage {:.2} MB per instance ({:.2} GB per 1000 layers x 6 views)",

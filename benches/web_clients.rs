@@ -7,7 +7,8 @@
 //! - processing per frame: from the frame stored to its slice written (the queue is empty at
 //!   this rate, so this is the processing time).
 //!
-//! LAYERWISE_BENCH_LAYERS sets the layers per run (default 20).
+//! LAYERWISE_BENCH_LAYERS sets the layers per run (default 20), LAYERWISE_BENCH_ROUNDS the
+//! alternating rounds of 0 and 5 clients (default 3).
 
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
@@ -99,10 +100,21 @@ fn client(addr: SocketAddr, stop: Arc<AtomicBool>, pictures: Arc<AtomicU64>) {
     }
 }
 
+#[derive(Default)]
 struct Measured {
     gaps_ms: Vec<f64>,
     processing_ms: Vec<f64>,
     pictures: u64,
+}
+
+impl Measured {
+    fn pool(&mut self, other: Measured) {
+        self.gaps_ms.extend(other.gaps_ms);
+        self.processing_ms.extend(other.processing_ms);
+        self.gaps_ms.sort_by(f64::total_cmp);
+        self.processing_ms.sort_by(f64::total_cmp);
+        self.pictures += other.pictures;
+    }
 }
 
 fn build(layers: u32, clients: usize) -> Measured {
@@ -174,10 +186,19 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(if full { 20 } else { 2 });
-    let idle = build(layers, 0);
-    let busy = build(layers, 5);
+    // Rounds alternate 0 and 5 clients and pool their frames, so that a load that comes and goes
+    // on the machine falls on both sides alike.
+    let rounds: usize = std::env::var("LAYERWISE_BENCH_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(if full { 3 } else { 1 });
+    let (mut idle, mut busy) = (Measured::default(), Measured::default());
+    for _ in 0..rounds {
+        idle.pool(build(layers, 0));
+        busy.pool(build(layers, 5));
+    }
     println!(
-        "operator page, {layers} layers of {WIDTH}x{HEIGHT} frames, signals 250 ms apart ({} and {} pictures loaded by the clients)",
+        "operator page, {rounds} x {layers} layers of {WIDTH}x{HEIGHT} frames per side, signals 250 ms apart ({} and {} pictures loaded by the clients)",
         idle.pictures, busy.pictures
     );
     println!(

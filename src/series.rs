@@ -266,6 +266,11 @@ impl LiveSeries {
         self.rectifier.grid()
     }
 
+    /// The camera the slices are rectified from.
+    pub fn camera(&self) -> &crate::geometry::CameraModel {
+        self.rectifier.camera()
+    }
+
     pub fn study(&self) -> &Study {
         &self.study
     }

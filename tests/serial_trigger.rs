@@ -32,7 +32,9 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
         layerwise::clock::SystemClock::shared(),
     )
     .unwrap();
-    let mut events = layerwise::hardware::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>);
+    let health = trigger.health();
+    let mut events =
+        layerwise::hardware::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>, health);
     let next = |events: &mut tokio::sync::mpsc::Receiver<_>| -> (u32, Phase) {
         let deadline = Instant::now() + Duration::from_secs(10);
         loop {

@@ -9,6 +9,7 @@ screenshot.
 """
 import base64
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -101,6 +102,19 @@ try:
         const imgs = [...document.querySelectorAll('#views img')];
         return imgs.length > 0 && imgs.every(i => i.dataset.layer === '2') && imgs.some(i => i.complete && i.naturalWidth > 0);"""))
     print("layer 2 shown after a click on the timeline")
+
+    # Health in the daemon's words (the same as `layerwise status`): the trigger's last signal is
+    # seconds old while signals arrive, and every part has its line.
+    def health(part):
+        return js("""
+            const dt = [...document.querySelectorAll('#health dt')].find(d => d.textContent === arguments[0]);
+            return dt ? dt.nextElementSibling.textContent : '';""", part)
+    trigger = wait_for("the trigger's last signal in the health panel", lambda: re.search(r"last signal \d+ s ago", health("trigger")) and health("trigger"))
+    for part in ["camera", "lights", "processing", "disk"]:
+        assert health(part), f"no {part} line in the health panel"
+    assert "switching" in health("lights"), health("lights")
+    assert "rest of build needs" in health("disk"), health("disk")
+    print(f"health: trigger {trigger!r}, lights {health('lights')!r}")
     # Back to the newest complete layer (End), then stay there for the screenshot: on a loaded
     # machine the build may move on faster than six pictures load.
     js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'End'}))")

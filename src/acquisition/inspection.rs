@@ -255,6 +255,14 @@ impl InspectingSeries {
             &config.views.all(),
             vectors,
         );
+        if let Some(footprint) = crate::inspect::camera_footprint_mm(live.camera(), &live.grid()) {
+            let tolerance = inspector.resolve_camera(footprint);
+            info!(
+                camera_mm_per_px = format!("{footprint:.3}"),
+                fusion_tolerance_mm = format!("{tolerance:.2}"),
+                "inspection: the camera resolves the plate to {footprint:.2} mm per pixel at worst"
+            );
+        }
         let (log, done) = InspectionLog::open(
             &build_dir.join(crate::build_dir::INSPECTION),
             config.storage.fsync,

@@ -284,7 +284,7 @@ pub async fn run(
         heartbeat: heartbeat.clone(),
         clock: clock.clone(),
         notify: options.notify_systemd,
-        trigger_health,
+        trigger_health: trigger_health.clone(),
         prev_signal: replay.last_event,
         catching_up: replay.last_event.is_some(),
         state: replay,
@@ -300,7 +300,7 @@ pub async fn run(
     sequencer.write_live("running");
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
-    let events = crate::hardware::trigger::spawn(trigger);
+    let events = crate::hardware::trigger::spawn(trigger, trigger_health);
     let (sequencer, reason, asked) =
         event_loop(sequencer, events, only_phases, heartbeat, &mut options).await?;
     if options.notify_systemd {

@@ -162,8 +162,13 @@ pub struct DiskHealth {
     pub journal_held: usize,
 }
 
+/// A size as an operator reads it: MB below 10 GB, GB above.
 fn mb(bytes: u64) -> String {
-    format!("{:.1} MB", bytes as f64 / 1e6)
+    if bytes >= 10_000_000_000 {
+        format!("{:.1} GB", bytes as f64 / 1e9)
+    } else {
+        format!("{:.1} MB", bytes as f64 / 1e6)
+    }
 }
 
 impl DiskHealth {

@@ -114,6 +114,10 @@ impl InspectArgs {
         let rectifier = Rectifier::new(&calibration.camera(), grid, interpolation, fill)
             .map_err(|e| anyhow!("calibration: {e}"))?;
         let mut inspector = Inspector::new(&cfg, grid, &views, index);
+        if let Some(footprint) = layerwise::inspect::camera_footprint_mm(rectifier.camera(), &grid)
+        {
+            inspector.resolve_camera(footprint);
+        }
         let to = self.to.unwrap_or(u32::MAX);
         let (records, skipped) = offline::run(
             &mut inspector,

@@ -98,6 +98,24 @@ impl CameraModel {
         let (x, y) = self.build_from_image.apply(u, v)?;
         Some(BuildPoint { x, y })
     }
+
+    /// How much of the plate one recorded pixel covers at build point `p`: the larger of the
+    /// distances (mm) to the build points of its right and lower neighbours. Nothing finer than
+    /// this can be told apart in a rectified view, however fine its grid. `None` where `p` is not
+    /// seen (beyond the horizon or the distortion's fold).
+    pub fn footprint_mm(&self, p: BuildPoint) -> Option<f64> {
+        let at = self.image_point(p)?;
+        let here = self.build_point(at)?;
+        let step = |du: f64, dv: f64| {
+            self.build_point(ImagePoint {
+                u: at.u + du,
+                v: at.v + dv,
+            })
+            .map(|q| (q.x - here.x).hypot(q.y - here.y))
+        };
+        let d = step(1.0, 0.0)?.max(step(0.0, 1.0)?);
+        d.is_finite().then_some(d)
+    }
 }
 
 #[cfg(test)]
@@ -159,5 +177,14 @@ mod tests {
         assert!(CameraModel::pinhole(singular)
             .image_point(BuildPoint::new(1.0, 1.0))
             .is_none());
+    }
+
+    #[test]
+    fn footprint_is_the_plate_distance_of_one_pixel() {
+        // 0.25 mm per pixel along u, 0.4 along v.
+        let h = Homography::from_matrix([[0.25, 0.0, -10.0], [0.0, 0.4, -20.0], [0.0, 0.0, 1.0]]);
+        let camera = CameraModel::pinhole(h);
+        let f = camera.footprint_mm(BuildPoint { x: 3.0, y: 4.0 }).unwrap();
+        assert!((f - 0.4).abs() < 1e-9, "{f}");
     }
 }

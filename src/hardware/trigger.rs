@@ -462,9 +462,11 @@ impl Trigger for GpioTrigger {
 }
 
 /// Runs a trigger on its own thread, forwarding events into a channel. The thread ends when the
-/// trigger ends, fails, or the receiver is dropped.
+/// trigger ends, fails, or the receiver is dropped. Every event's time goes into `health` (the
+/// one `Trigger::health` gave the daemon's status: its "last signal"), whatever the backend.
 pub fn spawn(
     mut trigger: Box<dyn Trigger>,
+    health: SharedHealth,
 ) -> tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>> {
     let (tx, rx) = tokio::sync::mpsc::channel(64);
     let spawned = std::thread::Builder::new()
@@ -472,6 +474,7 @@ pub fn spawn(
         .spawn(move || loop {
             match trigger.next_event() {
                 Ok(Some(event)) => {
+                    health.signal(event.at);
                     if tx.blocking_send(Ok(event)).is_err() {
                         return;
                     }

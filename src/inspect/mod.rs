@@ -34,6 +34,26 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 /// The layers' part masks on the inspection grid, by part id.
 type Parts = Vec<(i64, Mask)>;
 
+/// How far (camera pixels) a fused edge spreads in a rectified view; see
+/// [`Inspector::resolve_camera`].
+const CAMERA_BLUR_PX: f64 = 1.5;
+
+/// The largest plate footprint of one camera pixel over `grid` (5 x 5 points: an oblique camera
+/// resolves the far edge worst), mm; `None` when the camera sees none of them.
+pub fn camera_footprint_mm(camera: &crate::geometry::CameraModel, grid: &Grid) -> Option<f64> {
+    let (rows, cols) = (grid.rows() as f64, grid.columns() as f64);
+    (0..5)
+        .flat_map(|i| (0..5).map(move |j| (i, j)))
+        .filter_map(|(i, j)| {
+            let (x, y) = grid.center_of(
+                (rows - 1.0) * f64::from(i) / 4.0,
+                (cols - 1.0) * f64::from(j) / 4.0,
+            );
+            camera.footprint_mm(crate::geometry::BuildPoint { x, y })
+        })
+        .reduce(f64::max)
+}
+
 pub struct Inspector {
     cfg: InspectionConfig,
     view_grid: Grid,
@@ -101,6 +121,22 @@ impl Inspector {
             ),
             parts: BTreeMap::new(),
         }
+    }
+
+    /// Tells the inspector how much of the plate one camera pixel covers (the largest
+    /// [`CameraModel::footprint_mm`](crate::geometry::CameraModel::footprint_mm) over the plate).
+    /// A fused edge in a rectified view is only known to about 1.5 camera pixels (the lens, the
+    /// demosaicing and the resampling each blur it by a fraction of one), so the fusion tolerance
+    /// is at least that: a coarse camera must not read the blur around a small part as fusion
+    /// beyond its vectors. Returns the tolerance in use, mm.
+    pub fn resolve_camera(&mut self, footprint_mm: f64) -> f64 {
+        if footprint_mm.is_finite() && footprint_mm > 0.0 {
+            let floor = CAMERA_BLUR_PX * footprint_mm;
+            if floor > self.cfg.fusion_tolerance_mm {
+                self.cfg.fusion_tolerance_mm = floor;
+            }
+        }
+        self.cfg.fusion_tolerance_mm
     }
 
     /// The inspection grid.

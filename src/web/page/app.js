@@ -31,8 +31,28 @@ function showStatus(s) {
   $("build-name").textContent = s.name || "layerwise";
   $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "");
   const w = $("warning");
-  w.hidden = !s.warning; w.textContent = s.warning || "";
+  const alarm = s.alarm && s.alarm.state === "raised"
+    ? "ALARM since layer " + s.alarm.layer + ": " + s.alarm.message + " (acknowledge: layerwise alarm ack)"
+    : "";
+  const banner = [alarm, s.warning].filter(Boolean).join(" \u2014 ");
+  w.hidden = !banner; w.textContent = banner;
   const h = $("health"); h.replaceChildren();
+  if (s.health && Object.keys(s.health).length) {
+    // The daemon's own health report: the same words as `layerwise status` and STATUS=.
+    const cls = { ok: "ok", warning: "wait", error: "bad" };
+    for (const part of ["trigger", "camera", "lights", "processing", "disk"]) {
+      const p = s.health[part];
+      if (!p) continue;
+      let text = p.summary;
+      if (part === "disk" && s.bytes_needed != null) text += ", rest of build needs " + fmtBytes(s.bytes_needed);
+      dd(h, part, text + (p.warning ? " \u2014 " + p.warning : ""), cls[p.state] || "");
+    }
+    if (s.pacs && s.pacs.length) for (const d of s.pacs) dd(h, "pacs " + d.destination, d.pushed + " pushed, " + d.pending + " pending, " + d.failed + " failed" + (d.last_error ? " \u2014 " + d.last_error : ""), d.last_error || d.failed ? "wait" : "ok");
+    if (s.irregular && s.irregular.length) dd(h, "signals", s.irregular.length + " irregular: " + s.irregular[s.irregular.length - 1], "wait");
+    $("layer-of").textContent = s.layers_expected ? "of " + s.layers_expected : "";
+    return;
+  }
+  // A build written before the daemon reported health: what status.json held then.
   const t = s.trigger;
   if (t) dd(h, "trigger", t.source + (t.connected ? " connected" : " NOT CONNECTED") + ", last signal " + fmtAge(t.last_signal_at), t.connected ? "ok" : "bad");
   else dd(h, "trigger", "no report (daemon not running?)");
