@@ -840,6 +840,9 @@ pub fn run(options: &Options) -> Report {
             full_layers.push(layer);
             if Some(layer) == plan.fill.map(|f| f.1) {
                 std::fs::remove_file(disk.join("ballast")).expect("free the disk");
+                // The daemon probes a full disk with a back-off of up to 5 s; a printer takes
+                // longer than that for a layer, so the next signal comes after it.
+                std::thread::sleep(Duration::from_secs(6));
                 let full = full_layers.clone();
                 wait(
                     &mut follower,
