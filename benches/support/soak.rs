@@ -9,6 +9,9 @@
 // The bench and the test each use a part of the report.
 #![allow(dead_code)]
 
+#[path = "tmpfs.rs"]
+mod tmpfs;
+
 use layerwise::build_dir::journal::{IrregularSignal, Record};
 use layerwise::config::{CameraConfig, Config, SerialTriggerConfig, TriggerConfig, DEMO_CONFIG};
 use layerwise::shot::Phase;
@@ -556,55 +559,6 @@ impl Sampler {
     }
 }
 
-/// Moves the calling thread (and what it starts) into a private mount namespace with a tmpfs of
-/// `mb` MiB at `at`: a build disk the soak can fill without touching the host's.
-fn mount_tmpfs(at: &Path, mb: u64) -> std::io::Result<()> {
-    use std::ffi::CString;
-    use std::os::unix::ffi::OsStrExt;
-    let c = |s: &[u8]| CString::new(s).map_err(std::io::Error::other);
-    let check = |rc: i32| {
-        if rc == 0 {
-            Ok(())
-        } else {
-            Err(std::io::Error::last_os_error())
-        }
-    };
-    // SAFETY: unshare only changes the calling thread's namespaces.
-    check(unsafe { libc::unshare(libc::CLONE_NEWNS) })?;
-    let (root, none) = (c(b"/")?, c(b"none")?);
-    // SAFETY: valid NUL-terminated strings; no data argument.
-    check(unsafe {
-        libc::mount(
-            none.as_ptr(),
-            root.as_ptr(),
-            std::ptr::null(),
-            libc::MS_REC | libc::MS_PRIVATE,
-            std::ptr::null(),
-        )
-    })?;
-    std::fs::create_dir_all(at)?;
-    let (target, tmpfs) = (c(at.as_os_str().as_bytes())?, c(b"tmpfs")?);
-    let options = c(format!("size={mb}m").as_bytes())?;
-    // SAFETY: valid NUL-terminated strings.
-    check(unsafe {
-        libc::mount(
-            tmpfs.as_ptr(),
-            target.as_ptr(),
-            tmpfs.as_ptr(),
-            0,
-            options.as_ptr().cast(),
-        )
-    })
-}
-
-fn unmount(at: &Path) {
-    use std::os::unix::ffi::OsStrExt;
-    if let Ok(target) = std::ffi::CString::new(at.as_os_str().as_bytes()) {
-        // SAFETY: a valid NUL-terminated path.
-        unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
-    }
-}
-
 /// Writes `path` until the disk holding it is full.
 fn fill(path: &Path) {
     let mut file = std::fs::File::create(path).expect("ballast");
@@ -704,7 +658,7 @@ pub fn run(options: &Options) -> Report {
     // About 50 KiB of tmpfs pages per layer (originals and sidecars take a page each) and room.
     let disk_mb = 96 + u64::from(options.layers) * 64 / 1024;
     let disk_filled = options.fill_disk && {
-        match mount_tmpfs(&disk, disk_mb) {
+        match tmpfs::mount(&disk, disk_mb) {
             Ok(()) => true,
             Err(e) => {
                 eprintln!("soak: no tmpfs for the disk-full part ({e}); running without it");
@@ -973,7 +927,7 @@ pub fn run(options: &Options) -> Report {
     report.windows = windows(&samples, options.window, options.layers);
     report.seconds = started.elapsed().as_secs_f64();
     if disk_filled {
-        unmount(&disk);
+        tmpfs::unmount(&disk);
     }
     report
 }
