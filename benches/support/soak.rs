@@ -574,14 +574,14 @@ fn config(options: &Options, build: &Path, port: &Path) -> Config {
     let mut config = Config::parse(DEMO_CONFIG, Path::new("demo.toml")).expect("demo config");
     config.build.output_dir = build.to_path_buf();
     config.build.layers = Some(options.layers);
-    config.trigger = TriggerConfig::Serial(SerialTriggerConfig {
-        port: port.display().to_string(),
-        baud: 115200,
-        pattern: layerwise::config::DEFAULT_LINE_PATTERN.to_string(),
-        pre: "PRE".into(),
-        post: "POST".into(),
-        reopen_backoff_ms: [20, 200],
-    });
+    // The serial trigger's defaults (protocol `LAYER <n> PRE|POST`), reopening quickly after a
+    // restart.
+    let serial: SerialTriggerConfig = toml::from_str(&format!(
+        "port = {:?}\nreopen_backoff_ms = [20, 200]",
+        port.display().to_string()
+    ))
+    .expect("serial trigger config");
+    config.trigger = TriggerConfig::Serial(serial);
     if let CameraConfig::Mock(mock) = &mut config.camera {
         mock.width = options.width;
         mock.height = options.height;
