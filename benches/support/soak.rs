@@ -335,6 +335,13 @@ impl Line {
     }
 }
 
+impl Drop for Line {
+    /// socat ends with the driver, even when it panics.
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
 /// What the journal said so far, read as it grows.
 #[derive(Default)]
 struct Follower {
