@@ -6,14 +6,14 @@
 //! drives the disk guard through the simulated probe (`sim::disk`).
 
 mod common;
+#[path = "../benches/support/tmpfs.rs"]
+mod tmpfs;
 
 use common::*;
 use layerwise::acquisition::RunOptions;
 use layerwise::build_dir::journal::Record;
 use layerwise::fsutil::FreeSpace;
-use std::ffi::CString;
 use std::io::Write;
-use std::os::unix::ffi::OsStrExt;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::sync::Arc;
@@ -31,54 +31,13 @@ fn small_calibrated(dir: &Path, layers: u32) -> layerwise::config::Config {
 /// Moves this test's thread (and every process it starts) into a private mount namespace and
 /// mounts a tmpfs of `mb` MB at `at`; the host never sees it.
 fn small_disk(at: &Path, mb: u32) {
-    let c = |s: &str| CString::new(s).unwrap();
-    // SAFETY: unshare only changes the calling thread's namespaces.
-    let rc = unsafe { libc::unshare(libc::CLONE_NEWNS) };
-    assert_eq!(
-        rc,
-        0,
-        "unshare(CLONE_NEWNS) failed ({}): the disk-full test needs root, as CI runs it",
-        std::io::Error::last_os_error()
-    );
-    let root = c("/");
-    let none = c("none");
-    // SAFETY: valid NUL-terminated strings; no data argument.
-    let rc = unsafe {
-        libc::mount(
-            none.as_ptr(),
-            root.as_ptr(),
-            std::ptr::null(),
-            libc::MS_REC | libc::MS_PRIVATE,
-            std::ptr::null(),
-        )
-    };
-    assert_eq!(
-        rc,
-        0,
-        "mount --make-rprivate /: {}",
-        std::io::Error::last_os_error()
-    );
-    std::fs::create_dir_all(at).unwrap();
-    let target = CString::new(at.as_os_str().as_bytes()).unwrap();
-    let tmpfs = c("tmpfs");
-    let options = c(&format!("size={mb}m"));
-    // SAFETY: valid NUL-terminated strings.
-    let rc = unsafe {
-        libc::mount(
-            tmpfs.as_ptr(),
-            target.as_ptr(),
-            tmpfs.as_ptr(),
-            0,
-            options.as_ptr().cast(),
-        )
-    };
-    assert_eq!(rc, 0, "mount tmpfs: {}", std::io::Error::last_os_error());
+    tmpfs::mount(at, u64::from(mb)).unwrap_or_else(|e| {
+        panic!("a tmpfs in a private mount namespace: {e} (the disk-full test needs root, as CI runs it)")
+    });
 }
 
 fn unmount(at: &Path) {
-    let target = CString::new(at.as_os_str().as_bytes()).unwrap();
-    // SAFETY: a valid NUL-terminated path.
-    unsafe { libc::umount2(target.as_ptr(), libc::MNT_DETACH) };
+    tmpfs::unmount(at);
 }
 
 /// Writes `path` until the disk holding it has at most `leave` bytes free (0: until ENOSPC).

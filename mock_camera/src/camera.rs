@@ -110,7 +110,11 @@ pub struct MockCamera {
     jpeg_quality: u8,
     /// `Some` when the body is set to raw: frames are D810 NEFs of the rendered picture.
     raw: Option<crate::nef::NefOptions>,
+    /// Attempts of shots that have a scheduled fault (the schedule counts them).
     attempts: HashMap<ShotKey, u32>,
+    /// Attempts of the latest shot without a scheduled fault: only the one being retried is
+    /// kept, so a long build's history does not pile up.
+    latest: Option<(ShotKey, u32)>,
     connected: bool,
     /// Shots whose Disconnect fault already fired (it fires once).
     disconnects_fired: BTreeSet<ShotKey>,
@@ -126,6 +130,7 @@ impl MockCamera {
             jpeg_quality,
             raw: None,
             attempts: HashMap::new(),
+            latest: None,
             connected: true,
             disconnects_fired: BTreeSet::new(),
         }
@@ -143,10 +148,16 @@ impl MockCamera {
     /// connected); after reconnect() later attempts of that shot succeed. Every call counts as
     /// an attempt of `key`, including calls refused because the camera is disconnected.
     pub fn capture(&mut self, key: &ShotKey, scene: &Scene) -> Result<Vec<u8>, MockError> {
-        let attempt = {
+        let attempt = if self.schedule.get(key).is_some() {
             let n = self.attempts.entry(key.clone()).or_insert(0);
             *n = n.saturating_add(1);
             *n
+        } else {
+            match &mut self.latest {
+                Some((latest, n)) if latest == key => *n = n.saturating_add(1),
+                latest => *latest = Some((key.clone(), 1)),
+            }
+            self.latest.as_ref().map_or(1, |(_, n)| *n)
         };
         if !self.connected {
             return Err(MockError::Disconnected);
@@ -193,9 +204,14 @@ impl MockCamera {
         self.connected
     }
 
-    /// How many times `capture` was called for `key`.
+    /// How many times `capture` was called for `key`: every call for a shot with a scheduled
+    /// fault; for any other shot, its latest run of consecutive calls (0 once another shot came).
     pub fn attempts(&self, key: &ShotKey) -> u32 {
-        self.attempts.get(key).copied().unwrap_or(0)
+        match (&self.latest, self.attempts.get(key)) {
+            (_, Some(&n)) => n,
+            (Some((latest, n)), None) if latest == key => *n,
+            _ => 0,
+        }
     }
 
     /// The anomalies the next frames show (see [`crate::Defect`]).

@@ -12,7 +12,7 @@ mod sequencer;
 pub mod storage;
 
 use crate::build_dir::status::LiveStatus;
-use crate::build_dir::{self, BuildManifest, Journal, JournalError, Record, Replay};
+use crate::build_dir::{self, BuildManifest, Journal, JournalError, Progress, Record};
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
 use crate::fsutil::WriteError;
@@ -119,7 +119,7 @@ struct OpenedBuild {
     storage: Storage,
     manifest: BuildManifest,
     journal: Journal,
-    replay: Replay,
+    progress: Progress,
 }
 
 /// Opens (or starts) the build directory, adopts originals a crash left unjournaled, and
@@ -146,10 +146,15 @@ fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, Acqui
         }
         result => result?,
     }
-    let (mut journal, mut replay) =
-        Journal::open(&dir.join(build_dir::JOURNAL), config.storage.fsync)?;
+    // The journal folded into compact per-shot flags as it is read: the daemon's memory does not
+    // grow with the records of a long build.
+    let mut progress = Progress::default();
+    let mut journal =
+        Journal::open_with(&dir.join(build_dir::JOURNAL), config.storage.fsync, |r| {
+            progress.apply(&r)
+        })?;
     // Originals that reached the disk but not the journal (a crash in between) are adopted.
-    for adopted in storage.recover(|shot| replay.frames.contains_key(shot))? {
+    for adopted in storage.recover(|shot| progress.is_stored(shot))? {
         warn!(file = %adopted.file, "recovered a frame stored just before a crash");
         let record = Record::Frame {
             layer: adopted.layer,
@@ -161,23 +166,23 @@ fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, Acqui
             at: adopted.captured_at,
         };
         journal.append(&record)?;
-        replay.apply(&record);
+        progress.apply(&record);
     }
     journal.append(&Record::Start {
         at: clock.now(),
         pid: std::process::id(),
         version: env!("CARGO_PKG_VERSION").into(),
     })?;
-    let last_event = replay
+    let last_event = progress
         .last_event
         .map(|(layer, phase)| format!("layer {layer} {phase}"))
         .unwrap_or_else(|| "none".into());
     info!(
         build = %manifest.name,
         dir = %dir.display(),
-        frames = replay.frames.len(),
-        missing = replay.missing.len(),
-        restarts = replay.starts,
+        frames = progress.frames(),
+        missing = progress.missing(),
+        restarts = progress.starts,
         last_event = %last_event,
         "build opened"
     );
@@ -185,19 +190,23 @@ fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, Acqui
         storage,
         manifest,
         journal,
-        replay,
+        progress,
     })
 }
 
 /// The event a restart interrupted, with the lights it had already done.
-fn interrupted_event(config: &Config, replay: &Replay, clock: &SharedClock) -> Option<OpenEvent> {
-    let (layer, phase) = replay.last_event?;
+fn interrupted_event(
+    config: &Config,
+    progress: &Progress,
+    clock: &SharedClock,
+) -> Option<OpenEvent> {
+    let (layer, phase) = progress.last_event?;
     let lights = &config.views.lights;
     let done: BTreeSet<Light> = lights
         .iter()
         .copied()
         .filter(|&light| {
-            replay.is_done(&Shot {
+            progress.is_done(&Shot {
                 layer,
                 phase,
                 light,
@@ -224,7 +233,7 @@ pub async fn run(
         storage,
         manifest,
         journal,
-        replay,
+        mut progress,
     } = open_build(config, &clock)?;
 
     let Machine {
@@ -240,14 +249,14 @@ pub async fn run(
     let camera =
         CameraActor::spawn(camera, timeout, clock.clone()).map_err(AcquisitionError::CameraOpen)?;
     info!(camera = camera.describe(), "camera open");
-    trigger.resume_after(replay.last_event);
+    trigger.resume_after(progress.last_event);
     let trigger_health = trigger.health();
 
     let journal = Arc::new(Mutex::new(journal));
-    let backlog: Vec<(Shot, PathBuf)> = replay
-        .unprocessed()
+    let backlog: Vec<(Shot, PathBuf)> = progress
+        .take_backlog()
         .into_iter()
-        .filter_map(|shot| replay.frames.get(&shot).map(|f| (shot, dir.join(&f.file))))
+        .map(|(shot, file)| (shot, dir.join(file)))
         .collect();
     let processor = match options.processor.take() {
         Some(p) => p,
@@ -270,7 +279,7 @@ pub async fn run(
         lights,
         camera,
         policy: RetryPolicy::from_config(&config.capture),
-        open: interrupted_event(config, &replay, &clock),
+        open: interrupted_event(config, &progress, &clock),
         queue: Some(queue),
         live: LiveStatus {
             pid: std::process::id(),
@@ -285,9 +294,9 @@ pub async fn run(
         clock: clock.clone(),
         notify: options.notify_systemd,
         trigger_health: trigger_health.clone(),
-        prev_signal: replay.last_event,
-        catching_up: replay.last_event.is_some(),
-        state: replay,
+        prev_signal: progress.last_event,
+        catching_up: progress.last_event.is_some(),
+        state: progress,
         disk: disk::DiskGuard::open(
             dir.clone(),
             options.free_space.clone(),

@@ -8,7 +8,7 @@ use super::processing::ProcessingQueue;
 use super::storage::Storage;
 use super::{AcquisitionError, RunSummary};
 use crate::build_dir::status::{LastFrame, LiveStatus};
-use crate::build_dir::{IrregularSignal, Journal, Record, Replay};
+use crate::build_dir::{IrregularSignal, Journal, Progress, Record};
 use crate::clock::SharedClock;
 use crate::hardware::camera::{capture_with_retries, CameraActor, CaptureFailure, RetryPolicy};
 use crate::hardware::lights::LightsGuard;
@@ -44,8 +44,9 @@ pub(super) struct Sequencer {
     pub(super) lights: LightsGuard,
     pub(super) camera: CameraActor,
     pub(super) policy: RetryPolicy,
-    /// Where the build stands: the journal's replay at start, grown with every record written.
-    pub(super) state: Replay,
+    /// Where the build stands, compactly (flags per shot, counters): the journal's replay at
+    /// start, updated with every record written.
+    pub(super) state: Progress,
     /// The previous layer signal (at start, the journal's last one).
     pub(super) prev_signal: Option<(u32, Phase)>,
     /// After a restart, until the first signal that is not history: a trigger that replays
@@ -345,7 +346,7 @@ impl Sequencer {
                     Err(e) => return Err(e.into()),
                 };
                 self.disk.stored(sidecar.bytes);
-                let retake = take > 1 && self.state.frames.contains_key(&shot);
+                let retake = take > 1 && self.state.is_stored(&shot);
                 let record = if retake {
                     Record::Retake {
                         layer: shot.layer,
@@ -507,10 +508,10 @@ impl Sequencer {
             };
             let status = format!(
                 "{state}: {layer}; {} frames, {} missing, {} retakes, {} irregular signals; processing backlog {}; {}",
-                self.state.frames.len(),
-                self.state.missing.len(),
-                self.state.retakes.values().map(Vec::len).sum::<usize>(),
-                self.state.irregular.len(),
+                self.state.frames(),
+                self.state.missing(),
+                self.state.retakes(),
+                self.state.irregular(),
                 self.live.queue_depth,
                 crate::build_dir::status::health_line(&self.live.health)
             );

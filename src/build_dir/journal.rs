@@ -6,7 +6,7 @@ use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs::{File, OpenOptions};
-use std::io::{Read, Seek, SeekFrom, Write};
+use std::io::{BufRead, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use tracing::warn;
 
@@ -308,16 +308,25 @@ impl Journal {
     /// of a write, is cut off; damage anywhere else is an error, since it may hide frames.
     pub fn open(path: &Path, fsync: bool) -> Result<(Journal, Replay), JournalError> {
         let mut replay = Replay::default();
-        let file = open_lines(path, |r| replay.apply(&r))?;
-        Ok((
-            Journal {
-                path: path.to_path_buf(),
-                file,
-                fsync,
-                held: Vec::new(),
-            },
-            replay,
-        ))
+        let journal = Journal::open_with(path, fsync, |r| replay.apply(&r))?;
+        Ok((journal, replay))
+    }
+
+    /// Opens the journal as [`Journal::open`] does, handing each record replayed to `each`
+    /// instead of keeping them (the daemon folds them into a compact
+    /// [`Progress`](super::progress::Progress)).
+    pub fn open_with(
+        path: &Path,
+        fsync: bool,
+        each: impl FnMut(Record),
+    ) -> Result<Journal, JournalError> {
+        let file = open_lines(path, each)?;
+        Ok(Journal {
+            path: path.to_path_buf(),
+            file,
+            fsync,
+            held: Vec::new(),
+        })
     }
 
     /// Replays a journal without opening it for writing (for `layerwise status`): the same
@@ -375,19 +384,23 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
         source,
     };
     file.seek(SeekFrom::Start(0)).map_err(io)?;
+    // Line by line, not the whole file at once: a long build's journal is tens of MB and the
+    // daemon reads it at every start.
+    let mut reader = std::io::BufReader::with_capacity(64 * 1024, file);
     let mut data = Vec::new();
-    file.read_to_end(&mut data).map_err(io)?;
     let mut offset = 0usize;
     let mut number = 0usize;
-    while offset < data.len() {
+    loop {
+        data.clear();
+        let read = reader.read_until(b'\n', &mut data).map_err(io)?;
+        if read == 0 {
+            break;
+        }
         number += 1;
-        let (end, complete) = match data[offset..].iter().position(|&b| b == b'\n') {
-            Some(i) => (offset + i, true),
-            None => (data.len(), false),
-        };
-        let next = if complete { end + 1 } else { end };
-        let last = next >= data.len();
-        let parsed = std::str::from_utf8(&data[offset..end])
+        let complete = data.last() == Some(&b'\n');
+        let end = if complete { read - 1 } else { read };
+        let last = !complete || reader.fill_buf().map_err(io)?.is_empty();
+        let parsed = std::str::from_utf8(&data[..end])
             .map_err(|e| format!("invalid UTF-8 ({e})"))
             .and_then(|text| serde_json::from_str::<T>(text).map_err(|e| e.to_string()));
         match parsed {
@@ -404,7 +417,7 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
                 })
             }
         }
-        offset = next;
+        offset += read;
     }
     Ok(offset as u64)
 }

@@ -7,11 +7,13 @@ pub mod inspection;
 pub mod journal;
 pub mod lifecycle;
 pub mod manifest;
+pub mod progress;
 pub mod pushlog;
 pub mod status;
 
 pub use journal::{IrregularSignal, Journal, JournalError, Record, Replay};
 pub use manifest::BuildManifest;
+pub use progress::Progress;
 
 use crate::shot::View;
 use chrono::{DateTime, Utc};
