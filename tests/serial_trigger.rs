@@ -3,25 +3,13 @@
 
 mod common;
 
-use common::pty::PtyPair;
+use common::pty::{serial_config, PtyPair};
 use common::*;
-use layerwise::config::{SerialTriggerConfig, TriggerConfig};
+use layerwise::config::TriggerConfig;
 use layerwise::hardware::trigger::{SerialTrigger, Trigger};
 use layerwise::shot::Phase;
-use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-fn serial_config(port: &Path) -> SerialTriggerConfig {
-    SerialTriggerConfig {
-        port: port.display().to_string(),
-        baud: 115200,
-        pattern: layerwise::config::DEFAULT_LINE_PATTERN.to_string(),
-        pre: "PRE".into(),
-        post: "POST".into(),
-        reopen_backoff_ms: [20, 200],
-    }
-}
 
 #[test]
 fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
