@@ -185,37 +185,6 @@ fn status_min_free_gb_defaults_to_the_builds_configuration() {
     assert!(err.contains("--min-free-gb"), "{err}");
 }
 
-/// `status --json` of a build, polled until `ready` accepts it.
-fn status_until(
-    build: &std::path::Path,
-    what: &str,
-    ready: impl Fn(&serde_json::Value) -> bool,
-) -> serde_json::Value {
-    let deadline = std::time::Instant::now() + Duration::from_secs(30);
-    loop {
-        let out = layerwise()
-            .args(["status", "--json", "--build"])
-            .arg(build)
-            .output()
-            .unwrap();
-        if out.status.success() {
-            let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-            if ready(&status) {
-                return status;
-            }
-        }
-        assert!(
-            std::time::Instant::now() < deadline,
-            "status never showed {what}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
-fn serial_trigger(port: &std::path::Path) -> layerwise::config::TriggerConfig {
-    layerwise::config::TriggerConfig::Serial(common::pty::serial_config(port))
-}
-
 #[test]
 fn lights_that_fail_mid_build_show_in_status_and_sd_notify() {
     use common::pty::PtyPair;
@@ -229,7 +198,8 @@ fn lights_that_fail_mid_build_show_in_status_and_sd_notify() {
     let board = common::pty::PtyReader::start(&relay.printer);
     let build = dir.path().join("build");
     let mut config = demo_config(&build, 2);
-    config.trigger = serial_trigger(&printer.daemon);
+    config.trigger =
+        layerwise::config::TriggerConfig::Serial(common::pty::serial_config(&printer.daemon));
     let commands = ["front", "side", "top"]
         .iter()
         .flat_map(|l| {
@@ -298,53 +268,4 @@ fn lights_that_fail_mid_build_show_in_status_and_sd_notify() {
     let last = *statuses(&messages).last().expect("STATUS= sent");
     assert!(last.contains("lights ERROR"), "{last}");
     printer.stop();
-}
-
-#[test]
-fn a_trigger_port_that_vanishes_mid_build_is_reported_then_comes_back() {
-    use common::pty::PtyPair;
-    let dir = tempfile::tempdir().unwrap();
-    let pair = PtyPair::start(dir.path());
-    let build = dir.path().join("build");
-    let mut config = demo_config(&build, 2);
-    config.trigger = serial_trigger(&pair.daemon);
-    let config_path = dir.path().join("layerwise.toml");
-    write_config(&config, &config_path);
-    let child = spawn_build(&config_path, std::process::Stdio::piped());
-    std::thread::sleep(Duration::from_millis(500)); // the trigger opens its end
-    pair.send(b"LAYER 1 PRE\n");
-    wait_for_originals(&build, 3, Duration::from_secs(30));
-    status_until(&build, "the trigger connected", |s| {
-        s["health"]["trigger"]["state"] == "ok"
-    });
-    // The USB-serial adapter is unplugged in the middle of the build.
-    pair.stop();
-    let lost = status_until(&build, "the trigger lost", |s| {
-        s["trigger"]["connected"] == false
-            && s["trigger"]["reopen_attempts"].as_u64().unwrap_or(0) >= 2
-    });
-    let trigger = &lost["health"]["trigger"];
-    assert_eq!(trigger["state"], "error", "{lost:#}");
-    assert!(trigger["summary"]
-        .as_str()
-        .unwrap_or_default()
-        .contains("NOT CONNECTED, last signal "));
-    let warning = lost["warning"].as_str().unwrap_or_default();
-    assert!(
-        warning.contains("not connected") && warning.contains("USB adapter plugged in"),
-        "{warning}"
-    );
-    assert!(!warning.contains("dialout"), "{warning}");
-    // Plugged back in: the trigger reconnects, status is ok again, the next signal is captured.
-    let pair = PtyPair::start(dir.path());
-    let back = status_until(&build, "the trigger back", |s| {
-        s["trigger"]["connected"] == true && s["health"]["trigger"]["state"] == "ok"
-    });
-    assert!(back["warning"].is_null(), "{back:#}");
-    pair.send(b"LAYER 1 POST\n");
-    wait_for_originals(&build, 6, Duration::from_secs(30));
-    let out = terminate(child);
-    assert_success(&out);
-    assert_eq!(originals(&build), expected_originals(1));
-    pair.stop();
 }
