@@ -647,6 +647,59 @@ mod tests {
     }
 
     #[test]
+    fn the_take_a_slice_shows_is_replayed_for_either_choice() {
+        use crate::shot::SeriesTake;
+        let shot = Shot {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+        };
+        let mut replay = Replay::default();
+        replay.apply(&frame(1));
+        replay.apply(&frame(2));
+        let (one, two) = (shot, Shot { layer: 2, ..shot });
+        for choice in [SeriesTake::First, SeriesTake::Last] {
+            assert_eq!(replay.unprocessed_takes(choice), vec![(one, 1), (two, 1)]);
+        }
+        replay.apply(&Record::Processed {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            at: Utc::now(),
+        });
+        replay.apply(&Record::Retake {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: 2,
+            file: "raw/L00001_post_top.r2.jpg".into(),
+            bytes: 10,
+            sha256: "11".into(),
+            at: Utc::now(),
+        });
+        assert_eq!(replay.unprocessed_takes(SeriesTake::First), vec![(two, 1)]);
+        // With "last", the retake still has to replace the slice (as after a kill -9).
+        assert_eq!(
+            replay.unprocessed_takes(SeriesTake::Last),
+            vec![(one, 2), (two, 1)]
+        );
+        assert_eq!(
+            replay.take_entry(&one, 2).map(|e| e.file.as_str()),
+            Some("raw/L00001_post_top.r2.jpg")
+        );
+        assert!(replay.take_entry(&one, 3).is_none());
+        replay.apply(&Record::SliceTake {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: 2,
+            at: Utc::now(),
+        });
+        assert_eq!(replay.slice_take(&one), 2);
+        assert_eq!(replay.unprocessed_takes(SeriesTake::Last), vec![(two, 1)]);
+    }
+
+    #[test]
     fn damage_in_the_middle_is_an_error_naming_the_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("journal.jsonl");
