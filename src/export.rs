@@ -98,12 +98,12 @@ impl std::fmt::Display for ExportSummary {
     }
 }
 
+/// Per view, in layer order, the shots with the take shown and its original.
+type Originals = std::collections::BTreeMap<View, Vec<(Shot, u32, PathBuf)>>;
+
 /// The originals of a build, per view, in layer order: per shot the take `take` picks (the
 /// first, or the last retake).
-fn originals_by_view(
-    dir: &Path,
-    take: crate::shot::SeriesTake,
-) -> Result<std::collections::BTreeMap<View, Vec<(Shot, u32, PathBuf)>>, ExportError> {
+fn originals_by_view(dir: &Path, take: crate::shot::SeriesTake) -> Result<Originals, ExportError> {
     let raw = dir.join(crate::build_dir::RAW_DIR);
     let entries = std::fs::read_dir(&raw).map_err(|source| ExportError::Io {
         path: raw.clone(),
@@ -129,7 +129,7 @@ fn originals_by_view(
             picked.insert(shot, (n, path));
         }
     }
-    let mut out: std::collections::BTreeMap<View, Vec<(Shot, u32, PathBuf)>> = Default::default();
+    let mut out = Originals::default();
     for (shot, (n, path)) in picked {
         out.entry(shot.view()).or_default().push((shot, n, path));
     }
@@ -466,7 +466,7 @@ fn export_ct(
     live: &crate::series::LiveSeries,
     grid: Grid,
     heights: &LayerHeights,
-    originals: &std::collections::BTreeMap<View, Vec<(Shot, u32, PathBuf)>>,
+    originals: &Originals,
     record: &BuildRecord,
     label: &str,
     request: &ExportRequest,

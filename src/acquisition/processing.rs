@@ -26,6 +26,8 @@ struct Shared {
     draining: AtomicBool,
     /// From submission to the end of processing, for the last frame processed.
     lag_ms: AtomicU64,
+    /// Told each time a slice is written.
+    written: Option<OnWritten>,
 }
 
 /// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
@@ -64,6 +66,7 @@ impl ProcessingQueue {
             paused: AtomicBool::new(false),
             draining: AtomicBool::new(false),
             lag_ms: AtomicU64::new(0),
+            written,
         });
         let worker_shared = shared.clone();
         let worker = std::thread::Builder::new()
@@ -77,7 +80,6 @@ impl ProcessingQueue {
                     journal,
                     (backlog, take),
                     clock,
-                    written,
                 )
             })
             .map_err(
@@ -178,7 +180,6 @@ fn worker_loop(
     journal: Arc<Mutex<Journal>>,
     (backlog, choice): (Vec<(Shot, u32, PathBuf)>, SeriesTake),
     clock: SharedClock,
-    written: Option<OnWritten>,
 ) {
     let run = |shot: Shot, take: u32, original: &Path, submitted: Option<Duration>| {
         let record = match processor.process_take(&build_dir, shot, take, original) {
@@ -221,7 +222,7 @@ fn worker_loop(
             }
         }
         if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
-            (&written, &record)
+            (&shared.written, &record)
         {
             written();
         }
