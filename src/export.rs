@@ -98,16 +98,18 @@ impl std::fmt::Display for ExportSummary {
     }
 }
 
-/// The originals of a build, per view, in layer order.
-fn originals_by_view(
-    dir: &Path,
-) -> Result<std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>, ExportError> {
+/// Per view, in layer order, the shots with the take shown and its original.
+type Originals = std::collections::BTreeMap<View, Vec<(Shot, u32, PathBuf)>>;
+
+/// The originals of a build, per view, in layer order: per shot the take `take` picks (the
+/// first, or the last retake).
+fn originals_by_view(dir: &Path, take: crate::shot::SeriesTake) -> Result<Originals, ExportError> {
     let raw = dir.join(crate::build_dir::RAW_DIR);
     let entries = std::fs::read_dir(&raw).map_err(|source| ExportError::Io {
         path: raw.clone(),
         source,
     })?;
-    let mut out: std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>> = Default::default();
+    let mut picked: std::collections::BTreeMap<Shot, (u32, PathBuf)> = Default::default();
     for entry in entries.flatten() {
         let path = entry.path();
         let (Some(stem), Some(ext)) = (path.file_stem(), path.extension()) else {
@@ -116,12 +118,20 @@ fn originals_by_view(
         if ext == "json" || stem.to_string_lossy().starts_with('.') {
             continue;
         }
-        if let Some(shot) = Shot::from_stem(&stem.to_string_lossy()) {
-            out.entry(shot.view()).or_default().push((shot, path));
+        let Some((shot, n)) = Shot::from_take_stem(&stem.to_string_lossy()) else {
+            continue;
+        };
+        let wanted = match take {
+            crate::shot::SeriesTake::First => n == 1,
+            crate::shot::SeriesTake::Last => picked.get(&shot).is_none_or(|(m, _)| n > *m),
+        };
+        if wanted {
+            picked.insert(shot, (n, path));
         }
     }
-    for shots in out.values_mut() {
-        shots.sort();
+    let mut out = Originals::default();
+    for (shot, (n, path)) in picked {
+        out.entry(shot.view()).or_default().push((shot, n, path));
     }
     Ok(out)
 }
@@ -172,7 +182,7 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
     let views = record.config.views.all();
     let live = crate::series::LiveSeries::new(&manifest, &views, &calibration, settings)?
         .relabelled(&request.out, &label, 10);
-    let originals = originals_by_view(&request.build)?;
+    let originals = originals_by_view(&request.build, record.config.series.take)?;
     let total: usize = originals.values().map(Vec::len).sum();
     let bar = if request.progress {
         indicatif::ProgressBar::new(total as u64)
@@ -205,18 +215,20 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
         bar.set_message(view.to_string());
         let mut volume: Vec<u16> = Vec::new();
         let mut zs = Vec::new();
-        for (shot, path) in shots {
+        for (shot, take, path) in shots {
             let frame = |source: SeriesError| ExportError::Frame {
                 path: path.clone(),
                 source,
             };
             match request.format {
                 ExportFormat::Dicom => {
-                    // Already exported: nothing to read or write (the UIDs make it identical).
-                    if live.slice_path(&request.build, *shot).exists() {
+                    // Already exported from the same take: nothing to read or write (the UIDs
+                    // make it identical).
+                    let target = live.slice_path(&request.build, *shot);
+                    if crate::dicom::slice_take(&target) == Some(*take) {
                         summary.unchanged += 1;
                     } else {
-                        live.write_original(&request.build, *shot, path)
+                        live.write_original(&request.build, *shot, *take, path)
                             .map_err(frame)?;
                         summary.written += 1;
                     }
@@ -454,7 +466,7 @@ fn export_ct(
     live: &crate::series::LiveSeries,
     grid: Grid,
     heights: &LayerHeights,
-    originals: &std::collections::BTreeMap<View, Vec<(Shot, PathBuf)>>,
+    originals: &Originals,
     record: &BuildRecord,
     label: &str,
     request: &ExportRequest,
@@ -475,8 +487,11 @@ fn export_ct(
             ct::resample::layer_planes(&file, &map)
         }
         None => {
-            let layers: std::collections::BTreeSet<u32> =
-                originals.values().flatten().map(|(s, _)| s.layer).collect();
+            let layers: std::collections::BTreeSet<u32> = originals
+                .values()
+                .flatten()
+                .map(|(s, _, _)| s.layer)
+                .collect();
             layers
                 .into_iter()
                 .map(|k| (k, heights.z(k), heights.thickness(k)))

@@ -4,7 +4,7 @@
 
 use crate::build_dir::{BuildManifest, Sidecar};
 use crate::config::Config;
-use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, Study};
+use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, SliceSource, Study};
 use crate::fsutil::TomlFileError;
 use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
 use crate::shot::{Shot, View};
@@ -19,6 +19,19 @@ pub type ProcessError = Box<dyn std::error::Error + Send + Sync>;
 pub trait FrameProcessor: Send + Sync {
     /// `original` is the stored file; errors are recorded in the journal and do not stop the build.
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError>;
+
+    /// Take `take` of `shot` (1: the frame, more: a retake that replaces the slice with
+    /// `[series] take = "last"`); `original` is that take's file.
+    fn process_take(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<(), ProcessError> {
+        let _ = take;
+        self.process(build_dir, shot, original)
+    }
 }
 
 /// Keeps originals only.
@@ -281,18 +294,21 @@ impl LiveSeries {
         shot: Shot,
         original: &[u8],
         acquired: Option<chrono::DateTime<chrono::Utc>>,
+        source: Option<SliceSource>,
     ) -> Result<PathBuf, SeriesError> {
         let rectified = self.rectified_luma(original)?;
-        self.write_rectified(build_dir, shot, rectified, acquired)
+        self.write_rectified(build_dir, shot, rectified, acquired, source)
     }
 
-    /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]).
+    /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]), made
+    /// from `source` (its take picks the SOP Instance UID); replaces the slice atomically.
     pub fn write_rectified(
         &self,
         build_dir: &Path,
         shot: Shot,
         rectified: FrameLuma,
         acquired: Option<chrono::DateTime<chrono::Utc>>,
+        source: Option<SliceSource>,
     ) -> Result<PathBuf, SeriesError> {
         let series = self
             .series
@@ -321,22 +337,35 @@ impl LiveSeries {
             derivation,
         };
         let path = self.slice_path(build_dir, shot);
-        dicom::write_slice(&path, &self.study, series, &slice, self.compression)?;
+        dicom::write_slice_from(&path, &self.study, series, &slice, self.compression, source)?;
         Ok(path)
     }
 }
 
 impl LiveSeries {
-    /// Writes the slice of a stored original (its sidecar gives the acquisition time).
+    /// Writes the slice of take `take` of a stored original (its sidecar gives the acquisition
+    /// time; ImageComments names the take and the file).
     pub fn write_original(
         &self,
         build_dir: &Path,
         shot: Shot,
+        take: u32,
         original: &Path,
     ) -> Result<PathBuf, SeriesError> {
         let (bytes, acquired) = read_original(original)?;
-        self.write(build_dir, shot, &bytes, acquired)
+        let file = source_file(build_dir, original);
+        let source = SliceSource { take, file: &file };
+        self.write(build_dir, shot, &bytes, acquired, Some(source))
     }
+}
+
+/// How a slice names its original: relative to the build directory (`raw/L00003_post_front.jpg`).
+pub fn source_file(build_dir: &Path, original: &Path) -> String {
+    original
+        .strip_prefix(build_dir)
+        .unwrap_or(original)
+        .to_string_lossy()
+        .into_owned()
 }
 
 /// A stored original's bytes and, from its sidecar, when it was captured.
@@ -357,7 +386,17 @@ pub fn read_original(
 
 impl FrameProcessor for LiveSeries {
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
-        self.write_original(build_dir, shot, original)?;
+        self.process_take(build_dir, shot, 1, original)
+    }
+
+    fn process_take(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<(), ProcessError> {
+        self.write_original(build_dir, shot, take, original)?;
         Ok(())
     }
 }

@@ -27,6 +27,35 @@ pub enum Light {
     Top,
 }
 
+/// Which take of a shot its series slice shows when a repeated layer signal retook it
+/// (`[series] take`, docs/frames.md): the first (the default) or the last one stored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SeriesTake {
+    #[default]
+    First,
+    Last,
+}
+
+impl SeriesTake {
+    /// The take shown of a shot stored `takes` times (1 when stored once).
+    pub fn shown(self, takes: u32) -> u32 {
+        match self {
+            SeriesTake::First => 1,
+            SeriesTake::Last => takes.max(1),
+        }
+    }
+}
+
+impl fmt::Display for SeriesTake {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            SeriesTake::First => "first",
+            SeriesTake::Last => "last",
+        })
+    }
+}
+
 impl Phase {
     pub const ALL: [Phase; 2] = [Phase::Pre, Phase::Post];
     pub fn as_str(self) -> &'static str {
@@ -130,6 +159,20 @@ impl Shot {
     }
 }
 
+impl Shot {
+    /// The shot and take of a stored original's stem: `L00003_post_front` is take 1,
+    /// `L00003_post_front.r2` take 2 (a retake, docs/frames.md).
+    pub fn from_take_stem(stem: &str) -> Option<(Shot, u32)> {
+        match stem.rsplit_once(".r") {
+            Some((base, n)) if !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()) => {
+                let take: u32 = n.parse().ok()?;
+                (take > 1).then_some((Shot::from_stem(base)?, take))
+            }
+            _ => Some((Shot::from_stem(stem)?, 1)),
+        }
+    }
+}
+
 impl fmt::Display for Shot {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "layer {} {} {}", self.layer, self.phase, self.light)
@@ -139,6 +182,24 @@ impl fmt::Display for Shot {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn take_stems() {
+        let shot = Shot::from_stem("L00003_post_front").unwrap();
+        assert_eq!(Shot::from_take_stem("L00003_post_front"), Some((shot, 1)));
+        assert_eq!(
+            Shot::from_take_stem("L00003_post_front.r2"),
+            Some((shot, 2))
+        );
+        assert_eq!(
+            Shot::from_take_stem("L00003_post_front.r12"),
+            Some((shot, 12))
+        );
+        assert_eq!(Shot::from_take_stem("L00003_post_front.r1"), None);
+        assert_eq!(Shot::from_take_stem("L00003_post_front.rx"), None);
+        assert_eq!(SeriesTake::Last.shown(3), 3);
+        assert_eq!(SeriesTake::First.shown(3), 1);
+    }
 
     #[test]
     fn stem_round_trip() {

@@ -352,3 +352,202 @@ fn irregular_signals_are_journaled_and_no_original_is_overwritten() {
         (serde_json::json!(3), irregular, serde_json::json!(12))
     );
 }
+
+/// The header fields of a series slice that say which original it shows.
+struct SliceOrigin {
+    sop_instance_uid: String,
+    series_instance_uid: String,
+    comments: String,
+    acquisition_time: String,
+    pixels: Vec<u16>,
+}
+
+fn slice_origin(path: &Path) -> SliceOrigin {
+    use dicom_dictionary_std::tags;
+    let obj = dicom_object::open_file(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let text = |tag| {
+        obj.element(tag)
+            .map(|e| {
+                e.to_str()
+                    .unwrap()
+                    .trim_end_matches('\0')
+                    .trim()
+                    .to_string()
+            })
+            .unwrap_or_default()
+    };
+    let pixels = obj
+        .element(tags::PIXEL_DATA)
+        .unwrap()
+        .to_bytes()
+        .unwrap()
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    SliceOrigin {
+        sop_instance_uid: text(tags::SOP_INSTANCE_UID),
+        series_instance_uid: text(tags::SERIES_INSTANCE_UID),
+        comments: text(tags::IMAGE_COMMENTS),
+        acquisition_time: text(tags::ACQUISITION_TIME),
+        pixels,
+    }
+}
+
+/// The AcquisitionTime a slice made from `original` carries: its sidecar's capture time.
+fn captured_time(original: &Path) -> String {
+    let sidecar: serde_json::Value = read_json(&original.with_extension("json"));
+    let at: chrono::DateTime<chrono::Utc> =
+        sidecar["captured_at"].as_str().unwrap().parse().unwrap();
+    at.format("%H%M%S%.6f").to_string()
+}
+
+/// A build through the binary whose layer-1 post signal comes twice, with `[series] take`.
+fn retaken_build(dir: &Path, take: &str) -> std::path::PathBuf {
+    let build = dir.join("build");
+    let mut config = calibrated_config(&build, 1, layerwise::dicom::Compression::Deflate);
+    config.rectify.pixel_mm = 2.0;
+    config.series.take = serde_json::from_value(serde_json::json!(take)).unwrap();
+    let script = dir.join("printer.txt");
+    std::fs::write(&script, "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n").unwrap();
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script);
+    }
+    let config_path = dir.join("layerwise.toml");
+    write_config(&config, &config_path);
+    let text = std::fs::read_to_string(&config_path).unwrap();
+    assert!(
+        text.contains(&format!("take = \"{take}\"")),
+        "the key as an operator writes it:\n{text}"
+    );
+    run_build(&config_path);
+    build
+}
+
+#[test]
+fn series_take_last_shows_the_retake_with_its_own_uid_and_first_keeps_the_old_uid() {
+    let post_front = Shot {
+        layer: 1,
+        phase: Phase::Post,
+        light: Light::Front,
+    };
+    // take = "last": the slice of layer 1 post/front is the retake's.
+    let last = tempfile::tempdir().unwrap();
+    let build = retaken_build(last.path(), "last");
+    let raw = build.join("raw");
+    let (first_take, retake) = (
+        raw.join("L00001_post_front.jpg"),
+        raw.join("L00001_post_front.r2.jpg"),
+    );
+    assert!(first_take.is_file() && retake.is_file());
+    let slice_path = layerwise::series::series_dir(&build, post_front.view()).join("L00001.dcm");
+    let slice = slice_origin(&slice_path);
+    assert_eq!(
+        slice.comments,
+        "take 2 of the layer's frame: raw/L00001_post_front.r2.jpg"
+    );
+    assert_eq!(slice.acquisition_time, captured_time(&retake));
+    assert_ne!(captured_time(&retake), captured_time(&first_take));
+    let series = layerwise::dicom::Series {
+        series_instance_uid: slice.series_instance_uid.clone(),
+        number: 0,
+        description: String::new(),
+    };
+    let take1_uid = layerwise::dicom::instance_uid(&series, 1);
+    assert_ne!(slice.sop_instance_uid, take1_uid);
+    assert_eq!(
+        slice.sop_instance_uid,
+        layerwise::dicom::instance_uid_of_take(&series, 1, 2)
+    );
+    // A view that was not retaken (pre) keeps its take-1 slice and UID.
+    let pre = slice_origin(
+        &layerwise::series::series_dir(
+            &build,
+            Shot {
+                phase: Phase::Pre,
+                ..post_front
+            }
+            .view(),
+        )
+        .join("L00001.dcm"),
+    );
+    assert!(pre
+        .comments
+        .starts_with("take 1 of the layer's frame: raw/L00001_pre_front.jpg"));
+    // Journaled: the restart that replays the same signals shows the same take.
+    let journal = records(&build);
+    assert_eq!(
+        journal
+            .iter()
+            .filter(|r| matches!(r, layerwise::build_dir::Record::SliceTake { take: 2, .. }))
+            .count(),
+        3
+    );
+    // As after a kill -9 between storing the retakes and writing their slices: the slices and
+    // their records are gone; the restart writes them from the retakes again.
+    let journal_path = build.join(layerwise::build_dir::JOURNAL);
+    let kept: String = std::fs::read_to_string(&journal_path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.contains("\"slice_take\""))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&journal_path, kept).unwrap();
+    std::fs::write(&slice_path, b"").unwrap();
+    run_build(&last.path().join("layerwise.toml"));
+    let again = slice_origin(&slice_path);
+    assert_eq!(again.sop_instance_uid, slice.sop_instance_uid);
+    assert_eq!(again.comments, slice.comments);
+    assert_eq!(again.pixels, slice.pixels);
+    // The export follows the key too; a later take on disk (here made dark) replaces the slice.
+    let dark = image::RgbImage::new(320, 214);
+    dark.save(raw.join("L00001_post_front.r3.jpg")).unwrap();
+    std::fs::copy(
+        raw.join("L00001_post_front.r2.json"),
+        raw.join("L00001_post_front.r3.json"),
+    )
+    .unwrap();
+    let out = last.path().join("export");
+    layerwise()
+        .args(["export", "--build"])
+        .arg(&build)
+        .arg("--out")
+        .arg(&out)
+        .succeeds();
+    let exported = slice_origin(&out.join("post_front_export/L00001.dcm"));
+    assert_eq!(
+        exported.comments,
+        "take 3 of the layer's frame: raw/L00001_post_front.r3.jpg"
+    );
+    assert!(
+        exported.pixels.iter().all(|&p| p < 8),
+        "the dark take's pixels"
+    );
+    assert!(
+        slice.pixels.iter().any(|&p| p > 50),
+        "the lit take's pixels"
+    );
+
+    // take = "first" (the default): the first take, with the UID builds always had.
+    let first = tempfile::tempdir().unwrap();
+    let build = retaken_build(first.path(), "first");
+    assert!(build.join("raw/L00001_post_front.r2.jpg").is_file());
+    let slice =
+        slice_origin(&layerwise::series::series_dir(&build, post_front.view()).join("L00001.dcm"));
+    let series = layerwise::dicom::Series {
+        series_instance_uid: slice.series_instance_uid.clone(),
+        number: 0,
+        description: String::new(),
+    };
+    assert_eq!(
+        slice.sop_instance_uid,
+        layerwise::dicom::instance_uid(&series, 1)
+    );
+    assert_eq!(
+        slice.comments,
+        "take 1 of the layer's frame: raw/L00001_post_front.jpg"
+    );
+    assert_eq!(
+        slice.acquisition_time,
+        captured_time(&build.join("raw/L00001_post_front.jpg"))
+    );
+}

@@ -609,3 +609,61 @@ fn rejections_and_unreachable_archives_are_reported_with_their_reason() {
     );
     assert_eq!(secured.instance_count(), 1);
 }
+
+#[test]
+fn a_slice_replaced_by_a_retake_is_pushed_as_a_new_instance() {
+    private_network();
+    let tmp = tempfile::tempdir().unwrap();
+    let web = Orthanc::new(tmp.path(), 8042, 4242, &[]);
+    let build = tmp.path().join("build");
+    let mut config = calibrated_config(&build, 2, Compression::Deflate);
+    config.rectify.pixel_mm = 2.0;
+    config.series.take = layerwise::config::series::SeriesTake::Last;
+    config.pacs = vec![stow("web", &web)];
+    let script = tmp.path().join("printer.txt");
+    let set_script = |config: &mut layerwise::config::Config, text: &str| {
+        std::fs::write(&script, text).unwrap();
+        if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+            mock.script = Some(script.clone());
+        }
+        let config_path = tmp.path().join("layerwise.toml");
+        write_config(config, &config_path);
+        config_path
+    };
+    // Layer 1, pushed in full.
+    common::run_build(&set_script(&mut config, "LAYER 1 PRE\nLAYER 1 POST\n"));
+    let before = series_files(&build);
+    assert_eq!(before.len(), 6);
+    assert_eq!(web.instance_count(), 6);
+    // After a restart, layer 2, then layer 1's post signal twice (going backwards, then
+    // repeated): its three slices are replaced by the retakes, each a new instance to push.
+    common::run_build(&set_script(
+        &mut config,
+        "LAYER 2 PRE\nLAYER 1 POST\nLAYER 1 POST\n",
+    ));
+    assert!(build.join("raw/L00001_post_top.r2.jpg").is_file());
+    let after = series_files(&build);
+    assert_eq!(after.len(), 9);
+    for (file, uid) in &after {
+        let replaced = file.contains("post_") && file.ends_with("L00001.dcm");
+        assert_eq!(
+            before.get(file).is_some_and(|old| old != uid),
+            replaced,
+            "{file}"
+        );
+        let local = std::fs::read(build.join(file)).unwrap();
+        assert_eq!(pixel_data(&web.file_of(uid)), pixel_data(&local), "{file}");
+    }
+    // The archive keeps the first takes it had, and has the retakes beside them.
+    assert_eq!(web.instance_count(), 6 + 3 + 3);
+    let (stored, rejected, _) = log_counts(&build, "web");
+    assert_eq!(rejected, 0);
+    for (file, n) in &stored {
+        let replaced = file.contains("post_") && file.ends_with("L00001.dcm");
+        assert_eq!(*n, if replaced { 2 } else { 1 }, "{file}: {stored:?}");
+    }
+    // Nothing is pending, and pushing again sends nothing.
+    let again = push(&build, &[]);
+    assert!(stdout(&again).contains(": 0 pushed"), "{}", stdout(&again));
+    assert_eq!(web.instance_count(), 12);
+}

@@ -3,25 +3,13 @@
 
 mod common;
 
-use common::pty::PtyPair;
+use common::pty::{serial_config, PtyPair};
 use common::*;
-use layerwise::config::{SerialTriggerConfig, TriggerConfig};
+use layerwise::config::TriggerConfig;
 use layerwise::hardware::trigger::{SerialTrigger, Trigger};
 use layerwise::shot::Phase;
-use std::path::Path;
 use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-fn serial_config(port: &Path) -> SerialTriggerConfig {
-    SerialTriggerConfig {
-        port: port.display().to_string(),
-        baud: 115200,
-        pattern: layerwise::config::DEFAULT_LINE_PATTERN.to_string(),
-        pre: "PRE".into(),
-        post: "POST".into(),
-        reopen_backoff_ms: [20, 200],
-    }
-}
 
 #[test]
 fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
@@ -79,16 +67,22 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     pair.stop();
 }
 
+/// `layerwise run` of a 2-layer demo build whose trigger is the daemon end of a new pty pair.
+fn daemon_on_a_pty(dir: &std::path::Path) -> (PtyPair, std::path::PathBuf, std::process::Child) {
+    let pair = PtyPair::start(dir);
+    let build = dir.join("build");
+    let mut config = demo_config(&build, 2);
+    config.trigger = TriggerConfig::Serial(serial_config(&pair.daemon));
+    let config_path = dir.join("layerwise.toml");
+    write_config(&config, &config_path);
+    let child = spawn_build(&config_path, Stdio::piped());
+    (pair, build, child)
+}
+
 #[test]
 fn the_daemon_captures_on_serial_signals() {
     let dir = tempfile::tempdir().unwrap();
-    let pair = PtyPair::start(dir.path());
-    let build = dir.path().join("build");
-    let mut config = demo_config(&build, 2);
-    config.trigger = TriggerConfig::Serial(serial_config(&pair.daemon));
-    let config_path = dir.path().join("layerwise.toml");
-    write_config(&config, &config_path);
-    let child = spawn_build(&config_path, Stdio::piped());
+    let (pair, build, child) = daemon_on_a_pty(dir.path());
     std::thread::sleep(Duration::from_millis(500));
     for line in ["LAYER 1 PRE\n", "hello printer\n", "LAYER 1 POST\n"] {
         pair.send(line.as_bytes());
@@ -116,25 +110,9 @@ fn serial_port_vanished_status_says_so_with_the_right_hint() {
     let config_path = dir.path().join("layerwise.toml");
     write_config(&config, &config_path);
     let child = spawn_build(&config_path, Stdio::piped());
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let status = loop {
-        let out = layerwise()
-            .args(["status", "--json", "--build"])
-            .arg(&build)
-            .output()
-            .unwrap();
-        if out.status.success() {
-            let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-            if status["trigger"]["reopen_attempts"].as_u64().unwrap_or(0) >= 2 {
-                break status;
-            }
-        }
-        assert!(
-            Instant::now() < deadline,
-            "status never showed the lost trigger"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let status = status_until(&build, "the lost trigger", |s| {
+        s["trigger"]["reopen_attempts"].as_u64().unwrap_or(0) >= 2
+    });
     assert_eq!(status["trigger"]["connected"], false);
     // The trigger's health: an error with the operator's warning, the same in the summary.
     let trigger = &status["health"]["trigger"];
@@ -206,5 +184,47 @@ fn relay_lights_send_their_command_strings_and_all_off() {
     let mut got = vec![0u8; expected.len()];
     board.read_exact(&mut got).unwrap();
     assert_eq!(got, expected);
+    pair.stop();
+}
+
+#[test]
+fn a_trigger_port_that_vanishes_mid_build_is_reported_then_comes_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let (pair, build, child) = daemon_on_a_pty(dir.path());
+    std::thread::sleep(Duration::from_millis(500)); // the trigger opens its end
+    pair.send(b"LAYER 1 PRE\n");
+    wait_for_originals(&build, 3, Duration::from_secs(30));
+    status_until(&build, "the trigger connected", |s| {
+        s["health"]["trigger"]["state"] == "ok"
+    });
+    // The USB-serial adapter is unplugged in the middle of the build.
+    pair.stop();
+    let lost = status_until(&build, "the trigger lost", |s| {
+        s["trigger"]["connected"] == false
+            && s["trigger"]["reopen_attempts"].as_u64().unwrap_or(0) >= 2
+    });
+    let trigger = &lost["health"]["trigger"];
+    assert_eq!(trigger["state"], "error", "{lost:#}");
+    assert!(trigger["summary"]
+        .as_str()
+        .unwrap_or_default()
+        .contains("NOT CONNECTED, last signal "));
+    let warning = lost["warning"].as_str().unwrap_or_default();
+    assert!(
+        warning.contains("not connected") && warning.contains("USB adapter plugged in"),
+        "{warning}"
+    );
+    assert!(!warning.contains("dialout"), "{warning}");
+    // Plugged back in: the trigger reconnects, status is ok again, the next signal is captured.
+    let pair = PtyPair::start(dir.path());
+    let back = status_until(&build, "the trigger back", |s| {
+        s["trigger"]["connected"] == true && s["health"]["trigger"]["state"] == "ok"
+    });
+    assert!(back["warning"].is_null(), "{back:#}");
+    pair.send(b"LAYER 1 POST\n");
+    wait_for_originals(&build, 6, Duration::from_secs(30));
+    let out = terminate(child);
+    assert_success(&out);
+    assert_eq!(originals(&build), expected_originals(1));
     pair.stop();
 }

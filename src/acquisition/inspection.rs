@@ -313,8 +313,13 @@ impl FrameProcessor for InspectingSeries {
             .reducer
             .needs(shot.view())
             .then(|| self.reducer.cells(&rectified));
+        let file = crate::series::source_file(build_dir, original);
+        let source = crate::dicom::SliceSource {
+            take: 1,
+            file: &file,
+        };
         self.live
-            .write_rectified(build_dir, shot, rectified, acquired)?;
+            .write_rectified(build_dir, shot, rectified, acquired, Some(source))?;
         if let Some(cells) = cells {
             let records = match self.inspector.lock() {
                 Ok(mut inspector) => {
@@ -327,6 +332,21 @@ impl FrameProcessor for InspectingSeries {
             }
         }
         Ok(())
+    }
+
+    /// A retake replaces the slice (`[series] take = "last"`); the layer was inspected on its
+    /// first take and is not inspected again.
+    fn process_take(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<(), ProcessError> {
+        if take <= 1 {
+            return self.process(build_dir, shot, original);
+        }
+        self.live.process_take(build_dir, shot, take, original)
     }
 }
 

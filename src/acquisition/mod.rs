@@ -90,6 +90,9 @@ pub struct RunOptions {
     pub stop_when: Option<StopWhen>,
     /// Where free space on the build disk is measured (`statvfs`; tests simulate it).
     pub free_space: Arc<dyn crate::fsutil::FreeSpace>,
+    /// Called, without blocking, each time a series instance is written (the daemon wakes its
+    /// PACS push with it, `pacs::live::PushWaker`).
+    pub on_instance: Option<processing::OnWritten>,
 }
 
 /// A future that ends a run with its reason.
@@ -110,6 +113,7 @@ impl RunOptions {
             clock: SystemClock::shared(),
             stop_when: None,
             free_space: Arc::new(crate::fsutil::Statvfs),
+            on_instance: None,
         }
     }
 }
@@ -253,10 +257,10 @@ pub async fn run(
     let trigger_health = trigger.health();
 
     let journal = Arc::new(Mutex::new(journal));
-    let backlog: Vec<(Shot, PathBuf)> = progress
-        .take_backlog()
+    let backlog: Vec<(Shot, u32, PathBuf)> = progress
+        .take_backlog(config.series.take)
         .into_iter()
-        .map(|(shot, file)| (shot, dir.join(file)))
+        .map(|(shot, take, file)| (shot, take, dir.join(file)))
         .collect();
     let processor = match options.processor.take() {
         Some(p) => p,
@@ -267,8 +271,9 @@ pub async fn run(
         config.storage.queue_capacity,
         dir.clone(),
         journal.clone(),
-        backlog,
+        (backlog, config.series.take),
         clock.clone(),
+        options.on_instance.clone(),
     );
     let heartbeat = Arc::new(AtomicU64::new(0));
     let mut sequencer = Sequencer {

@@ -6,7 +6,7 @@
 use crate::build_dir::{Journal, Record};
 use crate::clock::SharedClock;
 pub use crate::series::{FrameProcessor, KeepOriginals};
-use crate::shot::Shot;
+use crate::shot::{SeriesTake, Shot};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
@@ -26,26 +26,37 @@ struct Shared {
     draining: AtomicBool,
     /// From submission to the end of processing, for the last frame processed.
     lag_ms: AtomicU64,
+    /// Told each time a slice is written.
+    written: Option<OnWritten>,
 }
 
-/// A stored frame handed over, with when (on the clock's monotonic time) it was.
-type Item = (Shot, PathBuf, Option<Duration>);
+/// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
+pub type OnWritten = Arc<dyn Fn() + Send + Sync>;
+
+/// A stored frame handed over: its shot, take (1: the frame, more: a retake), file, and when
+/// (on the clock's monotonic time) it was.
+type Item = (Shot, u32, PathBuf, Option<Duration>);
 
 pub struct ProcessingQueue {
     sender: Option<SyncSender<Item>>,
     shared: Arc<Shared>,
     worker: Option<JoinHandle<()>>,
+    /// Which take a retaken shot's slice shows: retakes are processed only with `Last`.
+    take: SeriesTake,
 }
 
 impl ProcessingQueue {
-    /// Starts the worker with the frames the journal says are not processed yet.
+    /// Starts the worker with the frames the journal says are not processed yet (with their
+    /// take, [`crate::build_dir::journal::Replay::unprocessed_takes`]); `take` says whether
+    /// retakes replace their slice.
     pub fn start(
         processor: Arc<dyn FrameProcessor>,
         capacity: usize,
         build_dir: PathBuf,
         journal: Arc<Mutex<Journal>>,
-        backlog: Vec<(Shot, PathBuf)>,
+        (backlog, take): (Vec<(Shot, u32, PathBuf)>, SeriesTake),
         clock: SharedClock,
+        written: Option<OnWritten>,
     ) -> ProcessingQueue {
         let (sender, receiver) = std::sync::mpsc::sync_channel(capacity);
         let shared = Arc::new(Shared {
@@ -55,6 +66,7 @@ impl ProcessingQueue {
             paused: AtomicBool::new(false),
             draining: AtomicBool::new(false),
             lag_ms: AtomicU64::new(0),
+            written,
         });
         let worker_shared = shared.clone();
         let worker = std::thread::Builder::new()
@@ -66,7 +78,7 @@ impl ProcessingQueue {
                     worker_shared,
                     build_dir,
                     journal,
-                    backlog,
+                    (backlog, take),
                     clock,
                 )
             })
@@ -78,14 +90,24 @@ impl ProcessingQueue {
             sender: Some(sender),
             shared,
             worker,
+            take,
         }
     }
 
     /// Hands a stored frame over without ever blocking; `now` is the clock's monotonic time.
     pub fn submit(&self, shot: Shot, original: PathBuf, now: Duration) {
+        self.submit_take(shot, 1, original, now);
+    }
+
+    /// Hands take `take` of a stored frame over without ever blocking: a retake (take > 1)
+    /// only when it replaces the slice (`[series] take = "last"`).
+    pub fn submit_take(&self, shot: Shot, take: u32, original: PathBuf, now: Duration) {
+        if take > 1 && self.take != SeriesTake::Last {
+            return;
+        }
         self.shared.depth.fetch_add(1, Ordering::SeqCst);
         let Some(sender) = &self.sender else { return };
-        match sender.try_send((shot, original, Some(now))) {
+        match sender.try_send((shot, take, original, Some(now))) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 self.shared.overflowed.store(true, Ordering::SeqCst);
@@ -156,11 +178,11 @@ fn worker_loop(
     shared: Arc<Shared>,
     build_dir: PathBuf,
     journal: Arc<Mutex<Journal>>,
-    backlog: Vec<(Shot, PathBuf)>,
+    (backlog, choice): (Vec<(Shot, u32, PathBuf)>, SeriesTake),
     clock: SharedClock,
 ) {
-    let run = |shot: Shot, original: &Path, submitted: Option<Duration>| {
-        let record = match processor.process(&build_dir, shot, original) {
+    let run = |shot: Shot, take: u32, original: &Path, submitted: Option<Duration>| {
+        let record = match processor.process_take(&build_dir, shot, take, original) {
             Err(reason) if disk_full(reason.as_ref()) => {
                 // Not a failure of the frame: it waits (paused) and is caught up from the
                 // journal once the disk has room again.
@@ -169,6 +191,13 @@ fn worker_loop(
                 shared.overflowed.store(true, Ordering::SeqCst);
                 return;
             }
+            Ok(()) if take > 1 => Record::SliceTake {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                take,
+                at: clock.now(),
+            },
             Ok(()) => Record::Processed {
                 layer: shot.layer,
                 phase: shot.phase,
@@ -192,6 +221,11 @@ fn worker_loop(
                 error!(error = %e, "processing: cannot journal the result");
             }
         }
+        if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
+            (&shared.written, &record)
+        {
+            written();
+        }
         let _ = shared
             .depth
             .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
@@ -213,7 +247,7 @@ fn worker_loop(
             "processing: catching up on frames stored before the restart"
         );
     }
-    for (i, (shot, original)) in backlog.iter().enumerate() {
+    for (i, (shot, take, original)) in backlog.iter().enumerate() {
         if shared.stop.load(Ordering::SeqCst) {
             return;
         }
@@ -226,7 +260,7 @@ fn worker_loop(
             shared.overflowed.store(true, Ordering::SeqCst);
             break;
         }
-        run(*shot, original, None);
+        run(*shot, *take, original, None);
     }
     loop {
         if shared.stop.load(Ordering::SeqCst) {
@@ -256,10 +290,19 @@ fn worker_loop(
                     shared.overflowed.store(true, Ordering::SeqCst);
                     continue;
                 }
-                batch.retain(|(shot, _, _)| !caught_up.remove(shot));
+                batch.retain(|(shot, take, _, _)| !caught_up.remove(&(*shot, *take)));
+                // The takes of one shot in order (a retake's slice replaces the first's), shots
+                // in parallel.
+                batch.sort_by_key(|(shot, take, _, _)| (*shot, *take));
                 batch
+                    .chunk_by(|a, b| a.0 == b.0)
+                    .collect::<Vec<_>>()
                     .par_iter()
-                    .for_each(|(shot, original, at)| run(*shot, original, *at));
+                    .for_each(|takes| {
+                        for (shot, take, original, at) in takes.iter() {
+                            run(*shot, *take, original, *at);
+                        }
+                    });
             }
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {
@@ -271,14 +314,14 @@ fn worker_loop(
         // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
         if !paused() && shared.overflowed.swap(false, Ordering::SeqCst) {
             let mut interrupted = false;
-            while let Ok((shot, original, at)) = receiver.try_recv() {
+            while let Ok((shot, take, original, at)) = receiver.try_recv() {
                 if paused() {
                     // What is left waits on disk; the journal finds it after the pause.
                     interrupted = true;
                     break;
                 }
-                if !caught_up.remove(&shot) {
-                    run(shot, &original, at);
+                if !caught_up.remove(&(shot, take)) {
+                    run(shot, take, &original, at);
                 }
             }
             if interrupted {
@@ -291,7 +334,7 @@ fn worker_loop(
             if let Ok(path) = path {
                 match Journal::read(&path) {
                     Ok(replay) => {
-                        for shot in replay.unprocessed() {
+                        for (shot, take) in replay.unprocessed_takes(choice) {
                             if shared.stop.load(Ordering::SeqCst) {
                                 return;
                             }
@@ -299,9 +342,9 @@ fn worker_loop(
                                 shared.overflowed.store(true, Ordering::SeqCst);
                                 break;
                             }
-                            if let Some(entry) = replay.frames.get(&shot) {
-                                run(shot, &build_dir.join(&entry.file), None);
-                                caught_up.insert(shot);
+                            if let Some(entry) = replay.take_entry(&shot, take) {
+                                run(shot, take, &build_dir.join(&entry.file), None);
+                                caught_up.insert((shot, take));
                             }
                         }
                     }

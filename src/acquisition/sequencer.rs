@@ -373,15 +373,16 @@ impl Sequencer {
                 if let Some(open) = self.open.as_mut() {
                     open.done.insert(shot.light);
                 }
+                if let Some(queue) = &self.queue {
+                    // A retake replaces the slice only with `[series] take = "last"`.
+                    let original = self.storage.root().join(&sidecar.file);
+                    let take = if retake { take } else { 1 };
+                    queue.submit_take(shot, take, original, self.clock.elapsed());
+                    self.live.queue_depth = queue.depth();
+                }
                 if retake {
-                    // The series keep showing the first take.
                     self.summary.retakes += 1;
                 } else {
-                    if let Some(queue) = &self.queue {
-                        let original = self.storage.root().join(&sidecar.file);
-                        queue.submit(shot, original, self.clock.elapsed());
-                        self.live.queue_depth = queue.depth();
-                    }
                     self.summary.stored += 1;
                 }
                 info!(

@@ -68,6 +68,15 @@ pub enum Record {
         sha256: String,
         at: DateTime<Utc>,
     },
+    /// The series slice of a shot now shows take `take` > 1, a retake (`[series] take = "last"`);
+    /// a `Processed` record says the same of the first take.
+    SliceTake {
+        layer: u32,
+        phase: Phase,
+        light: Light,
+        take: u32,
+        at: DateTime<Utc>,
+    },
     /// A layer signal out of the expected order: repeated, skipping layers, going backwards, or a
     /// layer number no printer uses.
     Irregular {
@@ -186,6 +195,12 @@ impl Record {
                 phase,
                 light,
                 ..
+            }
+            | Record::SliceTake {
+                layer,
+                phase,
+                light,
+                ..
             } => Some(Shot {
                 layer,
                 phase,
@@ -207,6 +222,8 @@ pub struct Replay {
     /// Takes after the first, per shot, in order.
     pub retakes: BTreeMap<Shot, Vec<FrameEntry>>,
     pub irregular: Vec<IrregularEntry>,
+    /// The take a shot's series slice shows when it is a retake (`Record::SliceTake`).
+    pub slice_takes: BTreeMap<Shot, u32>,
 }
 
 impl Replay {
@@ -233,6 +250,9 @@ impl Replay {
             }
             (Record::Processed { .. }, Some(shot)) => {
                 self.processed.insert(shot);
+            }
+            (Record::SliceTake { take, .. }, Some(shot)) => {
+                self.slice_takes.insert(shot, *take);
             }
             (
                 Record::Retake {
@@ -273,6 +293,36 @@ impl Replay {
     pub fn takes(&self, shot: &Shot) -> u32 {
         let first = u32::from(self.frames.contains_key(shot));
         first + self.retakes.get(shot).map_or(0, |r| r.len() as u32)
+    }
+
+    /// The stored take `n` of `shot` (1: the frame, more: its retakes).
+    pub fn take_entry(&self, shot: &Shot, n: u32) -> Option<&FrameEntry> {
+        match n {
+            0 => None,
+            1 => self.frames.get(shot),
+            n => self.retakes.get(shot)?.get(n as usize - 2),
+        }
+    }
+
+    /// The take of `shot` its series slice shows now (0: none written yet).
+    pub fn slice_take(&self, shot: &Shot) -> u32 {
+        self.slice_takes
+            .get(shot)
+            .copied()
+            .unwrap_or(u32::from(self.processed.contains(shot)))
+    }
+
+    /// Stored frames whose series slice does not show the take `choice` picks yet, with that
+    /// take, in build order: with `First` the frames not processed, with `Last` also the shots
+    /// retaken since their slice was written.
+    pub fn unprocessed_takes(&self, choice: crate::shot::SeriesTake) -> Vec<(Shot, u32)> {
+        self.frames
+            .keys()
+            .filter_map(|shot| {
+                let wanted = choice.shown(self.takes(shot));
+                (self.slice_take(shot) < wanted).then_some((*shot, wanted))
+            })
+            .collect()
     }
 
     /// Stored frames not yet processed, in build order.
@@ -607,6 +657,59 @@ mod tests {
         assert_eq!(replay.unprocessed().len(), 1);
         j.append(&frame(2)).unwrap();
         assert_eq!(Journal::read(&path).unwrap().frames.len(), 2);
+    }
+
+    #[test]
+    fn the_take_a_slice_shows_is_replayed_for_either_choice() {
+        use crate::shot::SeriesTake;
+        let shot = Shot {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+        };
+        let mut replay = Replay::default();
+        replay.apply(&frame(1));
+        replay.apply(&frame(2));
+        let (one, two) = (shot, Shot { layer: 2, ..shot });
+        for choice in [SeriesTake::First, SeriesTake::Last] {
+            assert_eq!(replay.unprocessed_takes(choice), vec![(one, 1), (two, 1)]);
+        }
+        replay.apply(&Record::Processed {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            at: Utc::now(),
+        });
+        replay.apply(&Record::Retake {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: 2,
+            file: "raw/L00001_post_top.r2.jpg".into(),
+            bytes: 10,
+            sha256: "11".into(),
+            at: Utc::now(),
+        });
+        assert_eq!(replay.unprocessed_takes(SeriesTake::First), vec![(two, 1)]);
+        // With "last", the retake still has to replace the slice (as after a kill -9).
+        assert_eq!(
+            replay.unprocessed_takes(SeriesTake::Last),
+            vec![(one, 2), (two, 1)]
+        );
+        assert_eq!(
+            replay.take_entry(&one, 2).map(|e| e.file.as_str()),
+            Some("raw/L00001_post_top.r2.jpg")
+        );
+        assert!(replay.take_entry(&one, 3).is_none());
+        replay.apply(&Record::SliceTake {
+            layer: 1,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: 2,
+            at: Utc::now(),
+        });
+        assert_eq!(replay.slice_take(&one), 2);
+        assert_eq!(replay.unprocessed_takes(SeriesTake::Last), vec![(two, 1)]);
     }
 
     #[test]

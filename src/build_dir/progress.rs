@@ -5,7 +5,7 @@
 //! layers a build has; `status`, the web page and `export` keep reading the full replay.
 
 use super::journal::Record;
-use crate::shot::{Light, Phase, Shot, MAX_LAYER};
+use crate::shot::{Light, Phase, SeriesTake, Shot, MAX_LAYER};
 use std::collections::BTreeMap;
 
 const FRAME: u8 = 1;
@@ -32,6 +32,11 @@ pub struct Progress {
     pub starts: u32,
     /// Frames stored and not processed yet, with their files: the processing backlog.
     unprocessed: BTreeMap<Shot, String>,
+    /// The latest retake of each shot retaken, with its file, and the take each retaken shot's
+    /// slice shows (`SliceTake`): the backlog of `[series] take = "last"`. As small as the
+    /// retakes; dropped with the backlog.
+    retake_files: BTreeMap<Shot, (u32, String)>,
+    slice_takes: BTreeMap<Shot, u32>,
     /// Once the backlog is handed to processing ([`Progress::take_backlog`]), frames are not
     /// tracked for it any more (processing journals its results on its own).
     backlog_taken: bool,
@@ -103,9 +108,16 @@ impl Progress {
                 self.set_flags(&shot, flags | PROCESSED);
                 self.unprocessed.remove(&shot);
             }
-            (Record::Retake { .. }, Some(shot)) => {
+            (Record::Retake { take, file, .. }, Some(shot)) => {
                 *self.retakes.entry(shot).or_default() += 1;
                 self.retake_count += 1;
+                if !self.backlog_taken && self.retake_files.get(&shot).is_none_or(|(t, _)| t < take)
+                {
+                    self.retake_files.insert(shot, (*take, file.clone()));
+                }
+            }
+            (Record::SliceTake { take, .. }, Some(shot)) if !self.backlog_taken => {
+                self.slice_takes.insert(shot, *take);
             }
             (Record::Irregular { .. }, _) => self.irregular += 1,
             _ => {}
@@ -132,11 +144,30 @@ impl Progress {
         self.unprocessed.iter().map(|(s, f)| (*s, f.as_str()))
     }
 
-    /// Hands over the frames stored and not processed (in build order, with their files) and
-    /// stops tracking them: from then on the caller's processing owns the backlog.
-    pub fn take_backlog(&mut self) -> BTreeMap<Shot, String> {
+    /// Hands over the frames whose series slice does not show the take `choice` picks yet, in
+    /// build order, with that take and its file (as [`Replay::unprocessed_takes`](
+    /// super::Replay::unprocessed_takes)), and stops tracking them: from then on the caller's
+    /// processing owns the backlog.
+    pub fn take_backlog(&mut self, choice: SeriesTake) -> Vec<(Shot, u32, String)> {
         self.backlog_taken = true;
-        std::mem::take(&mut self.unprocessed)
+        let mut backlog: BTreeMap<Shot, (u32, String)> = std::mem::take(&mut self.unprocessed)
+            .into_iter()
+            .map(|(shot, file)| (shot, (1, file)))
+            .collect();
+        let slice_takes = std::mem::take(&mut self.slice_takes);
+        for (shot, (take, file)) in std::mem::take(&mut self.retake_files) {
+            let shown = slice_takes
+                .get(&shot)
+                .copied()
+                .unwrap_or(u32::from(self.flags(&shot) & PROCESSED != 0));
+            if choice == SeriesTake::Last && shown < take {
+                backlog.insert(shot, (take, file));
+            }
+        }
+        backlog
+            .into_iter()
+            .map(|(shot, (take, file))| (shot, take, file))
+            .collect()
     }
 
     /// Frames stored (first takes).
@@ -294,9 +325,44 @@ mod tests {
             .collect();
         assert_eq!(backlog, expected);
         assert_eq!(backlog.len(), 2);
-        assert_eq!(progress.take_backlog().len(), 2);
+        assert_eq!(progress.take_backlog(SeriesTake::First).len(), 2);
         progress.apply(&records()[2]);
         assert_eq!(progress.unprocessed().count(), 0, "not tracked once taken");
+    }
+
+    #[test]
+    fn the_backlog_of_either_take_choice_is_the_replays() {
+        let at = Utc.with_ymd_and_hms(2026, 1, 1, 0, 0, 0).unwrap();
+        let shown = Record::SliceTake {
+            layer: 1,
+            phase: Phase::Pre,
+            light: Light::Front,
+            take: 2,
+            at,
+        };
+        for choice in [SeriesTake::First, SeriesTake::Last] {
+            for extra in [None, Some(shown.clone())] {
+                let (mut progress, mut replay) = (Progress::default(), Replay::default());
+                for r in records().iter().chain(extra.as_ref()) {
+                    progress.apply(r);
+                    replay.apply(r);
+                }
+                let expected: Vec<(Shot, u32, String)> = replay
+                    .unprocessed_takes(choice)
+                    .into_iter()
+                    .map(|(s, t)| (s, t, replay.take_entry(&s, t).unwrap().file.clone()))
+                    .collect();
+                let backlog = progress.take_backlog(choice);
+                assert_eq!(backlog, expected, "{choice} {extra:?}");
+                // The retake of layer 1 waits for its slice under "last" until it is shown.
+                let retake_waits = backlog.iter().any(|(_, take, _)| *take == 2);
+                assert_eq!(
+                    retake_waits,
+                    choice == SeriesTake::Last && extra.is_none(),
+                    "{choice} {extra:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -46,14 +46,23 @@ pub struct PushState {
     pub rejected: BTreeMap<String, String>,
     pub last_error: Option<(String, DateTime<Utc>)>,
     pub last_stored_at: Option<DateTime<Utc>>,
+    /// File → the SOP Instance UID the archive confirmed for it, and when: a file rewritten
+    /// since with another instance (a retake's slice, `[series] take = "last"`) is pushed again.
+    pub stored_instances: BTreeMap<String, (String, DateTime<Utc>)>,
 }
 
 impl PushState {
     pub fn apply(&mut self, record: &PushRecord) {
         match record {
-            PushRecord::Stored { file, at, .. } => {
+            PushRecord::Stored {
+                file,
+                sop_instance_uid,
+                at,
+            } => {
                 self.rejected.remove(file);
                 self.stored.insert(file.clone());
+                self.stored_instances
+                    .insert(file.clone(), (sop_instance_uid.clone(), *at));
                 self.last_stored_at = Some(*at);
             }
             PushRecord::Rejected { file, reason, .. } => {
@@ -68,6 +77,25 @@ impl PushState {
     /// Whether `file` needs no push: confirmed, or rejected (unless rejected ones are retried).
     pub fn is_done(&self, file: &str, retry_rejected: bool) -> bool {
         self.stored.contains(file) || (!retry_rejected && self.rejected.contains_key(file))
+    }
+
+    /// Whether `file` (under `root`) was confirmed but has been rewritten since with another
+    /// instance: its modification time is after the confirmation and its SOP Instance UID is
+    /// not the confirmed one. Only rewritten files are read.
+    pub fn replaced(&self, root: &Path, file: &str) -> bool {
+        let Some((uid, at)) = self.stored_instances.get(file) else {
+            return false;
+        };
+        let path = root.join(file);
+        let modified = std::fs::metadata(&path)
+            .and_then(|m| m.modified())
+            .map(DateTime::<Utc>::from);
+        match modified {
+            Ok(modified) if modified >= *at => {
+                crate::dicom::file_instance_uid(&path).is_some_and(|now| now != *uid)
+            }
+            _ => false,
+        }
     }
 }
 

@@ -95,11 +95,16 @@ fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
 
 /// Opens the machine and runs the daemon on it, with the push to every `[[pacs]]` beside it
 /// (its own threads: capture and processing never wait for an archive).
-fn run_daemon(config: &Config, options: RunOptions) -> Result<RunSummary> {
+fn run_daemon(config: &Config, mut options: RunOptions) -> Result<RunSummary> {
     let machine = open_machine(config, options.clock.clone())?;
     // The page runs on a thread of its own and reads the build directory only.
     let _page = super::serve::start_for_daemon(config);
     let pusher = start_pusher(config, &options)?;
+    if let Some(pusher) = &pusher {
+        // Each instance written is pushed at once (the poll stays as the fallback).
+        let waker = pusher.waker();
+        options.on_instance = Some(std::sync::Arc::new(move || waker.wake()));
+    }
     let summary = runtime()?.block_on(acquisition::run(config, machine, options))?;
     if let Some(pusher) = pusher {
         if summary.stopped_on_request {
@@ -208,9 +213,10 @@ pub struct StatusArgs {
     /// One JSON object instead of text.
     #[arg(long)]
     json: bool,
-    /// Warn when less than this much would be left free.
-    #[arg(long, default_value_t = 20.0)]
-    min_free_gb: f64,
+    /// Warn when less than this much would be left free; by default the build's own
+    /// `storage.min_free_gb` (from its config.toml snapshot).
+    #[arg(long)]
+    min_free_gb: Option<f64>,
 }
 
 impl StatusArgs {
@@ -222,13 +228,33 @@ impl StatusArgs {
                 None => return Ok(()),
             },
         };
-        let report = layerwise::build_dir::status::report(&build, (self.min_free_gb * 1e9) as u64)?;
+        let min_free_gb = match self.min_free_gb {
+            Some(gb) if gb.is_finite() && gb >= 0.0 => gb,
+            Some(gb) => anyhow::bail!("--min-free-gb {gb}: expected a number of GB, 0 or more"),
+            None => build_min_free_gb(&build),
+        };
+        let report = layerwise::build_dir::status::report(&build, (min_free_gb * 1e9) as u64)?;
         if self.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
             print!("{report}");
         }
         Ok(())
+    }
+}
+
+/// The build's `storage.min_free_gb`, from the configuration snapshot the daemon keeps in it
+/// (the default when there is none, or it cannot be read).
+fn build_min_free_gb(build: &std::path::Path) -> f64 {
+    let snapshot = build.join(layerwise::build_dir::CONFIG_SNAPSHOT);
+    match Config::load(&snapshot) {
+        Ok(config) => config.storage.min_free_gb,
+        Err(e) => {
+            if snapshot.exists() {
+                eprintln!("warning: {e}; using the default storage.min_free_gb");
+            }
+            layerwise::config::StorageConfig::default().min_free_gb
+        }
     }
 }
 

@@ -3,6 +3,7 @@
 
 pub mod inspection;
 pub mod pacs;
+pub mod series;
 
 use crate::fsutil::parse_toml;
 use crate::shot::{Light, Phase, View};
@@ -45,6 +46,9 @@ pub struct Config {
     /// Per-layer inspection and its alarm (src/config/inspection.rs).
     #[serde(default)]
     pub inspection: inspection::InspectionConfig,
+    /// The live series and the export (src/config/series.rs).
+    #[serde(default)]
+    pub series: series::SeriesConfig,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]

@@ -382,12 +382,49 @@ pub fn instance_uid(series: &Series, layer: u32) -> String {
     derived_uid(&series.series_instance_uid, &format!("L{layer}"))
 }
 
+/// The SOP instance UID of take `take` of a layer: take 1 (the frame) keeps [`instance_uid`], so
+/// builds and archives keep their UIDs; a retake (take n > 1, `[series] take = "last"`) gets its
+/// own, derived the same way, so an archive sees a replaced slice as a new instance.
+pub fn instance_uid_of_take(series: &Series, layer: u32, take: u32) -> String {
+    if take <= 1 {
+        instance_uid(series, layer)
+    } else {
+        derived_uid(&series.series_instance_uid, &format!("L{layer}.r{take}"))
+    }
+}
+
+/// Which stored original a slice was made from: its take (1: the frame, more: a retake) and
+/// its file relative to the build directory (ImageComments says both).
+#[derive(Clone, Copy, Debug)]
+pub struct SliceSource<'a> {
+    pub take: u32,
+    pub file: &'a str,
+}
+
+impl SliceSource<'_> {
+    /// The ImageComments text.
+    pub fn comments(&self) -> String {
+        format!("take {} of the layer's frame: {}", self.take, self.file)
+    }
+}
+
 /// Encodes one slice as a DICOM file in memory.
 pub fn encode_slice(
     study: &Study,
     series: &Series,
     slice: &Slice,
     compression: Compression,
+) -> Result<Vec<u8>, EncodeError> {
+    encode_slice_from(study, series, slice, compression, None)
+}
+
+/// Encodes one slice made from a stored original ([`SliceSource`]: its take picks the UID).
+pub fn encode_slice_from(
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    compression: Compression,
+    source: Option<SliceSource>,
 ) -> Result<Vec<u8>, EncodeError> {
     let p = slice.plane;
     if p.rows == 0 || p.columns == 0 || p.rows > u16::MAX as usize || p.columns > u16::MAX as usize
@@ -404,8 +441,17 @@ pub fn encode_slice(
             columns: p.columns,
         });
     }
-    let sop_instance_uid = instance_uid(series, slice.layer);
-    let object = slice_object(study, series, slice, &sop_instance_uid);
+    let take = source.map_or(1, |s| s.take);
+    let sop_instance_uid = instance_uid_of_take(series, slice.layer, take);
+    let mut object = slice_object(study, series, slice, &sop_instance_uid);
+    if let Some(source) = source {
+        put(
+            &mut object,
+            tags::IMAGE_COMMENTS,
+            VR::LT,
+            source.comments().as_str(),
+        );
+    }
     let meta = FileMetaTableBuilder::new()
         .media_storage_sop_class_uid(CT_IMAGE_STORAGE)
         .media_storage_sop_instance_uid(sop_instance_uid.as_str())
@@ -514,11 +560,25 @@ pub fn write_slice(
     slice: &Slice,
     compression: Compression,
 ) -> Result<(), DicomError> {
-    let bytes =
-        encode_slice(study, series, slice, compression).map_err(|source| DicomError::Encode {
+    write_slice_from(path, study, series, slice, compression, None)
+}
+
+/// [`write_slice`] of a slice made from a stored original ([`SliceSource`]); replaces the file
+/// atomically.
+pub fn write_slice_from(
+    path: &Path,
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    compression: Compression,
+    source: Option<SliceSource>,
+) -> Result<(), DicomError> {
+    let bytes = encode_slice_from(study, series, slice, compression, source).map_err(|source| {
+        DicomError::Encode {
             path: path.to_path_buf(),
             source,
-        })?;
+        }
+    })?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| crate::fsutil::WriteError {
             path: dir.to_path_buf(),
@@ -526,6 +586,39 @@ pub fn write_slice(
         })?;
     }
     Ok(write_atomic(path, &bytes, true)?)
+}
+
+/// The take of the original a slice file was made from (its ImageComments, [`SliceSource`]):
+/// `None` when there is no readable file; a slice written without the comment is take 1.
+pub fn slice_take(path: &Path) -> Option<u32> {
+    if !path.is_file() {
+        return None;
+    }
+    check_lengths(path).ok()?;
+    let obj = OpenFileOptions::new()
+        .read_until(tags::PIXEL_DATA)
+        .open_file(path)
+        .ok()?;
+    let Some(comments) = text(&obj, tags::IMAGE_COMMENTS) else {
+        return Some(1);
+    };
+    comments
+        .strip_prefix("take ")?
+        .split(' ')
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// The SOP Instance UID a DICOM file's meta header names (None when it cannot be read).
+pub fn file_instance_uid(path: &Path) -> Option<String> {
+    check_lengths(path).ok()?;
+    let obj = OpenFileOptions::new()
+        .read_until(tags::SOP_CLASS_UID)
+        .open_file(path)
+        .ok()?;
+    // As the push reads it (pacs::Instance), so the two compare equal.
+    Some(obj.meta().media_storage_sop_instance_uid().to_string())
 }
 
 /// What `layerwise dicom info` reports of one series.

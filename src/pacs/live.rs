@@ -4,7 +4,7 @@
 
 use super::{Destination, PacsError, Queue};
 use crate::clock::{Backoff, SharedClock};
-use crossbeam_channel::{select, unbounded, Receiver, Sender};
+use crossbeam_channel::{bounded, select, unbounded, Receiver, Sender};
 use std::path::Path;
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -20,6 +20,22 @@ enum Control {
 /// The running push threads.
 pub struct Pusher {
     threads: Vec<(Sender<Control>, JoinHandle<()>)>,
+    waker: PushWaker,
+}
+
+/// Wakes the push threads when an instance is written, so it is pushed at once rather than at
+/// the next poll. Never blocks: one wake waits per thread (a channel of one), more coalesce.
+#[derive(Clone, Default)]
+pub struct PushWaker {
+    wakes: Vec<Sender<()>>,
+}
+
+impl PushWaker {
+    pub fn wake(&self) {
+        for wake in &self.wakes {
+            let _ = wake.try_send(());
+        }
+    }
 }
 
 impl Pusher {
@@ -30,22 +46,42 @@ impl Pusher {
         clock: SharedClock,
         poll: Duration,
     ) -> Result<Pusher, PacsError> {
+        let with_senders = destinations
+            .into_iter()
+            .map(|d| {
+                let sender = d.connect();
+                (d, sender)
+            })
+            .collect();
+        Pusher::start_with(root, with_senders, clock, poll)
+    }
+
+    /// [`Pusher::start`] with the sender of each destination given.
+    pub fn start_with(
+        root: &Path,
+        destinations: Vec<(Destination, Box<dyn super::Sender>)>,
+        clock: SharedClock,
+        poll: Duration,
+    ) -> Result<Pusher, PacsError> {
         let mut threads = Vec::new();
-        for destination in destinations {
+        let mut waker = PushWaker::default();
+        for (destination, sender) in destinations {
             let name = destination.name.clone();
             let queue = Queue::open(root, destination)?;
             let (control, inbox) = unbounded();
+            let (wake, woken) = bounded(1);
             let clock = clock.clone();
             let thread = std::thread::Builder::new()
                 .name(format!("pacs-{name}"))
-                .spawn(move || push_loop(queue, inbox, clock, poll))
+                .spawn(move || push_loop(queue, sender, (inbox, woken), clock, poll))
                 .map_err(|e| PacsError::Transport {
                     destination: name,
                     message: format!("cannot start the push thread: {e}"),
                 })?;
             threads.push((control, thread));
+            waker.wakes.push(wake);
         }
-        Ok(Pusher { threads })
+        Ok(Pusher { threads, waker })
     }
 
     /// Makes every thread look for new instances now.
@@ -53,6 +89,11 @@ impl Pusher {
         for (control, _) in &self.threads {
             let _ = control.send(Control::Wake);
         }
+    }
+
+    /// A handle that wakes the threads without blocking (for the processing worker).
+    pub fn waker(&self) -> PushWaker {
+        self.waker.clone()
     }
 
     /// Lets every thread push what is pending for up to `grace`, then waits for them to stop.
@@ -67,15 +108,22 @@ impl Pusher {
     }
 }
 
-fn push_loop(mut queue: Queue, inbox: Receiver<Control>, clock: SharedClock, poll: Duration) {
+fn push_loop(
+    mut queue: Queue,
+    mut sender: Box<dyn super::Sender>,
+    (inbox, mut woken): (Receiver<Control>, Receiver<()>),
+    clock: SharedClock,
+    poll: Duration,
+) {
     let [first, longest] = queue.destination.backoff;
     let mut backoff = Backoff::new(first, longest);
-    let mut sender = queue.destination.connect();
     let mut deadline: Option<Duration> = None;
     let name = queue.destination.name.clone();
     loop {
+        let mut backing_off = true;
         let wait = match queue.push_pending(sender.as_mut(), false, clock.as_ref()) {
             Ok(_) => {
+                backing_off = false;
                 backoff.reset();
                 if deadline.is_some() && queue.pending(false).is_empty() {
                     info!(destination = %name, "pacs: everything pushed");
@@ -101,13 +149,119 @@ fn push_loop(mut queue: Queue, inbox: Receiver<Control>, clock: SharedClock, pol
             None => wait,
         };
         let timer = clock.after(wait);
-        select! {
-            recv(inbox) -> message => match message {
-                Ok(Control::Wake) => {}
-                Ok(Control::Finish(grace)) => deadline = Some(clock.elapsed() + grace),
-                Err(_) => return,
-            },
-            recv(timer) -> _ => {}
+        loop {
+            select! {
+                recv(inbox) -> message => match message {
+                    Ok(Control::Wake) => break,
+                    Ok(Control::Finish(grace)) => {
+                        deadline = Some(clock.elapsed() + grace);
+                        break;
+                    }
+                    Err(_) => return,
+                },
+                // An instance was written: push it now, unless the archive is unreachable
+                // (then the back-off stands).
+                recv(woken) -> wake => match wake {
+                    Ok(()) if !backing_off => break,
+                    Ok(()) => {}
+                    Err(_) => woken = crossbeam_channel::never(),
+                },
+                recv(timer) -> _ => break,
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::ManualClock;
+    use crate::pacs::{Instance, Outcome, Sender as PacsSender, Target};
+
+    /// An archive that stores everything and tells the test what it received.
+    struct Recording(crossbeam_channel::Sender<String>);
+
+    impl PacsSender for Recording {
+        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+            for instance in batch {
+                let _ = self.0.send(instance.file.clone());
+            }
+            Ok(batch.iter().map(|_| Outcome::Stored).collect())
+        }
+    }
+
+    fn slice(root: &Path, layer: u32) -> String {
+        let study = crate::dicom::Study {
+            study_instance_uid: "2.25.1".into(),
+            frame_of_reference_uid: "2.25.2".into(),
+            date: "20261202".into(),
+            time: "040000".into(),
+            patient_name: "wake^".into(),
+            patient_id: "wake".into(),
+            study_id: "1".into(),
+            description: "wake".into(),
+        };
+        let series = crate::dicom::Series::named(&study, 1, "post_top");
+        let pixels = vec![0u16; 4];
+        let slice = crate::dicom::Slice {
+            layer,
+            plane: crate::dicom::Plane {
+                origin: [0.0, 0.0, layer as f64],
+                pixel_mm: 1.0,
+                rows: 2,
+                columns: 2,
+                thickness_mm: 1.0,
+            },
+            pixels: &pixels,
+            acquired: None,
+            window: (0.0, 1.0),
+            derivation: "test",
+        };
+        let file = format!("L{layer:05}.dcm");
+        crate::dicom::write_slice(
+            &root.join(&file),
+            &study,
+            &series,
+            &slice,
+            crate::dicom::Compression::None,
+        )
+        .unwrap();
+        file
+    }
+
+    #[test]
+    fn a_wake_pushes_a_new_instance_without_waiting_for_the_poll() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        let first = slice(root, 1);
+        let (tx, received) = crossbeam_channel::unbounded();
+        let destination = Destination {
+            name: "fake".into(),
+            target: Target::Stow {
+                url: "http://127.0.0.1:9/dicom-web".into(),
+                authorization: None,
+            },
+            timeout: Duration::from_secs(1),
+            backoff: [Duration::from_secs(1), Duration::from_secs(60)],
+        };
+        // A manual clock that is never advanced: the poll (an hour) never comes.
+        let clock: SharedClock = std::sync::Arc::new(ManualClock::new());
+        let pusher = Pusher::start_with(
+            root,
+            vec![(destination, Box::new(Recording(tx)))],
+            clock,
+            Duration::from_secs(3600),
+        )
+        .unwrap();
+        // The first pass pushes what is on disk, then the thread waits for the poll or a wake.
+        assert_eq!(received.recv_timeout(Duration::from_secs(30)), Ok(first));
+        let waker = pusher.waker();
+        let second = slice(root, 2);
+        waker.wake();
+        // Waking again before the thread ran never blocks (the wakes coalesce).
+        waker.wake();
+        waker.wake();
+        assert_eq!(received.recv_timeout(Duration::from_secs(30)), Ok(second));
+        pusher.finish(Duration::ZERO);
     }
 }

@@ -293,7 +293,9 @@ impl Queue {
     pub fn pending(&self, retry_rejected: bool) -> Vec<String> {
         pushlog::instances(&self.root)
             .into_iter()
-            .filter(|f| !self.state.is_done(f, retry_rejected))
+            .filter(|f| {
+                !self.state.is_done(f, retry_rejected) || self.state.replaced(&self.root, f)
+            })
             .collect()
     }
 

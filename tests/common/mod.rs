@@ -438,3 +438,30 @@ impl Rng {
         (self.next() % n.max(1) as u64) as usize
     }
 }
+
+/// `status --json` of a build, polled until `ready` accepts it.
+pub fn status_until(
+    build: &std::path::Path,
+    what: &str,
+    ready: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    loop {
+        let out = layerwise()
+            .args(["status", "--json", "--build"])
+            .arg(build)
+            .output()
+            .unwrap();
+        if out.status.success() {
+            let status: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            if ready(&status) {
+                return status;
+            }
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "status never showed {what}"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+}

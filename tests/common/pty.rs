@@ -6,6 +6,18 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// The serial trigger on `port` with the default protocol and a quick reopen back-off.
+pub fn serial_config(port: &Path) -> layerwise::config::SerialTriggerConfig {
+    layerwise::config::SerialTriggerConfig {
+        port: port.display().to_string(),
+        baud: 115200,
+        pattern: layerwise::config::DEFAULT_LINE_PATTERN.to_string(),
+        pre: "PRE".into(),
+        post: "POST".into(),
+        reopen_backoff_ms: [20, 200],
+    }
+}
+
 /// A pty pair: `printer` and `daemon` are symlinks to the two slave ends.
 pub struct PtyPair {
     socat: Child,
