@@ -242,7 +242,7 @@ fn read_token(path: &Path) -> Result<String, WebError> {
     Ok(token)
 }
 
-/// Looks at the journal and status.json every [`WATCH_PERIOD`]; when they changed, reads what
+/// Looks at the journal, the inspection log and status.json every [`WATCH_PERIOD`]; when they changed, reads what
 /// is new, remakes the status (at most every [`STATUS_PERIOD`]), tells the open pages, and
 /// makes the newest layer's previews ahead of their request.
 async fn watch_build(shared: Arc<Shared>) {
@@ -262,7 +262,8 @@ async fn watch_build(shared: Arc<Shared>) {
         let s = shared.clone();
         let looked = tokio::task::spawn_blocking(move || {
             let stamp = |name: &str| std::fs::metadata(s.dir.join(name)).ok();
-            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len());
+            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len())
+                + stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len());
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
             let changed = s
                 .timeline
