@@ -170,7 +170,10 @@ fn inspection_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
         for (k, inspect) in [false, true].into_iter().enumerate() {
             let dir = tempfile::tempdir().expect("tempdir");
             let build_dir = dir.path().join("build");
-            build(&calibrated(&build_dir, layers, width, height, inspect), frame.clone());
+            build(
+                &calibrated(&build_dir, layers, width, height, inspect),
+                frame.clone(),
+            );
             let records = journal(&build_dir);
             runs[k].0.extend(frame_gaps(&records));
             runs[k].1.extend(worker_per_layer(&build_dir, &records));

@@ -359,12 +359,18 @@ fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
             (px[3] + 1.0 - px[1]) / rows,
         ];
         for (got, want) in fraction.iter().zip(contract) {
-            assert!((got - want).abs() < 1e-9, "{flag}: {fraction:?} vs {contract:?}");
+            assert!(
+                (got - want).abs() < 1e-9,
+                "{flag}: {fraction:?} vs {contract:?}"
+            );
         }
         let truth = picture_fractions(grid, mm);
         let tolerance = tolerance_mm / 275.0;
         for (got, want) in fraction.iter().zip(truth) {
-            assert!((got - want).abs() < tolerance, "{flag}: {fraction:?} vs {truth:?}");
+            assert!(
+                (got - want).abs() < tolerance,
+                "{flag}: {fraction:?} vs {truth:?}"
+            );
         }
     };
 
@@ -380,7 +386,10 @@ fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
     check_box(&streak, [-40.0, -61.5, 95.0, -58.5], 25.0);
     let b = &streak["box"];
     let y_mid = b["y"].as_f64().unwrap() + b["h"].as_f64().unwrap() / 2.0;
-    assert!((y_mid - (137.5 + 60.0) / 275.0).abs() < 2.0 / 275.0, "{streak}");
+    assert!(
+        (y_mid - (137.5 + 60.0) / 275.0).abs() < 2.0 / 275.0,
+        "{streak}"
+    );
     assert_eq!(
         streak["draw_on"],
         serde_json::json!(["pre_front", "pre_side", "pre_top"])

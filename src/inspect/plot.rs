@@ -138,7 +138,7 @@ fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
     canvas.text(
         LEFT,
         TITLE_Y,
-        "Inspection: per-part metrics by layer; red: a flag at warning or above",
+        "Inspection: per-part metrics by layer (red: a flag at warning or above)",
         INK,
         Anchor::Start,
     );
@@ -325,7 +325,13 @@ impl Canvas for Raster {
             Anchor::End => x - width,
         };
         let (left, top) = (left.round().max(0.0), (y - 7.0).round().max(0.0));
-        crate::raster::sheet::draw_text(&mut self.0, left as u32, top as u32, text, image::Rgb(colour));
+        crate::raster::sheet::draw_text(
+            &mut self.0,
+            left as u32,
+            top as u32,
+            text,
+            image::Rgb(colour),
+        );
     }
     fn tick(&mut self, from: (f64, f64), to: (f64, f64)) {
         self.line(from, to, FRAME);

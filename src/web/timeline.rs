@@ -363,18 +363,30 @@ mod tests {
         let mut timeline = Timeline::new(dir.path());
         std::fs::write(
             &path,
-            text(&[record(4, vec![flag(Severity::Warning), flag(Severity::Critical)]), record(5, vec![])]),
+            text(&[
+                record(4, vec![flag(Severity::Warning), flag(Severity::Critical)]),
+                record(5, vec![]),
+            ]),
         )
         .unwrap();
         assert!(timeline.refresh().unwrap());
         let summary = timeline.layers[&4].summary();
-        assert_eq!((summary.flags, summary.worst), (2, Some(Severity::Critical)));
+        assert_eq!(
+            (summary.flags, summary.worst),
+            (2, Some(Severity::Critical))
+        );
         assert_eq!(timeline.layers[&5].summary().worst, None);
         assert!(!timeline.refresh().unwrap(), "nothing new");
-        let mut file = std::fs::OpenOptions::new().append(true).open(&path).unwrap();
+        let mut file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .unwrap();
         file.write_all(text(&[record(4, vec![flag(Severity::Warning)])]).as_bytes())
             .unwrap();
         assert!(timeline.refresh().unwrap());
-        assert_eq!(timeline.layers[&4].inspection, vec![flag(Severity::Warning)]);
+        assert_eq!(
+            timeline.layers[&4].inspection,
+            vec![flag(Severity::Warning)]
+        );
     }
 }
