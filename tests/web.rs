@@ -477,6 +477,66 @@ fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_s
     drop(streams);
 }
 
+/// Idle clients cannot hold the page: with every connection of `max_connections` (64) taken by
+/// clients that send nothing or half a request, a page's request waits, then is answered once
+/// `--idle-timeout-s 1` closed them; an open event stream outlives the timeout (its keep-alive).
+#[test]
+fn idle_connections_are_closed_after_the_idle_timeout_and_a_waiting_client_is_served() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 1);
+    let (child, addr) = serve(&dir, &["--idle-timeout-s", "1"]);
+    let mut events = TcpStream::connect(addr).unwrap();
+    events
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    )
+    .unwrap();
+    let mut buf = [0u8; 4096];
+    assert!(events.read(&mut buf).unwrap() > 0, "the stream answers");
+    let started = Instant::now();
+    let mut idle: Vec<TcpStream> = (0..63)
+        .map(|k| {
+            let mut s = TcpStream::connect(addr).unwrap();
+            if k % 2 == 0 {
+                write!(s, "GET /api/status HTTP/1.1\r\nHost: loc").unwrap();
+            }
+            s
+        })
+        .collect();
+    // Every place is taken: this request waits for the idle ones to be closed.
+    let (status, body) = http(addr, "GET", "/api/layers", b"");
+    let waited = started.elapsed();
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    assert!(
+        waited >= Duration::from_millis(900),
+        "answered after {waited:?}: the idle connections did not hold their places"
+    );
+    // The idle ones were closed by the server.
+    for s in &mut idle {
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        assert!(
+            rest.is_empty() || String::from_utf8_lossy(&rest).starts_with("HTTP/1.1 408"),
+            "{}",
+            String::from_utf8_lossy(&rest)
+        );
+    }
+    // The open page's stream is still there: keep-alives keep coming.
+    let mut seen = 0;
+    let until = Instant::now() + Duration::from_millis(1500);
+    while Instant::now() < until {
+        let n = events.read(&mut buf).expect("the event stream stays open");
+        assert!(n > 0, "the event stream was closed");
+        seen += n;
+    }
+    assert!(seen > 0);
+    drop(child);
+}
+
 /// Headless Chromium drives the page of a running build (tests/web_browser.py): the layer
 /// advances without a reload, the newest layer's picture loads, a click on an earlier layer of
 /// the timeline shows it; on the layer where part 3 did not fuse (injected) the flag is outlined

@@ -185,9 +185,14 @@ impl WebServer {
                         Ok(l) => l,
                         Err(e) => return warn!(error = %e, "page server: cannot listen"),
                     };
-                    let listener = listener::Limited::new(listener, shared.config.max_connections);
+                    let listener = listener::Limited::new(
+                        listener,
+                        shared.config.max_connections,
+                        Duration::from_secs(shared.config.idle_timeout_s),
+                    );
                     tokio::spawn(watch_build(shared.clone()));
-                    let app = routes::router(shared.clone());
+                    let app = routes::router(shared.clone())
+                        .into_make_service_with_connect_info::<listener::Busy>();
                     let mut stop = stop_rx;
                     let served = axum::serve(listener, app)
                         .with_graceful_shutdown(async move {

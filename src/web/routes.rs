@@ -57,6 +57,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/layers/{layer}/{view}/original", get(original))
         .route("/api/events", get(events))
         .layer(middleware::from_fn_with_state(shared.clone(), authorize))
+        .layer(middleware::from_fn(answering))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .with_state(shared)
 }
@@ -109,6 +110,18 @@ pub fn parse_view(text: &str) -> Result<View, ApiError> {
             text.escape_debug()
         ))),
     }
+}
+
+/// Counts the request as being answered on its connection until its response is ready, so the
+/// listener's idle timeout never closes a connection waiting for a slow picture.
+async fn answering(request: Request, next: Next) -> Response {
+    let busy = request
+        .extensions()
+        .get::<axum::extract::ConnectInfo<super::listener::Busy>>()
+        .map(|info| info.0.during());
+    let response = next.run(request).await;
+    drop(busy);
+    response
 }
 
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
@@ -546,8 +559,13 @@ async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError>
             ))
         },
     );
+    // A keep-alive well within the idle timeout keeps an open page's connection.
+    let idle = Duration::from_secs(shared.config.idle_timeout_s);
+    let every = Duration::from_secs(15)
+        .min(idle / 3)
+        .max(Duration::from_millis(200));
     Ok(Sse::new(stream)
-        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .keep_alive(KeepAlive::new().interval(every))
         .into_response())
 }
 
