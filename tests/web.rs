@@ -57,6 +57,20 @@ fn dechunk(mut data: &[u8]) -> Vec<u8> {
     }
 }
 
+/// A connection that asked for the event stream (read timeout 10 s).
+fn open_events(addr: SocketAddr) -> TcpStream {
+    let mut events = TcpStream::connect(addr).unwrap();
+    events
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    )
+    .unwrap();
+    events
+}
+
 fn get_json(addr: SocketAddr, path: &str) -> serde_json::Value {
     let (status, body) = http(addr, "GET", path, b"");
     assert_eq!(status, 200, "{path}: {}", String::from_utf8_lossy(&body));
@@ -243,15 +257,7 @@ fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build
     );
 
     // The event stream tells a page where the build stands as soon as it connects.
-    let mut events = TcpStream::connect(addr).unwrap();
-    events
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
-    write!(
-        events,
-        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
-    )
-    .unwrap();
+    let mut events = open_events(addr);
     let mut seen = String::new();
     let mut buf = [0u8; 4096];
     while !seen.contains("\"newest\":3") {
@@ -485,15 +491,7 @@ fn idle_connections_are_closed_after_the_idle_timeout_and_a_waiting_client_is_se
     let tmp = tempfile::tempdir().unwrap();
     let dir = finished_build(tmp.path(), 1);
     let (child, addr) = serve(&dir, &["--idle-timeout-s", "1"]);
-    let mut events = TcpStream::connect(addr).unwrap();
-    events
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
-    write!(
-        events,
-        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
-    )
-    .unwrap();
+    let mut events = open_events(addr);
     let mut buf = [0u8; 4096];
     assert!(events.read(&mut buf).unwrap() > 0, "the stream answers");
     let started = Instant::now();
