@@ -3,15 +3,23 @@
 //!    original and sidecar written atomically with fsync, the journal, status, the processing
 //!    queue. A prerecorded camera returns a fixed frame instantly, so the time between two frames
 //!    of one layer signal is the overhead. Target: median under 5 ms.
-//! 2. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
+//! 2. the same overhead and the processing worker's time per layer with `[inspection]` off and
+//!    on, side by side: a calibrated build with the demo vectors, the same frames, builds
+//!    alternated off/on so the machine's load falls on both alike. Inspection must leave the
+//!    capture path's overhead unchanged.
+//! 3. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
+//!
+//! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2.
 
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
 
+use layerwise::build_dir::inspection::InspectionLog;
 use layerwise::build_dir::journal::Record;
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
 use prerecorded::{mock_frame, run_prerecorded};
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -35,29 +43,48 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
+type At = chrono::DateTime<chrono::Utc>;
+
+fn ms(d: chrono::TimeDelta) -> f64 {
+    d.num_microseconds().unwrap_or_default() as f64 / 1e3
+}
+
+/// The journal's records of a finished build.
+fn journal(dir: &Path) -> Vec<Record> {
+    let text = std::fs::read_to_string(dir.join("journal.jsonl")).expect("journal");
+    text.lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+/// Intervals between consecutive frames of the same layer signal, ms, sorted: the capture
+/// path's overhead per frame.
+fn frame_gaps(records: &[Record]) -> Vec<f64> {
+    let mut last: Option<(u32, layerwise::shot::Phase, At)> = None;
+    let mut gaps = Vec::new();
+    for record in records {
+        if let Record::Frame {
+            layer, phase, at, ..
+        } = record
+        {
+            if let Some((l, p, t)) = last {
+                if (l, p) == (*layer, *phase) {
+                    gaps.push(ms(*at - t));
+                }
+            }
+            last = Some((*layer, *phase, *at));
+        }
+    }
+    gaps.sort_by(|a, b| a.total_cmp(b));
+    gaps
+}
+
 fn overhead(label: &str, width: u32, height: u32, layers: u32) {
     let dir = tempfile::tempdir().expect("tempdir");
     let frame = mock_frame(width, height);
     let bytes = frame.len();
     build(&config(dir.path(), layers, true), frame);
-    // Intervals between consecutive frames of the same layer signal.
-    let text = std::fs::read_to_string(dir.path().join("journal.jsonl")).expect("journal");
-    let mut last: Option<(u32, layerwise::shot::Phase, chrono::DateTime<chrono::Utc>)> = None;
-    let mut gaps = Vec::new();
-    for line in text.lines() {
-        if let Ok(Record::Frame {
-            layer, phase, at, ..
-        }) = serde_json::from_str(line)
-        {
-            if let Some((l, p, t)) = last {
-                if (l, p) == (layer, phase) {
-                    gaps.push((at - t).num_microseconds().unwrap_or_default() as f64 / 1e3);
-                }
-            }
-            last = Some((layer, phase, at));
-        }
-    }
-    gaps.sort_by(|a, b| a.total_cmp(b));
+    let gaps = frame_gaps(&journal(dir.path()));
     println!(
         "capture-path overhead, {label} ({width}x{height} JPEG, {:.2} MB, fsync on): {} frames, median {:.2} ms, p90 {:.2} ms, max {:.2} ms (target: median < 5 ms)",
         bytes as f64 / 1e6,
@@ -65,6 +92,141 @@ fn overhead(label: &str, width: u32, height: u32, layers: u32) {
         percentile(&gaps, 0.5),
         percentile(&gaps, 0.9),
         percentile(&gaps, 1.0)
+    );
+}
+
+/// The processing worker's time on each layer after its last frame, ms, sorted: from when the
+/// layer's last frame is stored (or the previous layer done, if later) to its last view in the
+/// series and, with inspection on, the layer's inspection done; the pre-scan views are
+/// processed while the printer scans, before that.
+fn worker_per_layer(dir: &Path, records: &[Record]) -> Vec<f64> {
+    let mut last_frame: BTreeMap<u32, At> = BTreeMap::new();
+    let mut done: BTreeMap<u32, At> = BTreeMap::new();
+    for record in records {
+        match record {
+            Record::Frame { layer, at, .. } => {
+                last_frame.insert(*layer, *at);
+            }
+            Record::Processed { layer, at, .. } => {
+                let e = done.entry(*layer).or_insert(*at);
+                *e = (*e).max(*at);
+            }
+            _ => {}
+        }
+    }
+    let inspected =
+        InspectionLog::read(&dir.join(layerwise::build_dir::INSPECTION)).unwrap_or_default();
+    for r in &inspected {
+        let end = r.at + chrono::TimeDelta::microseconds((r.ms * 1e3) as i64);
+        let e = done.entry(r.layer).or_insert(end);
+        *e = (*e).max(end);
+    }
+    let mut previous: Option<At> = None;
+    let mut times = Vec::new();
+    for (layer, end) in &done {
+        let start = match (last_frame.get(layer), previous) {
+            (Some(f), Some(p)) => (*f).max(p),
+            (Some(f), None) => *f,
+            (None, _) => continue,
+        };
+        times.push(ms(*end - start).max(0.0));
+        previous = Some(*end);
+    }
+    times.sort_by(|a, b| a.total_cmp(b));
+    times
+}
+
+/// A calibrated build (the mock camera's true homography onto the demo grid) with the demo
+/// vectors, so that every frame is rectified into its series and, with `inspect`, inspected.
+fn calibrated(dir: &Path, layers: u32, width: u32, height: u32, inspect: bool) -> Config {
+    let mut config = config(dir, layers, true);
+    if let CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = width;
+        mock.height = height;
+    }
+    std::fs::create_dir_all(dir).expect("build dir");
+    let truth = mock_camera::Homography::oblique_view(width, height);
+    let calibration = layerwise::rectify::Calibration {
+        build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
+        distortion: None,
+        grid: Some(config.rectify),
+        fit: None,
+    };
+    let path = dir.join("calibration.toml");
+    std::fs::write(&path, calibration.to_toml()).expect("calibration");
+    config.calibration.file = Some(path);
+    let vectors = dir.join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    config.inspection.enabled = inspect;
+    // Signals a second apart: the worker keeps up, as between the layers of a real build.
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 1000;
+    }
+    config
+}
+
+/// Inspection off and on side by side: `rounds` pairs of builds of `layers` layers.
+fn inspection_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
+    let frame = mock_frame(width, height);
+    // (capture-path gaps, worker per layer, inspection ms) for off and on.
+    let mut runs: [(Vec<f64>, Vec<f64>, Vec<f64>); 2] = Default::default();
+    for _ in 0..rounds {
+        for (k, inspect) in [false, true].into_iter().enumerate() {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let build_dir = dir.path().join("build");
+            build(
+                &calibrated(&build_dir, layers, width, height, inspect),
+                frame.clone(),
+            );
+            let records = journal(&build_dir);
+            runs[k].0.extend(frame_gaps(&records));
+            runs[k].1.extend(worker_per_layer(&build_dir, &records));
+            let inspected = InspectionLog::read(&build_dir.join(layerwise::build_dir::INSPECTION))
+                .unwrap_or_default();
+            if inspect && inspected.len() < layers as usize {
+                println!(
+                    "  (only {} of {layers} layers inspected before the build ended)",
+                    inspected.len()
+                );
+            }
+            runs[k].2.extend(inspected.iter().map(|r| r.ms));
+        }
+    }
+    let sorted = |v: &mut Vec<f64>| v.sort_by(|a, b| a.total_cmp(b));
+    for run in &mut runs {
+        sorted(&mut run.0);
+        sorted(&mut run.1);
+        sorted(&mut run.2);
+    }
+    let [off, on] = &runs;
+    let grid = config(Path::new("."), 1, true).rectify;
+    println!(
+        "inspection off vs on ({width}x{height} JPEG, grid {}x{} at {} mm, demo vectors, {rounds} x {layers} layers each, alternated):",
+        grid.columns(),
+        grid.rows(),
+        grid.pixel_mm
+    );
+    for (what, a, b) in [
+        ("capture-path overhead per frame", &off.0, &on.0),
+        ("processing after a layer's last frame", &off.1, &on.1),
+    ] {
+        println!(
+            "  {what}: off median {:.2} ms, p95 {:.2} ms ({} samples); on median {:.2} ms, p95 {:.2} ms ({} samples); on/off median {:.3}, p95 {:.3}",
+            percentile(a, 0.5),
+            percentile(a, 0.95),
+            a.len(),
+            percentile(b, 0.5),
+            percentile(b, 0.95),
+            b.len(),
+            percentile(b, 0.5) / percentile(a, 0.5),
+            percentile(b, 0.95) / percentile(a, 0.95),
+        );
+    }
+    println!(
+        "  inspecting a layer (its record's ms, after the views' cells): median {:.2} ms, p95 {:.2} ms",
+        percentile(&on.2, 0.5),
+        percentile(&on.2, 0.95)
     );
 }
 
@@ -133,8 +295,16 @@ fn main() {
         982,
         if full { 100 } else { 3 },
     );
+    // LAYERWISE_BENCH_ONLY=inspection: only the side-by-side of inspection off and on.
+    if std::env::var("LAYERWISE_BENCH_ONLY").is_ok_and(|v| v == "inspection") {
+        inspection_side_by_side(1472, 982, 8, 2);
+        return;
+    }
     if full {
+        inspection_side_by_side(1472, 982, 8, 2);
         overhead("D810-size mock frame", 7360, 4912, 20);
         memory(layers);
+    } else {
+        inspection_side_by_side(1472, 982, 2, 1);
     }
 }

@@ -470,10 +470,53 @@ fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agre
 }
 
 /// The PNG decodes, and in every panel the columns of the layers with a flag at warning or above
-/// hold the flag colour while the others do not.
+/// hold the flag colour while the others do not; its labels are drawn: the title and the flag
+/// letters' legend, each panel's value ticks and layer ticks, each flagged layer's letter.
 fn assert_flags_marked(plot: &std::path::Path, records: &[InspectionRecord]) {
     use layerwise::inspect::plot;
     let image = image::open(plot).expect("the PNG decodes").to_rgb8();
+    // Pixels of `colour` in the box x0..x1, y0..y1 (the rows of a label on its baseline y1).
+    let count = |colour: [u8; 3], (x0, x1): (f64, f64), (y0, y1): (f64, f64)| {
+        let (x0, x1) = (x0.max(0.0) as u32, (x1 as u32).min(image.width() - 1));
+        (y0.max(0.0) as u32..=y1 as u32)
+            .flat_map(|y| (x0..=x1).map(move |x| (x, y)))
+            .filter(|&(x, y)| image.get_pixel(x, y).0 == colour)
+            .count()
+    };
+    let ink = [0, 0, 0];
+    let text_rows = |baseline: f64| (baseline - 7.0, baseline);
+    assert!(
+        count(ink, (70.0, 500.0), text_rows(plot::TITLE_Y)) > 100,
+        "the title"
+    );
+    assert!(
+        count(plot::FLAG, (70.0, 700.0), text_rows(plot::LEGEND_Y)) > 100,
+        "the legend of the flag letters"
+    );
+    let ticks = plot::layer_ticks(records);
+    assert!(ticks.len() >= 3, "{ticks:?}");
+    for (top, bottom) in plot::panel_rows() {
+        for y in [top, bottom] {
+            assert!(
+                count(ink, (2.0, 66.0), (y - 4.0, y + 4.0)) > 15,
+                "value tick label at row {y}"
+            );
+        }
+        for &layer in &ticks {
+            let x = plot::layer_x(records, layer);
+            assert!(
+                count(ink, (x - 12.0, x + 12.0), text_rows(bottom + 14.0)) > 8,
+                "layer tick label {layer} under the panel at row {bottom}"
+            );
+        }
+        for r in records {
+            let x = plot::layer_x(records, r.layer);
+            let letter = count(plot::FLAG, (x - 4.0, x + 4.0), text_rows(top - 14.0));
+            if r.flags.iter().any(|f| f.severity >= Severity::Warning) {
+                assert!(letter > 8, "layer {}: no flag letter", r.layer);
+            }
+        }
+    }
     let flagged: Vec<u32> = records
         .iter()
         .filter(|r| r.flags.iter().any(|f| f.severity >= Severity::Warning))

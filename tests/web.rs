@@ -57,6 +57,20 @@ fn dechunk(mut data: &[u8]) -> Vec<u8> {
     }
 }
 
+/// A connection that asked for the event stream (read timeout 10 s).
+fn open_events(addr: SocketAddr) -> TcpStream {
+    let mut events = TcpStream::connect(addr).unwrap();
+    events
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    )
+    .unwrap();
+    events
+}
+
 fn get_json(addr: SocketAddr, path: &str) -> serde_json::Value {
     let (status, body) = http(addr, "GET", path, b"");
     assert_eq!(status, 200, "{path}: {}", String::from_utf8_lossy(&body));
@@ -77,6 +91,39 @@ fn web_config(dir: &Path, layers: u32) -> layerwise::config::Config {
     layerwise::sim::inject::write_demo_vectors(&vectors, layers).unwrap();
     config.build.vectors = Some(vectors);
     config
+}
+
+/// Where the mock camera's part 3 (the 20 x 12 mm box) is, build mm `[x0, y0, x1, y1]`.
+const PART3_MM: [f64; 4] = [40.0, 44.0, 60.0, 56.0];
+
+/// [`web_config`] with the mock camera at 640 x 427 (the inspection's smallest tested frames)
+/// rendering `inject` (`demo --inject` syntax).
+fn injected_config(dir: &Path, layers: u32, inject: &[&str]) -> layerwise::config::Config {
+    let mut config = web_config(dir, layers);
+    let (w, h) = (640, 427);
+    if let layerwise::config::CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = w;
+        mock.height = h;
+        mock.inject = inject.iter().map(|i| i.parse().unwrap()).collect();
+    }
+    config.calibration.file = Some(write_true_calibration(
+        dir,
+        &mock_camera::Homography::oblique_view(w, h),
+    ));
+    config
+}
+
+/// A build-mm box as fractions `[x, y, w, h]` of the rectified picture of `grid` (the JSON of
+/// `/api/layers`), rows from the far (+y) edge.
+fn picture_fractions(grid: &serde_json::Value, mm: [f64; 4]) -> [f64; 4] {
+    let g = |k: &str| grid[k].as_f64().unwrap();
+    let (width, height) = (g("x_max") - g("x_min"), g("y_max") - g("y_min"));
+    [
+        (mm[0] - g("x_min")) / width,
+        (g("y_max") - mm[3]) / height,
+        (mm[2] - mm[0]) / width,
+        (mm[3] - mm[1]) / height,
+    ]
 }
 
 /// Reads a child's stream on a thread (so the child never blocks on a full pipe) and returns
@@ -210,15 +257,7 @@ fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build
     );
 
     // The event stream tells a page where the build stands as soon as it connects.
-    let mut events = TcpStream::connect(addr).unwrap();
-    events
-        .set_read_timeout(Some(Duration::from_secs(10)))
-        .unwrap();
-    write!(
-        events,
-        "GET /api/events HTTP/1.1\r\nHost: localhost\r\n\r\n"
-    )
-    .unwrap();
+    let mut events = open_events(addr);
     let mut seen = String::new();
     let mut buf = [0u8; 4096];
     while !seen.contains("\"newest\":3") {
@@ -278,6 +317,105 @@ fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build
     assert_eq!(status, 405);
     // Still serving after all that.
     assert_eq!(get_json(addr, "/api/layers/3")["layer"], 3);
+    drop(child);
+}
+
+/// The layer detail of an injected layer carries each inspection flag with its box as fractions
+/// of the rectified picture: the flag's grid pixels over the grid's size (the contract of
+/// vectors.svg and the previews), on the anomaly; a plate-wide flag is drawn over every view of
+/// its phase, a part's over its own view; the timeline marks the layer, a clean layer has none.
+#[test]
+fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let config = injected_config(&dir, 4, &["streak@2/y=-60/w=3/c=30", "no-fusion@3/part=3"]);
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    run_build(&config_path);
+    let (child, addr) = serve(&dir, &[]);
+    let layers = get_json(addr, "/api/layers");
+    let grid = &layers["grid"];
+    let (cols, rows) = (550.0, 550.0);
+    assert_eq!(grid["pixel_mm"], 0.5, "{grid}");
+    let worst: Vec<_> = layers["layers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["worst"].as_str().unwrap_or("").to_string())
+        .collect();
+    assert_eq!(worst[0], "", "{worst:?}");
+    assert!(!worst[1].is_empty() && !worst[2].is_empty(), "{worst:?}");
+
+    let clean = get_json(addr, "/api/layers/1");
+    assert_eq!(clean["inspection"], serde_json::json!([]), "{clean}");
+
+    let check_box = |flag: &serde_json::Value, mm: [f64; 4], tolerance_mm: f64| {
+        let b = &flag["box"];
+        let px: Vec<f64> = flag["bbox_px"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        let fraction = ["x", "y", "w", "h"].map(|k| b[k].as_f64().unwrap());
+        let contract = [
+            px[0] / cols,
+            px[1] / rows,
+            (px[2] + 1.0 - px[0]) / cols,
+            (px[3] + 1.0 - px[1]) / rows,
+        ];
+        for (got, want) in fraction.iter().zip(contract) {
+            assert!(
+                (got - want).abs() < 1e-9,
+                "{flag}: {fraction:?} vs {contract:?}"
+            );
+        }
+        let truth = picture_fractions(grid, mm);
+        let tolerance = tolerance_mm / 275.0;
+        for (got, want) in fraction.iter().zip(truth) {
+            assert!(
+                (got - want).abs() < tolerance,
+                "{flag}: {fraction:?} vs {truth:?}"
+            );
+        }
+    };
+
+    let streaky = get_json(addr, "/api/layers/2");
+    let streak = streaky["inspection"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["kind"] == "streak")
+        .unwrap_or_else(|| panic!("{streaky}"))
+        .clone();
+    // Along x over the injected span (found per 40 mm segment), 3 mm wide at y = -60.
+    check_box(&streak, [-40.0, -61.5, 95.0, -58.5], 25.0);
+    let b = &streak["box"];
+    let y_mid = b["y"].as_f64().unwrap() + b["h"].as_f64().unwrap() / 2.0;
+    assert!(
+        (y_mid - (137.5 + 60.0) / 275.0).abs() < 2.0 / 275.0,
+        "{streak}"
+    );
+    assert_eq!(
+        streak["draw_on"],
+        serde_json::json!(["pre_front", "pre_side", "pre_top"])
+    );
+
+    let unfused = get_json(addr, "/api/layers/3");
+    let flag = unfused["inspection"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f["kind"] == "under_fusion")
+        .unwrap_or_else(|| panic!("{unfused}"))
+        .clone();
+    assert_eq!(flag["part"], 3);
+    check_box(&flag, PART3_MM, 1.5);
+    assert_eq!(flag["draw_on"], serde_json::json!(["post_top"]));
+    assert!(
+        unfused["summary"]["flags"].as_u64().unwrap() >= 1,
+        "{unfused}"
+    );
     drop(child);
 }
 
@@ -345,9 +483,64 @@ fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_s
     drop(streams);
 }
 
+/// Idle clients cannot hold the page: with every connection of `max_connections` (64) taken by
+/// clients that send nothing or half a request, a page's request waits, then is answered once
+/// `--idle-timeout-s 1` closed them; an open event stream outlives the timeout (its keep-alive).
+#[test]
+fn idle_connections_are_closed_after_the_idle_timeout_and_a_waiting_client_is_served() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 1);
+    let (child, addr) = serve(&dir, &["--idle-timeout-s", "1"]);
+    let mut events = open_events(addr);
+    let mut buf = [0u8; 4096];
+    assert!(events.read(&mut buf).unwrap() > 0, "the stream answers");
+    let started = Instant::now();
+    let mut idle: Vec<TcpStream> = (0..63)
+        .map(|k| {
+            let mut s = TcpStream::connect(addr).unwrap();
+            if k % 2 == 0 {
+                write!(s, "GET /api/status HTTP/1.1\r\nHost: loc").unwrap();
+            }
+            s
+        })
+        .collect();
+    // Every place is taken: this request waits for the idle ones to be closed.
+    let (status, body) = http(addr, "GET", "/api/layers", b"");
+    let waited = started.elapsed();
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    assert!(
+        waited >= Duration::from_millis(900),
+        "answered after {waited:?}: the idle connections did not hold their places"
+    );
+    // The idle ones were closed by the server.
+    for s in &mut idle {
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        assert!(
+            rest.is_empty() || String::from_utf8_lossy(&rest).starts_with("HTTP/1.1 408"),
+            "{}",
+            String::from_utf8_lossy(&rest)
+        );
+    }
+    // The open page's stream is still there: keep-alives keep coming.
+    let mut seen = 0;
+    let until = Instant::now() + Duration::from_millis(1500);
+    while Instant::now() < until {
+        let n = events.read(&mut buf).expect("the event stream stays open");
+        assert!(n > 0, "the event stream was closed");
+        seen += n;
+    }
+    assert!(seen > 0);
+    drop(child);
+}
+
 /// Headless Chromium drives the page of a running build (tests/web_browser.py): the layer
 /// advances without a reload, the newest layer's picture loads, a click on an earlier layer of
-/// the timeline shows it. The screenshot is kept in target/test-artifacts/live-page.png.
+/// the timeline shows it; on the layer where part 3 did not fuse (injected) the flag is outlined
+/// on the part's place over the post-scan top view, in the large view and a crop, F toggles it,
+/// a clean layer shows none. Screenshots are kept in target/test-artifacts: live-page.png,
+/// flagged-layer.png and flagged-layer-zoom.png.
 #[test]
 fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
     let chromedriver = ["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"]
@@ -356,7 +549,8 @@ fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
         .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)");
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("build");
-    let mut config = web_config(&dir, 100);
+    let (flagged, clean) = (5, 3);
+    let mut config = injected_config(&dir, 100, &[&format!("no-fusion@{flagged}/part=3")]);
     if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
         mock.interval_ms = 400;
     }
@@ -368,25 +562,37 @@ fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
     let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-artifacts");
     std::fs::create_dir_all(&artifacts).unwrap();
     let screenshot = artifacts.join("live-page.png");
-    let _ = std::fs::remove_file(&screenshot);
+    let flag_shot = artifacts.join("flagged-layer.png");
+    for png in [&screenshot, &flag_shot] {
+        let _ = std::fs::remove_file(png);
+    }
+    let grid = serde_json::to_value(plate_grid()).unwrap();
+    let expected = picture_fractions(&grid, PART3_MM).map(|v| format!("{v:.5}"));
     let out = std::process::Command::new("python3")
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/web_browser.py"))
         .arg(format!("http://{addr}/"))
         .arg(chromedriver)
         .arg(&screenshot)
+        .arg(flagged.to_string())
+        .arg("post_top")
+        .args(&expected)
+        .arg(clean.to_string())
+        .arg(&flag_shot)
         .output()
         .unwrap();
     let daemon = terminate(child);
     let log = stderr.join().unwrap();
     assert!(out.status.success(), "{}\n--- daemon\n{log}", report(&out));
     assert!(daemon.status.success(), "{log}");
-    let png = image::open(&screenshot).unwrap();
-    assert!(
-        png.width() >= 1000 && png.height() >= 600,
-        "{}x{}",
-        png.width(),
-        png.height()
-    );
+    for png in [&screenshot, &flag_shot] {
+        let png = image::open(png).unwrap();
+        assert!(
+            png.width() >= 1000 && png.height() >= 600,
+            "{}x{}",
+            png.width(),
+            png.height()
+        );
+    }
     println!("{}", String::from_utf8_lossy(&out.stdout));
 }
 

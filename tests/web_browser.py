@@ -1,11 +1,14 @@
 """Drives the operator page in headless Chromium through chromedriver (W3C WebDriver over plain
 HTTP, no client library) while a demo build runs; tests/web.rs starts the build and runs this.
 
-usage: web_browser.py PAGE_URL CHROMEDRIVER SCREENSHOT_PNG
+usage: web_browser.py PAGE_URL CHROMEDRIVER SCREENSHOT_PNG [FLAGGED_LAYER VIEW X Y W H CLEAN_LAYER FLAG_PNG]
 
 Checks that the shown layer number advances without a reload, that a picture of the newest
 layer loads, that a click on an earlier layer in the timeline shows that layer, and keeps a
-screenshot.
+screenshot. With the optional arguments: on FLAGGED_LAYER an inspection flag is outlined over
+VIEW at X Y W H (fractions of the rectified picture, from the injected anomaly's place), in
+the small view, the large view and a crop; F hides the outlines; CLEAN_LAYER shows none; a
+screenshot of the flagged layer is kept in FLAG_PNG.
 """
 import base64
 import json
@@ -17,6 +20,12 @@ import time
 import urllib.request
 
 page, chromedriver, screenshot = sys.argv[1:4]
+flagged = None
+if len(sys.argv) > 4:
+    flagged_layer, flagged_view = int(sys.argv[4]), sys.argv[5]
+    expected = [float(v) for v in sys.argv[6:10]]
+    clean_layer, flag_png = int(sys.argv[10]), sys.argv[11]
+    flagged = True
 
 
 def free_port():
@@ -85,18 +94,21 @@ try:
     n = wait_for("a picture of the newest layer", newest_picture)
     print(f"picture of layer {n} loaded")
 
+    def click(selector):
+        # The page redraws as layers arrive: an element found just before a redraw is stale by
+        # the click, so find it again and click again (a person's click lands on the redrawn one).
+        for attempt in range(20):
+            try:
+                element = call("POST", s + "/element", {"using": "css selector", "value": selector})
+                call("POST", s + f"/element/{list(element.values())[0]}/click", {})
+                return
+            except RuntimeError as e:
+                if "stale element" not in str(e) or attempt == 19:
+                    raise
+                time.sleep(0.05)
+
     # A click on an earlier layer of the timeline shows that layer.
-    # The timeline is redrawn as layers arrive: a cell found just before a redraw is stale by the
-    # click, so find it again and click again (a person's click lands on the redrawn cell).
-    for attempt in range(20):
-        try:
-            cell = call("POST", s + "/element", {"using": "css selector", "value": '#timeline .cell[data-layer="2"]'})
-            call("POST", s + f"/element/{list(cell.values())[0]}/click", {})
-            break
-        except RuntimeError as e:
-            if "stale element" not in str(e) or attempt == 19:
-                raise
-            time.sleep(0.05)
+    click('#timeline .cell[data-layer="2"]')
     wait_for("layer 2 to be shown", lambda: shown() == 2)
     wait_for("a picture of layer 2", lambda: js("""
         const imgs = [...document.querySelectorAll('#views img')];
@@ -115,6 +127,64 @@ try:
     assert "switching" in health("lights"), health("lights")
     assert "rest of build needs" in health("disk"), health("disk")
     print(f"health: trigger {trigger!r}, lights {health('lights')!r}")
+
+    if flagged:
+        # Where each outline sits on its picture, as fractions of the picture's shown size.
+        boxes = """
+            const [frame, flags] = arguments;
+            const img = document.querySelector(frame + ' img');
+            if (!img || !img.complete || !img.naturalWidth) return null;
+            const p = img.getBoundingClientRect();
+            return [...document.querySelectorAll(flags + ' .flag-box')].map(b => {
+                const r = b.getBoundingClientRect();
+                return {kind: b.dataset.kind, visible: b.offsetParent !== null, px: p.width,
+                        box: [(r.left - p.left) / p.width, (r.top - p.top) / p.height, r.width / p.width, r.height / p.height]};
+            });"""
+
+        def near(found, want, px, what, scale=1.0):
+            # The injected place within 2 mm (the inspection's cells) of the 275 mm plate, plus
+            # two pixels of the picture as shown (px wide); scale: the crop's share of the plate.
+            tolerance = 2.0 / 275 / scale + 2.0 / px
+            assert all(abs(a - b) < tolerance for a, b in zip(found, want)), f"{what}: outline at {found}, anomaly at {want}"
+
+        click(f'#timeline .cell[data-layer="{clean_layer}"]')
+        wait_for(f"layer {clean_layer} shown", lambda: shown() == clean_layer and js(boxes, f'.tile[data-view="{flagged_view}"]', '#views') is not None)
+        assert js("return document.querySelectorAll('.flag-box').length") == 0, "a clean layer has no outline"
+        click(f'#timeline .cell[data-layer="{flagged_layer}"]')
+        tile = f'.tile[data-view="{flagged_view}"][data-layer="{flagged_layer}"]'
+        found = wait_for(f"an outline over {flagged_view} of layer {flagged_layer}", lambda: shown() == flagged_layer and js(boxes, tile, tile))
+        near(found[0]["box"], expected, found[0]["px"], "small view")
+        others = js("return [...document.querySelectorAll('.tile')].filter(t => t.querySelector('.flag-box')).map(t => t.dataset.view)")
+        assert others == [flagged_view], f"a part's flag is outlined over its own view only: {others}"
+        print(f"layer {flagged_layer}: {found[0]['kind']} outlined over {flagged_view} at {[round(v, 4) for v in found[0]['box']]} (anomaly at {[round(v, 4) for v in expected]})")
+        js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'f'}))")
+        assert not js(boxes, tile, tile)[0]["visible"], "F hides the outlines"
+        js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'f'}))")
+        assert js(boxes, tile, tile)[0]["visible"], "F shows them again"
+        js("window.scrollTo(0, 0)")
+        time.sleep(0.5)
+        with open(flag_png, "wb") as f:
+            f.write(base64.b64decode(call("GET", s + "/screenshot")))
+        # The large view, then a crop around the anomaly at full resolution: outlined in both.
+        click(tile + " img")
+        large = wait_for("the outline in the large view", lambda: js(boxes, ".zoom-frame", "#zoom-flags"))
+        near(large[0]["box"], expected, large[0]["px"], "large view")
+        rect = js("const r = document.getElementById('zoom-img').getBoundingClientRect(); return [r.left, r.top, r.width, r.height]")
+        cx, cy = expected[0] + expected[2] / 2, expected[1] + expected[3] / 2
+        actions = {"actions": [{"type": "pointer", "id": "mouse", "parameters": {"pointerType": "mouse"}, "actions": [
+            {"type": "pointerMove", "origin": "viewport", "x": int(rect[0] + cx * rect[2]), "y": int(rect[1] + cy * rect[3])},
+            {"type": "pointerDown", "button": 0}, {"type": "pointerUp", "button": 0}]}]}
+        call("POST", s + "/actions", actions)
+        crop = wait_for("the outline in the crop", lambda: js(boxes, "#zoom-crop-frame", "#zoom-crop-flags"))
+        src = js("return document.getElementById('zoom-crop').getAttribute('src')")
+        q = dict(kv.split("=") for kv in src.split("?")[1].split("&"))
+        x, y, w, h = (float(q[k]) for k in "xywh")
+        in_crop = [(expected[0] - x) / w, (expected[1] - y) / h, expected[2] / w, expected[3] / h]
+        near(crop[0]["box"], in_crop, crop[0]["px"], "crop", w)
+        print(f"outlined in the large view and in the crop {src.split('?')[1]}")
+        with open(flag_png.replace(".png", "-zoom.png"), "wb") as f:
+            f.write(base64.b64decode(call("GET", s + "/screenshot")))
+        js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
     # Back to the newest complete layer (End), then stay there for the screenshot: on a loaded
     # machine the build may move on faster than six pictures load.
     js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'End'}))")

@@ -20,6 +20,10 @@ pub struct ServeArgs {
     /// Let the calibration page save new points files (and calibrations) in the build directory.
     #[arg(long)]
     calibration_page: bool,
+    /// Seconds a connection may sit idle (nothing read or written, no request being answered)
+    /// before it is closed, as `[web] idle_timeout_s`.
+    #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
+    idle_timeout_s: u64,
 }
 
 impl ServeArgs {
@@ -34,6 +38,7 @@ impl ServeArgs {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
             calibration_page: self.calibration_page,
+            idle_timeout_s: self.idle_timeout_s,
             ..WebConfig::default()
         };
         config.validate().map_err(|(key, message)| {

@@ -20,6 +20,11 @@ pub struct WebConfig {
     pub max_connections: usize,
     /// Live-update streams (one per open page) at once; more are refused with 503.
     pub max_event_streams: usize,
+    /// Seconds a connection may sit with nothing read or written (an idle keep-alive, a client
+    /// that sends half a request and stops) while no request of it is being answered; then it
+    /// is closed and its place goes to the next client. Open pages stay: their event stream
+    /// sends a keep-alive well within it.
+    pub idle_timeout_s: u64,
     /// Longest side of a preview and of a zoomed crop, in pixels.
     pub preview_px: u32,
     /// Memory for encoded previews, in MB.
@@ -36,6 +41,7 @@ impl Default for WebConfig {
             token_file: None,
             max_connections: 64,
             max_event_streams: 16,
+            idle_timeout_s: 30,
             preview_px: 1024,
             cache_mb: 64,
             calibration_page: false,
@@ -82,6 +88,9 @@ impl WebConfig {
                 "web.max_event_streams",
                 "must be 1 to web.max_connections".into(),
             ));
+        }
+        if !(1..=3600).contains(&self.idle_timeout_s) {
+            return Err(("web.idle_timeout_s", "must be 1 to 3600 seconds".into()));
         }
         if !(64..=4096).contains(&self.preview_px) {
             return Err(("web.preview_px", "must be 64 to 4096 pixels".into()));

@@ -1,8 +1,9 @@
 //! `layerwise inspect --plot OUT.svg|OUT.png`: per-part metrics against layer, one panel per
 //! metric, with the layers that raised a flag at warning or above marked in red. One layout drawn
-//! on two canvases: SVG text, or pixels encoded as PNG (the PNG leaves the labels out).
+//! on two canvases: SVG text, or pixels encoded as PNG (its labels in the 5 x 7 bitmap font of
+//! [`crate::raster::sheet`]).
 
-use crate::build_dir::inspection::{InspectionRecord, PartMetrics, Severity};
+use crate::build_dir::inspection::{FlagKind, InspectionRecord, PartMetrics, Severity};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
@@ -37,11 +38,38 @@ const LEFT: f64 = 70.0;
 const TOP: f64 = 30.0;
 const RIGHT: f64 = 20.0;
 
+/// Where a label sits against its `x`.
+#[derive(Clone, Copy, PartialEq)]
+enum Anchor {
+    Start,
+    Middle,
+    End,
+}
+
+/// The letter marking a flag of `kind` above a flagged layer's mark, as the legend explains.
+pub fn kind_letter(kind: FlagKind) -> char {
+    match kind {
+        FlagKind::Streak => 'S',
+        FlagKind::ShortFeed => 'F',
+        FlagKind::Elevation => 'E',
+        FlagKind::UnderFusion => 'U',
+        FlagKind::OverFusion => 'O',
+        FlagKind::Spatter => 'P',
+        FlagKind::Drift => 'D',
+    }
+}
+
+/// Baseline of the drawing's title, and of the legend of the flag letters below it.
+pub const TITLE_Y: f64 = 16.0;
+pub const LEGEND_Y: f64 = 28.0;
+
 /// What the layout draws with.
 trait Canvas {
     fn frame(&mut self, x: f64, y: f64, w: f64, h: f64);
-    /// A label at `(x, y)` (its baseline), ending there when `end`.
-    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], end: bool);
+    /// A label with its baseline at `y`, placed against `x` by `anchor`.
+    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], anchor: Anchor);
+    /// A short straight line (a tick).
+    fn tick(&mut self, from: (f64, f64), to: (f64, f64));
     /// A flagged layer's vertical mark.
     fn flag(&mut self, x: f64, y0: f64, y1: f64, layer: u32);
     fn polyline(&mut self, points: &[(f64, f64)], colour: [u8; 3], part: i64);
@@ -64,7 +92,38 @@ pub fn panel_rows() -> Vec<(f64, f64)> {
 }
 
 fn height() -> f64 {
-    TOP + PANELS.len() as f64 * (PANEL_HEIGHT + 40.0) + 20.0
+    TOP + PANELS.len() as f64 * (PANEL_HEIGHT + 40.0) + 40.0
+}
+
+/// The layers labelled on the x axis: round numbers about a tenth of the span apart, with the
+/// first and last layer.
+pub fn layer_ticks(records: &[InspectionRecord]) -> Vec<u32> {
+    let (l0, l1) = span(records);
+    let raw = f64::from(l1 - l0) / 8.0;
+    let magnitude = 10f64.powf(raw.max(1.0).log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * magnitude)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * magnitude)
+        .max(1.0) as u32;
+    let mut ticks = vec![l0];
+    // Round layers between, none so close to an end that their labels would touch.
+    let gap = step / 2;
+    let mut t = (l0 / step + 1) * step;
+    while t + gap <= l1 {
+        if t >= l0 + gap {
+            ticks.push(t);
+        }
+        t += step;
+    }
+    ticks.push(l1);
+    ticks
+}
+
+/// The values labelled on a panel's y axis (bottom, middle, top).
+fn value_ticks(lo: f64, hi: f64) -> [f64; 3] {
+    [lo, (lo + hi) / 2.0, hi]
 }
 
 /// First and last layer (two apart at least, so the axis has a length).
@@ -75,14 +134,24 @@ fn span(records: &[InspectionRecord]) -> (u32, u32) {
 }
 
 fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
-    let (l0, l1) = span(records);
     let x_of = |l: u32| layer_x(records, l);
     canvas.text(
         LEFT,
-        16.0,
-        "Inspection: per-part metrics by layer; red: a flag at warning or above",
+        TITLE_Y,
+        "Inspection: per-part metrics by layer (red: a flag at warning or above)",
         INK,
-        false,
+        Anchor::Start,
+    );
+    let legend: Vec<String> = FlagKind::ALL
+        .iter()
+        .map(|k| format!("{} {}", kind_letter(*k), k.name()))
+        .collect();
+    canvas.text(
+        LEFT,
+        LEGEND_Y,
+        &format!("flags: {}", legend.join("  ")),
+        FLAG,
+        Anchor::Start,
     );
     for ((title, metric), (y0, y1)) in PANELS.iter().zip(panel_rows()) {
         let mut series: BTreeMap<i64, Vec<(u32, f64)>> = BTreeMap::new();
@@ -104,13 +173,27 @@ fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
         };
         let y_of = |v: f64| y1 - (v - lo) / (hi - lo) * PANEL_HEIGHT;
         canvas.frame(LEFT, y0, WIDTH - LEFT - RIGHT, PANEL_HEIGHT);
-        canvas.text(LEFT, y0 - 4.0, title, INK, false);
-        canvas.text(4.0, y0 + 10.0, &format!("{hi:.2}"), INK, false);
-        canvas.text(4.0, y1, &format!("{lo:.2}"), INK, false);
+        canvas.text(LEFT, y0 - 4.0, title, INK, Anchor::Start);
+        for v in value_ticks(lo, hi) {
+            let y = y_of(v);
+            canvas.tick((LEFT - 4.0, y), (LEFT, y));
+            canvas.text(LEFT - 6.0, y + 3.5, &format!("{v:.2}"), INK, Anchor::End);
+        }
         for r in records {
-            if r.flags.iter().any(|f| f.severity >= Severity::Warning) {
-                canvas.flag(x_of(r.layer), y0, y1, r.layer);
+            let mut kinds: Vec<FlagKind> = r
+                .flags
+                .iter()
+                .filter(|f| f.severity >= Severity::Warning)
+                .map(|f| f.kind)
+                .collect();
+            if kinds.is_empty() {
+                continue;
             }
+            kinds.sort();
+            kinds.dedup();
+            canvas.flag(x_of(r.layer), y0, y1, r.layer);
+            let letters: String = kinds.into_iter().map(kind_letter).collect();
+            canvas.text(x_of(r.layer), y0 - 14.0, &letters, FLAG, Anchor::Middle);
         }
         for (i, (part, points)) in series.iter().enumerate() {
             let colour = COLOURS[i % COLOURS.len()];
@@ -118,16 +201,27 @@ fn draw(records: &[InspectionRecord], canvas: &mut impl Canvas) {
             canvas.polyline(&path, colour, *part);
             let label_y = y0 + 14.0 + 12.0 * i as f64;
             canvas.text(
-                WIDTH - 70.0,
+                WIDTH - RIGHT - 6.0,
                 label_y,
                 &format!("part {part}"),
                 colour,
-                false,
+                Anchor::End,
             );
         }
-        canvas.text(LEFT, y1 + 14.0, &format!("layer {l0}"), INK, false);
-        canvas.text(WIDTH - RIGHT, y1 + 14.0, &format!("layer {l1}"), INK, true);
+        for layer in layer_ticks(records) {
+            let x = x_of(layer);
+            canvas.tick((x, y1), (x, y1 + 4.0));
+            canvas.text(x, y1 + 14.0, &layer.to_string(), INK, Anchor::Middle);
+        }
     }
+    let bottom = panel_rows().last().map_or(0.0, |r| r.1);
+    canvas.text(
+        (LEFT + WIDTH - RIGHT) / 2.0,
+        bottom + 28.0,
+        "layer",
+        INK,
+        Anchor::Middle,
+    );
 }
 
 fn hex([r, g, b]: [u8; 3]) -> String {
@@ -144,12 +238,23 @@ impl Canvas for Svg {
             r#"<rect x="{x}" y="{y}" width="{w}" height="{h}" fill="none" stroke="{stroke}"/>"#
         );
     }
-    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], end: bool) {
-        let anchor = if end { r#" text-anchor="end""# } else { "" };
+    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], anchor: Anchor) {
+        let anchor = match anchor {
+            Anchor::Start => "",
+            Anchor::Middle => r#" text-anchor="middle""#,
+            Anchor::End => r#" text-anchor="end""#,
+        };
         let _ = writeln!(
             self.0,
             r#"<text x="{x}" y="{y}" fill="{}"{anchor}>{text}</text>"#,
             hex(colour)
+        );
+    }
+    fn tick(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64)) {
+        let _ = writeln!(
+            self.0,
+            r#"<line x1="{x0:.1}" y1="{y0:.1}" x2="{x1:.1}" y2="{y1:.1}" stroke="{}"/>"#,
+            hex(FRAME)
         );
     }
     fn flag(&mut self, x: f64, y0: f64, y1: f64, layer: u32) {
@@ -211,7 +316,26 @@ impl Canvas for Raster {
             self.line(pair[0], pair[1], FRAME);
         }
     }
-    fn text(&mut self, _x: f64, _y: f64, _text: &str, _colour: [u8; 3], _end: bool) {}
+    fn text(&mut self, x: f64, y: f64, text: &str, colour: [u8; 3], anchor: Anchor) {
+        // The 5 x 7 font advances 6 pixels a character; its 7 rows end on the baseline.
+        let width = text.chars().count() as f64 * 6.0 - 1.0;
+        let left = match anchor {
+            Anchor::Start => x,
+            Anchor::Middle => x - width / 2.0,
+            Anchor::End => x - width,
+        };
+        let (left, top) = (left.round().max(0.0), (y - 7.0).round().max(0.0));
+        crate::raster::sheet::draw_text(
+            &mut self.0,
+            left as u32,
+            top as u32,
+            text,
+            image::Rgb(colour),
+        );
+    }
+    fn tick(&mut self, from: (f64, f64), to: (f64, f64)) {
+        self.line(from, to, FRAME);
+    }
     fn flag(&mut self, x: f64, y0: f64, y1: f64, _layer: u32) {
         self.line((x, y0), (x, y1), FLAG);
     }
@@ -228,7 +352,7 @@ impl Canvas for Raster {
     }
 }
 
-/// The same drawing as PNG bytes (without labels: the SVG has them).
+/// The same drawing as PNG bytes.
 pub fn png(records: &[InspectionRecord]) -> Result<Vec<u8>, image::ImageError> {
     let mut canvas = Raster(image::RgbImage::from_pixel(
         WIDTH as u32,

@@ -185,9 +185,14 @@ impl WebServer {
                         Ok(l) => l,
                         Err(e) => return warn!(error = %e, "page server: cannot listen"),
                     };
-                    let listener = listener::Limited::new(listener, shared.config.max_connections);
+                    let listener = listener::Limited::new(
+                        listener,
+                        shared.config.max_connections,
+                        Duration::from_secs(shared.config.idle_timeout_s),
+                    );
                     tokio::spawn(watch_build(shared.clone()));
-                    let app = routes::router(shared.clone());
+                    let app = routes::router(shared.clone())
+                        .into_make_service_with_connect_info::<listener::Busy>();
                     let mut stop = stop_rx;
                     let served = axum::serve(listener, app)
                         .with_graceful_shutdown(async move {
@@ -242,7 +247,7 @@ fn read_token(path: &Path) -> Result<String, WebError> {
     Ok(token)
 }
 
-/// Looks at the journal and status.json every [`WATCH_PERIOD`]; when they changed, reads what
+/// Looks at the journal, the inspection log and status.json every [`WATCH_PERIOD`]; when they changed, reads what
 /// is new, remakes the status (at most every [`STATUS_PERIOD`]), tells the open pages, and
 /// makes the newest layer's previews ahead of their request.
 async fn watch_build(shared: Arc<Shared>) {
@@ -262,7 +267,8 @@ async fn watch_build(shared: Arc<Shared>) {
         let s = shared.clone();
         let looked = tokio::task::spawn_blocking(move || {
             let stamp = |name: &str| std::fs::metadata(s.dir.join(name)).ok();
-            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len());
+            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len())
+                + stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len());
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
             let changed = s
                 .timeline

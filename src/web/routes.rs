@@ -57,6 +57,7 @@ pub(crate) fn router(shared: Arc<Shared>) -> Router {
         .route("/api/layers/{layer}/{view}/original", get(original))
         .route("/api/events", get(events))
         .layer(middleware::from_fn_with_state(shared.clone(), authorize))
+        .layer(middleware::from_fn(answering))
         .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
         .with_state(shared)
 }
@@ -109,6 +110,18 @@ pub fn parse_view(text: &str) -> Result<View, ApiError> {
             text.escape_debug()
         ))),
     }
+}
+
+/// Counts the request as being answered on its connection until its response is ready, so the
+/// listener's idle timeout never closes a connection waiting for a slow picture.
+async fn answering(request: Request, next: Next) -> Response {
+    let busy = request
+        .extensions()
+        .get::<axum::extract::ConnectInfo<super::listener::Busy>>()
+        .map(|info| info.0.during());
+    let response = next.run(request).await;
+    drop(busy);
+    response
 }
 
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
@@ -234,6 +247,8 @@ async fn layer(
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let n = parse_layer(&layer)?;
     let state = layer_state(&shared, n)?;
+    let grid = shared.info().map(|i| i.grid);
+    let inspection = inspection_flags(&state, grid.as_ref(), &views(&shared));
     let pictures: BTreeMap<String, serde_json::Value> = state
         .views
         .iter()
@@ -256,9 +271,52 @@ async fn layer(
         "views": state.views,
         "signals": state.signals,
         "flags": state.flags,
+        "inspection": inspection,
         "pictures": pictures,
         "vectors": format!("/api/layers/{n}/vectors.svg"),
     })))
+}
+
+/// A layer's inspection flags as the page draws them: each record with `box`, its bbox on the
+/// series grid as fractions `{x, y, w, h}` of the rectified picture (the grid's whole extent at
+/// any preview size, as vectors.svg's viewBox; null before the build's configuration snapshot
+/// exists), and `draw_on`, the views it is outlined over: its own view, and for a plate-wide
+/// flag (no part) every view of its phase.
+fn inspection_flags(
+    state: &LayerState,
+    grid: Option<&crate::geometry::Grid>,
+    views: &[String],
+) -> Vec<serde_json::Value> {
+    state
+        .inspection
+        .iter()
+        .map(|flag| {
+            let picture_box = grid.map(|g| {
+                let (cols, rows) = (g.columns().max(1) as f64, g.rows().max(1) as f64);
+                let [c0, r0, c1, r1] = flag.bbox_px.map(f64::from);
+                let x = (c0 / cols).min(1.0);
+                let y = (r0 / rows).min(1.0);
+                json!({
+                    "x": x,
+                    "y": y,
+                    "w": ((c1 + 1.0) / cols).min(1.0) - x,
+                    "h": ((r1 + 1.0) / rows).min(1.0) - y,
+                })
+            });
+            let phase = flag.view.split('_').next().unwrap_or_default();
+            let draw_on: Vec<&String> = match flag.part {
+                Some(_) => views.iter().filter(|v| **v == flag.view).collect(),
+                None => views
+                    .iter()
+                    .filter(|v| v.split('_').next() == Some(phase))
+                    .collect(),
+            };
+            let mut value = serde_json::to_value(flag).unwrap_or_default();
+            value["box"] = picture_box.unwrap_or_default();
+            value["draw_on"] = json!(draw_on);
+            value
+        })
+        .collect()
 }
 
 fn layer_state(shared: &Shared, n: u32) -> Result<LayerState, ApiError> {
@@ -501,8 +559,13 @@ async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError>
             ))
         },
     );
+    // A keep-alive well within the idle timeout keeps an open page's connection.
+    let idle = Duration::from_secs(shared.config.idle_timeout_s);
+    let every = Duration::from_secs(15)
+        .min(idle / 3)
+        .max(Duration::from_millis(200));
     Ok(Sse::new(stream)
-        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .keep_alive(KeepAlive::new().interval(every))
         .into_response())
 }
 

@@ -1,6 +1,8 @@
-//! The build as the page shows it, layer by layer: read from the journal as it grows (only the
-//! bytes appended since the last look), so a page on a long build costs no full replay per update.
+//! The build as the page shows it, layer by layer: read from the journal and the inspection log
+//! as they grow (only the bytes appended since the last look), so a page on a long build costs no
+//! full replay per update.
 
+use crate::build_dir::inspection::{Flag, InspectionRecord, Severity};
 use crate::build_dir::Record;
 use crate::shot::{Shot, View};
 use chrono::{DateTime, Utc};
@@ -36,8 +38,10 @@ pub struct LayerState {
     pub views: BTreeMap<String, ViewState>,
     /// When each phase's signal arrived.
     pub signals: BTreeMap<String, DateTime<Utc>>,
-    /// Irregular signals of this layer and, once layer inspection exists, its flags.
+    /// Irregular signals of this layer.
     pub flags: Vec<String>,
+    /// The layer inspection's flags (inspection.jsonl; the newest record of the layer).
+    pub inspection: Vec<Flag>,
 }
 
 /// One line of the timeline.
@@ -50,7 +54,10 @@ pub struct LayerSummary {
     pub failed: usize,
     /// The longest processing lag of the layer's views, in ms.
     pub lag_ms: Option<i64>,
+    /// Irregular signals and inspection flags.
     pub flags: usize,
+    /// The highest severity among the layer's inspection flags.
+    pub worst: Option<Severity>,
 }
 
 impl LayerState {
@@ -63,7 +70,8 @@ impl LayerState {
             missing: count("missing"),
             failed: count("failed"),
             lag_ms: self.views.values().filter_map(|v| v.lag_ms).max(),
-            flags: self.flags.len(),
+            flags: self.flags.len() + self.inspection.len(),
+            worst: self.inspection.iter().map(|f| f.severity).max(),
         }
     }
 
@@ -73,11 +81,48 @@ impl LayerState {
     }
 }
 
-/// The journal read so far, as layers.
+/// A file of JSON lines read as it grows.
 #[derive(Debug)]
-pub struct Timeline {
+struct Tail {
     path: PathBuf,
     offset: u64,
+}
+
+impl Tail {
+    /// The complete lines appended since the last call, and whether the file shrank (a torn
+    /// tail cut on restart) so that they are the whole file again. A line still being written
+    /// is read on the next call.
+    fn read(&mut self) -> std::io::Result<Option<(Vec<u8>, bool)>> {
+        let mut file = match std::fs::File::open(&self.path) {
+            Ok(f) => f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        let len = file.metadata()?.len();
+        let restarted = len < self.offset;
+        if restarted {
+            self.offset = 0;
+        }
+        if len == self.offset {
+            return Ok(restarted.then(|| (Vec::new(), true)));
+        }
+        file.seek(SeekFrom::Start(self.offset))?;
+        let mut data = Vec::with_capacity((len - self.offset) as usize);
+        file.take(len - self.offset).read_to_end(&mut data)?;
+        let Some(end) = data.iter().rposition(|&b| b == b'\n') else {
+            return Ok(restarted.then(|| (Vec::new(), true)));
+        };
+        self.offset += end as u64 + 1;
+        data.truncate(end);
+        Ok(Some((data, restarted)))
+    }
+}
+
+/// The journal and inspection log read so far, as layers.
+#[derive(Debug)]
+pub struct Timeline {
+    journal: Tail,
+    inspection: Tail,
     pub layers: BTreeMap<u32, LayerState>,
     /// Records read that did not parse (a newer journal format); skipped.
     pub unreadable: usize,
@@ -86,44 +131,51 @@ pub struct Timeline {
 impl Timeline {
     pub fn new(build_dir: &Path) -> Timeline {
         Timeline {
-            path: build_dir.join(crate::build_dir::JOURNAL),
-            offset: 0,
+            journal: Tail {
+                path: build_dir.join(crate::build_dir::JOURNAL),
+                offset: 0,
+            },
+            inspection: Tail {
+                path: build_dir.join(crate::build_dir::INSPECTION),
+                offset: 0,
+            },
             layers: BTreeMap::new(),
             unreadable: 0,
         }
     }
 
-    /// Reads what was appended since the last call; true when anything changed. A journal
-    /// that shrank (a torn tail cut on restart) is read again from the start. Only complete
-    /// lines are taken: a line still being written is read on the next call.
+    /// Reads what was appended to the journal and the inspection log since the last call; true
+    /// when anything changed. A file that shrank (a torn tail cut on restart) is read again from
+    /// the start. Only complete lines are taken.
     pub fn refresh(&mut self) -> std::io::Result<bool> {
-        let mut file = match std::fs::File::open(&self.path) {
-            Ok(f) => f,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
-            Err(e) => return Err(e),
-        };
-        let len = file.metadata()?.len();
-        if len < self.offset {
-            self.offset = 0;
-            self.layers.clear();
-        }
-        if len == self.offset {
-            return Ok(false);
-        }
-        file.seek(SeekFrom::Start(self.offset))?;
-        let mut data = Vec::with_capacity((len - self.offset) as usize);
-        file.take(len - self.offset).read_to_end(&mut data)?;
-        let Some(end) = data.iter().rposition(|&b| b == b'\n') else {
-            return Ok(false);
-        };
-        for line in data[..end].split(|&b| b == b'\n') {
-            match serde_json::from_slice::<Record>(line) {
-                Ok(record) => self.apply(&record),
-                Err(_) => self.unreadable += 1,
+        let mut changed = false;
+        if let Some((data, restarted)) = self.journal.read()? {
+            if restarted {
+                self.layers.clear();
+                self.inspection.offset = 0;
             }
+            for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+                match serde_json::from_slice::<Record>(line) {
+                    Ok(record) => self.apply(&record),
+                    Err(_) => self.unreadable += 1,
+                }
+            }
+            changed = true;
         }
-        self.offset += end as u64 + 1;
-        Ok(true)
+        if let Some((data, restarted)) = self.inspection.read()? {
+            if restarted {
+                self.layers.values_mut().for_each(|l| l.inspection.clear());
+            }
+            for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+                match serde_json::from_slice::<InspectionRecord>(line) {
+                    // A layer inspected again (`layerwise inspect`) shows its newest flags.
+                    Ok(record) => self.layer_mut(record.layer).inspection = record.flags,
+                    Err(_) => self.unreadable += 1,
+                }
+            }
+            changed = true;
+        }
+        Ok(changed)
     }
 
     fn view_mut(&mut self, shot: Shot) -> &mut ViewState {
@@ -275,5 +327,66 @@ mod tests {
         std::fs::write(&path, "").unwrap();
         timeline.refresh().unwrap();
         assert!(timeline.layers.is_empty());
+    }
+
+    #[test]
+    fn inspection_flags_join_their_layer_the_newest_record_wins() {
+        use crate::build_dir::inspection::{FlagKind, InspectionRecord};
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::INSPECTION);
+        let flag = |severity| Flag {
+            kind: FlagKind::Streak,
+            severity,
+            part: None,
+            view: "pre_top".into(),
+            bbox_mm: [-40.0, 12.0, 95.0, 13.0],
+            bbox_px: [195, 249, 465, 251],
+            score: 9.0,
+            threshold: 7.0,
+            message: "recoater streak".into(),
+        };
+        let record = |layer, flags| InspectionRecord {
+            layer,
+            at: Utc::now(),
+            ms: 1.0,
+            views: vec![],
+            plate: Default::default(),
+            parts: vec![],
+            flags,
+        };
+        let text = |records: &[InspectionRecord]| {
+            records
+                .iter()
+                .map(|r| serde_json::to_string(r).unwrap() + "\n")
+                .collect::<String>()
+        };
+        let mut timeline = Timeline::new(dir.path());
+        std::fs::write(
+            &path,
+            text(&[
+                record(4, vec![flag(Severity::Warning), flag(Severity::Critical)]),
+                record(5, vec![]),
+            ]),
+        )
+        .unwrap();
+        assert!(timeline.refresh().unwrap());
+        let summary = timeline.layers[&4].summary();
+        assert_eq!(
+            (summary.flags, summary.worst),
+            (2, Some(Severity::Critical))
+        );
+        assert_eq!(timeline.layers[&5].summary().worst, None);
+        assert!(!timeline.refresh().unwrap(), "nothing new");
+        let mut file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .unwrap();
+        file.write_all(text(&[record(4, vec![flag(Severity::Warning)])]).as_bytes())
+            .unwrap();
+        assert!(timeline.refresh().unwrap());
+        assert_eq!(
+            timeline.layers[&4].inspection,
+            vec![flag(Severity::Warning)]
+        );
     }
 }

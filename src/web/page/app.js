@@ -84,9 +84,35 @@ async function loadLayers() {
 }
 
 function cellClass(l) {
-  if (l.missing || l.failed) return "bad";
-  if (l.processed < l.stored) return "wait";
-  return "";
+  const flagged = l.worst ? " flagged-" + l.worst : "";
+  if (l.missing || l.failed) return "bad" + flagged;
+  if (l.processed < l.stored) return "wait" + flagged;
+  return flagged;
+}
+
+// The inspection flags of `view` as outlined boxes over a rectified picture, or over the crop
+// `region` of it (fractions of the picture); null when there are none.
+function flagBoxes(flags, view, region) {
+  const r = region || { x: 0, y: 0, w: 1, h: 1 };
+  const mine = (flags || []).filter((f) => f.box && f.draw_on.includes(view));
+  if (!mine.length) return null;
+  const layer = document.createElement("div");
+  layer.className = "flags";
+  for (const f of mine) {
+    const b = document.createElement("div");
+    b.className = "flag-box " + f.severity;
+    b.dataset.kind = f.kind;
+    b.style.left = (100 * (f.box.x - r.x) / r.w) + "%";
+    b.style.top = (100 * (f.box.y - r.y) / r.h) + "%";
+    b.style.width = (100 * f.box.w / r.w) + "%";
+    b.style.height = (100 * f.box.h / r.h) + "%";
+    b.title = f.message + " (score " + f.score.toFixed(2) + ", threshold " + f.threshold.toFixed(2) + ", " + f.severity + ")";
+    const t = document.createElement("span");
+    t.textContent = f.kind + " " + f.score.toFixed(1);
+    b.append(t);
+    layer.append(b);
+  }
+  return layer;
 }
 
 function drawTimeline() {
@@ -97,7 +123,7 @@ function drawTimeline() {
     c.className = "cell " + cellClass(l) + (l.layer === state.current ? " current" : "");
     c.dataset.layer = l.layer;
     c.style.height = (20 + 80 * (l.lag_ms || 0) / maxLag) + "%";
-    c.title = "layer " + l.layer + ": " + l.stored + " stored, " + l.processed + " rectified, " + l.missing + " missing, " + l.failed + " failed" + (l.lag_ms != null ? ", lag " + l.lag_ms + " ms" : "") + (l.flags ? ", " + l.flags + " flags" : "");
+    c.title = "layer " + l.layer + ": " + l.stored + " stored, " + l.processed + " rectified, " + l.missing + " missing, " + l.failed + " failed" + (l.lag_ms != null ? ", lag " + l.lag_ms + " ms" : "") + (l.flags ? ", " + l.flags + " flags" + (l.worst ? " (" + l.worst + ")" : "") : "");
     return c;
   });
   tl.replaceChildren(...cells);
@@ -145,7 +171,9 @@ async function showLayer(n) {
       img.alt = "layer " + n + " " + view; img.src = p[kind()]; img.dataset.layer = n;
       t.append(img);
       if (svg) { const o = document.createElement("div"); o.className = "vectors"; o.innerHTML = svg; t.append(o); }
-      t.addEventListener("click", () => openZoom(n, view, p));
+      const boxes = kind() === "rectified" && flagBoxes(detail.inspection, view);
+      if (boxes) t.append(boxes);
+      t.addEventListener("click", () => openZoom(n, view, p, detail.inspection));
     }
     const label = document.createElement("span"); label.className = "label"; label.textContent = view;
     const st = document.createElement("span"); st.className = "state";
@@ -162,19 +190,22 @@ async function showLayer(n) {
     if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
     for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
     for (const f of detail.flags) dd(d, "flag", f, "wait");
+    for (const f of detail.inspection || []) dd(d, f.kind, f.message + " (" + f.severity + ", score " + f.score.toFixed(2) + ")", f.severity === "critical" ? "bad" : "wait");
   }
   $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
 }
 
 // Zoom: the preview on the left, a full-resolution crop around the clicked point on the right.
 let zoomed = null;
-async function openZoom(n, view, p) {
-  zoomed = { n, view, p, kind: kind() };
+async function openZoom(n, view, p, flags) {
+  zoomed = { n, view, p, kind: kind(), flags: flags || [] };
   $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
   $("zoom-img").src = p[zoomed.kind];
   $("zoom-original").href = p.original;
   $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
-  $("zoom-crop").hidden = true;
+  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, view);
+  $("zoom-flags").replaceChildren(...(boxes ? [boxes] : []));
+  $("zoom-crop-frame").hidden = true;
   $("zoom").hidden = false;
 }
 $("zoom-img").addEventListener("click", (e) => {
@@ -184,7 +215,9 @@ $("zoom-img").addEventListener("click", (e) => {
   const x = Math.min(1 - w, Math.max(0, fx - w / 2)), y = Math.min(1 - h, Math.max(0, fy - h / 2));
   const c = $("zoom-crop");
   c.src = zoomed.p[zoomed.kind] + "&x=" + x.toFixed(4) + "&y=" + y.toFixed(4) + "&w=" + w + "&h=" + h;
-  c.hidden = false;
+  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, { x: Number(x.toFixed(4)), y: Number(y.toFixed(4)), w, h });
+  $("zoom-crop-flags").replaceChildren(...(boxes ? [boxes] : []));
+  $("zoom-crop-frame").hidden = false;
 });
 function closeZoom() { $("zoom").hidden = true; zoomed = null; }
 $("zoom-close").addEventListener("click", closeZoom);
@@ -194,6 +227,7 @@ $("prev").addEventListener("click", () => { setFollow(false); showLayer(state.cu
 $("next").addEventListener("click", () => { setFollow(false); showLayer(state.current + 1); });
 $("follow").addEventListener("change", (e) => { setFollow(e.target.checked); if (state.follow && state.newest) showLayer(state.newest); });
 $("overlay").addEventListener("change", (e) => document.body.classList.toggle("no-overlay", !e.target.checked));
+$("flags").addEventListener("change", (e) => document.body.classList.toggle("no-flags", !e.target.checked));
 $("raw").addEventListener("change", () => showLayer(state.current));
 document.addEventListener("keydown", (e) => {
   if (e.target.tagName === "INPUT" && e.target.type !== "checkbox") return;
@@ -203,6 +237,7 @@ document.addEventListener("keydown", (e) => {
   else if (e.key === "End") { setFollow(true); if (state.newest) showLayer(state.newest); }
   else if (e.key === "Home") { setFollow(false); showLayer(1); }
   else if (e.key === "v") $("overlay").click();
+  else if (e.key === "f") $("flags").click();
   else if (e.key === "r") $("raw").click();
 });
 
