@@ -273,6 +273,29 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// The page's own rayon pool: decoding and rectifying a picture split over the global pool would
+/// queue the processing worker's rows behind the page's (measured: processing p90 5x longer with
+/// five clients open). One thread at nice +10, so a picture never takes more than what capture
+/// and processing leave.
+fn page_pool() -> &'static rayon::ThreadPool {
+    static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .thread_name(|_| "layerwise-web-pictures".into())
+            .start_handler(|_| super::lower_priority())
+            .build()
+            .unwrap_or_else(|_| {
+                // Without a thread of its own the page shares the global pool, as before.
+                rayon::ThreadPoolBuilder::new()
+                    .use_current_thread()
+                    .num_threads(1)
+                    .build()
+                    .expect("a pool on the current thread needs no new thread")
+            })
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -312,27 +335,4 @@ mod tests {
         cache.put(key(4), Bytes::from(vec![0; 11]));
         assert!(cache.get(&key(4)).is_none(), "larger than the whole cache");
     }
-}
-
-/// The page's own rayon pool: decoding and rectifying a picture split over the global pool would
-/// queue the processing worker's rows behind the page's (measured: processing p90 5x longer with
-/// five clients open). One thread at nice +10, so a picture never takes more than what capture
-/// and processing leave.
-fn page_pool() -> &'static rayon::ThreadPool {
-    static POOL: std::sync::OnceLock<rayon::ThreadPool> = std::sync::OnceLock::new();
-    POOL.get_or_init(|| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .thread_name(|_| "layerwise-web-pictures".into())
-            .start_handler(|_| super::lower_priority())
-            .build()
-            .unwrap_or_else(|_| {
-                // Without a thread of its own the page shares the global pool, as before.
-                rayon::ThreadPoolBuilder::new()
-                    .use_current_thread()
-                    .num_threads(1)
-                    .build()
-                    .expect("a pool on the current thread needs no new thread")
-            })
-    })
 }
