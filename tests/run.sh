@@ -56,12 +56,11 @@ cargo test --workspace --all-features
 # binary built without gphoto: check-config refuses a gphoto2 camera it cannot drive (issue 13).
 cargo test --no-default-features --lib --test bounded_inputs -- rectify::frame config:: config_gphoto2
 # Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the
-# seeds tests/fuzz_smoke.rs makes, then every target for LAYERWISE_FUZZ_SECONDS s; a crash, an
-# abort, an allocation over 2 GB or an input taking over 10 s fails. Off unless asked for
-# (LAYERWISE_FUZZ_SECONDS=60 bash tests/run.sh): the instrumented build of every dependency alone
-# would take this run past its 30-minute budget on 2 cores. The deterministic mutation tests of
-# every parser (tests/fuzz_smoke.rs) run above in every run.
-fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-0}"
+# seeds tests/fuzz_smoke.rs makes, then every target for LAYERWISE_FUZZ_SECONDS s (default 20);
+# a crash, an abort, an allocation over 2 GB or an input taking over 10 s fails. The instrumented
+# build takes about 4.5 minutes on 2 idle cores; LAYERWISE_FUZZ_SECONDS=0 skips the step,
+# LAYERWISE_FUZZ_SECONDS=180 runs each target for minutes.
+fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-20}"
 if [ "$fuzz_seconds" != 0 ]; then
   LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds" cargo test --all-features --test fuzz_smoke
   bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds"
