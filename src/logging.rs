@@ -6,7 +6,12 @@ use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::EnvFilter;
 
 pub fn init(verbose: bool) {
-    let default = if verbose { "debug" } else { "info" };
+    // -v: our own debug lines (lights, camera calls), not every dependency's.
+    let default = if verbose {
+        "info,layerwise=debug"
+    } else {
+        "info"
+    };
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
     // systemd sets JOURNAL_STREAM for services whose stdout/stderr go to the journal.
     if std::env::var_os("JOURNAL_STREAM").is_some() {

@@ -134,6 +134,13 @@ pub struct Shot {
 }
 
 impl Shot {
+    pub const fn new(layer: u32, phase: Phase, light: Light) -> Shot {
+        Shot {
+            layer,
+            phase,
+            light,
+        }
+    }
     pub fn view(&self) -> View {
         View {
             phase: self.phase,

@@ -4,6 +4,7 @@ mod common;
 
 use common::*;
 use layerwise::config::TriggerConfig;
+use std::path::Path;
 use std::process::Stdio;
 use std::time::Duration;
 
@@ -186,6 +187,90 @@ fn demo_runs_on_the_embedded_config() {
         .stdout_ok();
     assert_eq!(originals(&out_dir), expected_originals(2));
     assert!(out.contains("12 frames stored"), "{out}");
+}
+
+/// The log of a 2-layer demo as a pipe gets it (stderr), with `-v` or `RUST_LOG` if given.
+fn demo_log(dir: &Path, name: &str, verbose: bool, rust_log: Option<&str>) -> String {
+    let mut command = layerwise();
+    if verbose {
+        command.arg("-v");
+    }
+    command
+        .args(["demo", "--layers", "2", "--out"])
+        .arg(dir.join(name))
+        .env_remove("RUST_LOG");
+    if let Some(filter) = rust_log {
+        command.env("RUST_LOG", filter);
+    }
+    String::from_utf8_lossy(&command.succeeds().stderr).into_owned()
+}
+
+#[test]
+fn operator_log_has_signal_and_layer_lines_debug_on_request_and_no_ansi_or_debug_formatting() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = demo_log(dir.path(), "plain", false, None);
+    let lines = |what: &str| log.lines().filter(|l| l.contains(what)).count();
+    // Each layer signal, each layer's capture and each layer's processing: one line each.
+    assert_eq!(lines("layer signal layer="), 4, "{log}");
+    let done: Vec<&str> = log.lines().filter(|l| l.contains("layer done")).collect();
+    assert_eq!(done.len(), 4, "{log}");
+    for key in [
+        "layer=",
+        "phase=",
+        "frames=3",
+        "missing=0",
+        "capture_ms=",
+        "backlog=",
+    ] {
+        assert!(done.iter().all(|l| l.contains(key)), "{key}: {done:#?}");
+    }
+    let processed: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("layer processed"))
+        .collect();
+    assert_eq!(processed.len(), 4, "{log}");
+    for key in [
+        "frames=3",
+        "failed=0",
+        "processing_ms=",
+        "lag_ms=",
+        "backlog=",
+    ] {
+        assert!(
+            processed.iter().all(|l| l.contains(key)),
+            "{key}: {processed:#?}"
+        );
+    }
+    // Fields journald keeps as LAYER=, PHASE=, LIGHT= (tracing-journald upper-cases them).
+    assert!(
+        log.lines().any(|l| l.contains("frame stored")
+            && l.contains(" layer=1 ")
+            && l.contains(" phase=pre ")
+            && l.contains(" light=")),
+        "{log}"
+    );
+    // A pipe is no terminal: no colour codes; no Rust Debug formatting in a message.
+    assert!(
+        !log.contains('\u{1b}'),
+        "escape codes in a piped log:\n{log}"
+    );
+    for debug in ["Some(", "None", "((", "\\\""] {
+        assert!(!log.contains(debug), "{debug} in the log:\n{log}");
+    }
+    // Lights and camera calls only on request: -v or RUST_LOG.
+    for quiet in ["lights: switch", "camera: capture"] {
+        assert!(!log.contains(quiet), "{quiet} without -v:\n{log}");
+    }
+    let verbose = demo_log(dir.path(), "verbose", true, None);
+    let filtered = demo_log(dir.path(), "filtered", false, Some("layerwise=debug"));
+    for log in [&verbose, &filtered] {
+        assert!(
+            log.contains("lights: switch") && log.contains("light=front"),
+            "{log}"
+        );
+        assert!(log.contains("camera: capture"), "{log}");
+        assert!(!log.contains('\u{1b}'), "{log}");
+    }
 }
 
 #[test]

@@ -401,6 +401,15 @@ fn captured_time(original: &Path) -> String {
     at.format("%H%M%S%.6f").to_string()
 }
 
+/// `layerwise status --json`'s count of frames waiting for processing.
+fn waiting_for_processing(build: &Path) -> u64 {
+    let status = layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(build)
+        .json_ok();
+    status["waiting_for_processing"].as_u64().unwrap()
+}
+
 /// A build through the binary whose layer-1 post signal comes twice, with `[series] take`.
 fn retaken_build(dir: &Path, take: &str) -> std::path::PathBuf {
     let build = dir.join("build");
@@ -493,7 +502,18 @@ fn series_take_last_shows_the_retake_with_its_own_uid_and_first_keeps_the_old_ui
         .collect();
     std::fs::write(&journal_path, kept).unwrap();
     std::fs::write(&slice_path, b"").unwrap();
+    // `status` counts the three retakes whose slices are not written as waiting for processing
+    // (under take = "last" only: under "first" their slices show what they should).
+    assert_eq!(waiting_for_processing(&build), 3);
+    let snapshot = build.join(layerwise::build_dir::CONFIG_SNAPSHOT);
+    let last_text = std::fs::read_to_string(&snapshot).unwrap();
+    let first_text = last_text.replace("take = \"last\"", "take = \"first\"");
+    assert_ne!(first_text, last_text, "the snapshot names the take");
+    std::fs::write(&snapshot, first_text).unwrap();
+    assert_eq!(waiting_for_processing(&build), 0);
+    std::fs::write(&snapshot, last_text).unwrap();
     run_build(&last.path().join("layerwise.toml"));
+    assert_eq!(waiting_for_processing(&build), 0);
     let again = slice_origin(&slice_path);
     assert_eq!(again.sop_instance_uid, slice.sop_instance_uid);
     assert_eq!(again.comments, slice.comments);

@@ -56,8 +56,20 @@ def wait_for(what, check, timeout=30.0):
         if value:
             return value
         if time.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
+            raise AssertionError(f"timed out waiting for {what}{diagnosis()}")
         time.sleep(0.1)
+
+
+def diagnosis():
+    # What the page showed when a wait ran out: the layer, and each picture's state.
+    try:
+        return "\n" + json.dumps(js("""
+            return {layer: document.getElementById('layer-number').textContent,
+                    pictures: [...document.querySelectorAll('#views img')].map(i =>
+                        [i.src.replace(location.origin, ''), i.complete, i.naturalWidth]),
+                    outlines: document.querySelectorAll('.flag-box').length};"""), indent=1)
+    except Exception as e:  # no session yet
+        return f" ({e})"
 
 
 for _ in range(100):
@@ -94,21 +106,37 @@ try:
     n = wait_for("a picture of the newest layer", newest_picture)
     print(f"picture of layer {n} loaded")
 
-    def click(selector):
+    def click(selector, timeout=30.0):
         # The page redraws as layers arrive: an element found just before a redraw is stale by
-        # the click, so find it again and click again (a person's click lands on the redrawn one).
-        for attempt in range(20):
+        # the click, so find it again and click again (a person's click lands on the redrawn one);
+        # a layer the build has not reached yet has no cell until it arrives, so wait for it.
+        deadline = time.time() + timeout
+        while True:
             try:
                 element = call("POST", s + "/element", {"using": "css selector", "value": selector})
                 call("POST", s + f"/element/{list(element.values())[0]}/click", {})
                 return
             except RuntimeError as e:
-                if "stale element" not in str(e) or attempt == 19:
+                waiting = "stale element" in str(e) or "no such element" in str(e)
+                if not waiting or time.time() > deadline:
                     raise
                 time.sleep(0.05)
 
+    def click_layer(n):
+        # The timeline's cells narrow as layers arrive: a redraw between finding a cell and the
+        # pointer's click moves it, and the click lands on a neighbour; a person looks and
+        # clicks again.
+        for attempt in range(10):
+            click(f'#timeline .cell[data-layer="{n}"]')
+            try:
+                wait_for(f"layer {n} shown after the click", lambda: shown() == n, timeout=2.0)
+                return
+            except AssertionError:
+                if attempt == 9:
+                    raise
+
     # A click on an earlier layer of the timeline shows that layer.
-    click('#timeline .cell[data-layer="2"]')
+    click_layer(2)
     wait_for("layer 2 to be shown", lambda: shown() == 2)
     wait_for("a picture of layer 2", lambda: js("""
         const imgs = [...document.querySelectorAll('#views img')];
@@ -147,10 +175,10 @@ try:
             tolerance = 2.0 / 275 / scale + 2.0 / px
             assert all(abs(a - b) < tolerance for a, b in zip(found, want)), f"{what}: outline at {found}, anomaly at {want}"
 
-        click(f'#timeline .cell[data-layer="{clean_layer}"]')
+        click_layer(clean_layer)
         wait_for(f"layer {clean_layer} shown", lambda: shown() == clean_layer and js(boxes, f'.tile[data-view="{flagged_view}"]', '#views') is not None)
         assert js("return document.querySelectorAll('.flag-box').length") == 0, "a clean layer has no outline"
-        click(f'#timeline .cell[data-layer="{flagged_layer}"]')
+        click_layer(flagged_layer)
         tile = f'.tile[data-view="{flagged_view}"][data-layer="{flagged_layer}"]'
         found = wait_for(f"an outline over {flagged_view} of layer {flagged_layer}", lambda: shown() == flagged_layer and js(boxes, tile, tile))
         near(found[0]["box"], expected, found[0]["px"], "small view")

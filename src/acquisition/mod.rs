@@ -271,7 +271,11 @@ pub async fn run(
         config.storage.queue_capacity,
         dir.clone(),
         journal.clone(),
-        (backlog, config.series.take),
+        processing::WorkerPlan {
+            backlog,
+            take: config.series.take,
+            frames_per_signal: config.views.lights.len(),
+        },
         clock.clone(),
         options.on_instance.clone(),
     );

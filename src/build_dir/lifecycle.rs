@@ -261,7 +261,7 @@ pub fn list(builds_dir: &Path) -> Result<Vec<BuildEntry>, LifecycleError> {
             }
         }
         if path.join(JOURNAL).exists() {
-            match status::report(&path, 0) {
+            match status::report(&path, status::ReportSettings::default()) {
                 Ok(r) => {
                     build.frames = r.frames;
                     build.frames_missing = r.frames_missing;

@@ -198,14 +198,6 @@ mod tests {
     use crate::build_dir::Replay;
     use chrono::{TimeZone, Utc};
 
-    fn shot(layer: u32, phase: Phase, light: Light) -> Shot {
-        Shot {
-            layer,
-            phase,
-            light,
-        }
-    }
-
     /// Records of a build with every kind of event, including an old journal's layer 0 and a
     /// layer beyond the file names' five digits.
     fn records() -> Vec<Record> {
@@ -232,11 +224,11 @@ mod tests {
             light: s.light,
             at,
         };
-        let a = shot(1, Phase::Pre, Light::Front);
-        let b = shot(1, Phase::Post, Light::Top);
-        let c = shot(2, Phase::Pre, Light::Side);
-        let zero = shot(0, Phase::Post, Light::Side);
-        let huge = shot(u32::MAX, Phase::Post, Light::Front);
+        let a = Shot::new(1, Phase::Pre, Light::Front);
+        let b = Shot::new(1, Phase::Post, Light::Top);
+        let c = Shot::new(2, Phase::Pre, Light::Side);
+        let zero = Shot::new(0, Phase::Post, Light::Side);
+        let huge = Shot::new(u32::MAX, Phase::Post, Light::Front);
         vec![
             Record::Start {
                 at,
@@ -307,7 +299,7 @@ mod tests {
         for layer in [0, 1, 2, 3, u32::MAX] {
             for phase in Phase::ALL {
                 for light in Light::ALL {
-                    let s = shot(layer, phase, light);
+                    let s = Shot::new(layer, phase, light);
                     assert_eq!(progress.is_done(&s), replay.is_done(&s), "{s:?}");
                     assert_eq!(progress.takes(&s), replay.takes(&s), "{s:?}");
                     assert_eq!(progress.is_stored(&s), replay.frames.contains_key(&s));
@@ -371,7 +363,7 @@ mod tests {
         let at = Utc.with_ymd_and_hms(2026, 1, 1, 0, 0, 0).unwrap();
         for layer in 1..=10_000 {
             for light in Light::ALL {
-                let s = shot(layer, Phase::Post, light);
+                let s = Shot::new(layer, Phase::Post, light);
                 progress.apply(&Record::Frame {
                     layer,
                     phase: s.phase,

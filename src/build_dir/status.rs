@@ -5,7 +5,7 @@ use super::journal::Journal;
 use super::manifest::BuildManifest;
 use super::{JOURNAL, MANIFEST, STATUS};
 use crate::fsutil::{write_atomic, WriteError};
-use crate::shot::Phase;
+use crate::shot::{Phase, SeriesTake};
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -258,6 +258,7 @@ pub struct StatusReport {
     pub retakes: usize,
     /// Signals out of the expected order, oldest first: `L00003 post: repeated signal: …`.
     pub irregular: Vec<String>,
+    /// Frames whose series slice does not show the take `[series] take` picks yet.
     pub waiting_for_processing: usize,
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
@@ -375,8 +376,22 @@ impl Written {
     }
 }
 
+/// What [`report`] takes from the build's configuration (its `config.toml` snapshot).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ReportSettings {
+    /// `storage.min_free_gb` in bytes: the free space the forecast keeps spare.
+    pub min_free_bytes: u64,
+    /// `[series] take`: with `last`, a retake whose slice is not written yet waits for
+    /// processing as a first take does.
+    pub take: SeriesTake,
+}
+
 /// Builds the report for `layerwise status` from the journal, the manifest and status.json.
-pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusError> {
+pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, StatusError> {
+    let ReportSettings {
+        min_free_bytes,
+        take,
+    } = settings;
     let journal_path = dir.join(JOURNAL);
     if !journal_path.exists() {
         return Err(StatusError::NotABuild(dir.to_path_buf()));
@@ -475,7 +490,7 @@ pub fn report(dir: &Path, min_free_bytes: u64) -> Result<StatusReport, StatusErr
             .iter()
             .map(|i| format!("L{:05} {}: {}: {}", i.layer, i.phase, i.signal, i.detail))
             .collect(),
-        waiting_for_processing: replay.unprocessed().len(),
+        waiting_for_processing: replay.unprocessed_takes(take).len(),
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
         bytes_stored,

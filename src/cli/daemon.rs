@@ -228,12 +228,13 @@ impl StatusArgs {
                 None => return Ok(()),
             },
         };
-        let min_free_gb = match self.min_free_gb {
-            Some(gb) if gb.is_finite() && gb >= 0.0 => gb,
+        let mut settings = build_report_settings(&build);
+        match self.min_free_gb {
+            Some(gb) if gb.is_finite() && gb >= 0.0 => settings.min_free_bytes = (gb * 1e9) as u64,
             Some(gb) => anyhow::bail!("--min-free-gb {gb}: expected a number of GB, 0 or more"),
-            None => build_min_free_gb(&build),
-        };
-        let report = layerwise::build_dir::status::report(&build, (min_free_gb * 1e9) as u64)?;
+            None => {}
+        }
+        let report = layerwise::build_dir::status::report(&build, settings)?;
         if self.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
@@ -243,18 +244,22 @@ impl StatusArgs {
     }
 }
 
-/// The build's `storage.min_free_gb`, from the configuration snapshot the daemon keeps in it
-/// (the default when there is none, or it cannot be read).
-fn build_min_free_gb(build: &std::path::Path) -> f64 {
+/// What the status report takes from the build's configuration snapshot (`storage.min_free_gb`,
+/// `[series] take`); the defaults when there is none, or it cannot be read.
+fn build_report_settings(build: &std::path::Path) -> layerwise::build_dir::status::ReportSettings {
     let snapshot = build.join(layerwise::build_dir::CONFIG_SNAPSHOT);
-    match Config::load(&snapshot) {
-        Ok(config) => config.storage.min_free_gb,
+    let (storage, series) = match Config::load(&snapshot) {
+        Ok(config) => (config.storage, config.series),
         Err(e) => {
             if snapshot.exists() {
-                eprintln!("warning: {e}; using the default storage.min_free_gb");
+                eprintln!("warning: {e}; using the default storage.min_free_gb and [series] take");
             }
-            layerwise::config::StorageConfig::default().min_free_gb
+            (Default::default(), Default::default())
         }
+    };
+    layerwise::build_dir::status::ReportSettings {
+        min_free_bytes: (storage.min_free_gb * 1e9) as u64,
+        take: series.take,
     }
 }
 

@@ -59,7 +59,8 @@ pub(crate) struct BuildInfo {
     /// How printer layers pair with the vector file's layers (docs/frames.md).
     pub numbering: crate::vectors::LayerNumbering,
     pub vectors: OnceLock<Result<LayerIndex, String>>,
-    pub min_free_bytes: u64,
+    /// What the status report takes from the build's configuration.
+    pub report: status::ReportSettings,
 }
 
 impl BuildInfo {
@@ -75,7 +76,10 @@ impl BuildInfo {
             vectors_file: record.config.build.vectors.clone(),
             numbering: record.config.build.numbering(),
             vectors: OnceLock::new(),
-            min_free_bytes: (record.config.storage.min_free_gb * 1e9) as u64,
+            report: status::ReportSettings {
+                min_free_bytes: (record.config.storage.min_free_gb * 1e9) as u64,
+                take: record.config.series.take,
+            },
         })
     }
 
@@ -117,13 +121,21 @@ impl Shared {
         info.clone()
     }
 
-    fn min_free_bytes(&self) -> u64 {
-        self.info().map_or(20_000_000_000, |i| i.min_free_bytes)
+    /// The build's settings for its status report (the configuration's defaults until its
+    /// snapshot exists).
+    fn report_settings(&self) -> status::ReportSettings {
+        self.info().map_or(
+            status::ReportSettings {
+                min_free_bytes: (crate::config::StorageConfig::default().min_free_gb * 1e9) as u64,
+                take: Default::default(),
+            },
+            |i| i.report,
+        )
     }
 
     /// Makes the status report again (blocking).
     pub fn refresh_status(&self) -> Option<Arc<StatusReport>> {
-        let report = status::report(&self.dir, self.min_free_bytes())
+        let report = status::report(&self.dir, self.report_settings())
             .ok()
             .map(Arc::new);
         *self.status.write().unwrap_or_else(|e| e.into_inner()) = report.clone();

@@ -71,15 +71,19 @@ async function loadLayers() {
   const j = await getJson("/api/layers");
   // Following the build shows the newest layer with all its views; the one being captured is
   // a click (or End) away.
+  const before = state.byLayer && JSON.stringify(state.byLayer.get(state.current));
   state.views = j.views; state.layers = j.layers; state.newest = j.complete || j.newest;
   state.expected = j.layers_expected; state.rectified = j.rectified; state.vectors = j.vectors;
   state.byLayer = new Map(j.layers.map((l) => [l.layer, l]));
+  // The layer shown changed (its frames processed, inspected, flagged): show it as it is now.
+  const changed = before !== undefined && before !== JSON.stringify(state.byLayer.get(state.current));
   const slider = $("slider");
   const max = Math.max(1, j.newest || 1, ...j.layers.map((l) => l.layer));
   slider.max = max;
   drawTimeline();
   if (state.follow && state.newest && state.newest !== state.current) showLayer(state.newest);
   else if (state.current == null && state.newest) showLayer(state.newest);
+  else if (changed) showLayer(state.current);
   $("newest-note").textContent = state.follow || state.current === state.newest ? "" : "(newest: " + state.newest + ")";
 }
 
