@@ -11,13 +11,7 @@
 # hangs). SECONDS=0 skips the step (the instrumented build takes minutes). `--target` keeps
 # build scripts uninstrumented. A crashing input is kept in fuzz/artifacts/TARGET/ and becomes a
 # regression test in tests/fuzz_smoke.rs.
-#
-#   bash fuzz/run.sh --build-only
-#
-# only builds the targets (tests/run.sh starts it early, at the lowest priority).
 set -euo pipefail
-build_only=
-if [ "${1:-}" = "--build-only" ]; then build_only=1; set -- . 1; fi
 seeds=$(realpath "${1:?seed folder}")
 cd "$(dirname "$0")"
 seconds=${2:-25}
@@ -30,7 +24,6 @@ export RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4
 -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
 -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing"
 cargo build --release --target "$host" --bins
-if [ -n "$build_only" ]; then exit 0; fi
 targets=(vectors config calibration frames journal ct_volume)
 failed=()
 for t in "${targets[@]}"; do
