@@ -401,6 +401,19 @@ impl FrameProcessor for LiveSeries {
     }
 }
 
+/// What `layerwise status` and the page take from a build's configuration (its snapshot):
+/// `storage.min_free_gb` and `[series] take`; the defaults without one.
+pub fn report_settings(config: Option<&Config>) -> crate::build_dir::status::ReportSettings {
+    let (storage, series) = match config {
+        Some(config) => (config.storage.clone(), config.series.clone()),
+        None => Default::default(),
+    };
+    crate::build_dir::status::ReportSettings {
+        min_free_bytes: (storage.min_free_gb * 1e9) as u64,
+        take: series.take,
+    }
+}
+
 /// Everything known about a build after the fact: its configuration, calibration and grid.
 pub struct BuildRecord {
     pub dir: PathBuf,

@@ -275,6 +275,21 @@ fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
     );
 }
 
+/// The layers still open when the worker ends (stopped, drained, paused to the end) are told
+/// then, whichever way it returns.
+struct TallyGuard<'a> {
+    tally: Mutex<LayerTally>,
+    shared: &'a Shared,
+}
+
+impl Drop for TallyGuard<'_> {
+    fn drop(&mut self) {
+        if let Ok(mut open) = self.tally.lock() {
+            log_layers(open.flush(), self.shared.depth.load(Ordering::SeqCst));
+        }
+    }
+}
+
 fn worker_loop(
     processor: Arc<dyn FrameProcessor>,
     receiver: Receiver<Item>,
@@ -289,13 +304,11 @@ fn worker_loop(
         take: choice,
         frames_per_signal,
     } = plan;
-    let tally = Mutex::new(LayerTally::new(frames_per_signal));
-    let backlog_now = || shared.depth.load(Ordering::SeqCst);
-    let flush = || {
-        if let Ok(mut tally) = tally.lock() {
-            log_layers(tally.flush(), backlog_now());
-        }
+    let tally = TallyGuard {
+        tally: Mutex::new(LayerTally::new(frames_per_signal)),
+        shared: &shared,
     };
+    let backlog_now = || shared.depth.load(Ordering::SeqCst);
     let run = |shot: Shot, take: u32, original: &Path, submitted: Option<Duration>| {
         let start = clock.elapsed();
         let record = match processor.process_take(&build_dir, shot, take, original) {
@@ -355,8 +368,8 @@ fn worker_loop(
                 .store(lag.as_millis() as u64, Ordering::SeqCst);
         }
         let ok = !matches!(record, Record::ProcessingFailed { .. });
-        if let Ok(mut tally) = tally.lock() {
-            log_layers(tally.add(&shot, ok, (start, end), lag), backlog_now());
+        if let Ok(mut open) = tally.tally.lock() {
+            log_layers(open.add(&shot, ok, (start, end), lag), backlog_now());
         }
     };
     let paused = || shared.paused.load(Ordering::SeqCst);
@@ -370,7 +383,6 @@ fn worker_loop(
     }
     for (i, (shot, take, original)) in backlog.iter().enumerate() {
         if shared.stop.load(Ordering::SeqCst) {
-            flush();
             return;
         }
         if paused() {
@@ -386,12 +398,10 @@ fn worker_loop(
     }
     loop {
         if shared.stop.load(Ordering::SeqCst) {
-            flush();
             return;
         }
         if paused() {
             if shared.draining.load(Ordering::SeqCst) {
-                flush();
                 return;
             }
             std::thread::sleep(Duration::from_millis(100));
@@ -431,7 +441,6 @@ fn worker_loop(
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {
                 if !shared.overflowed.load(Ordering::SeqCst) {
-                    flush();
                     return;
                 }
             }
@@ -461,7 +470,6 @@ fn worker_loop(
                     Ok(replay) => {
                         for (shot, take) in replay.unprocessed_takes(choice) {
                             if shared.stop.load(Ordering::SeqCst) {
-                                flush();
                                 return;
                             }
                             if paused() {

@@ -248,19 +248,14 @@ impl StatusArgs {
 /// `[series] take`); the defaults when there is none, or it cannot be read.
 fn build_report_settings(build: &std::path::Path) -> layerwise::build_dir::status::ReportSettings {
     let snapshot = build.join(layerwise::build_dir::CONFIG_SNAPSHOT);
-    let (storage, series) = match Config::load(&snapshot) {
-        Ok(config) => (config.storage, config.series),
-        Err(e) => {
+    let config = Config::load(&snapshot)
+        .inspect_err(|e| {
             if snapshot.exists() {
                 eprintln!("warning: {e}; using the default storage.min_free_gb and [series] take");
             }
-            (Default::default(), Default::default())
-        }
-    };
-    layerwise::build_dir::status::ReportSettings {
-        min_free_bytes: (storage.min_free_gb * 1e9) as u64,
-        take: series.take,
-    }
+        })
+        .ok();
+    layerwise::series::report_settings(config.as_ref())
 }
 
 impl StatusArgs {

@@ -76,10 +76,7 @@ impl BuildInfo {
             vectors_file: record.config.build.vectors.clone(),
             numbering: record.config.build.numbering(),
             vectors: OnceLock::new(),
-            report: status::ReportSettings {
-                min_free_bytes: (record.config.storage.min_free_gb * 1e9) as u64,
-                take: record.config.series.take,
-            },
+            report: crate::series::report_settings(Some(&record.config)),
         })
     }
 
@@ -124,13 +121,8 @@ impl Shared {
     /// The build's settings for its status report (the configuration's defaults until its
     /// snapshot exists).
     fn report_settings(&self) -> status::ReportSettings {
-        self.info().map_or(
-            status::ReportSettings {
-                min_free_bytes: (crate::config::StorageConfig::default().min_free_gb * 1e9) as u64,
-                take: Default::default(),
-            },
-            |i| i.report,
-        )
+        self.info()
+            .map_or_else(|| crate::series::report_settings(None), |i| i.report)
     }
 
     /// Makes the status report again (blocking).
