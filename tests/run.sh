@@ -51,23 +51,21 @@ if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
+# Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the tests
+# write the seeds (tests/fuzz_smoke.rs, which also feeds every parser deterministic mutants), then
+# every target runs LAYERWISE_FUZZ_SECONDS (20; 0 skips it) on them; a crash, an abort, an
+# allocation over 2 GB or an input taking over 10 s fails. Built beside the tests: only layerwise
+# and the targets are compiled again, with coverage instrumentation.
+fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-20}"
+if [ "$fuzz_seconds" != 0 ]; then export LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds"; fi
 cargo test --workspace --all-features
+bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds" --beside target
 # The build without optional features (`--no-default-features`): how it treats a NEF, and the
 # binary built without gphoto: check-config refuses a gphoto2 camera it cannot drive (issue 13).
 # Without gphoto's build dependencies the proc-macros and most dependencies build again: at
 # opt-level 0 (these tests are light; 4 min 31 s in CI, the same order as at opt-level 2).
 cargo test --config 'profile.dev.package."*".opt-level = 0' --no-default-features --lib \
   --test bounded_inputs -- rectify::frame config:: config_gphoto2
-# Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh), on request:
-# LAYERWISE_FUZZ_SECONDS=20 makes the seeds (tests/fuzz_smoke.rs) and runs every target that long;
-# a crash, an abort, an allocation over 2 GB or an input taking over 10 s fails. Not by default:
-# its instrumented build is 8 to 10 minutes on 2 cores and took this command past 30 (31 to 37
-# minutes measured); every run already feeds every parser deterministic mutants (fuzz_smoke).
-fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-0}"
-if [ "$fuzz_seconds" != 0 ]; then
-  LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds" cargo test --all-features --test fuzz_smoke
-  bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds"
-fi
 # Benchmarks are run by hand (cargo bench); here they only have to build, in the test profile
 # whose dependencies are built above (a release build of every dependency would add ~8 minutes).
 cargo test --workspace --all-features --benches --no-run

@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# RUSTC_WRAPPER of `fuzz/run.sh --beside DIR`: LLVM's sanitizer-coverage instrumentation (the
+# flags cargo-fuzz passes) for layerwise and the fuzz targets only; every other crate compiles as
+# cargo asked, so the dependencies the tests already built in DIR are reused, not built again.
+# Cargo does not see these flags: run.sh gives layerwise a feature set of its own here (so its
+# artifact is never shared with a test build) and checks the coverage counters libFuzzer loads.
+rustc=$1
+shift
+crate=
+prev=
+for arg in "$@"; do
+  if [ "$prev" = --crate-name ]; then
+    crate=$arg
+    break
+  fi
+  prev=$arg
+done
+case "$crate" in
+  layerwise | layerwise_fuzz | vectors | config | calibration | frames | journal | ct_volume)
+    exec "$rustc" "$@" -Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
+      -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
+      -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing
+    ;;
+esac
+exec "$rustc" "$@"
