@@ -2,8 +2,9 @@
 # RUSTC_WRAPPER of `fuzz/run.sh --beside DIR`: LLVM's sanitizer-coverage instrumentation (the
 # flags cargo-fuzz passes) for layerwise and the fuzz targets only; every other crate compiles as
 # cargo asked, so the dependencies the tests already built in DIR are reused, not built again.
-# Cargo does not see these flags: run.sh gives layerwise a feature set of its own here (so its
-# artifact is never shared with a test build) and checks the coverage counters libFuzzer loads.
+# Cargo does not see these flags, so layerwise's artifact here must never be one a test build
+# also uses: it is not (cargo names a path package by its path from the workspace root, and fuzz/
+# is a workspace of its own), and run.sh checks the coverage counters libFuzzer loads.
 rustc=$1
 shift
 crate=

@@ -413,6 +413,33 @@ fn truncated_or_corrupt_jpeg_is_an_error_not_a_silent_exit_0() {
     }
 }
 
+/// A binary built without the `nef` feature (`--no-default-features`) refuses a Nikon raw frame
+/// with the way out, rather than rectifying the small TIFF picture that opens it; a plain TIFF
+/// frame still rectifies. Run by tests/run.sh with `--no-default-features`.
+#[cfg(not(feature = "nef"))]
+#[test]
+fn nef_frame_on_a_binary_without_the_feature_names_the_feature() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = SmallView::new(dir.path());
+    let picture = view.picture();
+    let nef = dir.path().join("frame.nef");
+    std::fs::write(
+        &nef,
+        mock_camera::nef::encode_nef(&picture, &Default::default()),
+    )
+    .unwrap();
+    for out in ["out.png", "out.dcm"] {
+        refused(
+            &mut rectify(&view, &nef, &dir.path().join(out)),
+            &["frame.nef", "--features nef"],
+        );
+    }
+    let tiff = dir.path().join("frame.tif");
+    picture.save(&tiff).unwrap();
+    let out = bounded(&mut rectify(&view, &tiff, &dir.path().join("tiff.png")));
+    assert!(out.status.success(), "{}", report(&out));
+}
+
 fn grid_toml(side: f64) -> String {
     format!("[rectify]\nx_min = 0.0\nx_max = {side}\ny_min = 0.0\ny_max = {side}\npixel_mm = 1.0\n")
 }

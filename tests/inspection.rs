@@ -152,7 +152,14 @@ fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
     let vectors = dir.path().join("demo.cli");
     layerwise::sim::inject::write_demo_vectors(&vectors, LAYERS).expect("vectors");
 
-    let clean = run_build(&[], &vectors);
+    // The clean and the injected build side by side: each is mostly one thread (JPEG encode
+    // and decode), and this is the longest test of the suite.
+    let list = injections();
+    let (clean, records) = std::thread::scope(|s| {
+        let clean = s.spawn(|| run_build(&[], &vectors));
+        let records = run_build(&list, &vectors);
+        (clean.join().expect("clean build"), records)
+    });
     assert_eq!(clean.len(), LAYERS as usize);
     let clean_flags: Vec<String> = clean
         .iter()
@@ -164,8 +171,6 @@ fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
         })
         .collect();
 
-    let list = injections();
-    let records = run_build(&list, &vectors);
     let by_layer: BTreeMap<u32, &InspectionRecord> = records.iter().map(|r| (r.layer, r)).collect();
     let injected: std::collections::BTreeSet<u32> =
         list.iter().flat_map(|i| i.first..=i.last).collect();

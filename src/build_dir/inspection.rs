@@ -162,11 +162,27 @@ pub fn open_flags(dir: &Path) -> Vec<String> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::io::Write;
 
-    fn record(layer: u32) -> InspectionRecord {
+    /// A recoater streak on `pre_top` (also the web timeline's fixture).
+    pub(crate) fn streak(severity: Severity) -> Flag {
+        Flag {
+            kind: FlagKind::Streak,
+            severity,
+            part: None,
+            view: "pre_top".into(),
+            bbox_mm: [-40.0, 12.0, 95.0, 13.0],
+            bbox_px: [195, 249, 465, 251],
+            score: 9.0,
+            threshold: 7.0,
+            message: "recoater streak".into(),
+        }
+    }
+
+    /// Layer `layer`'s record with `flags`.
+    pub(crate) fn record_with(layer: u32, flags: Vec<Flag>) -> InspectionRecord {
         InspectionRecord {
             layer,
             at: chrono::DateTime::from_timestamp(1_700_000_000, 0).unwrap(),
@@ -174,18 +190,12 @@ mod tests {
             views: vec!["pre_top".into()],
             plate: BTreeMap::new(),
             parts: vec![],
-            flags: vec![Flag {
-                kind: FlagKind::Streak,
-                severity: Severity::Warning,
-                part: None,
-                view: "pre_top".into(),
-                bbox_mm: [-40.0, 12.0, 95.0, 13.0],
-                bbox_px: [1, 2, 3, 4],
-                score: 7.1,
-                threshold: 6.0,
-                message: "recoater streak".into(),
-            }],
+            flags,
         }
+    }
+
+    fn record(layer: u32) -> InspectionRecord {
+        record_with(layer, vec![streak(Severity::Warning)])
     }
 
     #[test]

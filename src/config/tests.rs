@@ -186,23 +186,3 @@ fn config_control_characters_in_the_build_name_are_refused() {
         "build.name",
     );
 }
-
-#[cfg(not(feature = "gphoto"))]
-#[test]
-fn config_gphoto2_without_the_feature_is_refused_by_check_config() {
-    let text = DEMO_CONFIG.replacen(
-        "[camera]\nkind = \"mock\"\nwidth = 1472\nheight = 982\njpeg_quality = 90\nseed = 7",
-        "[camera]\nkind = \"gphoto2\"",
-        1,
-    );
-    assert_ne!(text, DEMO_CONFIG);
-    let config = parse(&text).expect("a valid file for a gphoto build");
-    let err = config
-        .check_backends(Path::new("test.toml"))
-        .expect_err("this build cannot drive it")
-        .to_string();
-    assert!(
-        err.contains("test.toml") && err.contains("--features gphoto"),
-        "{err}"
-    );
-}

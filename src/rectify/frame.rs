@@ -155,30 +155,6 @@ impl NoRawDeveloper {
 mod tests {
     use super::*;
 
-    /// Without the `nef` feature (`cargo test --no-default-features`), a NEF is refused with
-    /// the way out, and a plain TIFF still opens.
-    #[cfg(not(feature = "nef"))]
-    #[test]
-    fn a_build_without_raw_support_names_the_feature() {
-        let picture = image::RgbImage::from_pixel(32, 24, image::Rgb([90, 90, 90]));
-        let nef = mock_camera::nef::encode_nef(&picture, &Default::default());
-        for result in [
-            decode_frame_luma(&nef).map(|_| ()),
-            decode_frame(&nef).map(|_| ()),
-        ] {
-            let err = result.unwrap_err().to_string();
-            assert!(err.contains("--features nef"), "{err}");
-        }
-        let mut tiff = Vec::new();
-        image::DynamicImage::ImageRgb8(picture)
-            .write_to(
-                &mut std::io::Cursor::new(&mut tiff),
-                image::ImageFormat::Tiff,
-            )
-            .unwrap();
-        assert!(decode_frame_luma(&tiff).is_ok());
-    }
-
     #[test]
     fn linear_frames_show_every_grey_level() {
         let ramp = Gray16Image::from_fn(256, 256, |x, y| image::Luma([(y * 256 + x) as u16]));

@@ -331,29 +331,9 @@ mod tests {
 
     #[test]
     fn inspection_flags_join_their_layer_the_newest_record_wins() {
-        use crate::build_dir::inspection::{FlagKind, InspectionRecord};
+        use crate::build_dir::inspection::tests::{record_with as record, streak as flag};
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(crate::build_dir::INSPECTION);
-        let flag = |severity| Flag {
-            kind: FlagKind::Streak,
-            severity,
-            part: None,
-            view: "pre_top".into(),
-            bbox_mm: [-40.0, 12.0, 95.0, 13.0],
-            bbox_px: [195, 249, 465, 251],
-            score: 9.0,
-            threshold: 7.0,
-            message: "recoater streak".into(),
-        };
-        let record = |layer, flags| InspectionRecord {
-            layer,
-            at: Utc::now(),
-            ms: 1.0,
-            views: vec![],
-            plate: Default::default(),
-            parts: vec![],
-            flags,
-        };
         let text = |records: &[InspectionRecord]| {
             records
                 .iter()
