@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# RUSTC_WRAPPER of `fuzz/run.sh --beside DIR`: LLVM's sanitizer-coverage instrumentation (the
-# flags cargo-fuzz passes) for layerwise and the fuzz targets only; every other crate compiles as
+# RUSTC_WRAPPER of `fuzz/run.sh --beside DIR`: LLVM's sanitizer-coverage instrumentation (run.sh's
+# LAYERWISE_SANCOV_FLAGS) for layerwise and the fuzz targets only; every other crate compiles as
 # cargo asked, so the dependencies the tests already built in DIR are reused, not built again.
 # Cargo does not see these flags, so layerwise's artifact here must never be one a test build
 # also uses: it is not (cargo names a path package by its path from the workspace root, and fuzz/
@@ -18,9 +18,8 @@ for arg in "$@"; do
 done
 case "$crate" in
   layerwise | layerwise_fuzz | vectors | config | calibration | frames | journal | ct_volume)
-    exec "$rustc" "$@" -Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
-      -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
-      -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing
+    read -ra sancov <<<"${LAYERWISE_SANCOV_FLAGS:?set by fuzz/run.sh}"
+    exec "$rustc" "$@" "${sancov[@]}"
     ;;
 esac
 exec "$rustc" "$@"

@@ -30,22 +30,24 @@ if [ "$seconds" -le 0 ]; then
   echo "fuzz: skipped (0 s)"
   exit 0
 fi
+# The flags cargo-fuzz passes.
+sancov="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
+-Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
+-Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing"
 if [ -n "$beside" ]; then
-  RUSTC_WRAPPER="$PWD/instrument-ours.sh" CARGO_TARGET_DIR="$beside" \
-    cargo build --features beside-tests --bins
+  LAYERWISE_SANCOV_FLAGS="$sancov" RUSTC_WRAPPER="$PWD/instrument-ours.sh" \
+    CARGO_TARGET_DIR="$beside" cargo build --features beside-tests --bins
   bin="$beside/debug"
-  # Each target's counters with layerwise instrumented: about 2,700 (vectors) to 30,500
-  # (config); the targets' own code alone: 272 to 986.
-  min_counters=1500
+  stale="(cd fuzz && CARGO_TARGET_DIR=$beside cargo clean -p layerwise)"
 else
   host=$(rustc -vV | sed -n 's/^host: //p')
-  RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
--Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
--Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing" \
-    cargo build --release --target "$host" --bins
+  RUSTFLAGS="$sancov" cargo build --release --target "$host" --bins
   bin="target/$host/release"
-  min_counters=1500
+  stale="(cd fuzz && cargo clean -p layerwise)"
 fi
+# Each target's counters with layerwise instrumented: about 2,700 (vectors) to 30,500 (config);
+# the targets' own code alone: 272 to 986.
+min_counters=1500
 
 # One target: SECONDS on its corpus; -rss_limit_mb: an allocation sized by a wild header (the
 # malloc limit follows it) is a crash; -timeout: one input may take at most 10 s.
@@ -66,7 +68,7 @@ fuzz_one() {
     "artifacts/$t.log" | head -n 1)
   if [ "${counters:-0}" -lt "$min_counters" ]; then
     echo "fuzz $t: only ${counters:-no} coverage counters (at least $min_counters expected):" \
-      "layerwise was not built instrumented; remove its artifacts and run again"
+      "layerwise was built without coverage instrumentation; run $stale and this again"
     return 1
   fi
   echo "fuzz $t: ${seconds} s on $inputs inputs, $counters counters," \

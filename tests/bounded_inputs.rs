@@ -377,6 +377,13 @@ fn rectify(view: &SmallView, image: &Path, out: &Path) -> Command {
     view.rectify_command(image, out)
 }
 
+/// `layerwise rectify` of `image` to PNG and to DICOM (beside it): both refused, naming `words`.
+fn rectify_refused(view: &SmallView, image: &Path, words: &[&str]) {
+    for out in ["out.png", "out.dcm"] {
+        refused(&mut rectify(view, image, &image.with_file_name(out)), words);
+    }
+}
+
 #[test]
 fn truncated_or_corrupt_jpeg_is_an_error_not_a_silent_exit_0() {
     let dir = tempfile::tempdir().unwrap();
@@ -407,9 +414,7 @@ fn truncated_or_corrupt_jpeg_is_an_error_not_a_silent_exit_0() {
     ] {
         let image = dir.path().join(name);
         std::fs::write(&image, bytes).unwrap();
-        for out in ["out.png", "out.dcm"] {
-            refused(&mut rectify(&view, &image, &dir.path().join(out)), &[name]);
-        }
+        rectify_refused(&view, &image, &[name]);
     }
 }
 
@@ -428,16 +433,13 @@ fn nef_frame_on_a_binary_without_the_feature_names_the_feature() {
         mock_camera::nef::encode_nef(&picture, &Default::default()),
     )
     .unwrap();
-    for out in ["out.png", "out.dcm"] {
-        refused(
-            &mut rectify(&view, &nef, &dir.path().join(out)),
-            &["frame.nef", "--features nef"],
-        );
-    }
+    rectify_refused(&view, &nef, &["frame.nef", "--features nef"]);
     let tiff = dir.path().join("frame.tif");
     picture.save(&tiff).unwrap();
-    let out = bounded(&mut rectify(&view, &tiff, &dir.path().join("tiff.png")));
-    assert!(out.status.success(), "{}", report(&out));
+    for out in ["tiff.png", "tiff.dcm"] {
+        let out = bounded(&mut rectify(&view, &tiff, &dir.path().join(out)));
+        assert!(out.status.success(), "{}", report(&out));
+    }
 }
 
 fn grid_toml(side: f64) -> String {

@@ -54,8 +54,8 @@ cargo clippy --workspace --all-targets --all-features -- -D warnings
 # Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the tests
 # write the seeds (tests/fuzz_smoke.rs, which also feeds every parser deterministic mutants), then
 # every target runs LAYERWISE_FUZZ_SECONDS (20; 0 skips it) on them; a crash, an abort, an
-# allocation over 2 GB or an input taking over 10 s fails. Built beside the tests: only layerwise
-# and the targets are compiled again, with coverage instrumentation.
+# allocation over 2 GB or an input taking over 10 s fails. Built beside the tests, on the
+# dependencies built for them: layerwise and the targets are compiled again, instrumented.
 fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-20}"
 if [ "$fuzz_seconds" != 0 ]; then export LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-seeds"; fi
 cargo test --workspace --all-features
