@@ -21,6 +21,10 @@ pub trait Clock: Send + Sync {
     fn sleep(&self, duration: Duration);
     /// A channel that receives once, when `duration` has passed.
     fn after(&self, duration: Duration) -> Receiver<Instant>;
+    /// Waits `duration` as [`Clock::sleep`] does, unless `interrupt` is ready first (a message,
+    /// or its senders gone: a `shutdown::Shutdown::receiver`). Returns whether it was
+    /// interrupted.
+    fn sleep_unless(&self, duration: Duration, interrupt: &Receiver<()>) -> bool;
 }
 
 /// A shared clock.
@@ -65,6 +69,12 @@ impl Clock for SystemClock {
     }
     fn after(&self, duration: Duration) -> Receiver<Instant> {
         crossbeam_channel::after(duration)
+    }
+    fn sleep_unless(&self, duration: Duration, interrupt: &Receiver<()>) -> bool {
+        crossbeam_channel::select! {
+            recv(interrupt) -> _ => true,
+            default(duration) => false,
+        }
     }
 }
 
@@ -191,6 +201,15 @@ impl Clock for ManualClock {
         }
         rx
     }
+    /// Interrupted when `interrupt` is ready at the call; else the clock advances by `duration`
+    /// at once, as [`Clock::sleep`] does.
+    fn sleep_unless(&self, duration: Duration, interrupt: &Receiver<()>) -> bool {
+        if !interrupt.is_empty() || matches!(interrupt.try_recv(), Err(crossbeam_channel::TryRecvError::Disconnected)) {
+            return true;
+        }
+        self.advance(duration);
+        false
+    }
 }
 
 #[cfg(test)]
@@ -232,6 +251,19 @@ mod tests {
         assert_eq!(waits, [250, 500, 1000, 2000, 2000, 2000]);
         backoff.reset();
         assert_eq!(backoff.current(), Duration::from_millis(250));
+    }
+
+    #[test]
+    fn an_interruptible_sleep_ends_at_once_when_interrupted() {
+        let (stop, interrupt) = crossbeam_channel::bounded::<()>(0);
+        let manual = ManualClock::new();
+        assert!(!manual.sleep_unless(Duration::from_secs(60), &interrupt));
+        assert_eq!(manual.elapsed(), Duration::from_secs(60), "slept on the manual clock");
+        drop(stop);
+        assert!(manual.sleep_unless(Duration::from_secs(60), &interrupt));
+        assert_eq!(manual.elapsed(), Duration::from_secs(60), "interrupted: no time passed");
+        let system = SystemClock::new();
+        assert!(system.sleep_unless(Duration::from_secs(3600), &interrupt));
     }
 
     #[test]

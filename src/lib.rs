@@ -6,7 +6,7 @@
 //!
 //! | layer | modules | what |
 //! | --- | --- | --- |
-//! | 0 foundation | [`fsutil`], [`clock`], [`geometry`] | atomic files, time, frame-named transforms and grids |
+//! | 0 foundation | [`fsutil`], [`clock`], [`shutdown`], [`geometry`], [`logging`] | atomic files, time, the one way to stop, frame-named transforms and grids, logs and error chains |
 //! | 1 formats | [`shot`], [`vectors`], [`dicom`], [`optics`] | what a frame is, CLI vector files, DICOM writing and reading, the optics planner |
 //! | 2 records | [`build_dir`], [`config`], [`raster`] | the build directory, the configuration, vectors on a grid |
 //! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
@@ -36,6 +36,7 @@ pub mod raster;
 pub mod rectify;
 pub mod series;
 pub mod shot;
+pub mod shutdown;
 pub mod sim;
 pub mod tsdf;
 pub mod vectors;

@@ -31,3 +31,38 @@ pub fn init(verbose: bool) {
         .with_target(false)
         .try_init();
 }
+
+/// An error with its sources, each said once: `message: cause: cause`. Library errors write their
+/// own message only and keep the cause as their source; this is how a log line, a journal
+/// record or a page shows the whole chain (the binary prints `anyhow`'s chain the same way).
+pub struct Chain<'a>(pub &'a (dyn std::error::Error + 'static));
+
+impl std::fmt::Display for Chain<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)?;
+        let mut source = self.0.source();
+        while let Some(cause) = source {
+            write!(f, ": {cause}")?;
+            source = cause.source();
+        }
+        Ok(())
+    }
+}
+
+/// [`Chain`] as a string (for records that keep the text).
+pub fn chain(error: &(dyn std::error::Error + 'static)) -> String {
+    Chain(error).to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    #[derive(Debug, thiserror::Error)]
+    #[error("cannot read {0}")]
+    struct Read(&'static str, #[source] std::io::Error);
+
+    #[test]
+    fn the_chain_says_each_cause_once() {
+        let e = Read("a.toml", std::io::Error::other("permission denied"));
+        assert_eq!(super::chain(&e), "cannot read a.toml: permission denied");
+    }
+}

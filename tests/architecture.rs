@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 /// The layers of docs/architecture.md, bottom first. A module may use any module of a lower
 /// layer, none of its own or a higher one.
 const LAYERS: &[&[&str]] = &[
-    &["fsutil", "clock", "geometry", "logging"],
+    &["fsutil", "clock", "shutdown", "geometry", "logging"],
     &["shot", "vectors", "dicom", "optics"],
     &["build_dir", "config", "raster"],
     &["rectify", "tsdf"],
