@@ -7,7 +7,8 @@
 #[path = "support/manifest.rs"]
 mod manifest;
 
-use layerwise::acquisition::inspection::{Alarm, InspectingSeries};
+use layerwise::acquisition::alarm::Alarm;
+use layerwise::acquisition::inspection::InspectingSeries;
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::clock::SystemClock;
 use layerwise::config::{Config, DEMO_CONFIG};

@@ -121,8 +121,13 @@ fn build(layers: u32, clients: usize) -> Measured {
     let dir = tempfile::tempdir().expect("tempdir");
     let config = config(dir.path(), layers);
     let addr = config.web.address().expect("address").expect("listen");
-    let page =
-        layerwise::web::WebServer::start(dir.path(), &config.web, addr).expect("page server");
+    let page = layerwise::web::WebServer::start(
+        dir.path(),
+        &config.web,
+        addr,
+        &layerwise::shutdown::Shutdown::new(),
+    )
+    .expect("page server");
     let stop = Arc::new(AtomicBool::new(false));
     let pictures = Arc::new(AtomicU64::new(0));
     let threads: Vec<_> = (0..clients)

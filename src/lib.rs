@@ -14,6 +14,19 @@
 //! | 5 products | [`export`], [`flaws`], [`locate`], [`hardware`], [`inspect`], [`pacs`] | one study per build, CT flaws, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives |
 //! | 6 daemon | [`acquisition`], [`web`] | the acquisition daemon; the operator page |
 //! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
+//!
+//! Features that span layers, and where each part lives:
+//!
+//! | feature | modules |
+//! | --- | --- |
+//! | the daemon (`layerwise run`) | [`acquisition`] (capture loop, [`acquisition::processing`]), [`hardware`] (trigger, lights, camera), [`build_dir`] (journal, sidecars, status.json), [`series`] (the live DICOM series), [`shutdown`] (how every thread stops) |
+//! | inspection | [`inspect`] (cells, detectors, drift, `layerwise inspect`), [`acquisition::inspection`] (live, in the processing worker), [`build_dir::inspection`] (inspection.jsonl), [`config::inspection`] |
+//! | the alarm | [`acquisition::alarm`] (stack light, printer message, its thread), [`build_dir::alarm`] (alarm.jsonl, `layerwise alarm ack`), [`hardware::message`] |
+//! | the operator page | [`web`] (server, routes, previews, timeline, calibration page), [`build_dir::status`] (what it shows of health) |
+//! | PACS push | [`pacs`] (STOW-RS, C-STORE, [`pacs::live`] beside the daemon), [`build_dir::pushlog`] (what each archive confirmed), [`config::pacs`] |
+//! | calibration | [`calibrate`] (`register images`), [`rectify`] (calibration.toml, the rectifier), [`geometry`] (the camera model) |
+//! | CT | [`ct`] (readers, segmentation, registration, `register ct`), [`flaws`] (pores → labelled patches), [`tsdf`] |
+//! | export and locate | [`export`], [`locate`], [`dicom`] |
 
 pub mod acquisition;
 pub mod build_dir;

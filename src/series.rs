@@ -32,6 +32,10 @@ pub trait FrameProcessor: Send + Sync {
         let _ = take;
         self.process(build_dir, shot, original)
     }
+
+    /// Called once by the processing worker when it ends (drained or stopped): a processor with
+    /// threads of its own (the inspection's alarm) stops them here.
+    fn finish(&self) {}
 }
 
 /// Keeps originals only.

@@ -21,12 +21,16 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     )
     .unwrap();
     let health = trigger.health();
-    let mut events =
-        layerwise::hardware::trigger::spawn(Box::new(trigger) as Box<dyn Trigger>, health);
-    let next = |events: &mut tokio::sync::mpsc::Receiver<_>| -> (u32, Phase) {
+    let shutdown = layerwise::shutdown::Shutdown::new();
+    let events = layerwise::hardware::trigger::spawn(
+        Box::new(trigger) as Box<dyn Trigger>,
+        health,
+        shutdown.clone(),
+    );
+    let next = |events: &layerwise::hardware::trigger::Events| -> (u32, Phase) {
         let deadline = Instant::now() + Duration::from_secs(10);
         loop {
-            match events.try_recv() {
+            match events.receiver().try_recv() {
                 Ok(Ok(e @ layerwise::hardware::trigger::LayerEvent { .. })) => {
                     return (e.layer, e.phase)
                 }
@@ -42,8 +46,8 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     pair.send(b"LAYER 1 PRE\n\xff\xfe garbage \x00\x01\nLAYER x POST\n");
     pair.send(&[b'z'; 9000]); // no line break for a long time
     pair.send(b"\r\nLAYER 1 POST\r\n");
-    assert_eq!(next(&mut events), (1, Phase::Pre));
-    assert_eq!(next(&mut events), (1, Phase::Post));
+    assert_eq!(next(&events), (1, Phase::Pre));
+    assert_eq!(next(&events), (1, Phase::Post));
 
     // The USB-serial adapter is unplugged, then plugged back in.
     let printer_path = pair.printer.clone();
@@ -55,7 +59,7 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
     let event = loop {
         pair.send(b"LAYER 2 PRE\n");
         std::thread::sleep(Duration::from_millis(100));
-        if let Ok(Ok(e)) = events.try_recv() {
+        if let Ok(Ok(e)) = events.receiver().try_recv() {
             break (e.layer, e.phase);
         }
         assert!(
@@ -64,6 +68,15 @@ fn signals_arrive_garbage_is_skipped_and_a_vanished_port_comes_back() {
         );
     };
     assert_eq!(event, (2, Phase::Pre));
+    // The shutdown ends the trigger's thread while it waits on the port (it looks twice a
+    // second).
+    let asked = Instant::now();
+    shutdown.request(layerwise::shutdown::StopReason::TriggerEnded);
+    events.join();
+    assert!(
+        asked.elapsed() < Duration::from_secs(5),
+        "the trigger thread did not stop on the shutdown"
+    );
     pair.stop();
 }
 

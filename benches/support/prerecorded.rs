@@ -49,12 +49,5 @@ pub fn run_prerecorded(config: &layerwise::config::Config, frame: Vec<u8>) {
     let (mut machine, _simulation) =
         layerwise::sim::open(config, options.clock.clone()).expect("simulated machine");
     machine.camera = Box::new(move || Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>));
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .expect("runtime");
-    runtime
-        .block_on(layerwise::acquisition::run(config, machine, options))
-        .expect("mock build");
+    layerwise::acquisition::run(config, machine, options).expect("mock build");
 }

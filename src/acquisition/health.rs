@@ -48,8 +48,13 @@ impl Parts {
         self.camera_error = Some((shot, error));
     }
 
-    pub(super) fn lights_switched(&mut self, result: Result<(), String>) {
-        self.lights_error = result.err();
+    /// The lights switched as told: a past switching failure is over.
+    pub(super) fn lights_ok(&mut self) {
+        self.lights_error = None;
+    }
+
+    pub(super) fn lights_failed(&mut self, error: &crate::hardware::lights::LightsError) {
+        self.lights_error = Some(crate::logging::chain(error));
     }
 
     fn camera(&self, now: DateTime<Utc>) -> Health {

@@ -1,8 +1,12 @@
 //! The daemon's side of the build lifecycle (`build_dir::lifecycle`): the configuration of the
-//! build an operator started, and a watch that ends a run when the order changes.
+//! build an operator started, a watch that ends a run when the order changes, and the wait
+//! between builds.
 
 use crate::build_dir::lifecycle::{self, BuildOrder, LifecycleError};
+use crate::clock::SharedClock;
 use crate::config::Config;
+use crate::logging::Chain;
+use crate::shutdown::{Shutdown, StopReason};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -42,37 +46,52 @@ pub fn next(builds_dir: &Path) -> Result<Next, LifecycleError> {
     })
 }
 
-/// Completes when the order in `builds_dir` is no longer `now` (a build started or ended), with
-/// the reason; an unreadable order file is logged once and waited out (the running build goes
-/// on).
-pub async fn changed(builds_dir: PathBuf, now: Next) -> String {
-    let mut warned = false;
-    loop {
-        tokio::time::sleep(POLL).await;
-        match next(&builds_dir) {
-            Ok(next) if next == now => warned = false,
-            Ok(Next::Wait) => return "the build was ended (layerwise build stop)".into(),
-            Ok(Next::Record(order)) => {
-                return format!("the next build was started ({})", order.name)
+/// Watches the order in `builds_dir` every [`POLL`] on `clock` from a thread of its own, and
+/// requests `shutdown` (`StopReason::BuildStopped`) when it is no longer `now` (a build started
+/// or ended). An unreadable order file is logged once and waited out (the running build goes on).
+/// The thread ends with the shutdown, whoever requested it.
+pub fn watch_order(
+    builds_dir: PathBuf,
+    now: Next,
+    clock: SharedClock,
+    shutdown: Shutdown,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("build-order".into())
+        .spawn(move || {
+            let mut warned = false;
+            while shutdown.wait(&clock.after(POLL)).is_none() {
+                let next = match next(&builds_dir) {
+                    Ok(next) if next == now => {
+                        warned = false;
+                        continue;
+                    }
+                    Ok(Next::Wait) => None,
+                    Ok(Next::Record(order)) => Some(order.name),
+                    Err(e) => {
+                        if !warned {
+                            tracing::warn!(error = %Chain(&e), "cannot read the build order; going on as before");
+                            warned = true;
+                        }
+                        continue;
+                    }
+                };
+                let reason = StopReason::BuildStopped { next };
+                tracing::info!(reason = %reason, "finishing the frame in hand, then stopping");
+                shutdown.request(reason);
             }
-            Err(e) if !warned => {
-                tracing::warn!(error = %e, "cannot read the build order; going on as before");
-                warned = true;
-            }
-            Err(_) => {}
-        }
-    }
+        })
 }
 
-/// Between builds: waits until a build is started (true) or SIGTERM/SIGINT arrives (false),
+/// Between builds: waits until a build is started (true) or `shutdown` is requested (false),
 /// telling systemd that the daemon is ready and idle, and pinging its watchdog.
-pub async fn wait_for_build(builds_dir: &Path, notify_systemd: bool) -> Result<bool, String> {
+pub fn wait_for_build(
+    builds_dir: &Path,
+    notify_systemd: bool,
+    clock: &SharedClock,
+    shutdown: &Shutdown,
+) -> Result<bool, LifecycleError> {
     use sd_notify::NotifyState;
-    let signal = |kind| {
-        tokio::signal::unix::signal(kind).map_err(|e| format!("cannot watch signal {kind:?}: {e}"))
-    };
-    let mut sigterm = signal(tokio::signal::unix::SignalKind::terminate())?;
-    let mut sigint = signal(tokio::signal::unix::SignalKind::interrupt())?;
     tracing::info!(
         builds_dir = %builds_dir.display(),
         "no build is open: waiting for `layerwise build start`"
@@ -86,21 +105,15 @@ pub async fn wait_for_build(builds_dir: &Path, notify_systemd: bool) -> Result<b
             ],
         );
     }
-    let mut tick = tokio::time::interval(POLL);
     loop {
-        tokio::select! {
-            _ = sigterm.recv() => return Ok(false),
-            _ = sigint.recv() => return Ok(false),
-            _ = tick.tick() => {
-                if notify_systemd {
-                    let _ = sd_notify::notify(false, &[NotifyState::Watchdog]);
-                }
-                match next(builds_dir) {
-                    Ok(Next::Record(_)) => return Ok(true),
-                    Ok(Next::Wait) => {}
-                    Err(e) => return Err(e.to_string()),
-                }
-            }
+        if notify_systemd {
+            let _ = sd_notify::notify(false, &[NotifyState::Watchdog]);
+        }
+        if let Next::Record(_) = next(builds_dir)? {
+            return Ok(true);
+        }
+        if shutdown.wait(&clock.after(POLL)).is_some() {
+            return Ok(false);
         }
     }
 }

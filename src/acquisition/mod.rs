@@ -1,35 +1,45 @@
 //! The acquisition daemon: for every layer signal, for each light in turn: light on, settle,
 //! capture and download, light off, store the original, hand it to processing. Resumes from the
 //! journal after any stop; never waits for processing.
+//!
+//! [`run`] is the capture loop on the calling thread: layer signals from the trigger's thread,
+//! the health tick on the clock, and the run's [`Shutdown`] in one `select!`. The threads it
+//! starts (trigger, camera, processing, alarm, watchdog) each stop on that one request, in order:
+//! docs/architecture.md has the table.
 
+pub mod alarm;
 pub mod check;
 pub mod disk;
+mod exposure;
 mod health;
 pub mod inspection;
 pub mod lifecycle;
+mod open;
 pub mod processing;
+mod recorder;
 mod sequencer;
 pub mod storage;
 
-use crate::build_dir::status::LiveStatus;
-use crate::build_dir::{self, BuildManifest, Journal, JournalError, Progress, Record};
+use crate::build_dir::{BuildManifest, JournalError};
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
 use crate::fsutil::WriteError;
 use crate::hardware::camera::{CameraActor, CameraError, RetryPolicy};
 use crate::hardware::lights::{LightsError, LightsGuard};
-use crate::hardware::trigger::{LayerEvent, TriggerError};
+use crate::hardware::trigger::TriggerError;
 use crate::hardware::Machine;
+use crate::logging::Chain;
 use crate::series::{FrameProcessor, KeepOriginals};
-use crate::shot::{Light, Phase, Shot};
+use crate::shot::Phase;
+use crate::shutdown::{Shutdown, StopReason};
+use exposure::Exposure;
 use processing::ProcessingQueue;
-use sequencer::{OpenEvent, Sequencer};
-use std::collections::{BTreeMap, BTreeSet};
+use recorder::{Recorder, StatusSink};
+use sequencer::{Heartbeat, Sequencer};
+use std::collections::BTreeSet;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use storage::Storage;
 use tracing::{error, info, warn};
 
 #[derive(Debug, thiserror::Error)]
@@ -38,10 +48,10 @@ pub enum AcquisitionError {
     Storage(#[from] WriteError),
     #[error(transparent)]
     Journal(#[from] JournalError),
-    #[error(transparent)]
-    CameraOpen(CameraError),
-    #[error("camera hung ({0}); exiting so that systemd restarts the service")]
-    CameraHung(CameraError),
+    #[error("cannot open the camera")]
+    CameraOpen(#[source] CameraError),
+    #[error("camera hung; exiting so that systemd restarts the service")]
+    CameraHung(#[source] CameraError),
     #[error(transparent)]
     Trigger(#[from] TriggerError),
     #[error(transparent)]
@@ -52,14 +62,14 @@ pub enum AcquisitionError {
     Calibration(#[from] crate::rectify::CalibrationError),
     #[error(transparent)]
     Series(#[from] crate::series::SeriesError),
-    #[error("cannot record the configuration: {0}")]
+    #[error("cannot record the configuration")]
     Snapshot(#[from] toml::ser::Error),
-    #[error("{0}")]
-    Runtime(String),
+    #[error("the journal's lock was poisoned by a panic on another thread")]
+    Poisoned,
 }
 
 /// What a run did.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct RunSummary {
     pub build_dir: PathBuf,
     /// Frames stored (first takes).
@@ -68,35 +78,51 @@ pub struct RunSummary {
     pub retakes: u64,
     pub missing: u64,
     pub skipped: u64,
-    pub stop_reason: String,
-    /// Stopped by `RunOptions::stop_when` (e.g. the operator ended the build), not by the
-    /// trigger or a signal.
-    pub stopped_on_request: bool,
+    /// Why the run stopped (set when it has).
+    pub stop_reason: Option<StopReason>,
 }
 
-/// How to run: what to do with frames, and the clock.
+impl RunSummary {
+    fn new(build_dir: PathBuf) -> RunSummary {
+        RunSummary {
+            build_dir,
+            stored: 0,
+            retakes: 0,
+            missing: 0,
+            skipped: 0,
+            stop_reason: None,
+        }
+    }
+
+    /// Stopped because the operator ended the build or started the next one (not by the
+    /// trigger, a signal or a failure).
+    pub fn stopped_on_request(&self) -> bool {
+        matches!(self.stop_reason, Some(StopReason::BuildStopped { .. }))
+    }
+}
+
+/// How to run: what to do with frames, the clock, and what stops the run.
 pub struct RunOptions {
     /// What to do with stored frames; by default the live DICOM series when a calibration is
     /// configured, else keep the originals only.
     pub processor: Option<Arc<dyn FrameProcessor>>,
-    /// Send READY and WATCHDOG to systemd.
+    /// Send READY, WATCHDOG, STATUS= and STOPPING to systemd.
     pub notify_systemd: bool,
-    /// When the trigger ends (a simulated build), process every frame before returning.
+    /// When the build ends (its trigger ended, or the operator ended it), process every frame
+    /// before returning.
     pub drain_at_end: bool,
     /// Where time comes from.
     pub clock: SharedClock,
-    /// Ends the run when it completes, with its reason (e.g. the operator ended the build,
-    /// `acquisition::lifecycle`); the frames taken are processed before the run returns.
-    pub stop_when: Option<StopWhen>,
+    /// Ends the run when requested, with its reason (SIGTERM through the process's shutdown, the
+    /// operator ending the build through `acquisition::lifecycle::watch_order`); the run also
+    /// requests it itself when its trigger ends or it fails, so everything holding it stops.
+    pub shutdown: Shutdown,
     /// Where free space on the build disk is measured (`statvfs`; tests simulate it).
     pub free_space: Arc<dyn crate::fsutil::FreeSpace>,
     /// Called, without blocking, each time a series instance is written (the daemon wakes its
     /// PACS push with it, `pacs::live::PushWaker`).
     pub on_instance: Option<processing::OnWritten>,
 }
-
-/// A future that ends a run with its reason.
-pub type StopWhen = std::pin::Pin<Box<dyn std::future::Future<Output = String> + Send>>;
 
 impl Default for RunOptions {
     fn default() -> Self {
@@ -111,134 +137,32 @@ impl RunOptions {
             notify_systemd: false,
             drain_at_end: false,
             clock: SystemClock::shared(),
-            stop_when: None,
+            shutdown: Shutdown::new(),
             free_space: Arc::new(crate::fsutil::Statvfs),
             on_instance: None,
         }
     }
 }
 
-/// The build directory opened for a run: originals, manifest, journal and what it replayed.
-struct OpenedBuild {
-    storage: Storage,
-    manifest: BuildManifest,
-    journal: Journal,
-    progress: Progress,
-}
+/// How often status.json follows the parts' health while no signal comes.
+const HEALTH_PERIOD: Duration = Duration::from_secs(1);
 
-/// Opens (or starts) the build directory, adopts originals a crash left unjournaled, and
-/// journals the start.
-fn open_build(config: &Config, clock: &SharedClock) -> Result<OpenedBuild, AcquisitionError> {
-    let dir = config.build.output_dir.clone();
-    let storage = Storage::open(&dir, config.storage.fsync)?;
-    let views: Vec<String> = config.views.all().iter().map(|v| v.to_string()).collect();
-    let manifest = BuildManifest::load_or_create(&dir, || BuildManifest {
-        name: config.build.name.clone(),
-        id: config.build_id().to_string(),
-        created_at: clock.now(),
-        layers_expected: config.build.layers,
-        views,
-        study_instance_uid: crate::dicom::new_uid(),
-        frame_of_reference_uid: crate::dicom::new_uid(),
-        software_version: env!("CARGO_PKG_VERSION").to_string(),
-    })?;
-    match snapshot_configuration(config, &storage) {
-        // A restart on a full disk still captures when space returns: the snapshot of the last
-        // start stays.
-        Err(AcquisitionError::Storage(e)) if crate::fsutil::is_disk_full(&e.source) => {
-            warn!(error = %e, "disk full: the configuration snapshot is not updated")
-        }
-        result => result?,
-    }
-    // The journal folded into compact per-shot flags as it is read: the daemon's memory does not
-    // grow with the records of a long build.
-    let mut progress = Progress::default();
-    let mut journal =
-        Journal::open_with(&dir.join(build_dir::JOURNAL), config.storage.fsync, |r| {
-            progress.apply(&r)
-        })?;
-    // Originals that reached the disk but not the journal (a crash in between) are adopted.
-    for adopted in storage.recover(|shot| progress.is_stored(shot))? {
-        warn!(file = %adopted.file, "recovered a frame stored just before a crash");
-        let record = Record::Frame {
-            layer: adopted.layer,
-            phase: adopted.phase,
-            light: adopted.light,
-            file: adopted.file.clone(),
-            bytes: adopted.bytes,
-            sha256: adopted.sha256.clone(),
-            at: adopted.captured_at,
-        };
-        journal.append(&record)?;
-        progress.apply(&record);
-    }
-    journal.append(&Record::Start {
-        at: clock.now(),
-        pid: std::process::id(),
-        version: env!("CARGO_PKG_VERSION").into(),
-    })?;
-    let last_event = progress
-        .last_event
-        .map(|(layer, phase)| format!("layer {layer} {phase}"))
-        .unwrap_or_else(|| "none".into());
-    info!(
-        build = %manifest.name,
-        dir = %dir.display(),
-        frames = progress.frames(),
-        missing = progress.missing(),
-        restarts = progress.starts,
-        last_event = %last_event,
-        "build opened"
-    );
-    Ok(OpenedBuild {
-        storage,
-        manifest,
-        journal,
-        progress,
-    })
-}
-
-/// The event a restart interrupted, with the lights it had already done.
-fn interrupted_event(
-    config: &Config,
-    progress: &Progress,
-    clock: &SharedClock,
-) -> Option<OpenEvent> {
-    let (layer, phase) = progress.last_event?;
-    let lights = &config.views.lights;
-    let done: BTreeSet<Light> = lights
-        .iter()
-        .copied()
-        .filter(|&light| {
-            progress.is_done(&Shot {
-                layer,
-                phase,
-                light,
-            })
-        })
-        .collect();
-    (done.len() < lights.len()).then(|| OpenEvent {
-        layer,
-        phase,
-        at: clock.now(),
-        done,
-    })
-}
-
-/// Runs the daemon on `machine` until the trigger ends or SIGTERM/SIGINT arrives.
-pub async fn run(
+/// Runs the daemon on `machine` until its trigger ends, `options.shutdown` is requested, or it
+/// fails; on the calling thread.
+pub fn run(
     config: &Config,
     machine: Machine,
     mut options: RunOptions,
 ) -> Result<RunSummary, AcquisitionError> {
     let clock = options.clock.clone();
+    let shutdown = options.shutdown.clone();
     let dir = config.build.output_dir.clone();
-    let OpenedBuild {
+    let open::OpenedBuild {
         storage,
         manifest,
         journal,
         mut progress,
-    } = open_build(config, &clock)?;
+    } = open::open_build(config, &clock)?;
 
     let Machine {
         mut trigger,
@@ -256,8 +180,7 @@ pub async fn run(
     trigger.resume_after(progress.last_event);
     let trigger_health = trigger.health();
 
-    let journal = Arc::new(Mutex::new(journal));
-    let backlog: Vec<(Shot, u32, PathBuf)> = progress
+    let backlog: Vec<_> = progress
         .take_backlog(config.series.take)
         .into_iter()
         .map(|(shot, take, file)| (shot, take, dir.join(file)))
@@ -266,6 +189,7 @@ pub async fn run(
         Some(p) => p,
         None => default_processor(config, &manifest, (alarm, alarm_message), &clock)?,
     };
+    let journal = Arc::new(Mutex::new(journal));
     let queue = ProcessingQueue::start(
         processor,
         config.storage.queue_capacity,
@@ -279,173 +203,146 @@ pub async fn run(
         clock.clone(),
         options.on_instance.clone(),
     );
-    let heartbeat = Arc::new(AtomicU64::new(0));
-    let mut sequencer = Sequencer {
-        lights_order: config.views.lights.clone(),
-        settle: Duration::from_millis(config.capture.settle_ms),
-        storage,
-        journal,
-        lights,
-        camera,
-        policy: RetryPolicy::from_config(&config.capture),
-        open: interrupted_event(config, &progress, &clock),
-        queue: Some(queue),
-        live: LiveStatus {
-            pid: std::process::id(),
-            last_frames: BTreeMap::new(),
-            ..LiveStatus::default()
-        },
-        summary: RunSummary {
-            build_dir: dir.clone(),
-            ..RunSummary::default()
-        },
-        heartbeat: heartbeat.clone(),
+    let open = open::interrupted_event(config, &progress, &clock);
+    let disk = disk::DiskGuard::open(
+        dir.clone(),
+        options.free_space.clone(),
+        (config.storage.min_free_gb * 1e9) as u64,
+        clock.clone(),
+    );
+    let sink = StatusSink {
         clock: clock.clone(),
         notify: options.notify_systemd,
-        trigger_health: trigger_health.clone(),
-        prev_signal: progress.last_event,
-        catching_up: progress.last_event.is_some(),
-        state: progress,
-        disk: disk::DiskGuard::open(
-            dir.clone(),
-            options.free_space.clone(),
-            (config.storage.min_free_gb * 1e9) as u64,
-            clock.clone(),
-        ),
-        parts: Default::default(),
+        trigger: trigger_health.clone(),
     };
-    sequencer.apply_disk();
+    let recorder = Recorder::new(storage, progress, journal, disk, queue, sink);
+    let exposure = Exposure::new(
+        lights,
+        camera,
+        RetryPolicy::from_config(&config.capture),
+        Duration::from_millis(config.capture.settle_ms),
+        clock.clone(),
+    );
+    let heartbeat = Heartbeat::default();
+    let mut sequencer = Sequencer::new(
+        config.views.lights.clone(),
+        exposure,
+        recorder,
+        open,
+        heartbeat.clone(),
+        clock.clone(),
+    );
     sequencer.write_live("running");
 
     let only_phases: BTreeSet<Phase> = config.views.phases.iter().copied().collect();
-    let events = crate::hardware::trigger::spawn(trigger, trigger_health);
-    let (sequencer, reason, asked) =
-        event_loop(sequencer, events, only_phases, heartbeat, &mut options).await?;
-    if options.notify_systemd {
-        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
-    }
-    let drain = options.drain_at_end && (reason == "the trigger ended" || asked);
-    let mut summary =
-        tokio::task::spawn_blocking(move || sequencer.finish(&reason, "stopped", drain))
-            .await
-            .map_err(|e| AcquisitionError::Runtime(format!("shutdown failed: {e}")))?;
-    summary.stopped_on_request = asked;
-    info!(stored = summary.stored, missing = summary.missing, skipped = summary.skipped, reason = %summary.stop_reason, "acquisition stopped");
-    Ok(summary)
-}
-
-/// Feeds layer signals to the sequencer (one event at a time, on a blocking thread) until the
-/// trigger ends or a signal stops the daemon; pings the systemd watchdog while capture lives.
-/// Returns the idle sequencer, why the loop stopped and whether `options.stop_when` stopped it.
-async fn event_loop(
-    sequencer: Sequencer,
-    mut events: tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>>,
-    only_phases: BTreeSet<Phase>,
-    heartbeat: Arc<AtomicU64>,
-    options: &mut RunOptions,
-) -> Result<(Sequencer, String, bool), AcquisitionError> {
-    let clock = options.clock.clone();
-    let watchdog = watchdog_period(options.notify_systemd);
+    let events = crate::hardware::trigger::spawn(trigger, trigger_health, shutdown.clone());
+    let watchdog = options
+        .notify_systemd
+        .then(|| watchdog(heartbeat, clock.clone(), shutdown.clone()))
+        .flatten();
     if options.notify_systemd {
         let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Ready]);
     }
-    let mut tick = tokio::time::interval(
-        Duration::from_secs(1).min(watchdog.unwrap_or(Duration::from_secs(1))),
-    );
-    let signal = |kind| {
-        tokio::signal::unix::signal(kind)
-            .map_err(|e| AcquisitionError::Runtime(format!("cannot watch signal {kind:?}: {e}")))
-    };
-    let mut sigterm = signal(tokio::signal::unix::SignalKind::terminate())?;
-    let mut sigint = signal(tokio::signal::unix::SignalKind::interrupt())?;
-
-    let mut idle = Some(sequencer);
-    let mut running: Option<tokio::task::JoinHandle<(Sequencer, Result<(), AcquisitionError>)>> =
-        None;
-    let mut stop: Option<String> = None;
-    let mut stop_when = options.stop_when.take();
-    let mut asked = false;
-    loop {
-        if stop.is_some() && running.is_none() {
-            break;
-        }
-        tokio::select! {
-            joined = async { running.as_mut().expect("guarded by the select condition").await }, if running.is_some() => {
-                running = None;
-                let (sequencer, result) = joined.map_err(|e| AcquisitionError::Runtime(format!("capture task failed: {e}")))?;
-                if let Err(e) = result {
-                    error!(error = %e, "acquisition stopped by an error");
-                    let reason = e.to_string();
-                    sequencer.finish(&reason, "failed", false);
-                    return Err(e);
-                }
-                idle = Some(sequencer);
+    let stopped = capture_loop(&mut sequencer, &events, &only_phases, &shutdown, &clock);
+    let result = match stopped {
+        Ok(reason) => {
+            if options.notify_systemd {
+                let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Stopping]);
             }
-            event = events.recv(), if running.is_none() && stop.is_none() => match event {
-                None => stop = Some("the trigger ended".to_string()),
-                Some(Err(e)) => {
-                    error!(error = %e, "trigger failed");
-                    if let Some(sequencer) = idle.take() {
-                        sequencer.finish(&e.to_string(), "failed", false);
-                    }
+            let drain = options.drain_at_end && reason.completes_the_build();
+            let summary = sequencer.finish(reason, "stopped", drain);
+            info!(
+                stored = summary.stored,
+                missing = summary.missing,
+                skipped = summary.skipped,
+                reason = %summary.stop_reason.as_ref().map_or_else(String::new, ToString::to_string),
+                "acquisition stopped"
+            );
+            Ok(summary)
+        }
+        Err(e) => {
+            let reason = StopReason::failure_of(&e);
+            shutdown.request(reason.clone());
+            sequencer.finish(reason, "failed", false);
+            Err(e)
+        }
+    };
+    // Every path above requested the shutdown: the trigger's and the watchdog's threads end.
+    events.join();
+    if let Some(watchdog) = watchdog {
+        let _ = watchdog.join();
+    }
+    result
+}
+
+/// Feeds layer signals to the sequencer, one event at a time, until the shutdown is requested
+/// (the trigger's end requests it); status.json follows the parts' health while idle. Returns
+/// why it stopped, or the error that stopped it.
+fn capture_loop(
+    sequencer: &mut Sequencer,
+    events: &crate::hardware::trigger::Events,
+    only_phases: &BTreeSet<Phase>,
+    shutdown: &Shutdown,
+    clock: &SharedClock,
+) -> Result<StopReason, AcquisitionError> {
+    let mut tick = clock.after(HEALTH_PERIOD);
+    loop {
+        // A stop comes before any signal still queued: the frame in hand is finished, no other.
+        if let Some(reason) = shutdown.reason() {
+            return Ok(reason);
+        }
+        crossbeam_channel::select! {
+            recv(events.receiver()) -> event => match event {
+                Err(_) => {
+                    shutdown.request(StopReason::TriggerEnded);
+                }
+                Ok(Err(e)) => {
+                    error!(error = %Chain(&e), "trigger failed");
                     return Err(e.into());
                 }
-                Some(Ok(event)) if !only_phases.contains(&event.phase) => {
+                Ok(Ok(event)) if !only_phases.contains(&event.phase) => {
                     info!(layer = event.layer, phase = %event.phase, "signal for a phase not in views.phases; ignored");
                 }
-                Some(Ok(event)) => {
-                    if let Some(mut sequencer) = idle.take() {
-                        running = Some(tokio::task::spawn_blocking(move || {
-                            let result = sequencer.on_event(event);
-                            (sequencer, result)
-                        }));
+                Ok(Ok(event)) => {
+                    if let Err(e) = sequencer.on_event(event) {
+                        error!(error = %Chain(&e), "acquisition stopped by an error");
+                        return Err(e);
                     }
                 }
             },
-            _ = sigterm.recv() => { info!("SIGTERM: finishing the frame in hand, then stopping"); stop = Some("SIGTERM".into()); }
-            _ = sigint.recv() => { info!("SIGINT: finishing the frame in hand, then stopping"); stop = Some("SIGINT".into()); }
-            reason = async { stop_when.as_mut().expect("guarded by the select condition").await }, if stop_when.is_some() && stop.is_none() => {
-                info!(reason = %reason, "finishing the frame in hand, then stopping");
-                stop_when = None;
-                asked = true;
-                stop = Some(reason);
-            }
-            _ = tick.tick() => {
-                if let Some(sequencer) = idle.as_mut() {
-                    sequencer.refresh_health();
-                }
-                if let Some(period) = watchdog {
-                    // Ping only while the capture path shows signs of life.
-                    let last = Duration::from_millis(heartbeat.load(Ordering::SeqCst));
-                    if running.is_none() || clock.elapsed().saturating_sub(last) < period * 2 {
-                        let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Watchdog]);
-                    }
-                }
+            recv(shutdown.receiver()) -> _ => {}
+            recv(tick) -> _ => {
+                sequencer.refresh_health();
+                tick = clock.after(HEALTH_PERIOD);
             }
         }
     }
-    let sequencer = idle.ok_or_else(|| AcquisitionError::Runtime("capture task lost".into()))?;
-    Ok((sequencer, stop.unwrap_or_default(), asked))
 }
 
-/// Leaves the configuration in force (`config.toml`) and a copy of the calibration
-/// (`calibration.toml`) in the build directory, so export and locate know how the build was made.
-fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), AcquisitionError> {
-    let dir = storage.root();
-    let text = toml::to_string(config)?;
-    storage.write_atomic(&dir.join(build_dir::CONFIG_SNAPSHOT), text.as_bytes())?;
-    if let Some(calibration) = &config.calibration.file {
-        let target = dir.join(build_dir::CALIBRATION_COPY);
-        let same = std::fs::canonicalize(calibration).ok() == std::fs::canonicalize(&target).ok();
-        if !same {
-            let bytes = std::fs::read(calibration).map_err(|source| WriteError {
-                path: calibration.clone(),
-                source,
-            })?;
-            storage.write_atomic(&target, &bytes)?;
-        }
+/// Pings systemd's watchdog every half `WatchdogSec` while the capture path shows signs of life
+/// (the sequencer beats at each frame and each health tick), until the shutdown. None when
+/// systemd set no watchdog.
+fn watchdog(
+    heartbeat: Heartbeat,
+    clock: SharedClock,
+    shutdown: Shutdown,
+) -> Option<std::thread::JoinHandle<()>> {
+    let mut usec = 0u64;
+    if !sd_notify::watchdog_enabled(false, &mut usec) {
+        return None;
     }
-    Ok(())
+    let period = Duration::from_micros(usec / 2);
+    std::thread::Builder::new()
+        .name("watchdog".into())
+        .spawn(move || {
+            while shutdown.wait(&clock.after(period)).is_none() {
+                if clock.elapsed().saturating_sub(heartbeat.last()) < period * 2 {
+                    let _ = sd_notify::notify(false, &[sd_notify::NotifyState::Watchdog]);
+                }
+            }
+        })
+        .map_err(|e| warn!(error = %e, "systemd watchdog: cannot start its thread"))
+        .ok()
 }
 
 /// The live DICOM series when a calibration is configured; else the originals are only kept.
@@ -472,7 +369,7 @@ fn default_processor(
     if !config.inspection.enabled {
         return Ok(Arc::new(live));
     }
-    let alarm = inspection::Alarm::new(alarm, &config.inspection.alarm)
+    let alarm = alarm::Alarm::new(alarm, &config.inspection.alarm)
         .with_message(message, &config.inspection.alarm);
     let dir = &config.build.output_dir;
     Ok(Arc::new(inspection::InspectingSeries::open(
@@ -482,12 +379,4 @@ fn default_processor(
         alarm,
         clock.clone(),
     )?))
-}
-
-fn watchdog_period(enabled: bool) -> Option<Duration> {
-    if !enabled {
-        return None;
-    }
-    let mut usec = 0u64;
-    sd_notify::watchdog_enabled(false, &mut usec).then(|| Duration::from_micros(usec / 2))
 }

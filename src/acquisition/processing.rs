@@ -2,32 +2,52 @@
 //! Capture never waits for it: when the queue is full, frames simply wait on disk and the worker
 //! finds them again from the journal once it has caught up. While the disk is low the worker is
 //! paused (derived data waits; originals come first) and catches up from the journal afterwards.
+//!
+//! The worker waits on its channels, never on a timer: a frame handed over, a change of pause
+//! (`set_paused`), its stop (a [`Shutdown`] requested by [`ProcessingQueue::stop`]), or the
+//! sequencer hanging up ([`ProcessingQueue::drain`]: everything handed over is processed first).
 
 use crate::build_dir::{Journal, Record};
 use crate::clock::SharedClock;
+use crate::logging::Chain;
 pub use crate::series::{FrameProcessor, KeepOriginals};
 use crate::shot::{Phase, SeriesTake, Shot};
+use crate::shutdown::{Shutdown, StopReason};
+use crossbeam_channel::{Receiver, Sender, TrySendError};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 use tracing::{error, info};
 
-struct Shared {
+/// What the queue and its worker share.
+struct QueueState {
     depth: AtomicUsize,
     overflowed: AtomicBool,
-    stop: AtomicBool,
     /// Derived data waits (the disk is low).
     paused: AtomicBool,
-    /// The sender is gone: a paused worker stops instead of waiting.
-    draining: AtomicBool,
+    /// Told each change of `paused` (a channel of one: changes coalesce).
+    pause_changed: Sender<()>,
     /// From submission to the end of processing, for the last frame processed.
     lag_ms: AtomicU64,
     /// Told each time a slice is written.
     written: Option<OnWritten>,
+}
+
+impl QueueState {
+    fn set_paused(&self, paused: bool) -> bool {
+        let was = self.paused.swap(paused, Ordering::SeqCst);
+        if was != paused {
+            let _ = self.pause_changed.try_send(());
+        }
+        was
+    }
+
+    fn paused(&self) -> bool {
+        self.paused.load(Ordering::SeqCst)
+    }
 }
 
 /// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
@@ -38,8 +58,10 @@ pub type OnWritten = Arc<dyn Fn() + Send + Sync>;
 type Item = (Shot, u32, PathBuf, Option<Duration>);
 
 pub struct ProcessingQueue {
-    sender: Option<SyncSender<Item>>,
-    shared: Arc<Shared>,
+    sender: Option<Sender<Item>>,
+    state: Arc<QueueState>,
+    /// Stops the worker after the frame in hand.
+    stop: Shutdown,
     worker: Option<JoinHandle<()>>,
     /// Which take a retaken shot's slice shows: retakes are processed only with `Last`.
     take: SeriesTake,
@@ -57,6 +79,13 @@ pub struct WorkerPlan {
     pub frames_per_signal: usize,
 }
 
+/// The worker's channels.
+struct Inbox {
+    frames: Receiver<Item>,
+    pause_changed: Receiver<()>,
+    stop: Shutdown,
+}
+
 impl ProcessingQueue {
     /// Starts the worker on `plan`'s backlog.
     pub fn start(
@@ -69,29 +98,40 @@ impl ProcessingQueue {
         written: Option<OnWritten>,
     ) -> ProcessingQueue {
         let take = plan.take;
-        let (sender, receiver) = std::sync::mpsc::sync_channel(capacity);
-        let shared = Arc::new(Shared {
+        let (sender, frames) = crossbeam_channel::bounded(capacity);
+        let (pause_changed, pause_changes) = crossbeam_channel::bounded(1);
+        let state = Arc::new(QueueState {
             depth: AtomicUsize::new(plan.backlog.len()),
             overflowed: AtomicBool::new(false),
-            stop: AtomicBool::new(false),
             paused: AtomicBool::new(false),
-            draining: AtomicBool::new(false),
+            pause_changed,
             lag_ms: AtomicU64::new(0),
             written,
         });
-        let worker_shared = shared.clone();
+        let stop = Shutdown::new();
+        let inbox = Inbox {
+            frames,
+            pause_changed: pause_changes,
+            stop: stop.clone(),
+        };
+        let worker_state = state.clone();
         let worker = std::thread::Builder::new()
             .name("processing".into())
             .spawn(move || {
-                worker_loop(
-                    processor,
-                    receiver,
-                    worker_shared,
-                    build_dir,
-                    journal,
-                    plan,
-                    clock,
-                )
+                let worker = Worker {
+                    processor: processor.as_ref(),
+                    state: &worker_state,
+                    build_dir: &build_dir,
+                    journal: &journal,
+                    clock: &clock,
+                    tally: TallyGuard {
+                        tally: Mutex::new(LayerTally::new(plan.frames_per_signal)),
+                        state: &worker_state,
+                    },
+                };
+                worker.run(inbox, plan.backlog, plan.take);
+                // A processor with threads of its own (the inspection's alarm) stops them now.
+                processor.finish();
             })
             .map_err(
                 |e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"),
@@ -99,7 +139,8 @@ impl ProcessingQueue {
             .ok();
         ProcessingQueue {
             sender: Some(sender),
-            shared,
+            state,
+            stop,
             worker,
             take,
         }
@@ -116,53 +157,57 @@ impl ProcessingQueue {
         if take > 1 && self.take != SeriesTake::Last {
             return;
         }
-        self.shared.depth.fetch_add(1, Ordering::SeqCst);
+        self.state.depth.fetch_add(1, Ordering::SeqCst);
         let Some(sender) = &self.sender else { return };
         match sender.try_send((shot, take, original, Some(now))) {
             Ok(()) => {}
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
-                self.shared.overflowed.store(true, Ordering::SeqCst);
+                self.state.overflowed.store(true, Ordering::SeqCst);
             }
         }
     }
 
     /// Frames stored but not processed yet (in the queue or waiting on disk).
     pub fn depth(&self) -> usize {
-        self.shared.depth.load(Ordering::SeqCst)
+        self.state.depth.load(Ordering::SeqCst)
     }
 
     /// How long the last frame processed waited from its capture to the end of its processing.
     pub fn lag(&self) -> Duration {
-        Duration::from_millis(self.shared.lag_ms.load(Ordering::SeqCst))
+        Duration::from_millis(self.state.lag_ms.load(Ordering::SeqCst))
     }
 
     /// Pauses the derived data (the disk is low) or resumes it; on resuming, the frames left
     /// waiting are caught up from the journal.
     pub fn set_paused(&self, paused: bool) {
-        let was = self.shared.paused.swap(paused, Ordering::SeqCst);
-        if was && !paused {
-            self.shared.overflowed.store(true, Ordering::SeqCst);
+        if !paused {
+            // Set before the worker is woken, so it catches up.
+            if self.state.paused() {
+                self.state.overflowed.store(true, Ordering::SeqCst);
+            }
         }
+        self.state.set_paused(paused);
     }
 
     pub fn paused(&self) -> bool {
-        self.shared.paused.load(Ordering::SeqCst)
+        self.state.paused()
     }
 
     /// Waits until every submitted frame is processed, then stops the worker. A worker paused
     /// for disk space stops at once: its frames wait on disk for the next start.
     pub fn drain(mut self) {
-        self.shared.draining.store(true, Ordering::SeqCst);
         self.sender.take();
-        if let Some(worker) = self.worker.take() {
-            let _ = worker.join();
-        }
+        self.join();
     }
 
     /// Stops after the frame in hand; the rest stays on disk for the next start.
-    pub fn stop(mut self) {
-        self.shared.stop.store(true, Ordering::SeqCst);
+    pub fn stop(mut self, reason: StopReason) {
+        self.stop.request(reason);
         self.sender.take();
+        self.join();
+    }
+
+    fn join(&mut self) {
         if let Some(worker) = self.worker.take() {
             let _ = worker.join();
         }
@@ -170,8 +215,8 @@ impl ProcessingQueue {
 }
 
 /// Whether an error (or one of its sources) is a write that found the disk full.
-fn disk_full(error: &(dyn std::error::Error + 'static)) -> bool {
-    let mut current = Some(error);
+fn disk_full(error: &crate::series::ProcessError) -> bool {
+    let mut current: Option<&(dyn std::error::Error + 'static)> = Some(&**error);
     while let Some(e) = current {
         if e.downcast_ref::<std::io::Error>()
             .is_some_and(crate::fsutil::is_disk_full)
@@ -279,45 +324,198 @@ fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
 /// then, whichever way it returns.
 struct TallyGuard<'a> {
     tally: Mutex<LayerTally>,
-    shared: &'a Shared,
+    state: &'a QueueState,
 }
 
 impl Drop for TallyGuard<'_> {
     fn drop(&mut self) {
         if let Ok(mut open) = self.tally.lock() {
-            log_layers(open.flush(), self.shared.depth.load(Ordering::SeqCst));
+            log_layers(open.flush(), self.state.depth.load(Ordering::SeqCst));
         }
     }
 }
 
-fn worker_loop(
-    processor: Arc<dyn FrameProcessor>,
-    receiver: Receiver<Item>,
-    shared: Arc<Shared>,
-    build_dir: PathBuf,
-    journal: Arc<Mutex<Journal>>,
-    plan: WorkerPlan,
-    clock: SharedClock,
-) {
-    let WorkerPlan {
-        backlog,
-        take: choice,
-        frames_per_signal,
-    } = plan;
-    let tally = TallyGuard {
-        tally: Mutex::new(LayerTally::new(frames_per_signal)),
-        shared: &shared,
-    };
-    let backlog_now = || shared.depth.load(Ordering::SeqCst);
-    let run = |shot: Shot, take: u32, original: &Path, submitted: Option<Duration>| {
+/// The processing thread's work.
+struct Worker<'a> {
+    processor: &'a dyn FrameProcessor,
+    state: &'a QueueState,
+    build_dir: &'a Path,
+    journal: &'a Mutex<Journal>,
+    clock: &'a SharedClock,
+    tally: TallyGuard<'a>,
+}
+
+/// How a catch-up pass from the journal ended.
+enum CatchUp {
+    Done,
+    /// Paused for disk space: what is left waits on disk.
+    Paused,
+    Stopped,
+}
+
+impl Worker<'_> {
+    /// The backlog, then what is handed over, until stopped, or hung up and done.
+    fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, PathBuf)>, choice: SeriesTake) {
+        let state = self.state;
+        if !backlog.is_empty() {
+            info!(
+                frames = backlog.len(),
+                "processing: catching up on frames stored before the restart"
+            );
+        }
+        for (i, (shot, take, original)) in backlog.iter().enumerate() {
+            if inbox.stop.is_requested() {
+                return;
+            }
+            if state.paused() {
+                // The rest waits on disk; the catch-up after the pause finds it in the journal.
+                info!(
+                    frames = backlog.len() - i,
+                    "processing: disk low, catching up later"
+                );
+                state.overflowed.store(true, Ordering::SeqCst);
+                break;
+            }
+            self.process(*shot, *take, original, None);
+        }
+        // Shots a catch-up pass processed while they were still queued: skipped when they come
+        // out.
+        let mut caught_up = std::collections::BTreeSet::new();
+        loop {
+            if inbox.stop.is_requested() {
+                return;
+            }
+            if state.paused() {
+                crossbeam_channel::select! {
+                    recv(inbox.pause_changed) -> _ => {}
+                    recv(inbox.stop.receiver()) -> _ => return,
+                    recv(inbox.frames) -> item => match item {
+                        // It waits on disk and is caught up from the journal after the pause.
+                        Ok(_) => state.overflowed.store(true, Ordering::SeqCst),
+                        // Hung up while paused: the frames wait on disk for the next start.
+                        Err(_) => return,
+                    },
+                }
+                continue;
+            }
+            crossbeam_channel::select! {
+                recv(inbox.frames) -> first => match first {
+                    Ok(first) => self.batch(first, &inbox.frames, &mut caught_up),
+                    Err(_) => {
+                        if !state.overflowed.load(Ordering::SeqCst) {
+                            return;
+                        }
+                    }
+                },
+                recv(inbox.pause_changed) -> _ => {}
+                recv(inbox.stop.receiver()) -> _ => return,
+            }
+            // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
+            if !state.paused() && state.overflowed.swap(false, Ordering::SeqCst) {
+                match self.catch_up(&inbox, &mut caught_up, choice) {
+                    CatchUp::Done => {}
+                    CatchUp::Paused => state.overflowed.store(true, Ordering::SeqCst),
+                    CatchUp::Stopped => return,
+                }
+            }
+        }
+    }
+
+    /// `first` and whatever else is queued, one frame per core.
+    fn batch(
+        &self,
+        first: Item,
+        frames: &Receiver<Item>,
+        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
+    ) {
+        // One frame per core at a time: decoding a frame is single-threaded, so a second frame
+        // keeps the other core busy.
+        let mut batch = vec![first];
+        while batch.len() < rayon::current_num_threads().max(1) {
+            match frames.try_recv() {
+                Ok(item) => batch.push(item),
+                Err(_) => break,
+            }
+        }
+        if self.state.paused() {
+            // Paused while waiting: these wait on disk and are caught up from the journal after
+            // the pause.
+            self.state.overflowed.store(true, Ordering::SeqCst);
+            return;
+        }
+        batch.retain(|(shot, take, _, _)| !caught_up.remove(&(*shot, *take)));
+        // The takes of one shot in order (a retake's slice replaces the first's), shots in
+        // parallel.
+        batch.sort_by_key(|(shot, take, _, _)| (*shot, *take));
+        batch
+            .chunk_by(|a, b| a.0 == b.0)
+            .collect::<Vec<_>>()
+            .par_iter()
+            .for_each(|takes| {
+                for (shot, take, original, at) in takes.iter() {
+                    self.process(*shot, *take, original, *at);
+                }
+            });
+    }
+
+    /// What is still queued, then every frame the journal says is not processed.
+    fn catch_up(
+        &self,
+        inbox: &Inbox,
+        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
+        choice: SeriesTake,
+    ) -> CatchUp {
+        while let Ok((shot, take, original, at)) = inbox.frames.try_recv() {
+            if self.state.paused() {
+                // What is left waits on disk; the journal finds it after the pause.
+                return CatchUp::Paused;
+            }
+            if !caught_up.remove(&(shot, take)) {
+                self.process(shot, take, &original, at);
+            }
+        }
+        // The channel is drained, so nothing left in the set can still come out of it.
+        caught_up.clear();
+        let path = match self.journal.lock() {
+            Ok(journal) => journal.path().to_path_buf(),
+            Err(_) => return CatchUp::Done,
+        };
+        let replay = match Journal::read(&path) {
+            Ok(replay) => replay,
+            Err(e) => {
+                error!(error = %Chain(&e), "processing: cannot read the journal to catch up");
+                return CatchUp::Done;
+            }
+        };
+        for (shot, take) in replay.unprocessed_takes(choice) {
+            if inbox.stop.is_requested() {
+                return CatchUp::Stopped;
+            }
+            if self.state.paused() {
+                return CatchUp::Paused;
+            }
+            if let Some(entry) = replay.take_entry(&shot, take) {
+                self.process(shot, take, &self.build_dir.join(&entry.file), None);
+                caught_up.insert((shot, take));
+            }
+        }
+        CatchUp::Done
+    }
+
+    /// Processes one take, journals the result, counts it for its layer's line.
+    fn process(&self, shot: Shot, take: u32, original: &Path, submitted: Option<Duration>) {
+        let (state, clock) = (self.state, self.clock);
         let start = clock.elapsed();
-        let record = match processor.process_take(&build_dir, shot, take, original) {
-            Err(reason) if disk_full(reason.as_ref()) => {
+        let record = match self
+            .processor
+            .process_take(self.build_dir, shot, take, original)
+        {
+            Err(reason) if disk_full(&reason) => {
                 // Not a failure of the frame: it waits (paused) and is caught up from the
                 // journal once the disk has room again.
-                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %reason, "processing: the disk is full; derived data paused, the frame waits");
-                shared.paused.store(true, Ordering::SeqCst);
-                shared.overflowed.store(true, Ordering::SeqCst);
+                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %Chain(&*reason), "processing: the disk is full; derived data paused, the frame waits");
+                state.set_paused(true);
+                state.overflowed.store(true, Ordering::SeqCst);
                 return;
             }
             Ok(()) if take > 1 => Record::SliceTake {
@@ -334,7 +532,7 @@ fn worker_loop(
                 at: clock.now(),
             },
             Err(reason) => {
-                let reason = reason.to_string();
+                let reason = crate::logging::chain(&*reason);
                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
                 Record::ProcessingFailed {
                     layer: shot.layer,
@@ -345,17 +543,17 @@ fn worker_loop(
                 }
             }
         };
-        if let Ok(mut journal) = journal.lock() {
+        if let Ok(mut journal) = self.journal.lock() {
             if let Err(e) = journal.append(&record) {
-                error!(error = %e, "processing: cannot journal the result");
+                error!(error = %Chain(&e), "processing: cannot journal the result");
             }
         }
         if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
-            (&shared.written, &record)
+            (&state.written, &record)
         {
             written();
         }
-        let _ = shared
+        let _ = state
             .depth
             .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
                 Some(d.saturating_sub(1))
@@ -363,128 +561,14 @@ fn worker_loop(
         let end = clock.elapsed();
         let lag = submitted.map(|at| end.saturating_sub(at));
         if let Some(lag) = lag {
-            shared
-                .lag_ms
-                .store(lag.as_millis() as u64, Ordering::SeqCst);
+            state.lag_ms.store(lag.as_millis() as u64, Ordering::SeqCst);
         }
         let ok = !matches!(record, Record::ProcessingFailed { .. });
-        if let Ok(mut open) = tally.tally.lock() {
-            log_layers(open.add(&shot, ok, (start, end), lag), backlog_now());
-        }
-    };
-    let paused = || shared.paused.load(Ordering::SeqCst);
-    // Shots a catch-up pass processed while they were still queued: skipped when they come out.
-    let mut caught_up = std::collections::BTreeSet::new();
-    if !backlog.is_empty() {
-        info!(
-            frames = backlog.len(),
-            "processing: catching up on frames stored before the restart"
-        );
-    }
-    for (i, (shot, take, original)) in backlog.iter().enumerate() {
-        if shared.stop.load(Ordering::SeqCst) {
-            return;
-        }
-        if paused() {
-            // The rest waits on disk; the catch-up after the pause finds it in the journal.
-            info!(
-                frames = backlog.len() - i,
-                "processing: disk low, catching up later"
+        if let Ok(mut open) = self.tally.tally.lock() {
+            log_layers(
+                open.add(&shot, ok, (start, end), lag),
+                state.depth.load(Ordering::SeqCst),
             );
-            shared.overflowed.store(true, Ordering::SeqCst);
-            break;
-        }
-        run(*shot, *take, original, None);
-    }
-    loop {
-        if shared.stop.load(Ordering::SeqCst) {
-            return;
-        }
-        if paused() {
-            if shared.draining.load(Ordering::SeqCst) {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-            continue;
-        }
-        match receiver.recv_timeout(Duration::from_millis(200)) {
-            Ok(first) => {
-                // One frame per core at a time: decoding a frame is single-threaded, so a second
-                // frame keeps the other core busy.
-                let mut batch = vec![first];
-                while batch.len() < rayon::current_num_threads().max(1) {
-                    match receiver.try_recv() {
-                        Ok(item) => batch.push(item),
-                        Err(_) => break,
-                    }
-                }
-                if paused() {
-                    // Paused while waiting: these wait on disk and are caught up from the
-                    // journal after the pause.
-                    shared.overflowed.store(true, Ordering::SeqCst);
-                    continue;
-                }
-                batch.retain(|(shot, take, _, _)| !caught_up.remove(&(*shot, *take)));
-                // The takes of one shot in order (a retake's slice replaces the first's), shots
-                // in parallel.
-                batch.sort_by_key(|(shot, take, _, _)| (*shot, *take));
-                batch
-                    .chunk_by(|a, b| a.0 == b.0)
-                    .collect::<Vec<_>>()
-                    .par_iter()
-                    .for_each(|takes| {
-                        for (shot, take, original, at) in takes.iter() {
-                            run(*shot, *take, original, *at);
-                        }
-                    });
-            }
-            Err(RecvTimeoutError::Timeout) => {}
-            Err(RecvTimeoutError::Disconnected) => {
-                if !shared.overflowed.load(Ordering::SeqCst) {
-                    return;
-                }
-            }
-        }
-        // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
-        if !paused() && shared.overflowed.swap(false, Ordering::SeqCst) {
-            let mut interrupted = false;
-            while let Ok((shot, take, original, at)) = receiver.try_recv() {
-                if paused() {
-                    // What is left waits on disk; the journal finds it after the pause.
-                    interrupted = true;
-                    break;
-                }
-                if !caught_up.remove(&(shot, take)) {
-                    run(shot, take, &original, at);
-                }
-            }
-            if interrupted {
-                shared.overflowed.store(true, Ordering::SeqCst);
-                continue;
-            }
-            // The channel is drained, so nothing left in the set can still come out of it.
-            caught_up.clear();
-            let path = journal.lock().map(|j| j.path().to_path_buf());
-            if let Ok(path) = path {
-                match Journal::read(&path) {
-                    Ok(replay) => {
-                        for (shot, take) in replay.unprocessed_takes(choice) {
-                            if shared.stop.load(Ordering::SeqCst) {
-                                return;
-                            }
-                            if paused() {
-                                shared.overflowed.store(true, Ordering::SeqCst);
-                                break;
-                            }
-                            if let Some(entry) = replay.take_entry(&shot, take) {
-                                run(shot, take, &build_dir.join(&entry.file), None);
-                                caught_up.insert((shot, take));
-                            }
-                        }
-                    }
-                    Err(e) => error!(error = %e, "processing: cannot read the journal to catch up"),
-                }
-            }
         }
     }
 }

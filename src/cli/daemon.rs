@@ -2,14 +2,15 @@
 //! root: it picks the simulated machine (`sim`) where the configuration says `kind = "mock"` and
 //! the real hardware elsewhere; the library's daemon sees only the traits.
 
-use super::runtime;
 use anyhow::{Context, Result};
 use clap::Args;
 use layerwise::acquisition::{self, RunOptions, RunSummary};
 use layerwise::clock::{SharedClock, SystemClock};
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
 use layerwise::hardware::Machine;
-use layerwise::pacs::{live::Pusher, Destination};
+use layerwise::pacs::live::{PushPlan, Pusher};
+use layerwise::pacs::Destination;
+use layerwise::shutdown::{self, Shutdown, StopReason};
 use std::path::{Path, PathBuf};
 
 #[derive(Args)]
@@ -23,59 +24,75 @@ impl RunArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.config)?;
         config.check_backends(&self.config)?;
+        // SIGTERM (systemd's stop) and SIGINT end the process's shutdown, and every run with it.
+        let process = Shutdown::new();
+        let _signals =
+            shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
         match config.build.builds_dir.clone() {
             None => {
-                let summary = run_daemon(&config, service_options())?;
+                let summary = run_daemon(&config, service_options(&process))?;
                 print_stopped(&summary);
                 Ok(())
             }
-            Some(builds) => run_builds(&config, &builds),
+            Some(builds) => run_builds(&config, &builds, &process),
         }
     }
 }
 
-fn service_options() -> RunOptions {
+/// The service's options: systemd told, the frames taken processed when a build ends, stopped
+/// by `process` (a child of it: the run also ends on its own).
+fn service_options(process: &Shutdown) -> RunOptions {
     let mut options = RunOptions::new();
     options.notify_systemd = true;
     options.drain_at_end = true;
+    options.shutdown = process.child();
     options
 }
 
 fn print_stopped(summary: &RunSummary) {
+    let reason = summary
+        .stop_reason
+        .as_ref()
+        .map_or_else(String::new, ToString::to_string);
     println!(
-        "stopped ({}): {} frames stored, {} missing",
-        summary.stop_reason, summary.stored, summary.missing
+        "stopped ({reason}): {} frames stored, {} missing",
+        summary.stored, summary.missing
     );
 }
 
 /// The daemon with `[build] builds_dir`: records into the build an operator started
 /// (`layerwise build start`), switches when the next one starts, waits while none is open.
-fn run_builds(config: &Config, builds: &Path) -> Result<()> {
+fn run_builds(config: &Config, builds: &Path, process: &Shutdown) -> Result<()> {
     use layerwise::acquisition::lifecycle::{self, Next};
     std::fs::create_dir_all(builds)
         .with_context(|| format!("cannot create [build] builds_dir {}", builds.display()))?;
+    let clock = SystemClock::shared();
     loop {
         let next = lifecycle::next(builds)?;
         match &next {
             Next::Wait => {
-                let started = runtime()?
-                    .block_on(lifecycle::wait_for_build(builds, true))
-                    .map_err(|e| anyhow::anyhow!(e))?;
-                if !started {
+                if !lifecycle::wait_for_build(builds, true, &clock, process)? {
                     println!("stopped (no build open)");
                     return Ok(());
                 }
             }
             Next::Record(order) => {
                 let build_config = lifecycle::config_for(config, builds, order);
-                let mut options = service_options();
-                options.stop_when = Some(Box::pin(lifecycle::changed(
+                let options = service_options(process);
+                // The order's change ends this run (the frames taken are processed first).
+                let watch = lifecycle::watch_order(
                     builds.to_path_buf(),
                     next.clone(),
-                )));
-                let summary = run_daemon(&build_config, options)?;
+                    clock.clone(),
+                    options.shutdown.clone(),
+                )
+                .context("cannot start the build order's watch")?;
+                let summary = run_daemon(&build_config, options);
+                // Every run ends with its shutdown requested: the watch ends too.
+                let _ = watch.join();
+                let summary = summary?;
                 print_stopped(&summary);
-                if !summary.stopped_on_request {
+                if !summary.stopped_on_request() {
                     return Ok(());
                 }
             }
@@ -93,35 +110,53 @@ fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
     })
 }
 
-/// Opens the machine and runs the daemon on it, with the push to every `[[pacs]]` beside it
-/// (its own threads: capture and processing never wait for an archive).
+/// Opens the machine and runs the daemon on it, with the page and the push to every `[[pacs]]`
+/// beside it (threads of their own: capture and processing never wait for a page or an
+/// archive). Those two outlive the capture loop: they stop once the run has returned (its frames
+/// processed), with its reason.
 fn run_daemon(config: &Config, mut options: RunOptions) -> Result<RunSummary> {
     let machine = open_machine(config, options.clock.clone())?;
-    // The page runs on a thread of its own and reads the build directory only.
-    let _page = super::serve::start_for_daemon(config);
-    let pusher = start_pusher(config, &options)?;
+    let after_run = Shutdown::new();
+    let page = super::serve::start_for_daemon(config, &after_run);
+    let pusher = start_pusher(config, &options, &after_run)?;
     if let Some(pusher) = &pusher {
         // Each instance written is pushed at once (the poll stays as the fallback).
         let waker = pusher.waker();
         options.on_instance = Some(std::sync::Arc::new(move || waker.wake()));
     }
-    let summary = runtime()?.block_on(acquisition::run(config, machine, options))?;
+    let result = acquisition::run(config, machine, options);
+    let reason = match &result {
+        Ok(summary) => summary
+            .stop_reason
+            .clone()
+            .unwrap_or(StopReason::TriggerEnded),
+        Err(e) => StopReason::failure_of(e),
+    };
+    let next_build_starts = matches!(reason, StopReason::BuildStopped { .. });
+    after_run.request(reason);
+    if let Some(page) = page {
+        page.join();
+    }
     if let Some(pusher) = pusher {
-        if summary.stopped_on_request {
-            // The next build starts now; this one's push goes on beside it (its queue is on
-            // disk: `layerwise push --build DIR` completes it after a restart).
-            std::thread::spawn(move || pusher.finish(PUSH_GRACE));
+        if next_build_starts {
+            // The next build starts now; this one's push goes on beside it for its grace (its
+            // queue is on disk: `layerwise push --build DIR` completes it after a restart).
+            std::thread::spawn(move || pusher.join());
         } else {
-            pusher.finish(PUSH_GRACE);
+            pusher.join();
         }
     }
-    Ok(summary)
+    Ok(result?)
 }
 
 /// How long the push goes on after the build stops, to send what is still pending.
 const PUSH_GRACE: std::time::Duration = std::time::Duration::from_secs(60);
 
-fn start_pusher(config: &Config, options: &RunOptions) -> Result<Option<Pusher>> {
+fn start_pusher(
+    config: &Config,
+    options: &RunOptions,
+    shutdown: &Shutdown,
+) -> Result<Option<Pusher>> {
     if config.pacs.is_empty() {
         return Ok(None);
     }
@@ -132,11 +167,16 @@ fn start_pusher(config: &Config, options: &RunOptions) -> Result<Option<Pusher>>
         .collect::<Result<Vec<_>, _>>()?;
     let dir = &config.build.output_dir;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let plan = PushPlan {
+        poll: std::time::Duration::from_millis(500),
+        shutdown: shutdown.clone(),
+        grace: PUSH_GRACE,
+    };
     Ok(Some(Pusher::start(
         dir,
         destinations,
         options.clock.clone(),
-        std::time::Duration::from_millis(500),
+        plan,
     )?))
 }
 
@@ -337,9 +377,13 @@ impl DemoArgs {
                 .map_err(|(_, message)| anyhow::anyhow!("--listen: {message}"))?;
         }
         let started = std::time::Instant::now();
+        let process = Shutdown::new();
+        let _signals =
+            shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
         let mut options = RunOptions::new();
         options.clock = SystemClock::shared();
         options.drain_at_end = true;
+        options.shutdown = process.child();
         let summary = run_daemon(&config, options)?;
         println!(
             "demo build of {layers} layers in {:.1} s: {} frames stored, {} missing, {} already there; see {}",

@@ -15,7 +15,7 @@ mod register;
 mod push;
 mod serve;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -76,7 +76,7 @@ pub enum Command {
     },
     /// Push a build's (or an export folder's) DICOM instances to a PACS: STOW-RS or C-STORE.
     Push(push::PushArgs),
-    /// Serve the operator page of a build directory (read-only), e.g. a finished build.
+    /// Serve the operator page of a build directory, e.g. a finished build.
     Serve(serve::ServeArgs),
     /// A whole simulated build: mock trigger, mock lights, mock camera, the real storage path.
     Demo(daemon::DemoArgs),
@@ -110,15 +110,6 @@ impl Command {
             Command::Alarm(args) => args.run(),
         }
     }
-}
-
-/// The tokio runtime of the daemon.
-fn runtime() -> Result<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-        .context("cannot start the async runtime")
 }
 
 /// An error with its causes, each said once: a cause whose text the message already contains

@@ -1,8 +1,9 @@
-//! `layerwise serve`: the operator page for any build directory, read-only.
+//! `layerwise serve`: the operator page for any build directory.
 
 use anyhow::{Context, Result};
 use clap::Args;
 use layerwise::config::WebConfig;
+use layerwise::shutdown::{self, Shutdown};
 use layerwise::web::WebServer;
 use std::path::PathBuf;
 
@@ -48,36 +49,37 @@ impl ServeArgs {
             .address()
             .map_err(|m| anyhow::anyhow!("--listen: {m}"))?
             .context("--listen must name an address")?;
-        let server = WebServer::start(&self.build, &config, addr)?;
+        let process = Shutdown::new();
+        let _signals =
+            shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
+        let server = WebServer::start(&self.build, &config, addr, &process)?;
         println!(
             "serving {} at http://{}/ (Ctrl-C stops)",
             self.build.display(),
             server.addr
         );
-        super::runtime()?.block_on(async {
-            let mut term =
-                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-            tokio::select! {
-                r = tokio::signal::ctrl_c() => r,
-                _ = term.recv() => Ok(()),
-            }
-        })?;
-        drop(server);
+        // Until SIGINT or SIGTERM: the receiver is ready (disconnected) once they came.
+        let _ = process.receiver().recv();
+        server.join();
         Ok(())
     }
 }
 
-/// Starts the page of the daemon's build when `[web] listen` is set. A page that cannot start
-/// (port taken, token unreadable) is logged, never a reason not to capture.
-pub fn start_for_daemon(config: &layerwise::config::Config) -> Option<WebServer> {
+/// Starts the page of the daemon's build when `[web] listen` is set, until `shutdown` is
+/// requested. A page that cannot start (port taken, token unreadable) is logged, never a reason
+/// not to capture.
+pub fn start_for_daemon(
+    config: &layerwise::config::Config,
+    shutdown: &Shutdown,
+) -> Option<WebServer> {
     let addr = config.web.address().ok()??;
-    match WebServer::start(&config.build.output_dir, &config.web, addr) {
+    match WebServer::start(&config.build.output_dir, &config.web, addr, shutdown) {
         Ok(server) => {
             tracing::info!(url = %format!("http://{}/", server.addr), "operator page");
             Some(server)
         }
         Err(e) => {
-            tracing::warn!(error = %e, "no operator page; capture goes on");
+            tracing::warn!(error = %layerwise::logging::Chain(&e), "no operator page; capture goes on");
             None
         }
     }

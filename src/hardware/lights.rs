@@ -11,10 +11,24 @@ use tracing::warn;
 
 #[derive(Debug, thiserror::Error)]
 pub enum LightsError {
-    #[error("lights relay {port}: {message}")]
-    Serial { port: String, message: String },
-    #[error("lights GPIO {chip}: {message}")]
-    Gpio { chip: String, message: String },
+    #[error("lights relay {port}: cannot open")]
+    SerialOpen {
+        port: String,
+        #[source]
+        source: serialport::Error,
+    },
+    #[error("lights relay {port}: cannot send the command")]
+    Serial {
+        port: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("lights GPIO {chip}")]
+    Gpio {
+        chip: String,
+        #[source]
+        source: gpiocdev::Error,
+    },
     #[error("lights: bad command string {key}: {message}")]
     Command { key: String, message: String },
     #[error("lights: kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure serial-relay, gpio or none")]
@@ -43,7 +57,7 @@ impl LightsGuard {
     pub fn all_off_logged(&mut self) {
         tracing::debug!("lights: all off");
         if let Err(e) = self.lights.all_off() {
-            warn!(error = %e, "lights: could not switch all lights off");
+            warn!(error = %crate::logging::Chain(&e), "lights: could not switch all lights off");
         }
     }
 }
@@ -127,9 +141,9 @@ impl SerialRelayLights {
         let port = serialport::new(&config.port, config.baud)
             .timeout(Duration::from_secs(2))
             .open()
-            .map_err(|e| LightsError::Serial {
+            .map_err(|source| LightsError::SerialOpen {
                 port: config.port.clone(),
-                message: e.to_string(),
+                source,
             })?;
         Ok(SerialRelayLights {
             port_name: config.port.clone(),
@@ -148,9 +162,9 @@ impl SerialRelayLights {
         self.port
             .write_all(bytes)
             .and_then(|_| self.port.flush())
-            .map_err(|e| LightsError::Serial {
+            .map_err(|source| LightsError::Serial {
                 port: self.port_name.clone(),
-                message: e.to_string(),
+                source,
             })
     }
 }
@@ -200,9 +214,9 @@ impl GpioLights {
         if config.active_low {
             builder.as_active_low();
         }
-        let request = builder.request().map_err(|e| LightsError::Gpio {
+        let request = builder.request().map_err(|source| LightsError::Gpio {
             chip: chip.clone(),
-            message: e.to_string(),
+            source,
         })?;
         Ok(GpioLights {
             chip,
@@ -224,9 +238,9 @@ impl Lights for GpioLights {
         };
         self.request
             .set_value(offset, value)
-            .map_err(|e| LightsError::Gpio {
+            .map_err(|source| LightsError::Gpio {
                 chip: self.chip.clone(),
-                message: e.to_string(),
+                source,
             })
     }
     fn all_off(&mut self) -> Result<(), LightsError> {

@@ -7,10 +7,20 @@ use std::time::Duration;
 use tracing::info;
 
 #[derive(Debug, thiserror::Error)]
-#[error("alarm message to {port}: {message}")]
-pub struct MessageError {
-    pub port: String,
-    pub message: String,
+pub enum MessageError {
+    #[error("alarm message to {port}: cannot open ({hint})")]
+    Open {
+        port: String,
+        hint: &'static str,
+        #[source]
+        source: serialport::Error,
+    },
+    #[error("alarm message to {port}: cannot write; the port is reopened for the next message")]
+    Write {
+        port: String,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// Where the alarm's message goes.
@@ -33,19 +43,14 @@ impl SerialMessage {
 
 impl MessageLink for SerialMessage {
     fn send(&mut self, bytes: &[u8]) -> Result<(), MessageError> {
-        let error = |message: String| MessageError {
-            port: self.config.port.clone(),
-            message,
-        };
         if self.port.is_none() {
             let port = serialport::new(&self.config.port, self.config.baud)
                 .timeout(Duration::from_secs(2))
                 .open()
-                .map_err(|e| {
-                    error(format!(
-                        "cannot open: {e}: {}",
-                        super::trigger::open_hint(&e)
-                    ))
+                .map_err(|source| MessageError::Open {
+                    port: self.config.port.clone(),
+                    hint: super::trigger::open_hint(&source),
+                    source,
                 })?;
             info!(port = %self.config.port, baud = self.config.baud, "inspection alarm: serial port open");
             self.port = Some(port);
@@ -54,11 +59,12 @@ impl MessageLink for SerialMessage {
             return Ok(());
         };
         let written = port.write_all(bytes).and_then(|_| port.flush());
-        written.map_err(|e| {
+        written.map_err(|source| {
             self.port = None;
-            error(format!(
-                "cannot write ({e}); the port is reopened for the next message"
-            ))
+            MessageError::Write {
+                port: self.config.port.clone(),
+                source,
+            }
         })
     }
 }

@@ -5,6 +5,7 @@ use crate::build_dir::status::TriggerHealth;
 use crate::clock::{Backoff, SharedClock};
 use crate::config::{Edge, GpioMode, GpioTriggerConfig, SerialTriggerConfig};
 use crate::shot::Phase;
+use crate::shutdown::Shutdown;
 use chrono::{DateTime, Utc};
 use regex::Regex;
 use serde::{Deserialize, Serialize};
@@ -25,22 +26,45 @@ pub struct LayerEvent {
 
 #[derive(Debug, thiserror::Error)]
 pub enum TriggerError {
-    #[error("trigger line pattern: {0}")]
-    Pattern(String),
-    #[error("{path}: {message}")]
-    Script { path: PathBuf, message: String },
-    #[error("GPIO {chip}: {message} (is the chip present, and is the service user in the group that owns it?)")]
-    Gpio { chip: PathBuf, message: String },
-    #[error("trigger channel closed")]
-    Closed,
+    #[error("trigger line pattern {pattern}")]
+    Pattern {
+        pattern: String,
+        #[source]
+        source: Box<regex::Error>,
+    },
+    #[error("trigger line pattern {pattern}: no named group `{group}`")]
+    PatternGroup {
+        pattern: String,
+        group: &'static str,
+    },
+    #[error("{}: cannot read", path.display())]
+    ScriptRead {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: line {line}: expected {expected}, found {found:?}", path.display())]
+    Script {
+        path: PathBuf,
+        line: usize,
+        expected: &'static str,
+        found: String,
+    },
+    #[error("GPIO {} (is the chip present, and is the service user in the group that owns it?)", chip.display())]
+    Gpio {
+        chip: PathBuf,
+        #[source]
+        source: gpiocdev::Error,
+    },
     #[error("trigger: kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure serial or gpio")]
     Simulated,
 }
 
-/// A source of layer signals. `Ok(None)` means the source has ended (a finished mock script);
-/// real printers never end: their triggers wait for the next signal.
+/// A source of layer signals. `Ok(None)` means the source has ended (a finished mock script) or
+/// `shutdown` was requested: real printers never end, their triggers wait for the next signal,
+/// looking at `shutdown` at least twice a second.
 pub trait Trigger: Send {
-    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError>;
+    fn next_event(&mut self, shutdown: &Shutdown) -> Result<Option<LayerEvent>, TriggerError>;
     /// Tells the trigger where the build stands (from the journal, at start), so counters resume.
     fn resume_after(&mut self, _last: Option<(u32, Phase)>) {}
     /// The trigger's health, shared with the daemon's status (taken before the trigger moves to
@@ -124,12 +148,16 @@ pub struct LineProtocol {
 
 impl LineProtocol {
     pub fn new(pattern: &str, pre: &str, post: &str) -> Result<LineProtocol, TriggerError> {
-        let regex = Regex::new(pattern).map_err(|e| TriggerError::Pattern(e.to_string()))?;
+        let regex = Regex::new(pattern).map_err(|source| TriggerError::Pattern {
+            pattern: pattern.to_string(),
+            source: Box::new(source),
+        })?;
         for group in ["layer", "phase"] {
             if !regex.capture_names().flatten().any(|n| n == group) {
-                return Err(TriggerError::Pattern(format!(
-                    "no named group `{group}` in {pattern}"
-                )));
+                return Err(TriggerError::PatternGroup {
+                    pattern: pattern.to_string(),
+                    group,
+                });
             }
         }
         Ok(LineProtocol {
@@ -257,8 +285,9 @@ impl SerialTrigger {
         })
     }
 
-    fn ensure_open(&mut self) {
-        while self.port.is_none() {
+    /// Opens the port, retrying with back-off, until it opens or `shutdown` is requested.
+    fn ensure_open(&mut self, shutdown: &Shutdown) {
+        while self.port.is_none() && !shutdown.is_requested() {
             match serialport::new(&self.config.port, self.config.baud)
                 .timeout(Duration::from_millis(500))
                 .open()
@@ -275,7 +304,8 @@ impl SerialTrigger {
                         "trigger: cannot open the serial port: {hint}");
                     self.health
                         .down(self.clock.now(), format!("{e}: {hint}"), true);
-                    self.backoff.wait(self.clock.as_ref());
+                    self.clock
+                        .sleep_unless(self.backoff.advance(), shutdown.receiver());
                 }
             }
         }
@@ -287,9 +317,12 @@ impl Trigger for SerialTrigger {
         self.health.clone()
     }
 
-    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+    fn next_event(&mut self, shutdown: &Shutdown) -> Result<Option<LayerEvent>, TriggerError> {
         let mut chunk = [0u8; 512];
         loop {
+            if shutdown.is_requested() {
+                return Ok(None);
+            }
             if let Some(event) = events_from_lines(
                 &self.protocol,
                 &mut self.lines,
@@ -299,7 +332,7 @@ impl Trigger for SerialTrigger {
                 self.health.signal(event.at);
                 return Ok(Some(event));
             }
-            self.ensure_open();
+            self.ensure_open(shutdown);
             let Some(port) = self.port.as_mut() else {
                 continue;
             };
@@ -319,7 +352,8 @@ impl Trigger for SerialTrigger {
                     self.port = None;
                     self.health
                         .down(self.clock.now(), format!("the port vanished: {e}"), false);
-                    self.clock.sleep(self.backoff.current());
+                    self.clock
+                        .sleep_unless(self.backoff.current(), shutdown.receiver());
                 }
             }
         }
@@ -413,9 +447,9 @@ impl GpioTrigger {
         if config.active_low {
             builder.as_active_low();
         }
-        let request = builder.request().map_err(|e| TriggerError::Gpio {
+        let request = builder.request().map_err(|source| TriggerError::Gpio {
             chip: config.chip.clone(),
-            message: e.to_string(),
+            source,
         })?;
         let counter = PulseCounter::new(config.mode, config.first_layer);
         Ok(GpioTrigger {
@@ -432,15 +466,19 @@ impl Trigger for GpioTrigger {
         SharedHealth::connected(&format!("gpio {}", self.config.chip.display()))
     }
 
-    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+    fn next_event(&mut self, shutdown: &Shutdown) -> Result<Option<LayerEvent>, TriggerError> {
+        let gpio = |source| TriggerError::Gpio {
+            chip: self.config.chip.clone(),
+            source,
+        };
         loop {
-            let edge = self
-                .request
-                .read_edge_event()
-                .map_err(|e| TriggerError::Gpio {
-                    chip: self.config.chip.clone(),
-                    message: e.to_string(),
-                })?;
+            // An edge, or another look at the shutdown twice a second.
+            while !self.request.wait_edge_event(SHUTDOWN_LOOK).map_err(gpio)? {
+                if shutdown.is_requested() {
+                    return Ok(None);
+                }
+            }
+            let edge = self.request.read_edge_event().map_err(gpio)?;
             let pulse = match self.config.mode {
                 GpioMode::Alternating => Pulse::Line,
                 GpioMode::PerPhase if Some(edge.offset) == self.config.pre_line => Pulse::PreLine,
@@ -461,35 +499,61 @@ impl Trigger for GpioTrigger {
     }
 }
 
-/// Runs a trigger on its own thread, forwarding events into a channel. The thread ends when the
-/// trigger ends, fails, or the receiver is dropped. Every event's time goes into `health` (the
+/// How often a trigger waiting for a signal looks at the shutdown.
+pub const SHUTDOWN_LOOK: Duration = Duration::from_millis(500);
+
+/// The trigger's thread and its events.
+pub struct Events {
+    receiver: crossbeam_channel::Receiver<Result<LayerEvent, TriggerError>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Events {
+    /// The events, in order; disconnected once the trigger has ended (or failed, after its
+    /// error).
+    pub fn receiver(&self) -> &crossbeam_channel::Receiver<Result<LayerEvent, TriggerError>> {
+        &self.receiver
+    }
+
+    /// Waits for the trigger's thread to end (it does once the shutdown is requested).
+    pub fn join(mut self) {
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+/// Runs a trigger on its own thread, forwarding events into a channel (64 deep: a waiting
+/// trigger blocks, the printer's signals wait in its own buffer). The thread ends when the
+/// trigger ends, fails, or `shutdown` is requested. Every event's time goes into `health` (the
 /// one `Trigger::health` gave the daemon's status: its "last signal"), whatever the backend.
-pub fn spawn(
-    mut trigger: Box<dyn Trigger>,
-    health: SharedHealth,
-) -> tokio::sync::mpsc::Receiver<Result<LayerEvent, TriggerError>> {
-    let (tx, rx) = tokio::sync::mpsc::channel(64);
+pub fn spawn(mut trigger: Box<dyn Trigger>, health: SharedHealth, shutdown: Shutdown) -> Events {
+    let (tx, rx) = crossbeam_channel::bounded(64);
     let spawned = std::thread::Builder::new()
         .name("trigger".into())
         .spawn(move || loop {
-            match trigger.next_event() {
+            match trigger.next_event(&shutdown) {
                 Ok(Some(event)) => {
                     health.signal(event.at);
-                    if tx.blocking_send(Ok(event)).is_err() {
-                        return;
+                    crossbeam_channel::select! {
+                        send(tx, Ok(event)) -> sent => if sent.is_err() { return },
+                        recv(shutdown.receiver()) -> _ => return,
                     }
                 }
                 Ok(None) => return,
                 Err(e) => {
-                    let _ = tx.blocking_send(Err(e));
+                    let _ = tx.try_send(Err(e));
                     return;
                 }
             }
         });
-    if let Err(e) = spawned {
-        warn!(error = %e, "trigger: cannot start its thread");
+    let thread = spawned
+        .map_err(|e| warn!(error = %e, "trigger: cannot start its thread"))
+        .ok();
+    Events {
+        receiver: rx,
+        thread,
     }
-    rx
 }
 
 #[cfg(test)]

@@ -4,22 +4,17 @@
 
 use super::{Destination, PacsError, Queue};
 use crate::clock::{Backoff, SharedClock};
-use crossbeam_channel::{bounded, select, unbounded, Receiver, Sender};
+use crate::logging::Chain;
+use crate::shutdown::Shutdown;
+use crossbeam_channel::{bounded, select, Receiver, Sender};
 use std::path::Path;
 use std::thread::JoinHandle;
 use std::time::Duration;
 use tracing::{error, info, warn};
 
-enum Control {
-    /// Look for new instances now.
-    Wake,
-    /// Push what is pending for at most this long, then stop.
-    Finish(Duration),
-}
-
 /// The running push threads.
 pub struct Pusher {
-    threads: Vec<(Sender<Control>, JoinHandle<()>)>,
+    threads: Vec<JoinHandle<()>>,
     waker: PushWaker,
 }
 
@@ -38,13 +33,24 @@ impl PushWaker {
     }
 }
 
+/// How a push thread runs and when it stops.
+#[derive(Clone)]
+pub struct PushPlan {
+    /// How often it looks for new instances without a wake.
+    pub poll: Duration,
+    /// When requested, each thread pushes what is pending for at most `grace`, then stops; what
+    /// is left stays pending in the logs for the next start or `layerwise push`.
+    pub shutdown: Shutdown,
+    pub grace: Duration,
+}
+
 impl Pusher {
     /// Opens each destination's log under `root` and starts its thread.
     pub fn start(
         root: &Path,
         destinations: Vec<Destination>,
         clock: SharedClock,
-        poll: Duration,
+        plan: PushPlan,
     ) -> Result<Pusher, PacsError> {
         let with_senders = destinations
             .into_iter()
@@ -53,7 +59,7 @@ impl Pusher {
                 (d, sender)
             })
             .collect();
-        Pusher::start_with(root, with_senders, clock, poll)
+        Pusher::start_with(root, with_senders, clock, plan)
     }
 
     /// [`Pusher::start`] with the sender of each destination given.
@@ -61,34 +67,26 @@ impl Pusher {
         root: &Path,
         destinations: Vec<(Destination, Box<dyn super::Sender>)>,
         clock: SharedClock,
-        poll: Duration,
+        plan: PushPlan,
     ) -> Result<Pusher, PacsError> {
         let mut threads = Vec::new();
         let mut waker = PushWaker::default();
         for (destination, sender) in destinations {
             let name = destination.name.clone();
             let queue = Queue::open(root, destination)?;
-            let (control, inbox) = unbounded();
             let (wake, woken) = bounded(1);
-            let clock = clock.clone();
+            let (clock, plan) = (clock.clone(), plan.clone());
             let thread = std::thread::Builder::new()
                 .name(format!("pacs-{name}"))
-                .spawn(move || push_loop(queue, sender, (inbox, woken), clock, poll))
-                .map_err(|e| PacsError::Transport {
+                .spawn(move || push_loop(queue, sender, woken, clock, plan))
+                .map_err(|source| PacsError::Thread {
                     destination: name,
-                    message: format!("cannot start the push thread: {e}"),
+                    source,
                 })?;
-            threads.push((control, thread));
+            threads.push(thread);
             waker.wakes.push(wake);
         }
         Ok(Pusher { threads, waker })
-    }
-
-    /// Makes every thread look for new instances now.
-    pub fn wake(&self) {
-        for (control, _) in &self.threads {
-            let _ = control.send(Control::Wake);
-        }
     }
 
     /// A handle that wakes the threads without blocking (for the processing worker).
@@ -96,13 +94,10 @@ impl Pusher {
         self.waker.clone()
     }
 
-    /// Lets every thread push what is pending for up to `grace`, then waits for them to stop.
-    /// What is left stays pending in the logs for the next start or `layerwise push`.
-    pub fn finish(self, grace: Duration) {
-        for (control, _) in &self.threads {
-            let _ = control.send(Control::Finish(grace));
-        }
-        for (_, thread) in self.threads {
+    /// Waits for every thread to stop (they do once the plan's shutdown is requested, within its
+    /// grace).
+    pub fn join(self) {
+        for thread in self.threads {
             let _ = thread.join();
         }
     }
@@ -111,13 +106,14 @@ impl Pusher {
 fn push_loop(
     mut queue: Queue,
     mut sender: Box<dyn super::Sender>,
-    (inbox, mut woken): (Receiver<Control>, Receiver<()>),
+    mut woken: Receiver<()>,
     clock: SharedClock,
-    poll: Duration,
+    plan: PushPlan,
 ) {
     let [first, longest] = queue.destination.backoff;
     let mut backoff = Backoff::new(first, longest);
     let mut deadline: Option<Duration> = None;
+    let mut stopping = plan.shutdown.receiver().clone();
     let name = queue.destination.name.clone();
     loop {
         let mut backing_off = true;
@@ -129,11 +125,11 @@ fn push_loop(
                     info!(destination = %name, "pacs: everything pushed");
                     return;
                 }
-                poll
+                plan.poll
             }
             Err(PacsError::Transport { .. }) => backoff.advance(),
             Err(e) => {
-                error!(destination = %name, error = %e, "pacs: cannot record the push");
+                error!(destination = %name, error = %Chain(&e), "pacs: cannot record the push");
                 backoff.advance()
             }
         };
@@ -149,25 +145,29 @@ fn push_loop(
             None => wait,
         };
         let timer = clock.after(wait);
-        loop {
-            select! {
-                recv(inbox) -> message => match message {
-                    Ok(Control::Wake) => break,
-                    Ok(Control::Finish(grace)) => {
-                        deadline = Some(clock.elapsed() + grace);
-                        break;
-                    }
-                    Err(_) => return,
-                },
-                // An instance was written: push it now, unless the archive is unreachable
-                // (then the back-off stands).
-                recv(woken) -> wake => match wake {
-                    Ok(()) if !backing_off => break,
-                    Ok(()) => {}
-                    Err(_) => woken = crossbeam_channel::never(),
-                },
-                recv(timer) -> _ => break,
+        select! {
+            // Stopping: what is pending is pushed for at most the grace.
+            recv(stopping) -> _ => {
+                deadline = Some(clock.elapsed() + plan.grace);
+                stopping = crossbeam_channel::never();
             }
+            // An instance was written: push it now, unless the archive is unreachable (then the
+            // back-off stands).
+            recv(woken) -> wake => match wake {
+                Ok(()) if !backing_off => {}
+                Ok(()) => {
+                    // Wait out the back-off; a wake meanwhile changes nothing.
+                    select! {
+                        recv(stopping) -> _ => {
+                            deadline = Some(clock.elapsed() + plan.grace);
+                            stopping = crossbeam_channel::never();
+                        }
+                        recv(timer) -> _ => {}
+                    }
+                }
+                Err(_) => woken = crossbeam_channel::never(),
+            },
+            recv(timer) -> _ => {}
         }
     }
 }
@@ -246,11 +246,17 @@ mod tests {
         };
         // A manual clock that is never advanced: the poll (an hour) never comes.
         let clock: SharedClock = std::sync::Arc::new(ManualClock::new());
+        let shutdown = Shutdown::new();
+        let plan = PushPlan {
+            poll: Duration::from_secs(3600),
+            shutdown: shutdown.clone(),
+            grace: Duration::ZERO,
+        };
         let pusher = Pusher::start_with(
             root,
             vec![(destination, Box::new(Recording(tx)))],
             clock,
-            Duration::from_secs(3600),
+            plan,
         )
         .unwrap();
         // The first pass pushes what is on disk, then the thread waits for the poll or a wake.
@@ -262,6 +268,7 @@ mod tests {
         waker.wake();
         waker.wake();
         assert_eq!(received.recv_timeout(Duration::from_secs(30)), Ok(second));
-        pusher.finish(Duration::ZERO);
+        shutdown.request(crate::shutdown::StopReason::TriggerEnded);
+        pusher.join();
     }
 }

@@ -34,6 +34,12 @@ pub enum PacsError {
         destination: String,
         message: String,
     },
+    #[error("{destination}: cannot start the push thread")]
+    Thread {
+        destination: String,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// How an archive is reached.

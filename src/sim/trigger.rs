@@ -5,6 +5,7 @@ use crate::clock::{SharedClock, SystemClock};
 use crate::config::MockTriggerConfig;
 use crate::hardware::trigger::{LayerEvent, LineProtocol, SharedHealth, Trigger, TriggerError};
 use crate::shot::Phase;
+use crate::shutdown::Shutdown;
 use std::collections::VecDeque;
 use std::path::Path;
 use std::time::Duration;
@@ -61,11 +62,12 @@ impl MockTrigger {
 }
 
 fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
-    let text =
-        crate::fsutil::read_text_bounded(path, 16 << 20).map_err(|e| TriggerError::Script {
+    let text = crate::fsutil::read_text_bounded(path, 16 << 20).map_err(|source| {
+        TriggerError::ScriptRead {
             path: path.to_path_buf(),
-            message: format!("cannot read: {e}"),
-        })?;
+            source,
+        }
+    })?;
     let protocol = LineProtocol::default_protocol();
     let mut steps = VecDeque::new();
     for (n, line) in text.lines().enumerate() {
@@ -76,10 +78,9 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
         if let Some(ms) = line.strip_prefix("WAIT ") {
             let ms: u64 = ms.trim().parse().map_err(|_| TriggerError::Script {
                 path: path.to_path_buf(),
-                message: format!(
-                    "line {}: expected `WAIT <milliseconds>`, found {line:?}",
-                    n + 1
-                ),
+                line: n + 1,
+                expected: "`WAIT <milliseconds>`",
+                found: line.to_string(),
             })?;
             steps.push_back(ScriptStep::Wait(Duration::from_millis(ms)));
         } else if let Some((layer, phase)) = protocol.parse(line) {
@@ -87,10 +88,9 @@ fn parse_script(path: &Path) -> Result<VecDeque<ScriptStep>, TriggerError> {
         } else {
             return Err(TriggerError::Script {
                 path: path.to_path_buf(),
-                message: format!(
-                    "line {}: expected `LAYER <n> PRE|POST` or `WAIT <ms>`, found {line:?}",
-                    n + 1
-                ),
+                line: n + 1,
+                expected: "`LAYER <n> PRE|POST` or `WAIT <ms>`",
+                found: line.to_string(),
             });
         }
     }
@@ -102,22 +102,30 @@ impl Trigger for MockTrigger {
         SharedHealth::connected("simulated printer")
     }
 
-    fn next_event(&mut self) -> Result<Option<LayerEvent>, TriggerError> {
+    fn next_event(&mut self, shutdown: &Shutdown) -> Result<Option<LayerEvent>, TriggerError> {
         if let Some(rx) = &self.channel {
-            return Ok(rx.recv().ok());
+            return Ok(crossbeam_channel::select! {
+                recv(rx) -> event => event.ok(),
+                recv(shutdown.receiver()) -> _ => None,
+            });
         }
         loop {
-            match self.steps.pop_front() {
+            let stopped = match self.steps.pop_front() {
                 None => return Ok(None),
-                Some(ScriptStep::Wait(d)) => self.clock.sleep(d),
+                Some(ScriptStep::Wait(d)) => self.clock.sleep_unless(d, shutdown.receiver()),
                 Some(ScriptStep::Signal(layer, phase)) => {
-                    self.clock.sleep(self.interval);
+                    if self.clock.sleep_unless(self.interval, shutdown.receiver()) {
+                        return Ok(None);
+                    }
                     return Ok(Some(LayerEvent {
                         layer,
                         phase,
                         at: self.clock.now(),
                     }));
                 }
+            };
+            if stopped {
+                return Ok(None);
             }
         }
     }

@@ -48,9 +48,22 @@ pub struct CalibrationResult {
 pub enum CalibrationPageError {
     #[error("{0}")]
     Invalid(String),
-    #[error("{path}: {source}")]
+    #[error("{}: cannot read the frame", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: cannot decode the frame", path.display())]
+    Decode {
+        path: PathBuf,
+        #[source]
+        source: crate::rectify::RectifyError,
+    },
+    #[error("{}", path.display())]
     Write {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
 }
@@ -101,14 +114,21 @@ pub fn save_and_register(
             "a point is outside the frame or not a number".into(),
         ));
     }
-    let (width, height) = image::image_dimensions(original)
-        .or_else(|_| {
-            let bytes = std::fs::read(original).map_err(|e| e.to_string())?;
+    let (width, height) = match image::image_dimensions(original) {
+        Ok(size) => size,
+        Err(_) => {
+            let bytes = std::fs::read(original).map_err(|source| CalibrationPageError::Read {
+                path: original.to_path_buf(),
+                source,
+            })?;
             crate::rectify::decode_frame(&bytes)
                 .map(|i| (i.width(), i.height()))
-                .map_err(|e| e.to_string())
-        })
-        .map_err(|e| CalibrationPageError::Invalid(format!("{}: {e}", original.display())))?;
+                .map_err(|source| CalibrationPageError::Decode {
+                    path: original.to_path_buf(),
+                    source,
+                })?
+        }
+    };
     let dir = build_dir.join(CALIBRATION_DIR);
     let write_error = |path: &Path| {
         let path = path.to_path_buf();
@@ -181,7 +201,7 @@ pub fn save_and_register(
                 .first()
                 .map(|i| (i.fit.initial_correlation, i.fit.correlation));
         }
-        Err(e) => result.error = Some(e.to_string()),
+        Err(e) => result.error = Some(crate::logging::chain(&e)),
     }
     result.seconds = started.elapsed().as_secs_f64();
     Ok(result)

@@ -1,7 +1,9 @@
 //! The operator page: the newest layer of every view with its vectors, the build's timeline and
 //! health, served over HTTP from what is on disk in a build directory (journal, status.json,
-//! originals, calibration), read-only. The daemon starts it beside the capture path and
-//! `layerwise serve --build DIR` serves any build, finished or being written by another process.
+//! originals, calibration). It only reads the build, except the calibration page, which saves
+//! points files and calibrations into it when `web.calibration_page` allows. The daemon starts it
+//! beside the capture path and `layerwise serve --build DIR` serves any build, finished or being
+//! written by another process.
 //!
 //! The server runs on its own thread with its own small runtime, so no request, slow client or
 //! picture being encoded can take time from the capture path. It watches the journal (a stat
@@ -19,7 +21,8 @@ use crate::config::WebConfig;
 use crate::geometry::Grid;
 use crate::series::BuildRecord;
 use crate::shot::View;
-use crate::vectors::LayerIndex;
+use crate::shutdown::Shutdown;
+use crate::vectors::{LayerIndex, VectorError};
 use preview::{Pictures, Rectification};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -37,17 +40,22 @@ const STATUS_PERIOD: Duration = Duration::from_secs(1);
 
 #[derive(Debug, thiserror::Error)]
 pub enum WebError {
-    #[error(
-        "cannot listen on {addr}: {source}; set web.listen to a free address, or \"\" for no page"
-    )]
+    #[error("cannot listen on {addr} (set web.listen to a free address, or \"\" for no page)")]
     Listen {
         addr: SocketAddr,
+        #[source]
         source: std::io::Error,
     },
-    #[error("web.token_file {path}: {message}")]
-    Token { path: PathBuf, message: String },
-    #[error("cannot start the page server: {0}")]
-    Runtime(std::io::Error),
+    #[error("web.token_file {} (write the token, one line, into it)", path.display())]
+    TokenRead {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("web.token_file {}: must hold one token of at least 16 characters without spaces (e.g. from `openssl rand -hex 32`)", path.display())]
+    TokenInvalid { path: PathBuf },
+    #[error("cannot start the page server")]
+    Runtime(#[source] std::io::Error),
 }
 
 /// What is known of the build from its configuration snapshot (once the daemon wrote it).
@@ -58,7 +66,7 @@ pub(crate) struct BuildInfo {
     pub vectors_file: Option<PathBuf>,
     /// How printer layers pair with the vector file's layers (docs/frames.md).
     pub numbering: crate::vectors::LayerNumbering,
-    pub vectors: OnceLock<Result<LayerIndex, String>>,
+    pub vectors: OnceLock<Result<LayerIndex, Arc<VectorError>>>,
     /// What the status report takes from the build's configuration.
     pub report: status::ReportSettings,
 }
@@ -81,19 +89,19 @@ impl BuildInfo {
     }
 
     /// The vector file's layer index, read once.
-    pub fn vectors(&self) -> Option<Result<&LayerIndex, String>> {
+    pub fn vectors(&self) -> Option<Result<&LayerIndex, Arc<VectorError>>> {
         let path = self.vectors_file.as_ref()?;
         Some(
             self.vectors
-                .get_or_init(|| LayerIndex::build(path).map_err(|e| e.to_string()))
+                .get_or_init(|| LayerIndex::build(path).map_err(Arc::new))
                 .as_ref()
-                .map_err(Clone::clone),
+                .map_err(Arc::clone),
         )
     }
 }
 
 /// Everything the handlers share.
-pub(crate) struct Shared {
+pub(crate) struct PageState {
     pub dir: PathBuf,
     pub config: WebConfig,
     pub token: Option<String>,
@@ -105,10 +113,11 @@ pub(crate) struct Shared {
     pub encode: Semaphore,
     pub updates: watch::Sender<u64>,
     pub streams: AtomicUsize,
-    pub stop: watch::Receiver<bool>,
+    /// The server's stop: open event streams end on it.
+    pub stop: Shutdown,
 }
 
-impl Shared {
+impl PageState {
     /// The build's configuration snapshot, read once it exists.
     pub fn info(&self) -> Option<Arc<BuildInfo>> {
         let mut info = self.info.lock().unwrap_or_else(|e| e.into_inner());
@@ -135,17 +144,24 @@ impl Shared {
     }
 }
 
-/// A running page server; dropping it stops the server.
+/// A running page server. It stops when the shutdown it was started with is requested, or when
+/// [`WebServer::stop`] is called (or it is dropped).
 pub struct WebServer {
     pub addr: SocketAddr,
-    stop: watch::Sender<bool>,
+    /// A child of the shutdown it was started with.
+    stop: Shutdown,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl WebServer {
     /// Listens on `addr` (port 0: any free port, see [`WebServer::addr`]) and serves the build
-    /// directory `dir` from a thread of its own.
-    pub fn start(dir: &Path, config: &WebConfig, addr: SocketAddr) -> Result<WebServer, WebError> {
+    /// directory `dir` from a thread of its own until `shutdown` is requested.
+    pub fn start(
+        dir: &Path,
+        config: &WebConfig,
+        addr: SocketAddr,
+        shutdown: &Shutdown,
+    ) -> Result<WebServer, WebError> {
         let token = match &config.token_file {
             Some(path) => Some(read_token(path)?),
             None => None,
@@ -161,13 +177,13 @@ impl WebServer {
             .on_thread_start(lower_priority)
             .build()
             .map_err(WebError::Runtime)?;
-        let (stop_tx, stop_rx) = watch::channel(false);
+        let stop = shutdown.child();
         // What is on disk already is read before the first request is answered.
         let mut timeline = Timeline::new(dir);
         if let Err(e) = timeline.refresh() {
             warn!(dir = %dir.display(), error = %e, "page server: cannot read the journal yet");
         }
-        let shared = Arc::new(Shared {
+        let shared = Arc::new(PageState {
             dir: dir.to_path_buf(),
             config: config.clone(),
             token,
@@ -178,8 +194,9 @@ impl WebServer {
             encode: Semaphore::new(1),
             updates: watch::channel(0).0,
             streams: AtomicUsize::new(0),
-            stop: stop_rx.clone(),
+            stop: stop.clone(),
         });
+        let server_stop = stop.clone();
         let thread = std::thread::Builder::new()
             .name("layerwise-web".into())
             .spawn(move || {
@@ -197,10 +214,9 @@ impl WebServer {
                     tokio::spawn(watch_build(shared.clone()));
                     let app = routes::router(shared.clone())
                         .into_make_service_with_connect_info::<listener::Busy>();
-                    let mut stop = stop_rx;
                     let served = axum::serve(listener, app)
                         .with_graceful_shutdown(async move {
-                            let _ = stop.wait_for(|s| *s).await;
+                            server_stop.requested().await;
                         })
                         .await;
                     if let Err(e) = served {
@@ -213,18 +229,40 @@ impl WebServer {
             .map_err(WebError::Runtime)?;
         Ok(WebServer {
             addr,
-            stop: stop_tx,
+            stop,
             thread: Some(thread),
         })
+    }
+
+    /// Stops the server (open event streams end, requests being answered finish) and waits for
+    /// its thread.
+    pub fn stop(mut self, reason: crate::shutdown::StopReason) {
+        self.stop.request(reason);
+        self.wait();
+    }
+
+    /// Waits for the server to stop (once the shutdown it was started with is requested).
+    pub fn join(mut self) {
+        self.wait();
+    }
+
+    fn wait(&mut self) {
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
     }
 }
 
 impl Drop for WebServer {
+    /// A server dropped without [`WebServer::stop`] stops too (its own shutdown, a child of the
+    /// one it was started with, is requested).
     fn drop(&mut self) {
-        let _ = self.stop.send(true);
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
+        if !self.stop.is_requested() {
+            self.stop.request(crate::shutdown::StopReason::Terminated(
+                crate::shutdown::TermSignal::Term,
+            ));
         }
+        self.wait();
     }
 }
 
@@ -236,17 +274,16 @@ fn lower_priority() {
 }
 
 fn read_token(path: &Path) -> Result<String, WebError> {
-    let error = |message: String| WebError::Token {
-        path: path.to_path_buf(),
-        message,
-    };
-    let text = crate::fsutil::read_text_bounded(path, 4096)
-        .map_err(|e| error(format!("{e}; write the token (one line) into it")))?;
+    let text =
+        crate::fsutil::read_text_bounded(path, 4096).map_err(|source| WebError::TokenRead {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let token = text.trim().to_string();
     if token.len() < 16 || token.chars().any(|c| c.is_whitespace() || c.is_control()) {
-        return Err(error(
-            "must hold one token of at least 16 characters without spaces (e.g. from `openssl rand -hex 32`)".into(),
-        ));
+        return Err(WebError::TokenInvalid {
+            path: path.to_path_buf(),
+        });
     }
     Ok(token)
 }
@@ -254,10 +291,10 @@ fn read_token(path: &Path) -> Result<String, WebError> {
 /// Looks at the journal, the inspection log and status.json every [`WATCH_PERIOD`]; when they changed, reads what
 /// is new, remakes the status (at most every [`STATUS_PERIOD`]), tells the open pages, and
 /// makes the newest layer's previews ahead of their request.
-async fn watch_build(shared: Arc<Shared>) {
+async fn watch_build(shared: Arc<PageState>) {
     let mut tick = tokio::time::interval(WATCH_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut stop = shared.stop.clone();
+    let stop = shared.stop.clone();
     let mut seen: Option<(u64, Option<SystemTime>)> = None;
     let mut status_at: Option<Instant> = None;
     let mut pending = true;
@@ -266,7 +303,7 @@ async fn watch_build(shared: Arc<Shared>) {
     loop {
         tokio::select! {
             _ = tick.tick() => {}
-            _ = stop.wait_for(|s| *s) => return,
+            _ = stop.requested() => return,
         }
         let s = shared.clone();
         let looked = tokio::task::spawn_blocking(move || {

@@ -20,16 +20,28 @@ pub enum Kind {
     Raw,
 }
 
+/// A picture kind that is neither `rectified` nor `raw`.
+#[derive(Debug, thiserror::Error)]
+#[error("unknown kind '{0}': expected rectified or raw")]
+pub struct UnknownKind(String);
+
 impl std::str::FromStr for Kind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Kind, String> {
+    type Err = UnknownKind;
+    fn from_str(s: &str) -> Result<Kind, UnknownKind> {
         match s {
             "rectified" => Ok(Kind::Rectified),
             "raw" => Ok(Kind::Raw),
-            _ => Err(format!("unknown kind '{s}': expected rectified or raw")),
+            _ => Err(UnknownKind(s.to_string())),
         }
     }
 }
+
+/// A crop that is not inside the picture.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "x, y, w, h are fractions of the picture: 0 ≤ x, y; w, h ≥ 0.0001; x + w ≤ 1 and y + h ≤ 1"
+)]
+pub struct RegionOutside;
 
 /// A part of a picture as fractions of its width and height from its top left corner.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,7 +61,7 @@ impl Region {
     };
 
     /// A region inside the picture, at least 1/10000 of it a side.
-    pub fn checked(x: f64, y: f64, w: f64, h: f64) -> Result<Region, String> {
+    pub fn checked(x: f64, y: f64, w: f64, h: f64) -> Result<Region, RegionOutside> {
         let ok = [x, y, w, h].iter().all(|v| v.is_finite())
             && x >= 0.0
             && y >= 0.0
@@ -57,10 +69,7 @@ impl Region {
             && h >= 1e-4
             && x + w <= 1.0 + 1e-9
             && y + h <= 1.0 + 1e-9;
-        ok.then_some(Region { x, y, w, h }).ok_or_else(|| {
-            "x, y, w, h are fractions of the picture: 0 ≤ x, y; w, h ≥ 0.0001; x + w ≤ 1 and y + h ≤ 1"
-                .to_string()
-        })
+        ok.then_some(Region { x, y, w, h }).ok_or(RegionOutside)
     }
 
     fn key(&self) -> [u64; 4] {
@@ -74,15 +83,16 @@ pub enum PreviewError {
         "this build has no calibration (calibration.toml): only the original frames can be shown"
     )]
     NoCalibration,
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Read {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error(transparent)]
     Decode(#[from] RectifyError),
-    #[error("cannot encode the picture: {0}")]
-    Encode(String),
+    #[error("cannot encode the picture")]
+    Encode(#[source] image::ImageError),
 }
 
 /// What rectified pictures are made with: the build's calibration and grid.
@@ -227,7 +237,7 @@ impl Pictures {
         };
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 85)
             .encode_image(&rgb_or_gray)
-            .map_err(|e| PreviewError::Encode(e.to_string()))?;
+            .map_err(PreviewError::Encode)?;
         let bytes = Bytes::from(jpeg);
         let key = (original.to_path_buf(), kind, region.key());
         lock(&self.cache).put(key, bytes.clone());

@@ -1,10 +1,11 @@
 //! The page's routes: static files, JSON, pictures, originals, vectors and the event stream.
 //! Requests name layers and views only; both are checked before anything reaches the disk.
 
-use super::preview::{Kind, PreviewError, Region};
+use super::preview::{self, Kind, PreviewError, Region};
 use super::timeline::LayerState;
-use super::Shared;
+use super::PageState;
 use crate::build_dir::RAW_DIR;
+use crate::logging::chain;
 use crate::shot::{Shot, View, MAX_LAYER};
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, Path, Query, Request, State};
@@ -29,7 +30,7 @@ const CALIBRATE_HTML: &str = include_str!("page/calibrate.html");
 /// Request bodies the page accepts (only the calibration page sends one).
 pub const MAX_BODY_BYTES: usize = 64 * 1024;
 
-pub(crate) fn router(shared: Arc<Shared>) -> Router {
+pub(crate) fn router(shared: Arc<PageState>) -> Router {
     Router::new()
         .route(
             "/",
@@ -125,7 +126,7 @@ async fn answering(request: Request, next: Next) -> Response {
 }
 
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
-async fn authorize(State(shared): State<Arc<Shared>>, request: Request, next: Next) -> Response {
+async fn authorize(State(shared): State<Arc<PageState>>, request: Request, next: Next) -> Response {
     let Some(token) = &shared.token else {
         return next.run(request).await;
     };
@@ -171,7 +172,7 @@ fn same(a: &[u8], b: &[u8]) -> bool {
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-async fn status(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError> {
+async fn status(State(shared): State<Arc<PageState>>) -> Result<Response, ApiError> {
     let cached = shared
         .status
         .read()
@@ -187,7 +188,7 @@ async fn status(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError>
 }
 
 /// The configured views, else those the journal shows.
-fn views(shared: &Shared) -> Vec<String> {
+fn views(shared: &PageState) -> Vec<String> {
     match shared.info() {
         Some(info) => info.views.iter().map(ToString::to_string).collect(),
         None => {
@@ -210,7 +211,7 @@ struct LayersQuery {
 }
 
 async fn layers(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Query(q): Query<LayersQuery>,
 ) -> Json<serde_json::Value> {
     let views = views(&shared);
@@ -242,7 +243,7 @@ async fn layers(
 }
 
 async fn layer(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Path(layer): Path<String>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     let n = parse_layer(&layer)?;
@@ -319,7 +320,7 @@ fn inspection_flags(
         .collect()
 }
 
-fn layer_state(shared: &Shared, n: u32) -> Result<LayerState, ApiError> {
+fn layer_state(shared: &PageState, n: u32) -> Result<LayerState, ApiError> {
     let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
     timeline
         .layers
@@ -330,7 +331,7 @@ fn layer_state(shared: &Shared, n: u32) -> Result<LayerState, ApiError> {
 
 /// The stored original of a view of a layer, from the journal, checked to be
 /// `raw/L{layer}_{view}.{ext}` in the build directory.
-fn original_path(shared: &Shared, n: u32, view: View) -> Result<std::path::PathBuf, ApiError> {
+fn original_path(shared: &PageState, n: u32, view: View) -> Result<std::path::PathBuf, ApiError> {
     let state = layer_state(shared, n)?;
     let file = state
         .view(view)
@@ -363,7 +364,7 @@ struct PictureQuery {
 }
 
 async fn picture(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Path((layer, view)): Path<(String, String)>,
     Query(q): Query<PictureQuery>,
 ) -> Result<Response, ApiError> {
@@ -373,10 +374,12 @@ async fn picture(
         .as_deref()
         .unwrap_or("rectified")
         .parse()
-        .map_err(bad)?;
+        .map_err(|e: preview::UnknownKind| bad(e.to_string()))?;
     let region = match (q.x, q.y, q.w, q.h) {
         (None, None, None, None) => Region::WHOLE,
-        (Some(x), Some(y), Some(w), Some(h)) => Region::checked(x, y, w, h).map_err(bad)?,
+        (Some(x), Some(y), Some(w), Some(h)) => {
+            Region::checked(x, y, w, h).map_err(|e| bad(e.to_string()))?
+        }
         _ => return Err(bad("a crop needs all of x, y, w and h")),
     };
     let path = original_path(&shared, n, view)?;
@@ -393,7 +396,7 @@ async fn picture(
 
 /// The picture from the cache, else made on the blocking pool, one at a time.
 async fn make_picture(
-    shared: &Arc<Shared>,
+    shared: &Arc<PageState>,
     path: std::path::PathBuf,
     kind: Kind,
     region: Region,
@@ -415,12 +418,12 @@ async fn make_picture(
     .await?
     .map_err(|e| match e {
         PreviewError::NoCalibration => not_found(e.to_string()),
-        other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, other.to_string()),
+        other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, chain(&other)),
     })
 }
 
 /// Makes the previews of the newest layer before a page asks for them.
-pub(crate) async fn prepare_newest(shared: &Arc<Shared>) {
+pub(crate) async fn prepare_newest(shared: &Arc<PageState>) {
     let newest = {
         let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
         timeline
@@ -440,7 +443,7 @@ pub(crate) async fn prepare_newest(shared: &Arc<Shared>) {
 }
 
 async fn original(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Path((layer, view)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
     let (n, view) = (parse_layer(&layer)?, parse_view(&view)?);
@@ -475,7 +478,7 @@ async fn original(
 const MAX_SEGMENTS: usize = 40_000;
 
 async fn vectors(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Path(layer): Path<String>,
 ) -> Result<Response, ApiError> {
     let n = parse_layer(&layer)?;
@@ -486,14 +489,14 @@ async fn vectors(
         let index = info
             .vectors()
             .ok_or_else(|| not_found("the build has no vector file (build.vectors)"))?
-            .map_err(|e| not_found(format!("the build's vector file: {e}")))?;
+            .map_err(|e| not_found(format!("the build's vector file: {}", chain(e.as_ref()))))?;
         let position = index
             .layer_map(info.numbering)
             .position(n)
             .ok_or_else(|| not_found(format!("the vector file has no layer {n}")))?;
         let layer = index
             .read_layer(position)
-            .map_err(|e| not_found(e.to_string()))?;
+            .map_err(|e| not_found(chain(&e)))?;
         Ok(layer_svg(&layer, &info.grid))
     })
     .await??;
@@ -531,7 +534,7 @@ pub fn layer_svg(layer: &crate::vectors::Layer, grid: &crate::geometry::Grid) ->
     )
 }
 
-async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError> {
+async fn events(State(shared): State<Arc<PageState>>) -> Result<Response, ApiError> {
     let open = shared.streams.fetch_add(1, Ordering::SeqCst);
     let guard = StreamGuard(shared.clone());
     if open >= shared.config.max_event_streams {
@@ -544,11 +547,11 @@ async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError>
     let stop = shared.stop.clone();
     let stream = futures_util::stream::unfold(
         (updates, stop, guard, true),
-        |(mut updates, mut stop, guard, first)| async move {
+        |(mut updates, stop, guard, first)| async move {
             if !first {
                 tokio::select! {
                     changed = updates.changed() => changed.ok()?,
-                    _ = stop.wait_for(|s| *s) => return None,
+                    _ = stop.requested() => return None,
                 }
             }
             let version = *updates.borrow_and_update();
@@ -570,7 +573,7 @@ async fn events(State(shared): State<Arc<Shared>>) -> Result<Response, ApiError>
 }
 
 /// Counts an open event stream until it ends.
-struct StreamGuard(Arc<Shared>);
+struct StreamGuard(Arc<PageState>);
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {
@@ -579,7 +582,7 @@ impl Drop for StreamGuard {
 }
 
 /// What an open page is told on every change: the newest layer and the status.
-fn update_event(shared: &Shared, version: u64) -> Event {
+fn update_event(shared: &PageState, version: u64) -> Event {
     let newest = shared
         .timeline
         .read()
@@ -614,7 +617,7 @@ struct CalibrationRequest {
 
 /// The calibration page's save: a new points file, then the registration (when enabled).
 async fn calibrate(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Json(request): Json<CalibrationRequest>,
 ) -> Result<Json<super::calibration::CalibrationResult>, ApiError> {
     if !shared.config.calibration_page {
@@ -649,11 +652,11 @@ async fn calibrate(
     })
     .await?
     .map(Json)
-    .map_err(|e| bad(e.to_string()))
+    .map_err(|e| bad(chain(&e)))
 }
 
 async fn overlay(
-    State(shared): State<Arc<Shared>>,
+    State(shared): State<Arc<PageState>>,
     Path(stamp): Path<String>,
 ) -> Result<Response, ApiError> {
     if !super::calibration::is_stamp(&stamp) {

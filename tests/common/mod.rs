@@ -23,7 +23,7 @@ pub async fn run_with(
 ) -> Result<layerwise::acquisition::RunSummary, layerwise::acquisition::AcquisitionError> {
     let (mut machine, simulation) = layerwise::sim::open(config, options.clock.clone())?;
     adjust(&mut machine, &simulation);
-    layerwise::acquisition::run(config, machine, options).await
+    layerwise::acquisition::run(config, machine, options)
 }
 use std::collections::BTreeMap;
 use std::path::Path;

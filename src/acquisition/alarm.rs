@@ -1,0 +1,395 @@
+//! The inspection alarm: the stack light (one channel of a relay board or GPIO set) and the
+//! printer message, on while a flag is open, on a thread of its own so that neither the light nor
+//! the serial line ever holds up the processing worker. Its changes go to `alarm.jsonl`
+//! (`build_dir::alarm`); an operator's acknowledgement there (`layerwise alarm ack`) switches it
+//! off.
+
+use crate::build_dir::alarm::{AlarmEvent, AlarmLog, AlarmState};
+use crate::build_dir::inspection::{InspectionRecord, Severity};
+use crate::build_dir::JournalError;
+use crate::clock::SharedClock;
+use crate::config::inspection::{AlarmConfig, AlarmSerialConfig, AlarmSeverity};
+use crate::hardware::lights::Lights;
+use crate::hardware::message::MessageLink;
+use crate::logging::Chain;
+use crate::shot::Light;
+use chrono::{DateTime, Utc};
+use crossbeam_channel::Sender;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Duration;
+use tracing::{error, info, warn};
+
+/// How often the alarm looks for an operator's acknowledgement in `alarm.jsonl`.
+pub const ACKNOWLEDGEMENT_POLL: Duration = Duration::from_millis(500);
+
+/// The stack light and the printer message, on while a flag is open.
+pub struct Alarm {
+    output: Box<dyn Lights>,
+    channel: Light,
+    level: Severity,
+    latch: bool,
+    on: bool,
+    message: Option<(Box<dyn MessageLink>, AlarmSerialConfig)>,
+    history: Option<AlarmLog>,
+    /// Events of the history already looked at.
+    seen: usize,
+}
+
+impl Alarm {
+    pub fn new(output: Box<dyn Lights>, config: &AlarmConfig) -> Alarm {
+        Alarm {
+            output,
+            channel: config.channel,
+            level: match config.severity {
+                AlarmSeverity::Warning => Severity::Warning,
+                AlarmSeverity::Critical => Severity::Critical,
+            },
+            latch: config.latch,
+            on: false,
+            message: None,
+            history: None,
+            seen: 0,
+        }
+    }
+
+    /// Also sends `config.serial`'s message through `link` whenever the alarm is raised.
+    pub fn with_message(
+        mut self,
+        link: Option<Box<dyn MessageLink>>,
+        config: &AlarmConfig,
+    ) -> Alarm {
+        self.message = link.zip(config.serial.clone());
+        self
+    }
+
+    /// Journals to `alarm.jsonl` in `build_dir`; a latched alarm the history leaves raised (the
+    /// daemon stopped before anyone acknowledged it) is switched on again.
+    pub fn resume(&mut self, build_dir: &Path, fsync: bool) -> Result<(), JournalError> {
+        let (log, events) = AlarmLog::open(&build_dir.join(crate::build_dir::ALARM), fsync)?;
+        self.history = Some(log);
+        self.seen = events.len();
+        if let AlarmState::Raised { layer, kind, .. } = AlarmState::replay(&events) {
+            if self.latch {
+                warn!(layer, kind = %kind, "inspection alarm still raised from before the restart (acknowledge with `layerwise alarm ack`)");
+                self.switch(true);
+            }
+        }
+        Ok(())
+    }
+
+    fn switch(&mut self, on: bool) -> bool {
+        match self.output.switch(self.channel, on) {
+            Ok(()) => {
+                self.on = on;
+                true
+            }
+            Err(e) => {
+                error!(error = %Chain(&e), on, "inspection alarm: cannot switch the stack light");
+                false
+            }
+        }
+    }
+
+    fn journal(&mut self, event: AlarmEvent) {
+        if let Some(log) = self.history.as_mut() {
+            match log.append(&event) {
+                Ok(()) => self.seen += 1,
+                Err(e) => error!(error = %Chain(&e), "inspection alarm: cannot write its history"),
+            }
+        }
+    }
+
+    /// Switches on for a record with a flag at the alarm's severity (and sends the message);
+    /// off after a clean layer unless latched.
+    pub fn after_layer(&mut self, record: &InspectionRecord, now: DateTime<Utc>) {
+        let raised = record.flags.iter().find(|f| f.severity >= self.level);
+        match raised {
+            Some(flag) if !self.on => {
+                if self.switch(true) {
+                    warn!(layer = record.layer, kind = %flag.kind, channel = %self.channel, "inspection alarm ON: layer {}: {}", record.layer, flag.message);
+                }
+                self.on = true;
+                if let Some((link, config)) = self.message.as_mut() {
+                    let text = config.render(
+                        record.layer,
+                        flag.kind.name(),
+                        &flag.severity.to_string(),
+                        flag.part,
+                    );
+                    match link.send(text.as_bytes()) {
+                        Ok(()) => {
+                            info!(layer = record.layer, port = %config.port, "inspection alarm: message sent to the printer")
+                        }
+                        Err(e) => {
+                            error!(error = %Chain(&e), "inspection alarm: the printer did not get the message")
+                        }
+                    }
+                }
+                self.journal(AlarmEvent::Raised {
+                    at: now,
+                    layer: record.layer,
+                    kind: flag.kind,
+                    severity: flag.severity,
+                    message: flag.message.clone(),
+                });
+            }
+            None if self.on && !self.latch && self.switch(false) => {
+                info!(
+                    layer = record.layer,
+                    "inspection alarm off: layer {} is clean", record.layer
+                );
+                self.journal(AlarmEvent::Cleared {
+                    at: now,
+                    layer: record.layer,
+                });
+            }
+            _ => {}
+        }
+    }
+
+    /// Looks for acknowledgements appended to the history since the last look (by `layerwise
+    /// alarm ack`) and switches off for one.
+    pub fn poll_acknowledgements(&mut self, build_dir: &Path) {
+        if self.history.is_none() {
+            return;
+        }
+        let events = match AlarmLog::read(&build_dir.join(crate::build_dir::ALARM)) {
+            Ok(events) => events,
+            Err(e) => {
+                error!(error = %Chain(&e), "inspection alarm: cannot read its history");
+                return;
+            }
+        };
+        let new = events.get(self.seen..).unwrap_or_default();
+        self.seen = events.len();
+        for event in new {
+            if let AlarmEvent::Acknowledged { by, .. } = event {
+                if self.on && self.switch(false) {
+                    info!(by = %by, "inspection alarm off: acknowledged by {by}");
+                }
+            }
+        }
+    }
+}
+
+/// The alarm on its own thread: layers' records come in over a channel, acknowledgements are
+/// looked for every [`ACKNOWLEDGEMENT_POLL`] on the clock. It ends when its input hangs up
+/// ([`AlarmThread::finish`], when the processing worker ends), after the records it was sent.
+pub struct AlarmThread {
+    records: Mutex<Option<Sender<InspectionRecord>>>,
+    thread: Mutex<Option<std::thread::JoinHandle<()>>>,
+}
+
+impl AlarmThread {
+    pub fn spawn(mut alarm: Alarm, build_dir: PathBuf, clock: SharedClock) -> AlarmThread {
+        let (records, inbox) = crossbeam_channel::unbounded::<InspectionRecord>();
+        let thread = std::thread::Builder::new()
+            .name("alarm".into())
+            .spawn(move || {
+                let mut poll = clock.after(ACKNOWLEDGEMENT_POLL);
+                loop {
+                    crossbeam_channel::select! {
+                        recv(inbox) -> record => match record {
+                            Ok(record) => alarm.after_layer(&record, clock.now()),
+                            Err(_) => {
+                                alarm.poll_acknowledgements(&build_dir);
+                                return;
+                            }
+                        },
+                        recv(poll) -> _ => poll = clock.after(ACKNOWLEDGEMENT_POLL),
+                    }
+                    alarm.poll_acknowledgements(&build_dir);
+                }
+            })
+            .map_err(|e| error!(error = %e, "inspection alarm: cannot start its thread"))
+            .ok();
+        AlarmThread {
+            records: Mutex::new(Some(records)),
+            thread: Mutex::new(thread),
+        }
+    }
+
+    pub fn after_layer(&self, record: &InspectionRecord) {
+        let records = self.records.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(records) = records.as_ref() {
+            let _ = records.send(record.clone());
+        }
+    }
+
+    /// Hangs up and waits for the thread to handle what it was sent.
+    pub fn finish(&self) {
+        drop(
+            self.records
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .take(),
+        );
+        let thread = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(thread) = thread {
+            let _ = thread.join();
+        }
+    }
+}
+
+impl Drop for AlarmThread {
+    /// A processing worker that never ran still lets the alarm's thread end.
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build_dir::inspection::{Flag, FlagKind};
+    use crate::hardware::lights::LightsError;
+    use crate::hardware::message::MessageError;
+    use std::sync::{Arc, Mutex};
+
+    /// Records what it is told.
+    struct Recorder(Arc<Mutex<Vec<(Light, bool)>>>);
+
+    impl Lights for Recorder {
+        fn switch(&mut self, light: Light, on: bool) -> Result<(), LightsError> {
+            self.0.lock().unwrap().push((light, on));
+            Ok(())
+        }
+        fn all_off(&mut self) -> Result<(), LightsError> {
+            Ok(())
+        }
+    }
+
+    struct Printer(Arc<Mutex<Vec<u8>>>);
+
+    impl MessageLink for Printer {
+        fn send(&mut self, bytes: &[u8]) -> Result<(), MessageError> {
+            self.0.lock().unwrap().extend_from_slice(bytes);
+            Ok(())
+        }
+    }
+
+    fn at() -> DateTime<Utc> {
+        chrono::DateTime::from_timestamp(0, 0).unwrap()
+    }
+
+    fn record(layer: u32, severity: Option<Severity>) -> InspectionRecord {
+        InspectionRecord {
+            layer,
+            at: at(),
+            ms: 0.0,
+            views: vec![],
+            plate: Default::default(),
+            parts: vec![],
+            flags: severity
+                .map(|severity| Flag {
+                    kind: FlagKind::Spatter,
+                    severity,
+                    part: None,
+                    view: "post_top".into(),
+                    bbox_mm: [0.0; 4],
+                    bbox_px: [0; 4],
+                    score: 2.0,
+                    threshold: 1.0,
+                    message: "spot".into(),
+                })
+                .into_iter()
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_alarm_switches_at_its_severity_and_latches_or_not() {
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let mut config = AlarmConfig {
+            channel: Light::Side,
+            ..AlarmConfig::default()
+        };
+        let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
+        alarm.after_layer(&record(1, Some(Severity::Warning)), at());
+        assert!(
+            log.lock().unwrap().is_empty(),
+            "below the default (critical)"
+        );
+        alarm.after_layer(&record(2, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(3, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(4, None), at());
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![(Light::Side, true)],
+            "latched, switched once"
+        );
+
+        log.lock().unwrap().clear();
+        config.latch = false;
+        config.severity = AlarmSeverity::Warning;
+        let mut alarm = Alarm::new(Box::new(Recorder(log.clone())), &config);
+        alarm.after_layer(&record(1, Some(Severity::Warning)), at());
+        alarm.after_layer(&record(2, None), at());
+        assert_eq!(
+            *log.lock().unwrap(),
+            vec![(Light::Side, true), (Light::Side, false)]
+        );
+    }
+
+    #[test]
+    fn one_message_per_raise_an_acknowledgement_switches_off_and_a_restart_relights() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let sent = Arc::new(Mutex::new(Vec::new()));
+        let config: AlarmConfig = toml::from_str(
+            r#"serial = { port = "/dev/null", message = "ALARM {layer} {kind} {severity} {part}\n" }"#,
+        )
+        .unwrap();
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config)
+            .with_message(Some(Box::new(Printer(sent.clone()))), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        alarm.after_layer(&record(6, Some(Severity::Critical)), at());
+        assert_eq!(
+            String::from_utf8_lossy(&sent.lock().unwrap()),
+            "ALARM 5 spatter critical -\n"
+        );
+        alarm.poll_acknowledgements(dir.path());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true)],
+            "no ack yet"
+        );
+
+        let path = dir.path().join(crate::build_dir::ALARM);
+        AlarmLog::append_only(&path)
+            .unwrap()
+            .append(&AlarmEvent::Acknowledged {
+                at: at(),
+                by: "ana".into(),
+                note: None,
+            })
+            .unwrap();
+        alarm.poll_acknowledgements(dir.path());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true), (Light::Top, false)]
+        );
+        alarm.after_layer(&record(9, Some(Severity::Critical)), at());
+        assert_eq!(
+            String::from_utf8_lossy(&sent.lock().unwrap()),
+            "ALARM 5 spatter critical -\nALARM 9 spatter critical -\n",
+            "raised again after the acknowledgement"
+        );
+        drop(alarm);
+
+        // Restarted with layer 9's raise open: the light comes back on, no message is resent.
+        lights.lock().unwrap().clear();
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
+        alarm.after_layer(&record(10, Some(Severity::Critical)), at());
+        assert_eq!(lights.lock().unwrap().len(), 1);
+        let events = AlarmLog::read(&path).unwrap();
+        assert!(matches!(
+            AlarmState::replay(&events),
+            AlarmState::Raised { layer: 9, .. }
+        ));
+    }
+}
