@@ -8,6 +8,7 @@ use crate::config::Config;
 use crate::hardware::camera::{capture_with_retries, CameraActor, RetryPolicy};
 use crate::hardware::lights::LightsGuard;
 use crate::hardware::Machine;
+use crate::logging::Chain;
 use crate::shot::{Light, Phase, Shot};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -88,7 +89,10 @@ pub fn check_machine(
             file: None,
         };
         if let Err(e) = lights.switch(light, true) {
-            result.error = Some(format!("the {light} light did not switch on: {e}"));
+            result.error = Some(format!(
+                "the {light} light did not switch on: {}",
+                Chain(&e)
+            ));
             lights.all_off_logged();
             shots.push(result);
             continue;
@@ -96,7 +100,10 @@ pub fn check_machine(
         clock.sleep(settle);
         let captured = capture_with_retries(&camera, &policy, &shot);
         if let Err(e) = lights.switch(light, false) {
-            result.error = Some(format!("the {light} light did not switch off: {e}"));
+            result.error = Some(format!(
+                "the {light} light did not switch off: {}",
+                Chain(&e)
+            ));
             lights.all_off_logged();
         }
         match captured {
@@ -113,7 +120,7 @@ pub fn check_machine(
                         result.mean = sum as f64 / (picture.as_raw().len().max(1) as f64 * 255.0);
                     }
                     Err(e) => {
-                        result.error = Some(format!("the frame does not decode: {e}"));
+                        result.error = Some(format!("the frame does not decode: {}", Chain(&e)));
                     }
                 }
                 if let Some(dir) = out {
@@ -122,7 +129,7 @@ pub fn check_machine(
                     result.file = Some(path);
                 }
             }
-            Err(e) => result.error = Some(e.to_string()),
+            Err(e) => result.error = Some(crate::logging::chain(&e)),
         }
         shots.push(result);
     }

@@ -82,7 +82,7 @@ impl Exposure {
                 Exposed::Frame { frame, attempts }
             }
             Err(CaptureFailure::Missing { attempts, last }) => {
-                let reason = format!("camera failed after {attempts} attempts: {last}");
+                let reason = format!("camera failed after {attempts} attempts: {}", Chain(&last));
                 self.parts.capture_failed(shot, reason.clone());
                 Exposed::Missing(reason)
             }

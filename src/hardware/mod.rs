@@ -79,14 +79,14 @@ pub fn camera_factory(config: &Config) -> CameraFactory {
         }
         #[cfg(not(feature = "gphoto"))]
         CameraConfig::Gphoto2(_) => Box::new(|| {
-            Err(CameraError::Failed(
-                "this layerwise was built without the `gphoto` feature; rebuild with it (needs libgphoto2-dev)".into(),
-            ))
+            Err(CameraError::Failed(camera::DriverError::said(
+                "this layerwise was built without the `gphoto` feature; rebuild with it (needs libgphoto2-dev)",
+            )))
         }),
         CameraConfig::Mock(_) => Box::new(|| {
-            Err(CameraError::Failed(
-                "kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure gphoto2".into(),
-            ))
+            Err(CameraError::Failed(camera::DriverError::said(
+                "kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure gphoto2",
+            )))
         }),
     }
 }

@@ -4,7 +4,7 @@
 
 use super::MockWorld;
 use crate::config::{MockCameraConfig, MockFrameFormat};
-use crate::hardware::camera::{Camera, CameraError, Frame};
+use crate::hardware::camera::{Camera, CameraError, DriverError, Frame};
 use crate::shot::{Light, Phase, Shot};
 use mock_camera::{
     Fault, FaultSchedule, Homography, Illumination, MockError, Renderer, Scene, ShotKey,
@@ -75,10 +75,12 @@ impl MockCameraBody {
 
 fn map_error(e: MockError) -> CameraError {
     match e {
-        MockError::Busy => CameraError::Busy("PTP 0x2019 device busy (mock)".into()),
-        MockError::Disconnected => CameraError::Disconnected("mock USB device gone".into()),
-        MockError::Timeout => CameraError::Timeout("mock timeout".into()),
-        MockError::Failed(m) => CameraError::Failed(m),
+        MockError::Busy => CameraError::Busy(DriverError::said("PTP 0x2019 device busy (mock)")),
+        MockError::Disconnected => {
+            CameraError::Disconnected(DriverError::said("mock USB device gone"))
+        }
+        MockError::Timeout => CameraError::Timeout(DriverError::said("mock timeout")),
+        MockError::Failed(m) => CameraError::Failed(DriverError::said(m)),
     }
 }
 

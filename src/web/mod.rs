@@ -181,7 +181,7 @@ impl WebServer {
         // What is on disk already is read before the first request is answered.
         let mut timeline = Timeline::new(dir);
         if let Err(e) = timeline.refresh() {
-            warn!(dir = %dir.display(), error = %e, "page server: cannot read the journal yet");
+            warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
         }
         let shared = Arc::new(PageState {
             dir: dir.to_path_buf(),
@@ -324,7 +324,7 @@ async fn watch_build(shared: Arc<PageState>) {
         };
         match changed {
             Err(e) if !warned => {
-                warn!(dir = %shared.dir.display(), error = %e, "page server: cannot read the journal");
+                warn!(dir = %shared.dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal");
                 warned = true;
             }
             _ => {}

@@ -1,7 +1,7 @@
 //! The real camera through libgphoto2 (the `gphoto2` crate). Only the camera actor's thread
 //! touches it. Settings are applied at open: capture target RAM, format, exposure, manual focus.
 
-use super::{Camera, CameraError, Frame};
+use super::{Camera, CameraError, DriverError, Frame};
 use crate::config::Gphoto2Config;
 use crate::shot::Shot;
 use gphoto2::error::ErrorKind;
@@ -10,13 +10,23 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 use tracing::info;
 
-/// How a libgphoto2 error is handled: retried, reopened, or failed.
-pub fn classify(kind: ErrorKind, message: &str) -> CameraError {
-    let text = format!("{message} ({kind:?})");
+/// A libgphoto2 error with its kind.
+#[derive(Debug, thiserror::Error)]
+#[error("libgphoto2 {kind}")]
+struct Gphoto {
+    kind: String,
+    #[source]
+    source: gphoto2::Error,
+}
+
+/// How a libgphoto2 error is handled: retried, reopened, or failed; `said` is what the driver
+/// said, carried as the error's source.
+pub fn classify(kind: ErrorKind, message: &str, said: DriverError) -> CameraError {
     let lower = message.to_ascii_lowercase();
     // Nikon bodies report "device busy" as PTP 0x2019 or vendor codes 0xA2xx; libgphoto2 maps the
     // first to GP_ERROR_CAMERA_BUSY but may pass the vendor ones through as text.
     let vendor_busy = lower.contains("0xa2") || lower.contains("0x2019") || lower.contains("busy");
+    let text = said;
     match kind {
         ErrorKind::CameraBusy => CameraError::Busy(text),
         _ if vendor_busy => CameraError::Busy(text),
@@ -35,7 +45,12 @@ pub fn classify(kind: ErrorKind, message: &str) -> CameraError {
 }
 
 fn map(e: gphoto2::Error) -> CameraError {
-    classify(e.kind(), &e.to_string())
+    let (kind, message) = (e.kind(), e.to_string());
+    let said = DriverError::of(Gphoto {
+        kind: format!("{kind:?}"),
+        source: e,
+    });
+    classify(kind, &message, said)
 }
 
 /// How a configured setting is written into a widget of a given type.
@@ -119,13 +134,13 @@ impl GphotoCamera {
             .find(|d| (config.model.is_empty() || d.model == config.model) && (config.port.is_empty() || d.port == config.port))
             .ok_or_else(|| {
                 let seen: Vec<String> = found.iter().map(|d| format!("{} on {}", d.model, d.port)).collect();
-                CameraError::Disconnected(format!(
+                CameraError::Disconnected(DriverError::said(format!(
                     "no camera {:?} on port {:?}; libgphoto2 sees: [{}]. Check the USB cable, that the body is on, \
                      and that gvfs has not claimed it",
                     config.model,
                     config.port,
                     seen.join(", ")
-                ))
+                )))
             })?;
         let camera = context.get_camera(descriptor).wait().map_err(map)?;
         Ok((
@@ -136,16 +151,13 @@ impl GphotoCamera {
 
     fn apply_settings(&self) -> Result<(), CameraError> {
         for (key, text) in &self.config.settings {
-            let widget =
-                self.camera
-                    .config_key::<Widget>(key)
-                    .wait()
-                    .map_err(|e| CameraError::Setting {
-                        key: key.clone(),
-                        message: format!(
-                            "{e}; `gphoto2 --list-config` lists the names this body knows"
-                        ),
-                    })?;
+            let widget = self.camera.config_key::<Widget>(key).wait().map_err(|e| {
+                CameraError::SettingRefused {
+                    key: key.clone(),
+                    hint: " (`gphoto2 --list-config` lists the names this body knows)",
+                    source: DriverError::of(e),
+                }
+            })?;
             let kind = match &widget {
                 Widget::Text(_) => WidgetKind::Text,
                 Widget::Radio(_) => WidgetKind::Choice,
@@ -153,9 +165,10 @@ impl GphotoCamera {
                 Widget::Toggle(_) => WidgetKind::Toggle,
                 _ => WidgetKind::Other,
             };
-            let setting_error = |e: gphoto2::Error| CameraError::Setting {
+            let setting_error = |e: gphoto2::Error| CameraError::SettingRefused {
                 key: key.clone(),
-                message: e.to_string(),
+                hint: "",
+                source: DriverError::of(e),
             };
             match (&widget, parse_setting(key, kind, text)?) {
                 (Widget::Text(w), SettingValue::Text(v)) => {
@@ -252,27 +265,39 @@ mod tests {
     #[test]
     fn errors_map_to_retry_classes() {
         assert!(matches!(
-            classify(ErrorKind::CameraBusy, "Device Busy"),
+            classify(
+                ErrorKind::CameraBusy,
+                "Device Busy",
+                DriverError::said("Device Busy")
+            ),
             CameraError::Busy(_)
         ));
         assert!(matches!(
-            classify(ErrorKind::Other, "PTP I/O Error 0xa201"),
+            classify(
+                ErrorKind::Other,
+                "PTP I/O Error 0xa201",
+                DriverError::said("PTP I/O Error 0xa201")
+            ),
             CameraError::Busy(_)
         ));
         assert!(matches!(
-            classify(ErrorKind::Timeout, "timeout"),
+            classify(ErrorKind::Timeout, "timeout", DriverError::said("timeout")),
             CameraError::Timeout(_)
         ));
         assert!(matches!(
-            classify(ErrorKind::IoUsbFind, "Could not find USB device"),
+            classify(
+                ErrorKind::IoUsbFind,
+                "Could not find USB device",
+                DriverError::said("Could not find USB device")
+            ),
             CameraError::Disconnected(_)
         ));
         assert!(matches!(
-            classify(ErrorKind::ModelNotFound, "x"),
+            classify(ErrorKind::ModelNotFound, "x", DriverError::said("x")),
             CameraError::Disconnected(_)
         ));
         assert!(matches!(
-            classify(ErrorKind::CorruptedData, "bad"),
+            classify(ErrorKind::CorruptedData, "bad", DriverError::said("bad")),
             CameraError::Failed(_)
         ));
     }

@@ -22,24 +22,68 @@ pub struct Frame {
     pub download_ms: f64,
 }
 
-#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[derive(Clone, Debug, thiserror::Error)]
 pub enum CameraError {
     /// The body is still busy with the previous frame (PTP 0x2019, Nikon 0xA2xx): try again.
-    #[error("camera busy: {0}")]
-    Busy(String),
+    #[error("camera busy")]
+    Busy(#[source] DriverError),
     /// The camera answered too late but the call returned: try again.
-    #[error("camera timed out: {0}")]
-    Timeout(String),
+    #[error("camera timed out")]
+    Timeout(#[source] DriverError),
     /// The USB device dropped: reopen, then try again.
-    #[error("camera disconnected: {0}")]
-    Disconnected(String),
-    #[error("camera failed: {0}")]
-    Failed(String),
+    #[error("camera disconnected")]
+    Disconnected(#[source] DriverError),
+    #[error("camera failed")]
+    Failed(#[source] DriverError),
     /// A call did not return within the bound: the thread is stuck in the driver.
     #[error("camera call did not return within {0:?}; the process must restart")]
     Hung(Duration),
     #[error("camera setting `{key}`: {message}")]
     Setting { key: String, message: String },
+    /// The camera refused a setting.
+    #[error("camera setting `{key}`{hint}")]
+    SettingRefused {
+        key: String,
+        /// What to check, when there is something to say.
+        hint: &'static str,
+        #[source]
+        source: DriverError,
+    },
+}
+
+/// What the camera's driver said: libgphoto2's error kept whole, or our own words where we are the
+/// one who decides (the simulated camera, the camera thread ending). Cloned with the
+/// [`CameraError`] that carries it (the actor's answers cross threads).
+#[derive(Clone, Debug)]
+pub struct DriverError(std::sync::Arc<dyn std::error::Error + Send + Sync>);
+
+/// Words of ours, as an error.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct Said(String);
+
+impl DriverError {
+    /// Our own words.
+    pub fn said(text: impl Into<String>) -> DriverError {
+        DriverError(std::sync::Arc::new(Said(text.into())))
+    }
+
+    /// The driver's error, kept with its sources.
+    pub fn of(error: impl std::error::Error + Send + Sync + 'static) -> DriverError {
+        DriverError(std::sync::Arc::new(error))
+    }
+}
+
+impl std::fmt::Display for DriverError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl std::error::Error for DriverError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.0.source()
+    }
 }
 
 /// A camera body. Implementations need not be `Send`: the actor creates and keeps them on one thread.
@@ -107,14 +151,14 @@ impl CameraActor {
                     }
                 }
             })
-            .map_err(|e| CameraError::Failed(format!("cannot start the camera thread: {e}")))?;
+            .map_err(|e| CameraError::Failed(DriverError::of(CameraThread(e))))?;
         let (description, settings) = match wait(&opened_rx, deadline) {
             Waited::Answer(result) => result?,
             Waited::TimedOut => return Err(CameraError::Hung(timeout)),
             Waited::Gone => {
-                return Err(CameraError::Failed(
-                    "the camera thread ended while opening".into(),
-                ))
+                return Err(CameraError::Failed(DriverError::said(
+                    "the camera thread ended while opening",
+                )))
             }
         };
         Ok(CameraActor {
@@ -139,7 +183,9 @@ impl CameraActor {
         match wait(&rx, deadline) {
             Waited::Answer(result) => result,
             Waited::TimedOut => Err(CameraError::Hung(self.timeout)),
-            Waited::Gone => Err(CameraError::Failed("the camera thread ended".into())),
+            Waited::Gone => Err(CameraError::Failed(DriverError::said(
+                "the camera thread ended",
+            ))),
         }
     }
 
@@ -216,10 +262,19 @@ impl RetryPolicy {
 }
 
 /// Why a frame could not be taken even after retries. `Hung` is fatal for the process.
+/// The camera thread could not be started.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot start the camera thread")]
+struct CameraThread(#[source] std::io::Error);
+
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureFailure {
-    #[error("frame missing after {attempts} attempts: {last}")]
-    Missing { attempts: u32, last: CameraError },
+    #[error("frame missing after {attempts} attempts")]
+    Missing {
+        attempts: u32,
+        #[source]
+        last: CameraError,
+    },
     #[error(transparent)]
     Hung(CameraError),
 }
@@ -246,7 +301,7 @@ pub fn capture_with_retries(
                 last: error,
             });
         }
-        warn!(attempt = attempts, error = %error, retry_in_ms = backoff.as_millis() as u64, "camera: capture failed, retrying");
+        warn!(attempt = attempts, error = %crate::logging::Chain(&error), retry_in_ms = backoff.as_millis() as u64, "camera: capture failed, retrying");
         if let CameraError::Disconnected(_) = error {
             reopen(actor, policy, &mut backoff).map_err(|last| match last {
                 e @ CameraError::Hung(_) => CaptureFailure::Hung(e),
@@ -264,7 +319,7 @@ fn reopen(
     policy: &RetryPolicy,
     backoff: &mut Duration,
 ) -> Result<(), CameraError> {
-    let mut last = CameraError::Disconnected("not reopened".into());
+    let mut last = CameraError::Disconnected(DriverError::said("not reopened"));
     for attempt in 1..=policy.reopen_attempts.max(1) {
         actor.clock().sleep(*backoff);
         *backoff = (*backoff * 2).min(policy.backoff[1]);
@@ -281,7 +336,7 @@ fn reopen(
             }
             Err(e @ CameraError::Hung(_)) => return Err(e),
             Err(e) => {
-                warn!(attempt, error = %e, "camera: reopen failed");
+                warn!(attempt, error = %crate::logging::Chain(&e), "camera: reopen failed");
                 last = e;
             }
         }
@@ -372,7 +427,7 @@ mod tests {
     #[test]
     fn busy_is_retried_with_backoff() {
         let clock = ManualClock::new();
-        let busy = || Err(CameraError::Busy("0x2019".into()));
+        let busy = || Err(CameraError::Busy(DriverError::said("0x2019")));
         let answers = vec![busy(), busy(), busy()];
         let (actor, calls) = actor(answers, None, Duration::from_secs(5), &clock);
         let (_, attempts) = capture_with_retries(&actor, &policy(5), &SHOT).unwrap();
@@ -385,7 +440,7 @@ mod tests {
     fn retries_run_out_into_missing() {
         let clock = ManualClock::new();
         let answers = (0..10)
-            .map(|_| Err(CameraError::Failed("x".into())))
+            .map(|_| Err(CameraError::Failed(DriverError::said("x"))))
             .collect();
         let (actor, _) = actor(answers, None, Duration::from_secs(5), &clock);
         match capture_with_retries(&actor, &policy(2), &SHOT) {
@@ -420,7 +475,11 @@ mod tests {
     #[test]
     fn open_failure_is_returned() {
         let result = CameraActor::spawn(
-            || Err(CameraError::Disconnected("no camera on usb:".into())),
+            || {
+                Err(CameraError::Disconnected(DriverError::said(
+                    "no camera on usb:",
+                )))
+            },
             Duration::from_secs(1),
             Arc::new(ManualClock::new()),
         );
