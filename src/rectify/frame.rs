@@ -1,6 +1,7 @@
 //! A camera frame as the body delivered it: a JPEG (zune-jpeg), a camera raw frame (a NEF,
 //! developed by rawler, see [`super::raw`]) or any picture the image crate reads (PNG, TIFF).
 
+use super::srgb::srgb_encode;
 use super::{decode_jpeg, decode_jpeg_luma, Gray16Image, Rectifier, RectifyError};
 use image::{DynamicImage, GrayImage};
 
@@ -67,16 +68,6 @@ impl FrameLuma {
                 GrayImage::from_raw(g.width(), g.height(), pixels).expect("same size")
             }
         }
-    }
-}
-
-/// The sRGB transfer curve: linear 0..1 to encoded 0..1.
-pub(super) fn srgb_encode(v: f64) -> f64 {
-    let v = v.clamp(0.0, 1.0);
-    if v <= 0.003_130_8 {
-        v * 12.92
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
     }
 }
 

@@ -12,7 +12,7 @@
 //! Pictures for people (PNG, the overlays) are fully developed by rawler (PPG demosaic) and get
 //! the sRGB transfer curve on top.
 
-use super::frame::srgb_encode;
+use super::srgb::srgb_encode;
 use super::{Gray16Image, RectifyError, Rgb16Image};
 use rawler::decoders::RawDecodeParams;
 use rawler::imgop::develop::{Intermediate, ProcessingStep, RawDevelop};

@@ -1,4 +1,4 @@
-//! Assembling commands into layers, shared by [`read`](super::read), [`LayerReader`],
+//! Assembling commands into layers, shared by [`read`], [`LayerReader`],
 //! [`LayerIndex`](super::LayerIndex) and [`info`](super::info).
 
 use std::fs::File;
@@ -7,28 +7,13 @@ use std::path::Path;
 
 use super::ascii::AsciiParser;
 use super::binary::BinaryParser;
+use super::command::{Command, Pos};
 use super::header::parse_header;
 use super::source::Src;
-use super::{Format, Hatches, Header, Layer, MarkingParameter, Polyline, VectorError};
+use super::{Format, Header, Layer, VectorError, VectorFile};
 
 /// Buffer size of the streaming readers.
 const BUFFER: usize = 1 << 18;
-
-/// One geometry command, coordinates already in millimetres.
-pub(crate) enum Command {
-    Layer(f64),
-    Polyline(Polyline),
-    Hatches(Hatches),
-    Parameter(MarkingParameter),
-}
-
-/// Where a command starts: byte offset always, line for ASCII; `what` names the command.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Pos {
-    pub(crate) offset: u64,
-    pub(crate) line: u64,
-    pub(crate) what: &'static str,
-}
 
 pub(crate) enum Parser<R> {
     Ascii(AsciiParser<R>),
@@ -179,6 +164,30 @@ pub(crate) fn open_file(path: &Path) -> Result<(BufReader<File>, u64, String), V
     let file = crate::fsutil::open_regular(path).map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     Ok((BufReader::with_capacity(BUFFER, file), len, name))
+}
+
+/// Reads a whole CLI file (ASCII or binary, detected from the header).
+pub fn read(path: &Path) -> Result<VectorFile, VectorError> {
+    let name = display_name(path);
+    let bytes = crate::fsutil::read_regular(path).map_err(|source| VectorError::Io {
+        file: name.clone(),
+        source,
+    })?;
+    read_bytes(&bytes, &name)
+}
+
+/// Reads a CLI file from memory; `name` is used in error messages.
+pub fn read_bytes(bytes: &[u8], name: &str) -> Result<VectorFile, VectorError> {
+    let src = Src::new(bytes, 0, bytes.len() as u64);
+    let (header, mut layers) = open_stream(src, name)?;
+    let mut out = Vec::new();
+    while let Some((layer, _)) = layers.next_layer(true)? {
+        out.push(layer);
+    }
+    Ok(VectorFile {
+        header,
+        layers: out,
+    })
 }
 
 /// Reads a CLI file layer by layer: the header first, then one layer at a time, holding only
