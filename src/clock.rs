@@ -204,7 +204,12 @@ impl Clock for ManualClock {
     /// Interrupted when `interrupt` is ready at the call; else the clock advances by `duration`
     /// at once, as [`Clock::sleep`] does.
     fn sleep_unless(&self, duration: Duration, interrupt: &Receiver<()>) -> bool {
-        if !interrupt.is_empty() || matches!(interrupt.try_recv(), Err(crossbeam_channel::TryRecvError::Disconnected)) {
+        if !interrupt.is_empty()
+            || matches!(
+                interrupt.try_recv(),
+                Err(crossbeam_channel::TryRecvError::Disconnected)
+            )
+        {
             return true;
         }
         self.advance(duration);
@@ -258,10 +263,18 @@ mod tests {
         let (stop, interrupt) = crossbeam_channel::bounded::<()>(0);
         let manual = ManualClock::new();
         assert!(!manual.sleep_unless(Duration::from_secs(60), &interrupt));
-        assert_eq!(manual.elapsed(), Duration::from_secs(60), "slept on the manual clock");
+        assert_eq!(
+            manual.elapsed(),
+            Duration::from_secs(60),
+            "slept on the manual clock"
+        );
         drop(stop);
         assert!(manual.sleep_unless(Duration::from_secs(60), &interrupt));
-        assert_eq!(manual.elapsed(), Duration::from_secs(60), "interrupted: no time passed");
+        assert_eq!(
+            manual.elapsed(),
+            Duration::from_secs(60),
+            "interrupted: no time passed"
+        );
         let system = SystemClock::new();
         assert!(system.sleep_unless(Duration::from_secs(3600), &interrupt));
     }

@@ -149,9 +149,15 @@ impl Inner {
             *slot = Some(reason.clone());
         }
         // The reason first, then the wakes: a waiter woken always finds it.
-        drop(self.hang_up.lock().unwrap_or_else(|e| e.into_inner()).take());
+        drop(
+            self.hang_up
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .take(),
+        );
         self.notify.notify_waiters();
-        let children = std::mem::take(&mut *self.children.lock().unwrap_or_else(|e| e.into_inner()));
+        let children =
+            std::mem::take(&mut *self.children.lock().unwrap_or_else(|e| e.into_inner()));
         for child in children.iter().filter_map(Weak::upgrade) {
             child.request(reason.clone());
         }
@@ -395,7 +401,11 @@ mod tests {
         let StopReason::Failed(error) = copied else {
             unreachable!()
         };
-        assert_eq!(error.to_string(), "cannot store the frame", "one level each");
+        assert_eq!(
+            error.to_string(),
+            "cannot store the frame",
+            "one level each"
+        );
         assert!(!reason.completes_the_build());
         assert!(!StopReason::Terminated(TermSignal::Term).completes_the_build());
     }
