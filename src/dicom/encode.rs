@@ -81,7 +81,7 @@ pub fn encode_slice_from(
         .implementation_version_name(concat!("LAYERWISE_", env!("CARGO_PKG_VERSION")));
     let mut file = object
         .with_meta(meta)
-        .map_err(|e| EncodeError::encoder("file meta")(Box::new(e)))?;
+        .map_err(|e| EncodeError::encoder("cannot build the file meta group")(Box::new(e)))?;
     match compression {
         Compression::None => {}
         Compression::Deflate => {
@@ -92,15 +92,15 @@ pub fn encode_slice_from(
             );
             let mut out = vec![0u8; 128];
             out.extend_from_slice(b"DICM");
-            file.meta()
-                .write(&mut out)
-                .map_err(|e| EncodeError::encoder("file meta")(Box::new(e)))?;
+            file.meta().write(&mut out).map_err(|e| {
+                EncodeError::encoder("cannot write the file meta group")(Box::new(e))
+            })?;
             let mut plain = Vec::with_capacity(2 * slice.pixels.len() + 4096);
             file.write_dataset_with_ts(
                 &mut plain,
                 &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
             )
-            .map_err(|e| EncodeError::encoder("data set")(Box::new(e)))?;
+            .map_err(|e| EncodeError::encoder("cannot write the data set")(Box::new(e)))?;
             out.extend_from_slice(&deflate_parallel(&plain));
             // PS3.5 A.5: an odd-length deflated bitstream gets one trailing NUL (archives such
             // as Orthanc refuse the odd one over C-STORE). The preamble and meta group are even.
@@ -117,7 +117,7 @@ pub fn encode_slice_from(
                 .get(JPEG_LS_LOSSLESS)
                 .ok_or(EncodeError::NoJpegLs)?;
             file.transcode(ts)
-                .map_err(|e| EncodeError::encoder("JPEG-LS encoding")(Box::new(e)))?;
+                .map_err(|e| EncodeError::encoder("JPEG-LS encoding failed")(Box::new(e)))?;
             // The encoder adds attributes the (single-frame) CT Image IOD does not have.
             file.remove_element(tags::NUMBER_OF_FRAMES);
             file.remove_element(Tag(0x7FE0, 0x0003));
@@ -125,7 +125,7 @@ pub fn encode_slice_from(
     }
     let mut bytes = Vec::new();
     file.write_all(&mut bytes)
-        .map_err(|e| EncodeError::encoder("data set")(Box::new(e)))?;
+        .map_err(|e| EncodeError::encoder("cannot write the data set")(Box::new(e)))?;
     Ok(bytes)
 }
 

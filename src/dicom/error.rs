@@ -14,9 +14,11 @@ pub enum EncodeError {
         rows: usize,
         columns: usize,
     },
-    #[error("{what}: {source}")]
+    /// dicom-rs could not build or write the file (`what` says which step).
+    #[error("{what}")]
     Encoder {
         what: &'static str,
+        #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
     #[error("this layerwise was built without JPEG-LS; rebuild with `--features jpegls` (needs cmake and g++) or choose deflate")]
@@ -31,24 +33,42 @@ impl EncodeError {
     }
 }
 
+/// Why a DICOM file could not be written or read, or a folder of them searched.
 #[derive(Debug, thiserror::Error)]
 pub enum DicomError {
-    #[error("{path}: {source}")]
-    Encode { path: PathBuf, source: EncodeError },
+    #[error("{path}")]
+    Encode {
+        path: PathBuf,
+        #[source]
+        source: EncodeError,
+    },
     #[error(transparent)]
     Write(#[from] crate::fsutil::WriteError),
-    #[error("{path}: not a readable DICOM file ({message}); if it was cut short by a crash, delete it and re-run")]
-    Read { path: PathBuf, message: String },
+    /// dicom-rs could not parse the file.
+    #[error(
+        "{path}: not a readable DICOM file (if it was cut short by a crash, delete it and re-run)"
+    )]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: Box<dicom_object::ReadError>,
+    },
     #[error("{path}: {message}")]
     Geometry { path: PathBuf, message: String },
+    /// The file could not be opened or read.
+    #[error("{path}: cannot read")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     /// A stated length the file cannot hold (checked before any parser trusts it).
     #[error("{path}: {message}")]
     Damaged { path: PathBuf, message: String },
-    #[error(
-        "{path}: cannot search this folder ({source}); give an existing folder of DICOM files"
-    )]
+    #[error("{path}: cannot search this folder (give an existing folder of DICOM files)")]
     Folder {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
 }

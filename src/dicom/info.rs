@@ -11,8 +11,9 @@ use dicom_object::{InMemDicomObject, OpenFileOptions};
 use super::error::DicomError;
 use super::lengths::check_lengths;
 
-/// The take of the original a slice file was made from (its ImageComments, [`SliceSource`](super::SliceSource)):
-/// `None` when there is no readable file; a slice written without the comment is take 1.
+/// The take of the original a slice file was made from (its ImageComments,
+/// [`SliceSource`](super::SliceSource)): `None` when there is no readable file; a slice written
+/// without the comment is take 1.
 pub fn slice_take(path: &Path) -> Option<u32> {
     if !path.is_file() {
         return None;
@@ -99,7 +100,7 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
             .open_file(&path)
             .map_err(|e| DicomError::Read {
                 path: path.clone(),
-                message: e.to_string(),
+                source: Box::new(e),
             })?;
         let uid = text(&obj, tags::SERIES_INSTANCE_UID).unwrap_or_default();
         let position = floats(&obj, tags::IMAGE_POSITION_PATIENT);
@@ -232,5 +233,37 @@ impl std::fmt::Display for SeriesSummary {
             "  study {}  frame of reference {}",
             self.study_instance_uid, self.frame_of_reference_uid
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A folder that cannot be searched and a file that cannot be read keep the OS error as
+    /// their source; the hint stays in the message.
+    #[test]
+    fn io_errors_keep_the_os_error_as_their_source() {
+        let e = series_info(Path::new("/nonexistent/layerwise-dicom")).unwrap_err();
+        assert!(matches!(e, DicomError::Folder { .. }), "{e:?}");
+        let cause = std::error::Error::source(&e)
+            .expect("the OS error")
+            .to_string();
+        assert_eq!(
+            crate::logging::chain(&e),
+            format!(
+                "/nonexistent/layerwise-dicom: cannot search this folder (give an existing \
+                 folder of DICOM files): {cause}"
+            )
+        );
+        let e = check_lengths(Path::new("/nonexistent/layerwise-dicom/L00001.dcm")).unwrap_err();
+        assert!(matches!(e, DicomError::Io { .. }), "{e:?}");
+        let cause = std::error::Error::source(&e)
+            .expect("the OS error")
+            .to_string();
+        assert_eq!(
+            crate::logging::chain(&e),
+            format!("/nonexistent/layerwise-dicom/L00001.dcm: cannot read: {cause}")
+        );
     }
 }

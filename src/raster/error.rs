@@ -5,7 +5,7 @@ use std::path::PathBuf;
 /// Why a raster could not be made or written.
 #[derive(Debug, thiserror::Error)]
 pub enum RasterError {
-    #[error("invalid grid: {0}")]
+    #[error("invalid grid")]
     InvalidGrid(#[from] crate::geometry::GridError),
     #[error("standard deviation window must be odd and positive, got {0}")]
     InvalidWindow(usize),
@@ -21,7 +21,7 @@ pub enum RasterError {
     NoGeometry { part: Option<i64> },
     #[error("unknown raster kind '{0}' (expected mask, coverage, rgb or exemplar)")]
     UnknownKind(String),
-    #[error("{path}: {source}")]
+    #[error("{path}: cannot write")]
     Write {
         path: PathBuf,
         #[source]

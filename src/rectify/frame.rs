@@ -79,7 +79,7 @@ pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.luminance().map(FrameLuma::Linear16);
     }
-    let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))?;
+    let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))?;
     Ok(FrameLuma::Gamma8(picture.to_luma8()))
 }
 
@@ -91,7 +91,7 @@ pub fn decode_frame(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.display().map(DynamicImage::ImageRgb16);
     }
-    image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))
+    image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))
 }
 
 #[cfg(feature = "nef")]

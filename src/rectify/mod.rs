@@ -78,16 +78,31 @@ pub enum RectifyError {
         "homography is singular or nearly so (|det| / product of row norms = {0:e}, needs > 1e-12)"
     )]
     SingularHomography(f64),
-    #[error("invalid grid: {0}")]
+    #[error("invalid grid")]
     InvalidGrid(#[from] crate::geometry::GridError),
-    #[error("invalid lens distortion: {0}")]
+    #[error("invalid lens distortion")]
     InvalidDistortion(#[from] crate::geometry::DistortionError),
+    /// A camera raw frame that cannot be used, for the reason given.
     #[error("camera raw frame: {0}")]
     Raw(String),
-    #[error("cannot read the picture: {0}")]
-    Image(String),
+    /// rawler could not decode or develop a camera raw frame.
+    #[cfg(feature = "nef")]
+    #[error("camera raw frame: cannot {step} the raw data")]
+    RawData {
+        /// "decode" or "develop".
+        step: &'static str,
+        #[source]
+        source: Box<rawler::RawlerError>,
+    },
+    /// A picture (PNG, TIFF, …) the image crate could not read.
+    #[error("cannot read the picture")]
+    Image(#[source] Box<image::ImageError>),
+    /// A JPEG refused before or after decoding, for the reason given.
     #[error("JPEG decoding failed: {0}")]
     Jpeg(String),
+    /// A JPEG the decoder refused.
+    #[error("JPEG decoding failed")]
+    JpegData(#[source] zune_jpeg::errors::DecodeErrors),
 }
 
 /// Largest frame decoded, in pixels: 128 Mpx, 3.5 times a D810 frame (36 Mpx). A header that

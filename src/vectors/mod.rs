@@ -41,7 +41,7 @@ use serde::Serialize;
 pub use error::VectorError;
 pub use index::LayerIndex;
 pub use info::{info, Info, PartInfo};
-pub use numbering::{LayerMap, LayerMatch, LayerNumbering, LayerSummary};
+pub use numbering::{LayerMap, LayerMatch, LayerNumbering, LayerSummary, UnknownLayerMatch};
 pub use stream::{read, read_bytes, LayerReader};
 pub use write::{write_ascii, write_binary};
 

@@ -222,3 +222,21 @@ impl Iterator for LayerReader {
         self.next_layer().transpose()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    /// The OS error is the source, not part of the message.
+    #[test]
+    fn io_errors_keep_the_os_error_as_their_source() {
+        let e = super::read(Path::new("/nonexistent/dir/missing.cli")).unwrap_err();
+        assert_eq!(e.to_string(), "missing.cli: cannot read");
+        let cause = std::error::Error::source(&e).expect("the OS error");
+        assert!(cause.downcast_ref::<std::io::Error>().is_some());
+        assert_eq!(
+            crate::logging::chain(&e),
+            format!("missing.cli: cannot read: {cause}")
+        );
+    }
+}
