@@ -89,25 +89,35 @@ impl fmt::Display for Light {
     }
 }
 
+/// A phase name that is neither `pre` nor `post`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown phase '{0}': expected pre or post")]
+pub struct UnknownPhase(pub String);
+
+/// A light name that is not `front`, `side` or `top`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown light '{0}': expected front, side or top")]
+pub struct UnknownLight(pub String);
+
 impl FromStr for Phase {
-    type Err = String;
+    type Err = UnknownPhase;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.to_ascii_lowercase().as_str() {
             "pre" => Ok(Phase::Pre),
             "post" => Ok(Phase::Post),
-            _ => Err(format!("unknown phase '{s}': expected pre or post")),
+            _ => Err(UnknownPhase(s.to_string())),
         }
     }
 }
 
 impl FromStr for Light {
-    type Err = String;
+    type Err = UnknownLight;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.to_ascii_lowercase().as_str() {
             "front" => Ok(Light::Front),
             "side" => Ok(Light::Side),
             "top" => Ok(Light::Top),
-            _ => Err(format!("unknown light '{s}': expected front, side or top")),
+            _ => Err(UnknownLight(s.to_string())),
         }
     }
 }
@@ -220,5 +230,21 @@ mod tests {
         assert_eq!(Shot::from_stem("L00042_post"), None);
         assert_eq!(Shot::from_stem("X00042_post_top"), None);
         assert_eq!(shot.view().to_string(), "post_top");
+    }
+
+    #[test]
+    fn unknown_names_say_what_is_expected() {
+        assert_eq!("POST".parse(), Ok(Phase::Post));
+        assert_eq!("Side".parse(), Ok(Light::Side));
+        let e = "during".parse::<Phase>().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "unknown phase 'during': expected pre or post"
+        );
+        let e = "back".parse::<Light>().unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "unknown light 'back': expected front, side or top"
+        );
     }
 }

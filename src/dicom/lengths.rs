@@ -32,12 +32,16 @@ enum Encoding {
 /// Undefined lengths (sequences, encapsulated pixel data) are walked into, so items and
 /// fragments are checked too.
 pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
-    let read_err = |message: String| DicomError::Damaged {
+    let damaged = |message: String| DicomError::Damaged {
         path: path.to_path_buf(),
         message,
     };
-    let file = crate::fsutil::open_regular(path).map_err(|e| read_err(e.to_string()))?;
-    let size = file.metadata().map_err(|e| read_err(e.to_string()))?.len();
+    let read_err = |source| DicomError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = crate::fsutil::open_regular(path).map_err(read_err)?;
+    let size = file.metadata().map_err(read_err)?.len();
     let mut r = BufReader::with_capacity(8192, file);
     let mut preamble = [0u8; 132];
     if r.read_exact(&mut preamble).is_err() || &preamble[128..] != b"DICM" {
@@ -71,8 +75,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
             }
             if matches!(encoding, Encoding::Explicit { big_endian: true }) {
                 // Re-read this header as big endian.
-                r.seek(SeekFrom::Start(pos))
-                    .map_err(|e| read_err(e.to_string()))?;
+                r.seek(SeekFrom::Start(pos)).map_err(read_err)?;
                 continue;
             }
         }
@@ -114,7 +117,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
         }
         let left = size - pos.min(size);
         if u64::from(length) > left {
-            return Err(read_err(format!(
+            return Err(damaged(format!(
                 "element ({group:04X},{element:04X}) at byte {} claims {length} bytes but only \
                  {left} bytes follow in the {size}-byte file: the file is cut short or damaged; \
                  export it again",
@@ -123,8 +126,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
         }
         if in_meta && (group, element) == (0x0002, 0x0010) {
             let mut uid = vec![0u8; length as usize];
-            r.read_exact(&mut uid)
-                .map_err(|e| read_err(e.to_string()))?;
+            r.read_exact(&mut uid).map_err(read_err)?;
             let uid = String::from_utf8_lossy(&uid);
             encoding = match uid.trim_end_matches(['\0', ' ']) {
                 "1.2.840.10008.1.2" => Encoding::Implicit,
@@ -136,8 +138,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
         } else if sequence || (group == 0xFFFE && element == 0xE000 && !in_fragments) {
             // A sequence or an item of defined length: its elements are walked too.
         } else {
-            r.seek_relative(i64::from(length))
-                .map_err(|e| read_err(e.to_string()))?;
+            r.seek_relative(i64::from(length)).map_err(read_err)?;
             pos += u64::from(length);
         }
     }

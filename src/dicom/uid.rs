@@ -26,3 +26,17 @@ pub fn derived_uid(parent: &str, name: &str) -> String {
     bytes[8] = (bytes[8] & 0x3f) | 0x80;
     format!("2.25.{}", u128::from_be_bytes(bytes))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn derived_uids_are_stable_valid_and_distinct() {
+        let a = derived_uid("2.25.1", "post_top");
+        assert_eq!(a, derived_uid("2.25.1", "post_top"));
+        assert_ne!(a, derived_uid("2.25.1", "pre_top"));
+        assert!(a.len() <= 64 && a.starts_with("2.25.") && !a[5..].starts_with('0'));
+        assert!(a[5..].chars().all(|c| c.is_ascii_digit()));
+    }
+}

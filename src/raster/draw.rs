@@ -2,8 +2,7 @@
 
 use image::{Rgb, RgbImage};
 
-use super::Grid;
-use crate::geometry::clip_segment;
+use crate::geometry::{clip_segment, Grid};
 
 /// Draws the segment a–b (build mm) one pixel wide: one pixel per step along the major axis,
 /// the pixel whose center is nearest the line, clipped to the image first so that a segment

@@ -30,26 +30,28 @@
 //! Even-odd remains available for files whose inner contours are not reversed.
 
 mod draw;
+mod error;
+mod options;
 mod scan;
 pub mod sheet;
 mod stdfilt;
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::str::FromStr;
 
 use image::{GrayImage, ImageFormat, Rgb, RgbImage};
 use rayon::prelude::*;
 
 pub use crate::geometry::{Grid, DEFAULT_PIXEL_MM, MAX_PIXELS, MAX_SIDE, PLATE_HALF_MM};
+pub use error::RasterError;
+pub use options::{FillRule, RasterOptions, DEFAULT_SPOT_WIDTH_MM};
 pub use stdfilt::{std_filter, F32Image};
 
 pub(crate) use scan::is_closed;
 
 use crate::vectors::{Direction, Layer, VectorFile};
 
-/// Default hatch spot width in mm: a typical LPBF melt track.
-pub const DEFAULT_SPOT_WIDTH_MM: f64 = 0.1;
 /// Default standard deviation window of the exemplar, in pixels (≈ 0.7 mm at 0.0625 mm):
 /// a starting value until the calibration tunes it on real build images.
 pub const DEFAULT_STD_WINDOW: usize = 11;
@@ -63,49 +65,6 @@ pub const RGB_BACKGROUND: Rgb<u8> = Rgb([0, 0, 0]);
 pub const RGB_FUSED: Rgb<u8> = Rgb([64, 64, 64]);
 pub const RGB_CONTOUR: Rgb<u8> = Rgb([0, 0, 255]);
 pub const RGB_HATCH: Rgb<u8> = Rgb([255, 0, 0]);
-
-/// How contours make an inside.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum FillRule {
-    /// Inside where the winding number of the contours (by their point order) is not zero:
-    /// clockwise inner contours cut holes into counter-clockwise outer ones, overlapping
-    /// outer contours stay filled.
-    #[default]
-    NonZero,
-    /// Inside where a ray crosses an odd number of contour edges, whatever the orientation.
-    EvenOdd,
-}
-
-/// What to draw and how.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RasterOptions {
-    /// Only the geometry of this part id; `None` for all parts.
-    pub part: Option<i64>,
-    pub fill_rule: FillRule,
-    /// Spot width in mm for hatches and open polylines: a pixel (sub-sample) is fused when its
-    /// center is within half of it from a segment. 0 leaves hatches out.
-    pub hatch_width_mm: f64,
-    /// Width in mm with which contours are stroked in addition to being filled; 0 (default)
-    /// leaves the fill bounded by the contour path itself.
-    pub contour_width_mm: f64,
-    /// Also fill direction-2 polylines whose ends meet (support outlines in Magics files).
-    pub fill_closed_open: bool,
-    /// Sub-samples per pixel side for [`coverage`] (1..=16; 4 gives 16 samples per pixel).
-    pub subsamples: usize,
-}
-
-impl Default for RasterOptions {
-    fn default() -> Self {
-        RasterOptions {
-            part: None,
-            fill_rule: FillRule::NonZero,
-            hatch_width_mm: DEFAULT_SPOT_WIDTH_MM,
-            contour_width_mm: 0.0,
-            fill_closed_open: false,
-            subsamples: 4,
-        }
-    }
-}
 
 /// What [`render_to_png`] writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -142,33 +101,6 @@ impl fmt::Display for RasterKind {
             RasterKind::Exemplar => "exemplar",
         })
     }
-}
-
-/// Why a raster could not be made or written.
-#[derive(Debug, thiserror::Error)]
-pub enum RasterError {
-    #[error("invalid grid: {0}")]
-    InvalidGrid(#[from] crate::geometry::GridError),
-    #[error("standard deviation window must be odd and positive, got {0}")]
-    InvalidWindow(usize),
-    #[error("buffer of {len} values does not hold {width} x {height} pixels")]
-    SizeMismatch {
-        len: usize,
-        width: usize,
-        height: usize,
-    },
-    #[error("no layer {index}: the file has {len} layers")]
-    NoSuchLayer { index: usize, len: usize },
-    #[error("no geometry{}", part.map(|p| format!(" for part {p}")).unwrap_or_default())]
-    NoGeometry { part: Option<i64> },
-    #[error("unknown raster kind '{0}' (expected mask, coverage, rgb or exemplar)")]
-    UnknownKind(String),
-    #[error("{path}: {source}")]
-    Write {
-        path: PathBuf,
-        #[source]
-        source: image::ImageError,
-    },
 }
 
 /// Fused-area mask: 255 where the pixel center is fused, else 0.

@@ -9,7 +9,8 @@
 
 use rayon::prelude::*;
 
-use super::{FillRule, Grid, RasterOptions};
+use super::options::{FillRule, RasterOptions};
+use crate::geometry::Grid;
 use crate::vectors::{Direction, Layer};
 
 /// A non-horizontal contour edge, `v_top < v_bot`.

@@ -3,7 +3,7 @@
 use image::{GrayImage, ImageBuffer, Luma};
 use rayon::prelude::*;
 
-use super::RasterError;
+use super::error::RasterError;
 
 /// A row-major single-channel f32 image (luminance, exemplar, filter output).
 #[derive(Debug, Clone, PartialEq)]

@@ -22,8 +22,7 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
         // Truncated or corrupt entropy data is an error, not grey rows.
         .set_strict_mode(true);
     let mut dec = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
-    dec.decode_headers()
-        .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
+    dec.decode_headers().map_err(RectifyError::JpegData)?;
     let grey = matches!(dec.input_colorspace(), Some(ColorSpace::Luma));
     let out_cs = if grey {
         ColorSpace::Luma
@@ -35,9 +34,7 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
         .dimensions()
         .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
     super::check_frame_size(w, h)?;
-    let pixels = dec
-        .decode()
-        .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
+    let pixels = dec.decode().map_err(RectifyError::JpegData)?;
     let (w, h) = (w as u32, h as u32);
     let bad_size =
         || RectifyError::Jpeg(format!("decoder returned a wrong-sized buffer for {w}x{h}"));

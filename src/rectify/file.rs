@@ -9,9 +9,28 @@ use std::path::Path;
 pub enum RectifyFileError {
     #[error(transparent)]
     Calibration(#[from] super::CalibrationError),
-    #[error("{path}: {message}")]
-    Image { path: String, message: String },
-    #[error("{0}")]
+    /// The frame could not be read from the disk.
+    #[error("{path}: cannot read")]
+    Read {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The frame could not be decoded (the cause says why).
+    #[error("{path}")]
+    Decode {
+        path: String,
+        #[source]
+        source: super::RectifyError,
+    },
+    /// The rectified picture could not be written.
+    #[error("{path}: cannot write")]
+    Write {
+        path: String,
+        #[source]
+        source: image::ImageError,
+    },
+    #[error(transparent)]
     Rectify(#[from] super::RectifyError),
     #[error(transparent)]
     Dicom(#[from] dicom::DicomError),
@@ -34,11 +53,15 @@ pub fn rectify_file(
         tracing::info!("{note}");
     }
     let rectifier = Rectifier::new(&calibration.camera(), grid, Interpolation::Bilinear, 0)?;
-    let bad_image = |message: String| RectifyFileError::Image {
-        path: image.display().to_string(),
-        message,
+    let path = || image.display().to_string();
+    let bad_image = |source| RectifyFileError::Decode {
+        path: path(),
+        source,
     };
-    let bytes = crate::fsutil::read_regular(image).map_err(|e| bad_image(e.to_string()))?;
+    let bytes = crate::fsutil::read_regular(image).map_err(|source| RectifyFileError::Read {
+        path: path(),
+        source,
+    })?;
     match out
         .extension()
         .and_then(|e| e.to_str())
@@ -46,18 +69,18 @@ pub fn rectify_file(
         .as_deref()
     {
         Some("png") => {
-            let decoded = decode_frame(&bytes).map_err(|e| bad_image(e.to_string()))?;
+            let decoded = decode_frame(&bytes).map_err(bad_image)?;
             rectifier
                 .rectify_dynamic(&decoded)
                 .save(out)
-                .map_err(|e| RectifyFileError::Image {
+                .map_err(|source| RectifyFileError::Write {
                     path: out.display().to_string(),
-                    message: e.to_string(),
+                    source,
                 })?;
         }
         Some("dcm") => {
             let rectified = decode_frame_luma(&bytes)
-                .map_err(|e| bad_image(e.to_string()))?
+                .map_err(bad_image)?
                 .rectified(&rectifier);
             let (window, derivation) = (rectified.window(), rectified.derivation());
             let pixels = rectified.into_u16();

@@ -1,6 +1,7 @@
 //! A camera frame as the body delivered it: a JPEG (zune-jpeg), a camera raw frame (a NEF,
 //! developed by rawler, see [`super::raw`]) or any picture the image crate reads (PNG, TIFF).
 
+use super::srgb::srgb_encode;
 use super::{decode_jpeg, decode_jpeg_luma, Gray16Image, Rectifier, RectifyError};
 use image::{DynamicImage, GrayImage};
 
@@ -70,16 +71,6 @@ impl FrameLuma {
     }
 }
 
-/// The sRGB transfer curve: linear 0..1 to encoded 0..1.
-pub(super) fn srgb_encode(v: f64) -> f64 {
-    let v = v.clamp(0.0, 1.0);
-    if v <= 0.003_130_8 {
-        v * 12.92
-    } else {
-        1.055 * v.powf(1.0 / 2.4) - 0.055
-    }
-}
-
 /// The luma the views hold, decoded the fastest way for each kind of frame.
 pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
     if bytes.starts_with(&[0xFF, 0xD8]) {
@@ -88,7 +79,7 @@ pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.luminance().map(FrameLuma::Linear16);
     }
-    let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))?;
+    let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))?;
     Ok(FrameLuma::Gamma8(picture.to_luma8()))
 }
 
@@ -100,7 +91,7 @@ pub fn decode_frame(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.display().map(DynamicImage::ImageRgb16);
     }
-    image::load_from_memory(bytes).map_err(|e| RectifyError::Image(e.to_string()))
+    image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))
 }
 
 #[cfg(feature = "nef")]

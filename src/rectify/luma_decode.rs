@@ -17,16 +17,12 @@ pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
         .set_strict_mode(true)
         .jpeg_set_out_colorspace(ColorSpace::Luma);
     let mut decoder = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
-    decoder
-        .decode_headers()
-        .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
+    decoder.decode_headers().map_err(RectifyError::JpegData)?;
     let (w, h) = decoder
         .dimensions()
         .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
     super::check_frame_size(w, h)?;
-    let pixels = decoder
-        .decode()
-        .map_err(|e| RectifyError::Jpeg(format!("{e:?}")))?;
+    let pixels = decoder.decode().map_err(RectifyError::JpegData)?;
     GrayImage::from_raw(w as u32, h as u32, pixels).ok_or_else(|| {
         RectifyError::Jpeg(format!("decoder returned a wrong-sized buffer for {w}x{h}"))
     })

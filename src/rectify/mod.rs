@@ -36,18 +36,21 @@ pub mod calibration;
 mod decode;
 mod file;
 mod frame;
+mod kernel;
 mod luma_decode;
 mod os;
 mod positions;
 #[cfg(feature = "nef")]
 pub mod raw;
+mod row;
 #[cfg(target_arch = "x86_64")]
 mod simd;
+mod srgb;
 #[cfg(test)]
 mod tests;
 mod warp;
 
-use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
+use image::{ImageBuffer, Luma, Rgb};
 
 pub use crate::geometry::{CameraModel, Grid, RadialDistortion};
 pub use calibration::{Calibration, CalibrationError};
@@ -75,16 +78,31 @@ pub enum RectifyError {
         "homography is singular or nearly so (|det| / product of row norms = {0:e}, needs > 1e-12)"
     )]
     SingularHomography(f64),
-    #[error("invalid grid: {0}")]
+    #[error("invalid grid")]
     InvalidGrid(#[from] crate::geometry::GridError),
-    #[error("invalid lens distortion: {0}")]
+    #[error("invalid lens distortion")]
     InvalidDistortion(#[from] crate::geometry::DistortionError),
+    /// A camera raw frame that cannot be used, for the reason given.
     #[error("camera raw frame: {0}")]
     Raw(String),
-    #[error("cannot read the picture: {0}")]
-    Image(String),
+    /// rawler could not decode or develop a camera raw frame.
+    #[cfg(feature = "nef")]
+    #[error("camera raw frame: cannot {step} the raw data")]
+    RawData {
+        /// "decode" or "develop".
+        step: &'static str,
+        #[source]
+        source: Box<rawler::RawlerError>,
+    },
+    /// A picture (PNG, TIFF, …) the image crate could not read.
+    #[error("cannot read the picture")]
+    Image(#[source] Box<image::ImageError>),
+    /// A JPEG refused before or after decoding, for the reason given.
     #[error("JPEG decoding failed: {0}")]
     Jpeg(String),
+    /// A JPEG the decoder refused.
+    #[error("JPEG decoding failed")]
+    JpegData(#[source] zune_jpeg::errors::DecodeErrors),
 }
 
 /// Largest frame decoded, in pixels: 128 Mpx, 3.5 times a D810 frame (36 Mpx). A header that
@@ -108,117 +126,5 @@ pub(crate) fn check_frame_size(width: usize, height: usize) -> Result<(), Rectif
              may have (a D810 frame is 36 Mpx): not a frame of this camera, or a damaged file",
             MAX_FRAME_PIXELS >> 20
         ))),
-    }
-}
-
-impl Rectifier {
-    /// Rectifies an 8-bit grey frame onto the grid (see the module docs for
-    /// the sampling and border rules).
-    pub fn rectify_gray8(&self, src: &GrayImage) -> GrayImage {
-        let mut dst = self.blank();
-        self.rectify_gray8_into(src, &mut dst);
-        dst
-    }
-
-    /// Rectifies an 8-bit RGB frame.
-    pub fn rectify_rgb8(&self, src: &RgbImage) -> RgbImage {
-        let mut dst = self.blank();
-        self.rectify_rgb8_into(src, &mut dst);
-        dst
-    }
-
-    /// Rectifies a 16-bit grey frame.
-    pub fn rectify_gray16(&self, src: &Gray16Image) -> Gray16Image {
-        let mut dst = self.blank();
-        self.rectify_gray16_into(src, &mut dst);
-        dst
-    }
-
-    /// Rectifies a 16-bit RGB frame.
-    pub fn rectify_rgb16(&self, src: &Rgb16Image) -> Rgb16Image {
-        let mut dst = self.blank();
-        self.rectify_rgb16_into(src, &mut dst);
-        dst
-    }
-
-    /// As [`Rectifier::rectify_gray8`], writing into `dst` (reallocated only
-    /// if its size is not the grid's). Reusing `dst` across frames saves the
-    /// page faults of a fresh multi-megabyte buffer per frame.
-    pub fn rectify_gray8_into(&self, src: &GrayImage, dst: &mut GrayImage) {
-        #[cfg(target_arch = "x86_64")]
-        let fast = Some(simd::row_gray8 as warp::RowFn<u8>);
-        #[cfg(not(target_arch = "x86_64"))]
-        let fast = None;
-        self.fit(dst);
-        let row_fn = self.row_fn::<u8, 1>(fast);
-        self.run_into::<u8, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
-    }
-
-    /// As [`Rectifier::rectify_rgb8`], writing into `dst`.
-    pub fn rectify_rgb8_into(&self, src: &RgbImage, dst: &mut RgbImage) {
-        #[cfg(target_arch = "x86_64")]
-        let fast = Some(simd::row_rgb8 as warp::RowFn<u8>);
-        #[cfg(not(target_arch = "x86_64"))]
-        let fast = None;
-        self.fit(dst);
-        let row_fn = self.row_fn::<u8, 3>(fast);
-        self.run_into::<u8, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
-    }
-
-    /// As [`Rectifier::rectify_gray16`], writing into `dst`.
-    pub fn rectify_gray16_into(&self, src: &Gray16Image, dst: &mut Gray16Image) {
-        self.fit(dst);
-        let row_fn = self.row_fn::<u16, 1>(None);
-        self.run_into::<u16, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
-    }
-
-    /// As [`Rectifier::rectify_rgb16`], writing into `dst`.
-    pub fn rectify_rgb16_into(&self, src: &Rgb16Image, dst: &mut Rgb16Image) {
-        self.fit(dst);
-        let row_fn = self.row_fn::<u16, 3>(None);
-        self.run_into::<u16, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
-    }
-
-    /// Rectifies any image: L8/Rgb8/L16/Rgb16 directly; other formats are
-    /// first converted to the nearest of those (alpha dropped, LA8 → L8,
-    /// RGBA8 → RGB8, LA16 → L16, RGBA16 and float RGB(A) → RGB16).
-    pub fn rectify_dynamic(&self, src: &DynamicImage) -> DynamicImage {
-        match src {
-            DynamicImage::ImageLuma8(i) => DynamicImage::ImageLuma8(self.rectify_gray8(i)),
-            DynamicImage::ImageRgb8(i) => DynamicImage::ImageRgb8(self.rectify_rgb8(i)),
-            DynamicImage::ImageLuma16(i) => DynamicImage::ImageLuma16(self.rectify_gray16(i)),
-            DynamicImage::ImageRgb16(i) => DynamicImage::ImageRgb16(self.rectify_rgb16(i)),
-            DynamicImage::ImageLumaA8(_) => {
-                DynamicImage::ImageLuma8(self.rectify_gray8(&src.to_luma8()))
-            }
-            DynamicImage::ImageRgba8(_) => {
-                DynamicImage::ImageRgb8(self.rectify_rgb8(&src.to_rgb8()))
-            }
-            DynamicImage::ImageLumaA16(_) => {
-                DynamicImage::ImageLuma16(self.rectify_gray16(&src.to_luma16()))
-            }
-            _ => DynamicImage::ImageRgb16(self.rectify_rgb16(&src.to_rgb16())),
-        }
-    }
-
-    /// A zeroed output image of the grid's size. The zeroed allocation is
-    /// mapped lazily by the OS, so its pages are first touched by the worker
-    /// threads that fill them, not by a serial memset; asking for huge pages
-    /// cuts those first-touch page faults ~500-fold (a 4400² RGB frame is
-    /// 58 MB: ~14 000 faults, about a third of the warp time without it).
-    fn blank<P: image::Pixel>(&self) -> ImageBuffer<P, Vec<P::Subpixel>> {
-        let g = self.grid();
-        let mut img: ImageBuffer<P, Vec<P::Subpixel>> =
-            ImageBuffer::new(g.columns() as u32, g.rows() as u32);
-        os::advise_huge_pages(&mut img);
-        img
-    }
-
-    /// Makes `dst` the grid's size (keeping its buffer when it already is).
-    fn fit<P: image::Pixel>(&self, dst: &mut ImageBuffer<P, Vec<P::Subpixel>>) {
-        let g = self.grid();
-        if dst.dimensions() != (g.columns() as u32, g.rows() as u32) {
-            *dst = self.blank();
-        }
     }
 }

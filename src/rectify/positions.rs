@@ -1,7 +1,7 @@
 //! Phase 1 of the rectifier (see `warp.rs`): fixed-point source positions of a run of grid
 //! pixels, incremental along the row, f32 blocks where that is exact enough, f64 elsewhere.
 
-use super::warp::{Coords, DistParams, Job, FRAC_BITS, ONE};
+use super::kernel::{Coords, DistParams, Job, FRAC_BITS, ONE};
 use crate::geometry::mat3::Mat3;
 
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
@@ -324,29 +324,8 @@ fn clamp_f64(x: f64, hi: f64) -> f64 {
 mod tests {
     use super::*;
     use crate::geometry::mat3;
-    use crate::geometry::{homography_from_points, CameraModel, Grid, RadialDistortion};
-    use crate::rectify::warp::{Source, CHUNK};
-    use crate::rectify::{Interpolation, Rectifier};
-
-    fn job(data: &[u8], w: usize, h: usize, m: Mat3, dist: Option<DistParams>) -> Job<'_, u8> {
-        Job {
-            src: Source {
-                data,
-                width: w,
-                height: h,
-                stride: w,
-            },
-            fill: 0,
-            m,
-            dist,
-            xmax_q: ((w - 1) as i32) << FRAC_BITS,
-            ymax_q: ((h - 1) as i32) << FRAC_BITS,
-            wm2: (w - 2) as i32,
-            hm2: (h - 2) as i32,
-            map: None,
-            cols: 0,
-        }
-    }
+    use crate::geometry::{homography_from_points, RadialDistortion};
+    use crate::rectify::kernel::CHUNK;
 
     /// The f32 block paths (with and without distortion) agree with the
     /// exact f64 path to within one fixed-point unit (1/2048 px), including
@@ -403,7 +382,7 @@ mod tests {
             ];
             let (hi, _) = mat3::inverse(&h_img);
             let m = mat3::mul(&hi, &g);
-            let j = job(&data, w, h, m, dist);
+            let j = Job::for_test(&data, w, h, m, dist);
             let cols = (300.0 / p) as usize;
             let (mut a, mut b) = (Coords::new(), Coords::new());
             for row in (0..cols).step_by(97) {
@@ -444,64 +423,5 @@ mod tests {
         }
         // Tiny differences show the block path really ran (and stayed within 1 unit).
         assert!(fast_blocks > 0);
-    }
-
-    /// The cached map (distortion) gives exactly the positions computed
-    /// directly for the actual image size.
-    #[test]
-    fn position_map_matches_direct_computation() {
-        let lens = RadialDistortion {
-            center: [310.0, 205.0],
-            focal_px: 500.0,
-            k1: -0.2,
-            k2: 0.05,
-        };
-        let h = homography_from_points(
-            [[120.0, 60.0], [500.0, 70.0], [590.0, 390.0], [30.0, 380.0]],
-            [
-                [-100.0, 100.0],
-                [100.0, 100.0],
-                [100.0, -100.0],
-                [-100.0, -100.0],
-            ],
-        )
-        .unwrap();
-        let grid = Grid {
-            x_min: -170.0,
-            x_max: 170.0,
-            y_min: -170.0,
-            y_max: 170.0,
-            pixel_mm: 0.4,
-        };
-        let camera = CameraModel::new(h, Some(lens));
-        let r = Rectifier::new(&camera, grid, Interpolation::Bilinear, 0).unwrap();
-        let (w, hgt) = (640usize, 420usize);
-        let data = vec![0u8; w * hgt];
-        let direct = job(&data, w, hgt, r.m, r.dist);
-        let cached = Job {
-            map: Some(r.position_map()),
-            cols: grid.columns(),
-            ..job(&data, w, hgt, r.m, r.dist)
-        };
-        let (mut a, mut b) = (Coords::new(), Coords::new());
-        let (mut inside, mut outside) = (0, 0);
-        for row in 0..grid.rows() {
-            for col0 in (0..grid.columns()).step_by(CHUNK) {
-                let n = CHUNK.min(grid.columns() - col0);
-                map_run(&direct, row, col0, n, &mut a);
-                map_run(&cached, row, col0, n, &mut b);
-                for i in 0..n {
-                    assert_eq!(a.ix[i] < 0, b.ix[i] < 0, "row {row} col {}", col0 + i);
-                    if a.ix[i] >= 0 {
-                        inside += 1;
-                        let pa = (a.ix[i], a.iy[i], a.fx[i], a.fy[i]);
-                        assert_eq!(pa, (b.ix[i], b.iy[i], b.fx[i], b.fy[i]));
-                    } else {
-                        outside += 1;
-                    }
-                }
-            }
-        }
-        assert!(inside > 100_000 && outside > 10_000, "{inside} / {outside}");
     }
 }

@@ -12,7 +12,7 @@
 //! Pictures for people (PNG, the overlays) are fully developed by rawler (PPG demosaic) and get
 //! the sRGB transfer curve on top.
 
-use super::frame::srgb_encode;
+use super::srgb::srgb_encode;
 use super::{Gray16Image, RectifyError, Rgb16Image};
 use rawler::decoders::RawDecodeParams;
 use rawler::imgop::develop::{Intermediate, ProcessingStep, RawDevelop};
@@ -51,7 +51,10 @@ pub fn decode(bytes: &[u8]) -> Result<RawFrame, RectifyError> {
     let source = RawSource::new_from_slice(bytes);
     let raw = std::panic::catch_unwind(|| rawler::decode(&source, &RawDecodeParams::default()))
         .map_err(|_| failed("the raw decoder gave up on this file (a panic inside rawler)"))?
-        .map_err(|e| failed(&format!("cannot decode the raw data: {e}")))?;
+        .map_err(|e| RectifyError::RawData {
+            step: "decode",
+            source: Box::new(e),
+        })?;
     if raw.cpp != 1 {
         return Err(failed(&format!(
             "{} {}: {} colour components per photosite; only Bayer mosaics are supported \
@@ -83,7 +86,10 @@ impl RawFrame {
             RawDevelop::new_with(&steps).develop_intermediate(&self.raw)
         })
         .map_err(|_| failed("the raw developer gave up on this file (a panic inside rawler)"))?
-        .map_err(|e| failed(&format!("cannot develop the raw data: {e}")))?;
+        .map_err(|e| RectifyError::RawData {
+            step: "develop",
+            source: Box::new(e),
+        })?;
         match developed {
             Intermediate::ThreeColor(pixels) => Ok(LinearFrame {
                 width: pixels.width as u32,

@@ -1,13 +1,13 @@
 //! AVX2 kernels (x86-64, selected at run time).
 //!
 //! The arithmetic is the same exact integer bilinear as
-//! [`bilinear_run`](super::warp::bilinear_run), so results are bit-identical
+//! `bilinear_run` (`kernel.rs`), so results are bit-identical
 //! to the scalar path (a unit test checks this).
 
 use std::arch::x86_64::*;
 
+use super::kernel::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
 use super::positions::map_run;
-use super::warp::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
 
 /// Whether the AVX2 kernels can run here (cached by std after the first call).
 #[inline]
@@ -29,7 +29,7 @@ pub(crate) fn row_generic<T: Sample, const CN: usize, const CUBIC: bool>(
         // SAFETY: AVX2 is present (checked above).
         unsafe { row_generic_avx2::<T, CN, CUBIC>(job, row, out, co) }
     } else {
-        super::warp::row_generic::<T, CN, CUBIC>(job, row, out, co)
+        super::row::row_generic::<T, CN, CUBIC>(job, row, out, co)
     }
 }
 
@@ -40,7 +40,7 @@ fn row_generic_avx2<T: Sample, const CN: usize, const CUBIC: bool>(
     out: &mut [T],
     co: &mut Coords,
 ) {
-    super::warp::row_generic::<T, CN, CUBIC>(job, row, out, co)
+    super::row::row_generic::<T, CN, CUBIC>(job, row, out, co)
 }
 
 /// Bilinear 8-bit grey row kernel.
@@ -49,7 +49,7 @@ pub(crate) fn row_gray8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut 
         // SAFETY: AVX2 is present (checked above).
         unsafe { row_gray8_avx2(job, row, out, co) }
     } else {
-        super::warp::row_generic::<u8, 1, false>(job, row, out, co)
+        super::row::row_generic::<u8, 1, false>(job, row, out, co)
     }
 }
 
@@ -59,7 +59,7 @@ pub(crate) fn row_rgb8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut C
         // SAFETY: AVX2 is present (checked above).
         unsafe { row_rgb8_avx2(job, row, out, co) }
     } else {
-        super::warp::row_generic::<u8, 3, false>(job, row, out, co)
+        super::row::row_generic::<u8, 3, false>(job, row, out, co)
     }
 }
 

@@ -12,7 +12,7 @@
 //!    computed once per `Rectifier` into a cached map (8 bytes per grid
 //!    pixel), which measured ~2x faster per frame than re-evaluating the
 //!    lens model (see `Rectifier::position_map`).
-//! 2. a sampling kernel: scalar generic ([`bilinear_run`], [`bicubic_run`]) or
+//! 2. a sampling kernel: scalar generic (`bilinear_run`, `bicubic_run` in `kernel.rs`) or
 //!    the AVX2 ones for 8-bit grey / RGB bilinear (see `simd.rs`).
 //!
 //! # Border rule
@@ -32,147 +32,25 @@
 
 use std::sync::{Arc, OnceLock};
 
+use image::{DynamicImage, GrayImage, ImageBuffer, RgbImage};
 use rayon::prelude::*;
 
+use super::kernel::{Coords, DistParams, Job, RowFn, Sample, Source, CHUNK, FRAC_BITS};
 use super::positions::map_run;
+use super::row::row_plain;
+#[cfg(target_arch = "x86_64")]
+use super::simd;
+use super::{os, Gray16Image, Rgb16Image};
 use super::{Interpolation, RectifyError};
 use crate::geometry::mat3::{self, Mat3};
-use crate::geometry::{BuildPoint, CameraModel, Grid, Homography, ImagePoint, RadialDistortion};
-
-/// Fraction bits of the fixed-point source position (and bilinear weights).
-///
-/// 11 bits: the position is rounded to 1/2048 px, so even across a hard
-/// 0→255 edge the interpolated value moves by at most 255·2·2⁻¹² ≈ 0.12 grey
-/// levels, which keeps the result within ±1 of an exact f64 bilinear (with
-/// OpenCV's old INTER_BITS = 5 it could move by up to 4 levels). It is also
-/// the most that fits 8-bit samples in i32 lanes: the horizontal lerp
-/// (≤ 255·2¹¹) fits the i16·i16→i32 `madd`, the vertical one reaches
-/// 255·2²² < 2³¹.
-pub(crate) const FRAC_BITS: u32 = 11;
-pub(crate) const ONE: i32 = 1 << FRAC_BITS;
-/// Rounding term for the final `>> 2·FRAC_BITS`.
-pub(crate) const ROUND2: u64 = 1 << (2 * FRAC_BITS - 1);
+use crate::geometry::{BuildPoint, CameraModel, Grid, Homography, ImagePoint};
 
 /// Largest source image side (pixels) the rectifier samples; larger sources
 /// give an all-fill result. Positions are i32 with 11 fraction bits.
 pub const MAX_SOURCE_SIDE: usize = 1 << 19;
 
-/// Output pixels per phase-1/phase-2 run (16 B of coordinates per pixel).
-pub(crate) const CHUNK: usize = 512;
 /// Output rows per rayon task.
 const BAND: usize = 4;
-
-/// A sample type: `u8` or `u16`.
-pub(crate) trait Sample: Copy + Send + Sync + PartialEq + std::fmt::Debug + 'static {
-    const MAX: u32;
-    fn get(self) -> u32;
-    /// `v` must be ≤ `MAX`.
-    fn from_u32(v: u32) -> Self;
-}
-
-impl Sample for u8 {
-    const MAX: u32 = u8::MAX as u32;
-    #[inline(always)]
-    fn get(self) -> u32 {
-        self as u32
-    }
-    #[inline(always)]
-    fn from_u32(v: u32) -> Self {
-        v as u8
-    }
-}
-
-impl Sample for u16 {
-    const MAX: u32 = u16::MAX as u32;
-    #[inline(always)]
-    fn get(self) -> u32 {
-        self as u32
-    }
-    #[inline(always)]
-    fn from_u32(v: u32) -> Self {
-        v as u16
-    }
-}
-
-/// Distortion constants in the form the inner loop wants.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct DistParams {
-    pub(crate) cu: f64,
-    pub(crate) cv: f64,
-    pub(crate) inv_f2: f64,
-    pub(crate) k1: f64,
-    pub(crate) k2: f64,
-    pub(crate) r2_max: f64,
-}
-
-impl DistParams {
-    pub(crate) fn new(d: &RadialDistortion) -> Self {
-        DistParams {
-            cu: d.center[0],
-            cv: d.center[1],
-            inv_f2: 1.0 / (d.focal_px * d.focal_px),
-            k1: d.k1,
-            k2: d.k2,
-            r2_max: d.max_r2(),
-        }
-    }
-
-    /// Undistorted → recorded position, and whether the model is valid there.
-    #[inline(always)]
-    pub(crate) fn apply(&self, u: f64, v: f64) -> (f64, f64, bool) {
-        let (du, dv) = (u - self.cu, v - self.cv);
-        let r2 = (du * du + dv * dv) * self.inv_f2;
-        let k = 1.0 + r2 * (self.k1 + r2 * self.k2);
-        (self.cu + du * k, self.cv + dv * k, r2 < self.r2_max)
-    }
-}
-
-/// Fixed-point source positions for one run; `ix < 0` marks "outside".
-pub(crate) struct Coords {
-    pub(crate) ix: Vec<i32>,
-    pub(crate) iy: Vec<i32>,
-    pub(crate) fx: Vec<i32>,
-    pub(crate) fy: Vec<i32>,
-}
-
-impl Coords {
-    pub(crate) fn new() -> Self {
-        Coords {
-            ix: vec![0; CHUNK],
-            iy: vec![0; CHUNK],
-            fx: vec![0; CHUNK],
-            fy: vec![0; CHUNK],
-        }
-    }
-}
-
-/// A source image as a flat slice (`stride` in samples, rows contiguous).
-pub(crate) struct Source<'a, T> {
-    pub(crate) data: &'a [T],
-    pub(crate) width: usize,
-    pub(crate) height: usize,
-    pub(crate) stride: usize,
-}
-
-/// Everything a row kernel needs; shared by all rayon tasks.
-pub(crate) struct Job<'a, T> {
-    pub(crate) src: Source<'a, T>,
-    pub(crate) fill: T,
-    /// Grid (col, row, 1) → homogeneous undistorted image position (`image_from_grid`).
-    pub(crate) m: Mat3,
-    pub(crate) dist: Option<DistParams>,
-    /// (W−1)·2¹¹, (H−1)·2¹¹: last inside fixed-point position.
-    pub(crate) xmax_q: i32,
-    pub(crate) ymax_q: i32,
-    pub(crate) wm2: i32,
-    pub(crate) hm2: i32,
-    /// Cached positions (see [`Rectifier::position_map`]), grid row-major.
-    pub(crate) map: Option<&'a [[i32; 2]]>,
-    pub(crate) cols: usize,
-}
-
-/// Renders one output row (`out` = one grid row, `CN` samples per pixel).
-pub(crate) type RowFn<T> = fn(&Job<'_, T>, usize, &mut [T], &mut Coords);
 
 /// Warps camera frames onto a top-down [`Grid`] of the build plate.
 #[derive(Clone, Debug)]
@@ -378,11 +256,11 @@ impl Rectifier {
     /// given and usable, else the generic kernel, AVX2-compiled when possible.
     pub(crate) fn row_fn<T: Sample, const CN: usize>(&self, fast: Option<RowFn<T>>) -> RowFn<T> {
         #[cfg(target_arch = "x86_64")]
-        if self.allow_simd && super::simd::available() {
+        if self.allow_simd && simd::available() {
             return match (self.interpolation, fast) {
                 (Interpolation::Bilinear, Some(f)) => f,
-                (Interpolation::Bilinear, None) => super::simd::row_generic::<T, CN, false>,
-                (Interpolation::Bicubic, _) => super::simd::row_generic::<T, CN, true>,
+                (Interpolation::Bilinear, None) => simd::row_generic::<T, CN, false>,
+                (Interpolation::Bicubic, _) => simd::row_generic::<T, CN, true>,
             };
         }
         let _ = fast;
@@ -393,117 +271,179 @@ impl Rectifier {
     }
 }
 
-fn row_plain<T: Sample, const CN: usize, const CUBIC: bool>(
-    job: &Job<'_, T>,
-    row: usize,
-    out: &mut [T],
-    co: &mut Coords,
-) {
-    row_generic::<T, CN, CUBIC>(job, row, out, co)
-}
-
-/// Generic row kernel; `#[inline(always)]` so the AVX2 wrapper in `simd.rs`
-/// gets it compiled (and phase 1 vectorised) with AVX2.
-#[inline(always)]
-pub(crate) fn row_generic<T: Sample, const CN: usize, const CUBIC: bool>(
-    job: &Job<'_, T>,
-    row: usize,
-    out: &mut [T],
-    co: &mut Coords,
-) {
-    let mut col0 = 0;
-    for chunk in out.chunks_mut(CHUNK * CN) {
-        let n = chunk.len() / CN;
-        map_run(job, row, col0, n, co);
-        if CUBIC {
-            bicubic_run::<T, CN>(job, co, chunk);
-        } else {
-            bilinear_run::<T, CN>(job, co, chunk, 0);
-        }
-        col0 += n;
+impl Rectifier {
+    /// Rectifies an 8-bit grey frame onto the grid (see the module docs for
+    /// the sampling and border rules).
+    pub fn rectify_gray8(&self, src: &GrayImage) -> GrayImage {
+        let mut dst = self.blank();
+        self.rectify_gray8_into(src, &mut dst);
+        dst
     }
-}
 
-/// Phase 2, bilinear, exact fixed point; pixels `start..` of the run.
-///
-/// With 11-bit weights the products are exact integers, so this and the
-/// AVX2 kernels give bit-identical results.
-#[inline(always)]
-pub(crate) fn bilinear_run<T: Sample, const CN: usize>(
-    job: &Job<'_, T>,
-    co: &Coords,
-    out: &mut [T],
-    start: usize,
-) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
-    let n = out.len() / CN;
-    let one = ONE as u64;
-    for i in start..n {
-        let o = &mut out[i * CN..i * CN + CN];
-        let x = co.ix[i];
-        if x < 0 {
-            o.fill(job.fill);
-            continue;
-        }
-        let p = co.iy[i] as usize * stride + x as usize * CN;
-        let (wx, wy) = (co.fx[i] as u64, co.fy[i] as u64);
-        let top = &data[p..p + 2 * CN];
-        let bot = &data[p + stride..p + stride + 2 * CN];
-        for ch in 0..CN {
-            let t = top[ch].get() as u64 * (one - wx) + top[CN + ch].get() as u64 * wx;
-            let b = bot[ch].get() as u64 * (one - wx) + bot[CN + ch].get() as u64 * wx;
-            let val = (t * (one - wy) + b * wy + ROUND2) >> (2 * FRAC_BITS);
-            o[ch] = T::from_u32(val as u32);
-        }
+    /// Rectifies an 8-bit RGB frame.
+    pub fn rectify_rgb8(&self, src: &RgbImage) -> RgbImage {
+        let mut dst = self.blank();
+        self.rectify_rgb8_into(src, &mut dst);
+        dst
     }
-}
 
-/// Keys cubic convolution weights for taps at −1, 0, 1, 2 (fraction `t`).
-/// A = −0.75 as in OpenCV's INTER_CUBIC, so the two can be compared.
-#[inline(always)]
-pub(crate) fn cubic_weights(t: f32) -> [f32; 4] {
-    const A: f32 = -0.75;
-    let w0 = ((A * (t + 1.0) - 5.0 * A) * (t + 1.0) + 8.0 * A) * (t + 1.0) - 4.0 * A;
-    let w1 = ((A + 2.0) * t - (A + 3.0)) * t * t + 1.0;
-    let s = 1.0 - t;
-    let w2 = ((A + 2.0) * s - (A + 3.0)) * s * s + 1.0;
-    [w0, w1, w2, 1.0 - w0 - w1 - w2]
-}
+    /// Rectifies a 16-bit grey frame.
+    pub fn rectify_gray16(&self, src: &Gray16Image) -> Gray16Image {
+        let mut dst = self.blank();
+        self.rectify_gray16_into(src, &mut dst);
+        dst
+    }
 
-/// Phase 2, bicubic (f32, result rounded and clamped to the sample range).
-#[inline(always)]
-fn bicubic_run<T: Sample, const CN: usize>(job: &Job<'_, T>, co: &Coords, out: &mut [T]) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
-    let (wmax, hmax) = (src.width - 1, src.height - 1);
-    let n = out.len() / CN;
-    let scale = 1.0 / ONE as f32;
-    let max = T::MAX as f32;
-    for i in 0..n {
-        let o = &mut out[i * CN..i * CN + CN];
-        let x = co.ix[i];
-        if x < 0 {
-            o.fill(job.fill);
-            continue;
-        }
-        let (x, y) = (x as usize, co.iy[i] as usize);
-        let wx = cubic_weights(co.fx[i] as f32 * scale);
-        let wy = cubic_weights(co.fy[i] as f32 * scale);
-        // Outer taps replicate the edge pixels (x, x+1 and y, y+1 are inside).
-        let xs = [x.saturating_sub(1), x, x + 1, (x + 2).min(wmax)].map(|c| c * CN);
-        let ys = [y.saturating_sub(1), y, y + 1, (y + 2).min(hmax)].map(|r| r * stride);
-        for ch in 0..CN {
-            let mut acc = 0.0f32;
-            for (ry, wyk) in ys.iter().zip(wy) {
-                let line = &data[*ry..*ry + stride];
-                let mut h = 0.0f32;
-                for (cx, wxk) in xs.iter().zip(wx) {
-                    h += wxk * line[cx + ch].get() as f32;
-                }
-                acc += wyk * h;
+    /// Rectifies a 16-bit RGB frame.
+    pub fn rectify_rgb16(&self, src: &Rgb16Image) -> Rgb16Image {
+        let mut dst = self.blank();
+        self.rectify_rgb16_into(src, &mut dst);
+        dst
+    }
+
+    /// As [`Rectifier::rectify_gray8`], writing into `dst` (reallocated only
+    /// if its size is not the grid's). Reusing `dst` across frames saves the
+    /// page faults of a fresh multi-megabyte buffer per frame.
+    pub fn rectify_gray8_into(&self, src: &GrayImage, dst: &mut GrayImage) {
+        #[cfg(target_arch = "x86_64")]
+        let fast = Some(simd::row_gray8 as RowFn<u8>);
+        #[cfg(not(target_arch = "x86_64"))]
+        let fast = None;
+        self.fit(dst);
+        let row_fn = self.row_fn::<u8, 1>(fast);
+        self.run_into::<u8, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_rgb8`], writing into `dst`.
+    pub fn rectify_rgb8_into(&self, src: &RgbImage, dst: &mut RgbImage) {
+        #[cfg(target_arch = "x86_64")]
+        let fast = Some(simd::row_rgb8 as RowFn<u8>);
+        #[cfg(not(target_arch = "x86_64"))]
+        let fast = None;
+        self.fit(dst);
+        let row_fn = self.row_fn::<u8, 3>(fast);
+        self.run_into::<u8, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_gray16`], writing into `dst`.
+    pub fn rectify_gray16_into(&self, src: &Gray16Image, dst: &mut Gray16Image) {
+        self.fit(dst);
+        let row_fn = self.row_fn::<u16, 1>(None);
+        self.run_into::<u16, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// As [`Rectifier::rectify_rgb16`], writing into `dst`.
+    pub fn rectify_rgb16_into(&self, src: &Rgb16Image, dst: &mut Rgb16Image) {
+        self.fit(dst);
+        let row_fn = self.row_fn::<u16, 3>(None);
+        self.run_into::<u16, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+    }
+
+    /// Rectifies any image: L8/Rgb8/L16/Rgb16 directly; other formats are
+    /// first converted to the nearest of those (alpha dropped, LA8 → L8,
+    /// RGBA8 → RGB8, LA16 → L16, RGBA16 and float RGB(A) → RGB16).
+    pub fn rectify_dynamic(&self, src: &DynamicImage) -> DynamicImage {
+        match src {
+            DynamicImage::ImageLuma8(i) => DynamicImage::ImageLuma8(self.rectify_gray8(i)),
+            DynamicImage::ImageRgb8(i) => DynamicImage::ImageRgb8(self.rectify_rgb8(i)),
+            DynamicImage::ImageLuma16(i) => DynamicImage::ImageLuma16(self.rectify_gray16(i)),
+            DynamicImage::ImageRgb16(i) => DynamicImage::ImageRgb16(self.rectify_rgb16(i)),
+            DynamicImage::ImageLumaA8(_) => {
+                DynamicImage::ImageLuma8(self.rectify_gray8(&src.to_luma8()))
             }
-            o[ch] = T::from_u32((acc + 0.5).floor().clamp(0.0, max) as u32);
+            DynamicImage::ImageRgba8(_) => {
+                DynamicImage::ImageRgb8(self.rectify_rgb8(&src.to_rgb8()))
+            }
+            DynamicImage::ImageLumaA16(_) => {
+                DynamicImage::ImageLuma16(self.rectify_gray16(&src.to_luma16()))
+            }
+            _ => DynamicImage::ImageRgb16(self.rectify_rgb16(&src.to_rgb16())),
         }
+    }
+
+    /// A zeroed output image of the grid's size. The zeroed allocation is
+    /// mapped lazily by the OS, so its pages are first touched by the worker
+    /// threads that fill them, not by a serial memset; asking for huge pages
+    /// cuts those first-touch page faults ~500-fold (a 4400² RGB frame is
+    /// 58 MB: ~14 000 faults, about a third of the warp time without it).
+    fn blank<P: image::Pixel>(&self) -> ImageBuffer<P, Vec<P::Subpixel>> {
+        let g = self.grid();
+        let mut img: ImageBuffer<P, Vec<P::Subpixel>> =
+            ImageBuffer::new(g.columns() as u32, g.rows() as u32);
+        os::advise_huge_pages(&mut img);
+        img
+    }
+
+    /// Makes `dst` the grid's size (keeping its buffer when it already is).
+    fn fit<P: image::Pixel>(&self, dst: &mut ImageBuffer<P, Vec<P::Subpixel>>) {
+        let g = self.grid();
+        if dst.dimensions() != (g.columns() as u32, g.rows() as u32) {
+            *dst = self.blank();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{homography_from_points, RadialDistortion};
+
+    /// The cached map (distortion) gives exactly the positions computed
+    /// directly for the actual image size.
+    #[test]
+    fn position_map_matches_direct_computation() {
+        let lens = RadialDistortion {
+            center: [310.0, 205.0],
+            focal_px: 500.0,
+            k1: -0.2,
+            k2: 0.05,
+        };
+        let h = homography_from_points(
+            [[120.0, 60.0], [500.0, 70.0], [590.0, 390.0], [30.0, 380.0]],
+            [
+                [-100.0, 100.0],
+                [100.0, 100.0],
+                [100.0, -100.0],
+                [-100.0, -100.0],
+            ],
+        )
+        .unwrap();
+        let grid = Grid {
+            x_min: -170.0,
+            x_max: 170.0,
+            y_min: -170.0,
+            y_max: 170.0,
+            pixel_mm: 0.4,
+        };
+        let camera = CameraModel::new(h, Some(lens));
+        let r = Rectifier::new(&camera, grid, Interpolation::Bilinear, 0).unwrap();
+        let (w, hgt) = (640usize, 420usize);
+        let data = vec![0u8; w * hgt];
+        let direct = Job::for_test(&data, w, hgt, r.m, r.dist);
+        let cached = Job {
+            map: Some(r.position_map()),
+            cols: grid.columns(),
+            ..Job::for_test(&data, w, hgt, r.m, r.dist)
+        };
+        let (mut a, mut b) = (Coords::new(), Coords::new());
+        let (mut inside, mut outside) = (0, 0);
+        for row in 0..grid.rows() {
+            for col0 in (0..grid.columns()).step_by(CHUNK) {
+                let n = CHUNK.min(grid.columns() - col0);
+                map_run(&direct, row, col0, n, &mut a);
+                map_run(&cached, row, col0, n, &mut b);
+                for i in 0..n {
+                    assert_eq!(a.ix[i] < 0, b.ix[i] < 0, "row {row} col {}", col0 + i);
+                    if a.ix[i] >= 0 {
+                        inside += 1;
+                        let pa = (a.ix[i], a.iy[i], a.fx[i], a.fy[i]);
+                        assert_eq!(pa, (b.ix[i], b.iy[i], b.fx[i], b.fy[i]));
+                    } else {
+                        outside += 1;
+                    }
+                }
+            }
+        }
+        assert!(inside > 100_000 && outside > 10_000, "{inside} / {outside}");
     }
 }

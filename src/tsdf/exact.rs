@@ -16,6 +16,8 @@
 
 use rayon::prelude::*;
 
+use super::volume::Volume;
+
 /// A parabola center: an end of one or two slabs.
 #[derive(Debug, Clone, Copy)]
 struct Center {
@@ -24,28 +26,6 @@ struct Center {
     /// The slab ending here, and the one starting here.
     below: Option<usize>,
     above: Option<usize>,
-}
-
-/// The raw volume shared between tasks that own disjoint sets of rows.
-struct Volume {
-    ptr: *mut f32,
-    nx: usize,
-    ny: usize,
-}
-
-// SAFETY: each task reads and writes only the rows (j, ·) of its own j.
-unsafe impl Sync for Volume {}
-unsafe impl Send for Volume {}
-
-impl Volume {
-    /// Row (j, k).
-    ///
-    /// # Safety
-    /// No other reference to this row may exist while the slice lives.
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn row_mut(&self, j: usize, k: usize) -> &mut [f32] {
-        std::slice::from_raw_parts_mut(self.ptr.add(self.nx * (j + self.ny * k)), self.nx)
-    }
 }
 
 /// Input: planes 0..L of `data` hold the signed 2D distances of the L slabs (`bounds[l]` =
@@ -75,11 +55,8 @@ pub(crate) fn transform(
         slice_slab,
         trunc,
     };
-    let vol = Volume {
-        ptr: data.as_mut_ptr(),
-        nx,
-        ny,
-    };
+    // Each task reads and writes only the rows (j, ·) of its own j.
+    let vol = Volume::new(data, nx, ny);
     (0..ny).into_par_iter().for_each_init(
         || Scratch::new(nx, nl, nz, centers.len()),
         |s, j| {

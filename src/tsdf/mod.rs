@@ -41,6 +41,7 @@
 mod dist2d;
 mod exact;
 mod sweep;
+mod volume;
 
 use rayon::prelude::*;
 

@@ -13,6 +13,8 @@
 
 use rayon::prelude::*;
 
+use super::volume::Volume;
+
 /// Godunov upwind solution of |∇u| = 1 from the smallest neighbour per axis (a, b, c), h the
 /// spacing.
 #[inline]
@@ -40,37 +42,6 @@ fn godunov(mut a: f32, mut b: f32, mut c: f32, h: f32) -> f32 {
     (s + (s * s - 3.0 * q).max(0.0).sqrt()) / 3.0
 }
 
-/// The volume shared between the rows of one anti-diagonal.
-struct Volume {
-    ptr: *mut f32,
-    nx: usize,
-    ny: usize,
-}
-
-// SAFETY: rows handed out concurrently are disjoint (see `sweep`), and rows read while others
-// are written belong to other anti-diagonals, which no thread writes at that time.
-unsafe impl Sync for Volume {}
-unsafe impl Send for Volume {}
-
-impl Volume {
-    /// Row (j, k) for writing.
-    ///
-    /// # Safety
-    /// No other reference to this row may exist while the slice lives.
-    #[allow(clippy::mut_from_ref)]
-    unsafe fn row_mut(&self, j: usize, k: usize) -> &mut [f32] {
-        std::slice::from_raw_parts_mut(self.ptr.add(self.nx * (j + self.ny * k)), self.nx)
-    }
-
-    /// Row (j, k) for reading.
-    ///
-    /// # Safety
-    /// No thread may write this row while the slice lives.
-    unsafe fn row(&self, j: usize, k: usize) -> &[f32] {
-        std::slice::from_raw_parts(self.ptr.add(self.nx * (j + self.ny * k)), self.nx)
-    }
-}
-
 /// Runs the 8 sweep orders once over `data` (`dims` = [nx, ny, nz], x fastest). Voxels whose
 /// neighbours are all at least `cutoff` away are left alone: their value would exceed the
 /// truncation anyway.
@@ -80,11 +51,9 @@ pub(crate) fn sweep(data: &mut [f32], dims: [usize; 3], h: f32, cutoff: f32) {
     if data.is_empty() {
         return;
     }
-    let vol = Volume {
-        ptr: data.as_mut_ptr(),
-        nx,
-        ny,
-    };
+    // Rows of one anti-diagonal are handed out concurrently (disjoint), their neighbours
+    // are on the adjacent anti-diagonals, which are not written meanwhile.
+    let vol = Volume::new(data, nx, ny);
     for order in 0..8 {
         let (sx, sy, sz) = (order & 1 == 0, order & 2 == 0, order & 4 == 0);
         for diag in 0..(ny + nz - 1) {
@@ -115,7 +84,7 @@ pub(crate) fn sweep(data: &mut [f32], dims: [usize; 3], h: f32, cutoff: f32) {
 /// duration.
 #[allow(clippy::too_many_arguments)]
 unsafe fn update_row(
-    vol: &Volume,
+    vol: &Volume<'_>,
     j: usize,
     k: usize,
     ny: usize,

@@ -7,10 +7,10 @@
 
 use std::io::BufRead;
 
+use super::command::{Command, Pos};
 use super::header::shown;
 use super::number::{parse_f64, parse_i64, parse_u64};
 use super::source::Src;
-use super::stream::{Command, Pos};
 use super::{Direction, Hatches, MarkingParameter, Polyline, VectorError};
 
 #[derive(Clone, Copy, PartialEq, Eq)]

@@ -15,8 +15,8 @@
 
 use std::io::BufRead;
 
+use super::command::{Command, Pos};
 use super::source::Src;
-use super::stream::{Command, Pos};
 use super::{Direction, Hatches, Polyline, VectorError};
 
 const LAYER_LONG: u16 = 127;

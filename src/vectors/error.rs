@@ -8,7 +8,7 @@
 #[derive(Debug, thiserror::Error)]
 pub enum VectorError {
     /// The file could not be opened or read.
-    #[error("{file}: {source}")]
+    #[error("{file}: cannot read")]
     Io {
         file: String,
         #[source]

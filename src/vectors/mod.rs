@@ -24,6 +24,7 @@
 
 mod ascii;
 mod binary;
+mod command;
 mod error;
 mod header;
 mod index;
@@ -35,15 +36,13 @@ mod stream;
 pub mod synth;
 mod write;
 
-use std::path::Path;
-
 use serde::Serialize;
 
 pub use error::VectorError;
 pub use index::LayerIndex;
 pub use info::{info, Info, PartInfo};
-pub use numbering::{LayerMap, LayerMatch, LayerNumbering, LayerSummary};
-pub use stream::LayerReader;
+pub use numbering::{LayerMap, LayerMatch, LayerNumbering, LayerSummary, UnknownLayerMatch};
+pub use stream::{read, read_bytes, LayerReader};
 pub use write::{write_ascii, write_binary};
 
 /// Encoding of the geometry section.
@@ -188,28 +187,4 @@ impl Layer {
 pub struct VectorFile {
     pub header: Header,
     pub layers: Vec<Layer>,
-}
-
-/// Reads a whole CLI file (ASCII or binary, detected from the header).
-pub fn read(path: &Path) -> Result<VectorFile, VectorError> {
-    let name = stream::display_name(path);
-    let bytes = crate::fsutil::read_regular(path).map_err(|source| VectorError::Io {
-        file: name.clone(),
-        source,
-    })?;
-    read_bytes(&bytes, &name)
-}
-
-/// Reads a CLI file from memory; `name` is used in error messages.
-pub fn read_bytes(bytes: &[u8], name: &str) -> Result<VectorFile, VectorError> {
-    let src = source::Src::new(bytes, 0, bytes.len() as u64);
-    let (header, mut layers) = stream::open_stream(src, name)?;
-    let mut out = Vec::new();
-    while let Some((layer, _)) = layers.next_layer(true)? {
-        out.push(layer);
-    }
-    Ok(VectorFile {
-        header,
-        layers: out,
-    })
 }

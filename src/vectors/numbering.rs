@@ -31,17 +31,20 @@ pub enum LayerMatch {
     Z,
 }
 
+/// A layer match rule that is not `geometry`, `position` or `z`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("layer match `{0}`: expected geometry, position or z")]
+pub struct UnknownLayerMatch(pub String);
+
 impl std::str::FromStr for LayerMatch {
-    type Err = String;
+    type Err = UnknownLayerMatch;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
             "geometry" => Ok(LayerMatch::Geometry),
             "position" => Ok(LayerMatch::Position),
             "z" => Ok(LayerMatch::Z),
-            other => Err(format!(
-                "layer match `{other}`: expected geometry, position or z"
-            )),
+            other => Err(UnknownLayerMatch(other.to_string())),
         }
     }
 }

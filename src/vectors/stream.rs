@@ -1,4 +1,4 @@
-//! Assembling commands into layers, shared by [`read`](super::read), [`LayerReader`],
+//! Assembling commands into layers, shared by [`read`], [`LayerReader`],
 //! [`LayerIndex`](super::LayerIndex) and [`info`](super::info).
 
 use std::fs::File;
@@ -7,28 +7,13 @@ use std::path::Path;
 
 use super::ascii::AsciiParser;
 use super::binary::BinaryParser;
+use super::command::{Command, Pos};
 use super::header::parse_header;
 use super::source::Src;
-use super::{Format, Hatches, Header, Layer, MarkingParameter, Polyline, VectorError};
+use super::{Format, Header, Layer, VectorError, VectorFile};
 
 /// Buffer size of the streaming readers.
 const BUFFER: usize = 1 << 18;
-
-/// One geometry command, coordinates already in millimetres.
-pub(crate) enum Command {
-    Layer(f64),
-    Polyline(Polyline),
-    Hatches(Hatches),
-    Parameter(MarkingParameter),
-}
-
-/// Where a command starts: byte offset always, line for ASCII; `what` names the command.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Pos {
-    pub(crate) offset: u64,
-    pub(crate) line: u64,
-    pub(crate) what: &'static str,
-}
 
 pub(crate) enum Parser<R> {
     Ascii(AsciiParser<R>),
@@ -181,6 +166,30 @@ pub(crate) fn open_file(path: &Path) -> Result<(BufReader<File>, u64, String), V
     Ok((BufReader::with_capacity(BUFFER, file), len, name))
 }
 
+/// Reads a whole CLI file (ASCII or binary, detected from the header).
+pub fn read(path: &Path) -> Result<VectorFile, VectorError> {
+    let name = display_name(path);
+    let bytes = crate::fsutil::read_regular(path).map_err(|source| VectorError::Io {
+        file: name.clone(),
+        source,
+    })?;
+    read_bytes(&bytes, &name)
+}
+
+/// Reads a CLI file from memory; `name` is used in error messages.
+pub fn read_bytes(bytes: &[u8], name: &str) -> Result<VectorFile, VectorError> {
+    let src = Src::new(bytes, 0, bytes.len() as u64);
+    let (header, mut layers) = open_stream(src, name)?;
+    let mut out = Vec::new();
+    while let Some((layer, _)) = layers.next_layer(true)? {
+        out.push(layer);
+    }
+    Ok(VectorFile {
+        header,
+        layers: out,
+    })
+}
+
 /// Reads a CLI file layer by layer: the header first, then one layer at a time, holding only
 /// that layer (and a read buffer) in memory.
 pub struct LayerReader {
@@ -211,5 +220,23 @@ impl Iterator for LayerReader {
 
     fn next(&mut self) -> Option<Self::Item> {
         self.next_layer().transpose()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    /// The OS error is the source, not part of the message.
+    #[test]
+    fn io_errors_keep_the_os_error_as_their_source() {
+        let e = super::read(Path::new("/nonexistent/dir/missing.cli")).unwrap_err();
+        assert_eq!(e.to_string(), "missing.cli: cannot read");
+        let cause = std::error::Error::source(&e).expect("the OS error");
+        assert!(cause.downcast_ref::<std::io::Error>().is_some());
+        assert_eq!(
+            crate::logging::chain(&e),
+            format!("missing.cli: cannot read: {cause}")
+        );
     }
 }

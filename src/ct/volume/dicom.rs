@@ -96,6 +96,7 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
         // Every stated length must fit in the file before the parser sizes a read by it.
         let part10 = crate::dicom::check_lengths(&path).map_err(|e| match e {
             crate::dicom::DicomError::Damaged { message, .. } => dicom_err(&path, message),
+            crate::dicom::DicomError::Io { source, .. } => io_err(&path)(source),
             other => dicom_err(&path, other.to_string()),
         })?;
         let obj = match dicom_object::OpenFileOptions::new()

@@ -125,6 +125,27 @@ fn a_truncated_jpeg_is_an_error_not_a_grey_picture() {
     );
 }
 
+/// What the decoders refuse keeps the decoder's own error as its source, said once in the chain.
+#[test]
+fn decoder_errors_keep_the_decoders_error_as_their_source() {
+    let e = decode_jpeg(b"\xFF\xD8\xFF\xC0 definitely not a jpeg").unwrap_err();
+    assert!(matches!(e, RectifyError::JpegData(_)), "{e:?}");
+    let cause = std::error::Error::source(&e)
+        .expect("the decoder's error")
+        .to_string();
+    let chain = crate::logging::chain(&e);
+    assert_eq!(chain, format!("JPEG decoding failed: {cause}"));
+    let e = decode_frame(b"not a picture of any kind").unwrap_err();
+    assert!(matches!(e, RectifyError::Image(_)), "{e:?}");
+    let cause = std::error::Error::source(&e)
+        .expect("the image crate's error")
+        .to_string();
+    assert_eq!(
+        crate::logging::chain(&e),
+        format!("cannot read the picture: {cause}")
+    );
+}
+
 #[test]
 fn a_jpeg_header_claiming_65500_squared_pixels_is_refused_before_allocating() {
     let good = encode_jpeg(&DynamicImage::ImageRgb8(RgbImage::from_pixel(
