@@ -74,9 +74,9 @@ impl Pusher {
             let thread = std::thread::Builder::new()
                 .name(format!("pacs-{name}"))
                 .spawn(move || push_loop(queue, sender, (inbox, woken), clock, poll))
-                .map_err(|e| PacsError::Transport {
+                .map_err(|source| PacsError::Thread {
                     destination: name,
-                    message: format!("cannot start the push thread: {e}"),
+                    source,
                 })?;
             threads.push((control, thread));
             waker.wakes.push(wake);
@@ -182,7 +182,7 @@ mod tests {
     struct Recording(crossbeam_channel::Sender<String>);
 
     impl PacsSender for Recording {
-        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
             for instance in batch {
                 let _ = self.0.send(instance.file.clone());
             }
