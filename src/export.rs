@@ -26,19 +26,30 @@ pub enum ExportError {
     Ct(#[from] CtError),
     #[error(transparent)]
     Write(#[from] WriteError),
-    #[error("{file}: layer {layer}: {source}")]
+    #[error("{file}: layer {layer}: cannot draw the vectors")]
     Raster {
         file: PathBuf,
         layer: usize,
+        #[source]
         source: RasterError,
     },
-    #[error("{path}: {source}")]
-    Frame { path: PathBuf, source: SeriesError },
-    #[error("{path}: {source}")]
-    Dicom { path: PathBuf, source: DicomError },
-    #[error("{path}: {source}")]
+    #[error("{path}: cannot export the frame")]
+    Frame {
+        path: PathBuf,
+        #[source]
+        source: SeriesError,
+    },
+    #[error("{path}: cannot write the slice")]
+    Dicom {
+        path: PathBuf,
+        #[source]
+        source: DicomError,
+    },
+    #[error("cannot {action} {path}")]
     Io {
         path: PathBuf,
+        action: &'static str,
+        #[source]
         source: std::io::Error,
     },
     #[error("{0}")]
@@ -107,6 +118,7 @@ fn originals_by_view(dir: &Path, take: crate::shot::SeriesTake) -> Result<Origin
     let raw = dir.join(crate::build_dir::RAW_DIR);
     let entries = std::fs::read_dir(&raw).map_err(|source| ExportError::Io {
         path: raw.clone(),
+        action: "list",
         source,
     })?;
     let mut picked: std::collections::BTreeMap<Shot, (u32, PathBuf)> = Default::default();
@@ -236,6 +248,7 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                 ExportFormat::Nrrd => {
                     let bytes = std::fs::read(path).map_err(|source| ExportError::Io {
                         path: path.clone(),
+                        action: "read",
                         source,
                     })?;
                     let luma = live.rectified_luma(&bytes).map_err(frame)?;
@@ -330,6 +343,7 @@ fn write_nrrd(path: &Path, voxels: NrrdVoxels, grid: Grid, zs: &[f64]) -> Result
     let mut gz = flate2::write::GzEncoder::new(header.into_bytes(), flate2::Compression::fast());
     let io = |source| ExportError::Io {
         path: path.to_path_buf(),
+        action: "write",
         source,
     };
     match voxels {
@@ -346,6 +360,7 @@ fn write_nrrd(path: &Path, voxels: NrrdVoxels, grid: Grid, zs: &[f64]) -> Result
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| ExportError::Io {
             path: dir.to_path_buf(),
+            action: "create",
             source,
         })?;
     }

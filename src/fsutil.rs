@@ -11,13 +11,21 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A file could not be written.
 #[derive(Debug, thiserror::Error)]
-#[error("{path}: {source} (is the disk full or read-only?)")]
+#[error("cannot write {path} (is the disk full or read-only?)")]
 pub struct WriteError {
     pub path: PathBuf,
+    #[source]
     pub source: std::io::Error,
 }
 
-/// A TOML file could not be parsed into what it should hold.
+/// A text file that is not UTF-8: the cause of [`read_text_bounded`]'s `InvalidData` error.
+#[derive(Debug, thiserror::Error)]
+#[error("not UTF-8 text")]
+pub struct NotUtf8(#[source] pub std::string::FromUtf8Error);
+
+/// A TOML file could not be parsed into what it should hold. The message is composed from the
+/// parser's own (line, column, key and what went wrong, on one line): the parser's `Display`
+/// quotes the file over several lines, so it is not kept as a source.
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {message}")]
 pub struct TomlError {
@@ -30,9 +38,10 @@ pub struct TomlError {
 /// TOML of the expected shape, or a value that fails its check.
 #[derive(Debug, thiserror::Error)]
 pub enum TomlFileError {
-    #[error("{file}: cannot read: {source}")]
+    #[error("{file}: cannot read")]
     Read {
         file: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error(transparent)]
@@ -208,12 +217,8 @@ pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String>
             format!("larger than {max_bytes} bytes: not a file of this kind"),
         ));
     }
-    String::from_utf8(bytes).map_err(|e| {
-        std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("not UTF-8 text: {e}"),
-        )
-    })
+    String::from_utf8(bytes)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, NotUtf8(e)))
 }
 
 /// Parses TOML text into `T`; the error names the file, the line and column, and the key.

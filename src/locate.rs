@@ -15,8 +15,32 @@ use std::path::{Path, PathBuf};
 pub enum LocateError {
     #[error("{0}")]
     Invalid(String),
-    #[error("{path}: {message}")]
-    Io { path: PathBuf, message: String },
+    #[error("the calibration cannot rectify the build's grid")]
+    Calibration(#[source] crate::rectify::RectifyError),
+    #[error(transparent)]
+    Vectors(#[from] crate::vectors::VectorError),
+    #[error("cannot draw the layer's vectors")]
+    Raster(#[from] crate::raster::RasterError),
+    #[error("CT: cannot resample the section through the point")]
+    Ct(#[source] crate::ct::CtError),
+    #[error("cannot read {path}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: cannot decode the frame")]
+    Decode {
+        path: PathBuf,
+        #[source]
+        source: crate::rectify::RectifyError,
+    },
+    #[error("cannot write {path}")]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: image::ImageError,
+    },
 }
 
 /// Where a build point is in one view.
@@ -75,7 +99,7 @@ pub fn locate(record: &BuildRecord, point: [f64; 3]) -> Result<Location, LocateE
     let rectifier = match &record.calibration {
         Some(c) => Some(
             Rectifier::new(&c.camera(), record.grid, Default::default(), 0)
-                .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?,
+                .map_err(LocateError::Calibration)?,
         ),
         None => None,
     };
@@ -218,7 +242,7 @@ pub fn mark(
         .as_ref()
         .ok_or_else(|| LocateError::Invalid("the build has no calibration.toml".into()))?;
     let rectifier = Rectifier::new(&calibration.camera(), record.grid, Default::default(), 0)
-        .map_err(|e| LocateError::Invalid(format!("calibration: {e}")))?;
+        .map_err(LocateError::Calibration)?;
     let mut tiles: Vec<(image::RgbImage, String)> = Vec::new();
     let rgb = |gray: image::GrayImage| image::DynamicImage::ImageLuma8(gray).to_rgb8();
     let on_grid = location.views.first().and_then(|v| v.rectified_pixel);
@@ -229,15 +253,14 @@ pub fn mark(
     if let (Some(path), Some(k), Some([r, c])) =
         (&record.config.build.vectors, location.layer, on_grid)
     {
-        let file = crate::vectors::read(path).map_err(|e| LocateError::Invalid(e.to_string()))?;
+        let file = crate::vectors::read(path)?;
         let map = crate::vectors::LayerMap::of_file(&file, record.config.build.numbering());
         if let Some(layer) = map.position(k).and_then(|p| file.layers.get(p)) {
             let picture = crate::raster::rgb(
                 layer,
                 &record.grid,
                 &crate::raster::RasterOptions::default(),
-            )
-            .map_err(|e| LocateError::Invalid(e.to_string()))?;
+            )?;
             tiles.push((
                 crop_with_marker(&picture, r, c, HALF),
                 format!("vectors {layer_label}"),
@@ -256,7 +279,7 @@ pub fn mark(
             crop,
             &[(location.layer.unwrap_or(0), z, thickness)],
         )
-        .map_err(|e| LocateError::Invalid(format!("CT: {e}")))?;
+        .map_err(LocateError::Ct)?;
         if let Some(slice) = slices.first() {
             let gray = image::GrayImage::from_fn(side as u32, side as u32, |c, r| {
                 image::Luma([(slice.pixels[r as usize * side + c as usize] >> 8) as u8])
@@ -272,14 +295,15 @@ pub fn mark(
         let Some(original) = &v.original else {
             continue;
         };
-        let bytes = std::fs::read(original).map_err(|e| LocateError::Io {
+        let bytes = std::fs::read(original).map_err(|source| LocateError::Read {
             path: original.clone(),
-            message: e.to_string(),
+            source,
         })?;
-        let luma = crate::rectify::decode_frame_luma(&bytes).map_err(|e| LocateError::Io {
-            path: original.clone(),
-            message: e.to_string(),
-        })?;
+        let luma =
+            crate::rectify::decode_frame_luma(&bytes).map_err(|source| LocateError::Decode {
+                path: original.clone(),
+                source,
+            })?;
         if let Some([r, c]) = v.rectified_pixel {
             let rect = luma.rectified(&rectifier).to_display8();
             tiles.push((
@@ -305,9 +329,9 @@ pub fn mark(
         .collect();
     sheet::sheet(&[row], 4)
         .save(out)
-        .map_err(|e| LocateError::Io {
+        .map_err(|source| LocateError::Write {
             path: out.to_path_buf(),
-            message: e.to_string(),
+            source,
         })
 }
 

@@ -64,15 +64,16 @@ pub enum SeriesError {
     File(#[from] TomlFileError),
     #[error(transparent)]
     Vectors(#[from] VectorError),
-    #[error("calibration: {0}")]
-    Rectifier(RectifyError),
+    #[error("the calibration cannot rectify the grid")]
+    Rectifier(#[source] RectifyError),
     #[error(transparent)]
     Decode(#[from] RectifyError),
     #[error(transparent)]
     Dicom(#[from] DicomError),
-    #[error("{path}: {source}")]
+    #[error("cannot read {path}")]
     Read {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error("calibration.crop_part: {file} has no part {part} with geometry")]

@@ -125,23 +125,34 @@ pub struct IrregularEntry {
 
 #[derive(Debug, thiserror::Error)]
 pub enum JournalError {
-    #[error("{path}: {source}")]
+    #[error("{path}: cannot read or write")]
     Io {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error(
-        "{path}: damaged at byte {offset} (line {line}), before its last record: {message}. Frames \
-         recorded after it could be lost, so nothing is cut: keep a copy of the file, then repair or \
-         remove that line (or restore the journal from a backup) and start again"
+        "{path}: damaged at byte {offset} (line {line}), before its last record (frames recorded \
+         after it could be lost, so nothing is cut: keep a copy of the file, then repair or remove \
+         that line, or restore the journal from a backup, and start again)"
     )]
     Corrupt {
         path: PathBuf,
         /// Byte offset of the start of the damaged line.
         offset: u64,
         line: usize,
-        message: String,
+        #[source]
+        source: LineError,
     },
+}
+
+/// Why a line of a JSON-lines log cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum LineError {
+    #[error("invalid UTF-8")]
+    Utf8(#[source] std::str::Utf8Error),
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
 }
 
 /// A captured frame as the journal knows it.
@@ -451,19 +462,19 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
         let end = if complete { read - 1 } else { read };
         let last = !complete || reader.fill_buf().map_err(io)?.is_empty();
         let parsed = std::str::from_utf8(&data[..end])
-            .map_err(|e| format!("invalid UTF-8 ({e})"))
-            .and_then(|text| serde_json::from_str::<T>(text).map_err(|e| e.to_string()));
+            .map_err(LineError::Utf8)
+            .and_then(|text| serde_json::from_str::<T>(text).map_err(LineError::Json));
         match parsed {
             Ok(record) if complete => each(record),
             // A last line without its newline was torn even when it parses.
             Ok(_) => return Ok(offset as u64),
             Err(_) if last => return Ok(offset as u64),
-            Err(message) => {
+            Err(source) => {
                 return Err(JournalError::Corrupt {
                     path: path.to_path_buf(),
                     offset: offset as u64,
                     line: number,
-                    message,
+                    source,
                 })
             }
         }
@@ -493,7 +504,7 @@ pub(crate) fn append_line<T: serde::Serialize>(
         .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
     if let Err(e) = written {
         if let Err(cut) = file.set_len(before) {
-            warn!(file = %path.display(), error = %cut, "cannot cut off a failed write");
+            warn!(file = %path.display(), error = %crate::logging::Chain(&cut), "cannot cut off a failed write");
         }
         return Err(io(e));
     }

@@ -21,19 +21,42 @@ pub const MAX_NAME: usize = 64;
 pub enum LifecycleError {
     #[error(transparent)]
     Write(#[from] WriteError),
-    #[error("{path}: cannot read the build order: {source}; remove it and start the build again with `layerwise build start`")]
+    #[error("{path}: cannot read the build order (remove it and start the build again with `layerwise build start`)")]
     Read {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
-    #[error("{path}: not a build order ({message}); remove it and start the build again with `layerwise build start`")]
-    Parse { path: PathBuf, message: String },
+    #[error("{path}: not a build order (remove it and start the build again with `layerwise build start`)")]
+    Parse {
+        path: PathBuf,
+        #[source]
+        source: OrderError,
+    },
     #[error("build name {name:?}: {message}")]
     Name { name: String, message: String },
     #[error("{0}: already exists; choose another build name or wait a second")]
     Exists(PathBuf),
-    #[error("{0}: cannot list the builds: {1}")]
-    List(PathBuf, std::io::Error),
+    #[error("{0}: cannot list the builds")]
+    List(PathBuf, #[source] std::io::Error),
+    #[error("{path}: cannot write the build order as TOML")]
+    Encode {
+        path: PathBuf,
+        #[source]
+        source: toml::ser::Error,
+    },
+}
+
+/// What is wrong in an order file (the [`LifecycleError::Parse`] it causes names the file).
+#[derive(Debug, thiserror::Error)]
+pub enum OrderError {
+    /// Not TOML of an order's shape: where (line, column, key) and what.
+    #[error("{}", .0.message)]
+    Toml(crate::fsutil::TomlError),
+    #[error(transparent)]
+    Name(Box<LifecycleError>),
+    #[error("folder {0:?} is not a plain folder name")]
+    Folder(String),
 }
 
 /// A build an operator started: what the daemon records into until the next order.
@@ -124,26 +147,26 @@ pub fn current(builds_dir: &Path) -> Result<Option<BuildOrder>, LifecycleError> 
     let order: BuildOrder =
         crate::fsutil::parse_toml(&text, &path).map_err(|e| LifecycleError::Parse {
             path: path.clone(),
-            message: e.message,
+            source: OrderError::Toml(e),
         })?;
     check_name(&order.name).map_err(|e| LifecycleError::Parse {
         path: path.clone(),
-        message: e.to_string(),
+        source: OrderError::Name(Box::new(e)),
     })?;
     // One plain name below builds_dir: no separator, no `..`, nothing hidden.
     if Path::new(&order.folder).components().count() != 1 || order.folder.starts_with('.') {
         return Err(LifecycleError::Parse {
             path,
-            message: format!("folder {:?} is not a plain folder name", order.folder),
+            source: OrderError::Folder(order.folder),
         });
     }
     Ok(Some(order))
 }
 
 fn write(builds_dir: &Path, order: &BuildOrder) -> Result<(), LifecycleError> {
-    let text = toml::to_string(order).map_err(|e| LifecycleError::Parse {
+    let text = toml::to_string(order).map_err(|source| LifecycleError::Encode {
         path: builds_dir.join(CURRENT),
-        message: e.to_string(),
+        source,
     })?;
     let text = format!(
         "# The build the layerwise daemon records into (`layerwise build start|stop`).\n{text}"
@@ -268,7 +291,7 @@ pub fn list(builds_dir: &Path) -> Result<Vec<BuildEntry>, LifecycleError> {
                     build.layers_seen = r.layers_seen;
                     build.state = r.state;
                 }
-                Err(e) => build.state = format!("unreadable: {e}"),
+                Err(e) => build.state = format!("unreadable: {}", crate::logging::chain(&e)),
             }
         }
         builds.push(build);
@@ -336,7 +359,7 @@ started_at = "2026-12-02T01:02:03Z"
 "#,
         )
         .unwrap();
-        let e = current(tmp.path()).unwrap_err().to_string();
+        let e = crate::logging::chain(&current(tmp.path()).unwrap_err());
         assert!(e.contains("not a plain folder name"), "{e}");
         std::fs::write(tmp.path().join(CURRENT), "garbage").unwrap();
         let e = current(tmp.path()).unwrap_err().to_string();

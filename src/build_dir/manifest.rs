@@ -7,6 +7,11 @@ use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// A `build.json` that does not parse: the cause of [`BuildManifest::load_or_create`]'s error.
+#[derive(Debug, thiserror::Error)]
+#[error("not a build manifest")]
+pub struct NotAManifest(#[source] pub serde_json::Error);
+
 /// Facts of a build fixed at its start: one study, one frame of reference, one StudyDate/Time.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BuildManifest {
@@ -30,10 +35,7 @@ impl BuildManifest {
         match std::fs::read(&path) {
             Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| WriteError {
                 path: path.clone(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::InvalidData,
-                    format!("not a build manifest: {e}"),
-                ),
+                source: std::io::Error::new(std::io::ErrorKind::InvalidData, NotAManifest(e)),
             }),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 let manifest = make();

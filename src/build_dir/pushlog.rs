@@ -100,9 +100,10 @@ impl PushState {
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("push log {path}: {source}")]
+#[error("push log {path}: cannot read or write")]
 pub struct PushLogError {
     pub path: PathBuf,
+    #[source]
     pub source: std::io::Error,
 }
 

@@ -238,8 +238,12 @@ pub enum StatusError {
     NotABuild(PathBuf),
     #[error(transparent)]
     Journal(#[from] super::journal::JournalError),
-    #[error("{path}: {message}")]
-    Unreadable { path: PathBuf, message: String },
+    #[error("{path}: not a status file of a layerwise build")]
+    Unreadable {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -401,12 +405,14 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         .ok()
         .and_then(|b| serde_json::from_slice(&b).ok());
     let live: Option<LiveStatus> = match std::fs::read(dir.join(STATUS)) {
-        Ok(bytes) => Some(
-            serde_json::from_slice(&bytes).map_err(|e| StatusError::Unreadable {
-                path: dir.join(STATUS),
-                message: e.to_string(),
-            })?,
-        ),
+        Ok(bytes) => {
+            Some(
+                serde_json::from_slice(&bytes).map_err(|source| StatusError::Unreadable {
+                    path: dir.join(STATUS),
+                    source,
+                })?,
+            )
+        }
         Err(_) => None,
     };
     let live = live.unwrap_or_default();

@@ -60,17 +60,25 @@ pub const DEFAULT_FOCAL_WIDTHS: f64 = 45.0 / 35.9;
 /// Why a registration could not be done. Every variant names the file or image concerned.
 #[derive(Debug, thiserror::Error)]
 pub enum RegistrationError {
-    #[error("{file}: cannot read: {source}")]
+    #[error("{file}: cannot read")]
     Read {
         file: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error("{file}: {message}")]
     Points { file: PathBuf, message: String },
+    /// The start points give no homography (the cases `Points` does not spell out by line).
+    #[error("{file}: the start points give no homography")]
+    Dlt {
+        file: PathBuf,
+        #[source]
+        source: crate::geometry::DltError,
+    },
     #[error(transparent)]
     Vectors(#[from] VectorError),
     /// The exemplar could not be rendered (e.g. its grid is too large).
-    #[error("cannot render the exemplar: {0}")]
+    #[error("cannot render the exemplar")]
     Raster(#[from] RasterError),
     #[error("{file}: no vectors for printer layer {layer}: the file has {available}; check --layer (the number in the frame's name) or --layer-match/--layer-offset")]
     NoSuchLayer {
@@ -91,8 +99,12 @@ pub enum RegistrationError {
         pct = 100.0 * max_radius
     )]
     DistortionNotIdentifiable { visible_px: f64, max_radius: f64 },
-    #[error("{image}: cannot decode: {message}")]
-    Image { image: String, message: String },
+    #[error("{image}: cannot decode")]
+    Image {
+        image: String,
+        #[source]
+        source: crate::rectify::RectifyError,
+    },
     #[error("{image}: layer {layer}'s parts are not in view: {detail}")]
     NotInView {
         image: String,
@@ -128,9 +140,10 @@ pub enum RegistrationError {
     Invalid(String),
     #[error(transparent)]
     Write(#[from] crate::fsutil::WriteError),
-    #[error("{file}: cannot write the overlay: {source}")]
+    #[error("{file}: cannot write the overlay")]
     Overlay {
         file: PathBuf,
+        #[source]
         source: image::ImageError,
     },
 }

@@ -265,7 +265,8 @@ pub fn register_frames(
         }
         (Err(e), Some(plain)) => {
             distortion_note = Some(format!(
-                "distortion not kept: its fit failed ({e}); the calibration holds the homography alone"
+                "distortion not kept: its fit failed ({}); the calibration holds the homography alone",
+                crate::logging::chain(&e)
             ));
             Ok(plain)
         }

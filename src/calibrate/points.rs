@@ -129,7 +129,12 @@ pub fn dlt_build_from_image(
             DltError::OriginAtInfinity => {
                 "the image origin maps to infinity: H[2][2] would be 0".into()
             }
-            other => other.to_string(),
+            source => {
+                return RegistrationError::Dlt {
+                    file: file.to_path_buf(),
+                    source,
+                }
+            }
         };
         RegistrationError::Points {
             file: file.to_path_buf(),
@@ -226,10 +231,11 @@ mod tests {
     fn dlt_refuses_degenerate_sets() {
         let p = Path::new("clicks.txt");
         let few = correspondences(&[[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]]);
-        assert!(dlt_build_from_image(&few, p)
-            .unwrap_err()
-            .to_string()
-            .contains("at least 4"));
+        let err = crate::logging::chain(&dlt_build_from_image(&few, p).unwrap_err());
+        assert!(
+            err.contains("clicks.txt") && err.contains("at least 4"),
+            "{err}"
+        );
         let collinear = correspondences(&[[0.0, 0.0], [10.0, 10.0], [20.0, 20.0], [0.0, 50.0]]);
         let err = dlt_build_from_image(&collinear, p).unwrap_err().to_string();
         assert!(

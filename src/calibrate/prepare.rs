@@ -189,9 +189,9 @@ pub fn load_image(path: &Path) -> Result<DynamicImage, RegistrationError> {
         file: path.to_path_buf(),
         source,
     })?;
-    crate::rectify::decode_frame(&bytes).map_err(|e| RegistrationError::Image {
+    crate::rectify::decode_frame(&bytes).map_err(|source| RegistrationError::Image {
         image: path.display().to_string(),
-        message: e.to_string(),
+        source,
     })
 }
 

@@ -128,7 +128,11 @@ impl InspectArgs {
             chrono::Utc::now(),
         );
         for s in &skipped {
-            eprintln!("skipped {}: {}", s.shot, s.reason);
+            eprintln!(
+                "skipped {}: {}",
+                s.shot,
+                layerwise::logging::Chain(&s.error)
+            );
         }
         if let Some(out) = &self.plot {
             let png = out

@@ -60,6 +60,21 @@ pub enum CtError {
         #[source]
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// A DICOM attribute whose value cannot be read as the number(s) it holds.
+    #[error("{path}: cannot read {key}")]
+    DicomValue {
+        path: PathBuf,
+        key: String,
+        #[source]
+        source: dicom_core::value::ConvertValueError,
+    },
+    /// A DICOM Part 10 file of the series that its parser refused.
+    #[error("{path}: not a readable DICOM file (export the series again)")]
+    UnreadableDicom {
+        path: PathBuf,
+        #[source]
+        source: Box<dicom_object::ReadError>,
+    },
     #[error("{path} is not a valid ct.toml (write it with `layerwise register ct`)")]
     Toml {
         path: PathBuf,

@@ -51,7 +51,7 @@ pub enum FlawsError {
         path: PathBuf,
         source: crate::rectify::RectifyError,
     },
-    #[error("patch grid: {0}")]
+    #[error("patch grid: the calibration cannot rectify it")]
     Rectify(#[from] crate::rectify::RectifyError),
     #[error("cannot write {path}")]
     Write {

@@ -15,10 +15,17 @@ use std::path::{Path, PathBuf};
 pub enum OfflineError {
     #[error(transparent)]
     Journal(#[from] JournalError),
-    #[error("{path}: {source}")]
+    #[error("cannot read {path}")]
     Read {
         path: PathBuf,
+        #[source]
         source: std::io::Error,
+    },
+    #[error("{path}: cannot decode the frame")]
+    Decode {
+        path: PathBuf,
+        #[source]
+        source: RectifyError,
     },
     #[error("{path}: no frames named L{{layer:05}}_{{phase}}_{{light}}.{{ext}} (docs/frames.md)")]
     NoFrames { path: PathBuf },
@@ -62,7 +69,8 @@ pub fn folder_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError
 #[derive(Debug)]
 pub struct Skipped {
     pub shot: Shot,
-    pub reason: String,
+    /// [`OfflineError::Read`] or [`OfflineError::Decode`].
+    pub error: OfflineError,
 }
 
 /// Inspects the layers `from..=to` of `frames` in order; returns the records and the frames
@@ -98,10 +106,17 @@ pub fn run(
             .par_iter()
             .map(|(shot, path)| {
                 let cells = std::fs::read(path)
-                    .map_err(|e| format!("{}: {e}", path.display()))
+                    .map_err(|source| OfflineError::Read {
+                        path: path.to_path_buf(),
+                        source,
+                    })
                     .and_then(|bytes| {
-                        crate::rectify::decode_frame_luma(&bytes)
-                            .map_err(|e: RectifyError| format!("{}: {e}", path.display()))
+                        crate::rectify::decode_frame_luma(&bytes).map_err(|source| {
+                            OfflineError::Decode {
+                                path: path.to_path_buf(),
+                                source,
+                            }
+                        })
                     })
                     .map(|luma| reducer.cells(&luma.rectified(rectifier)));
                 (*shot, cells)
@@ -110,7 +125,7 @@ pub fn run(
         for (shot, c) in cells {
             match c {
                 Ok(cells) => records.extend(inspector.add(layer, shot.view(), cells, at)),
-                Err(reason) => skipped.push(Skipped { shot, reason }),
+                Err(error) => skipped.push(Skipped { shot, error }),
             }
         }
     }

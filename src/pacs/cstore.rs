@@ -2,7 +2,7 @@
 //! presentation context per (SOP class, transfer syntax) of the batch's files, each file's data
 //! set sent as it is on disk (no transcoding), each C-STORE-RSP status checked.
 
-use super::{status_text, Destination, Instance, Outcome, Sender, Target};
+use super::{status_text, Destination, Instance, Outcome, PacsError, Sender, Target};
 use dicom_core::{dicom_value, DataElement, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
@@ -62,7 +62,7 @@ fn wire_syntax(instance: &Instance) -> &str {
 }
 
 /// The data set bytes in [`wire_syntax`].
-fn wire_dataset(instance: &Instance) -> Result<std::borrow::Cow<'_, [u8]>, String> {
+fn wire_dataset(instance: &Instance) -> Result<std::borrow::Cow<'_, [u8]>, StoreError> {
     if trim(&instance.transfer_syntax) != DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN {
         return Ok(std::borrow::Cow::Borrowed(instance.dataset()));
     }
@@ -71,8 +71,33 @@ fn wire_dataset(instance: &Instance) -> Result<std::borrow::Cow<'_, [u8]>, Strin
         &mut flate2::read::DeflateDecoder::new(instance.dataset()),
         &mut inflated,
     )
-    .map_err(|e| format!("{}: cannot inflate the data set: {e}", instance.file))?;
+    .map_err(StoreError::Inflate)?;
     Ok(std::borrow::Cow::Owned(inflated))
+}
+
+/// What went wrong sending one instance on an open association ([`PacsError::Store`] names the
+/// peer and the file).
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    #[error("cannot inflate the data set")]
+    Inflate(#[source] std::io::Error),
+    #[error("cannot encode the command")]
+    Encode(#[source] Box<dicom_object::WriteError>),
+    #[error("cannot send the command")]
+    Command(#[source] Box<dicom_ul::association::Error>),
+    #[error("cannot send the data set")]
+    Data(#[source] std::io::Error),
+    #[error("no answer")]
+    Receive(#[source] Box<dicom_ul::association::Error>),
+    /// The archive aborted the association (the abort's source as the PDU gives it).
+    #[error("the archive aborted ({0})")]
+    Aborted(String),
+    #[error("unexpected answer {0}")]
+    Unexpected(String),
+    #[error("unreadable C-STORE-RSP")]
+    Response(#[source] Box<dicom_object::ReadError>),
+    #[error("C-STORE-RSP without a Status")]
+    NoStatus,
 }
 
 /// The C-STORE-RQ command set.
@@ -112,7 +137,7 @@ pub fn outcome(status: u16, comment: Option<&str>) -> Outcome {
 }
 
 impl Sender for CStoreClient {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
         let peer = self.peer();
         let mut contexts: Vec<(&str, &str)> = batch
             .iter()
@@ -130,24 +155,13 @@ impl Sender for CStoreClient {
             options = options.with_presentation_context(*class, vec![*syntax]);
         }
         let address = format!("{}:{}", self.host, self.port);
-        let mut association = options.establish(address.as_str()).map_err(|e| {
-            let mut message = format!("C-STORE association with {peer}: {e}");
-            let mut source = std::error::Error::source(&e);
-            while let Some(cause) = source {
-                let text = cause.to_string();
-                if !message.contains(&text) {
-                    message.push_str(&format!(": {text}"));
-                }
-                source = cause.source();
-            }
-            if matches!(e, dicom_ul::association::Error::Rejected { .. }) {
-                message.push_str(
-                    " (check called_ae and calling_ae: the archive must know this printer's AE \
-                     title)",
-                );
-            }
-            message
-        })?;
+        let mut association =
+            options
+                .establish(address.as_str())
+                .map_err(|source| PacsError::Association {
+                    peer: peer.clone(),
+                    source: Box::new(source),
+                })?;
         // Many small PDUs per instance: without this, each waits for the peer's delayed ACK.
         let _ = association.inner_stream().set_nodelay(true);
         let accepted: Vec<_> = association
@@ -175,19 +189,22 @@ impl Sender for CStoreClient {
                 )));
                 continue;
             };
-            let status = store_one(&mut association, *id, instance, message_id)
-                .map_err(|e| format!("C-STORE to {peer} of {}: {e}", instance.file));
-            match status {
+            match store_one(&mut association, *id, instance, message_id) {
                 Ok(outcome) => outcomes.push(outcome),
-                Err(e) => {
+                Err(source) => {
                     let _ = association.abort();
-                    return Err(e);
+                    return Err(PacsError::Store {
+                        peer,
+                        file: instance.file.clone(),
+                        source,
+                    });
                 }
             }
         }
-        association
-            .release()
-            .map_err(|e| format!("C-STORE release of the association with {peer}: {e}"))?;
+        association.release().map_err(|source| PacsError::Release {
+            peer,
+            source: Box::new(source),
+        })?;
         Ok(outcomes)
     }
 }
@@ -198,11 +215,11 @@ fn store_one(
     context: u8,
     instance: &Instance,
     message_id: u16,
-) -> Result<Outcome, String> {
+) -> Result<Outcome, StoreError> {
     let mut command = Vec::with_capacity(160);
     store_request(instance, message_id)
         .write_dataset_with_ts(&mut command, &IMPLICIT_VR_LITTLE_ENDIAN.erased())
-        .map_err(|e| format!("cannot encode the command: {e}"))?;
+        .map_err(|e| StoreError::Encode(Box::new(e)))?;
     association
         .send(&Pdu::PData {
             data: vec![PDataValue {
@@ -212,17 +229,20 @@ fn store_one(
                 data: command,
             }],
         })
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| StoreError::Command(Box::new(e)))?;
     {
         let mut writer = association.send_pdata(context);
         writer
             .write_all(&wire_dataset(instance)?)
-            .map_err(|e| e.to_string())?;
-        writer.finish().map_err(|e| e.to_string())?;
+            .map_err(StoreError::Data)?;
+        writer.finish().map_err(StoreError::Data)?;
     }
     let mut response = Vec::new();
     loop {
-        match association.receive().map_err(|e| e.to_string())? {
+        match association
+            .receive()
+            .map_err(|e| StoreError::Receive(Box::new(e)))?
+        {
             Pdu::PData { data } => {
                 let mut last = false;
                 for value in data {
@@ -235,20 +255,20 @@ fn store_one(
                     break;
                 }
             }
-            Pdu::AbortRQ { source } => return Err(format!("the archive aborted ({source:?})")),
-            pdu => return Err(format!("unexpected answer {}", pdu.short_description())),
+            Pdu::AbortRQ { source } => return Err(StoreError::Aborted(format!("{source:?}"))),
+            pdu => return Err(StoreError::Unexpected(pdu.short_description().to_string())),
         }
     }
     let response = InMemDicomObject::read_dataset_with_ts(
         response.as_slice(),
         &IMPLICIT_VR_LITTLE_ENDIAN.erased(),
     )
-    .map_err(|e| format!("unreadable C-STORE-RSP: {e}"))?;
+    .map_err(|e| StoreError::Response(Box::new(e)))?;
     let status = response
         .element(tags::STATUS)
         .ok()
         .and_then(|e| e.to_int::<u16>().ok())
-        .ok_or("C-STORE-RSP without a Status")?;
+        .ok_or(StoreError::NoStatus)?;
     let comment = response
         .element(tags::ERROR_COMMENT)
         .ok()

@@ -182,7 +182,7 @@ mod tests {
     struct Recording(crossbeam_channel::Sender<String>);
 
     impl PacsSender for Recording {
-        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
             for instance in batch {
                 let _ = self.0.send(instance.file.clone());
             }

@@ -14,12 +14,16 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use tracing::{info, warn};
 
+/// What a push can meet: a destination that cannot be used, a log that cannot be written, a file
+/// that is not an instance, and what a [`Sender`] meets on the way to the archive (each naming the
+/// URL or the peer, and the file).
 #[derive(Debug, thiserror::Error)]
 pub enum PacsError {
-    #[error("pacs destination {name}: cannot read secret_file {path}: {source}")]
+    #[error("pacs destination {name}: cannot read secret_file {path}")]
     Secret {
         name: String,
         path: PathBuf,
+        #[source]
         source: std::io::Error,
     },
     #[error(
@@ -27,12 +31,21 @@ pub enum PacsError {
          for STOW-RS, dicom://CALLED_AE@host:port for C-STORE)"
     )]
     BadTarget(String),
-    #[error(transparent)]
-    Log(#[from] PushLogError),
+    /// A destination given on the command line that its `[[pacs]]` checks refuse.
     #[error("{destination}: {message}")]
-    Transport {
+    Invalid {
         destination: String,
         message: String,
+    },
+    #[error(transparent)]
+    Log(#[from] PushLogError),
+    /// The batch did not reach the archive, or its fate is unknown: the push stops here and is
+    /// retried (with back-off in the daemon). The source is what the [`Sender`] met.
+    #[error("cannot push to {destination}")]
+    Transport {
+        destination: String,
+        #[source]
+        source: Box<PacsError>,
     },
     #[error("{destination}: cannot start the push thread")]
     Thread {
@@ -40,6 +53,110 @@ pub enum PacsError {
         #[source]
         source: std::io::Error,
     },
+    /// An instance file ([`Instance::read`]): unreadable, or not Part 10 DICOM.
+    #[error("cannot read {file}")]
+    Read {
+        file: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{file} is not a DICOM Part 10 file (no DICM prefix)")]
+    NotPart10 { file: String },
+    #[error("{file}: unreadable DICOM file meta group")]
+    Meta {
+        file: String,
+        #[source]
+        source: Box<dicom_object::meta::Error>,
+    },
+    #[error("{file}: file meta group longer than the file")]
+    MetaLength { file: String },
+    /// STOW-RS: the archive refused the credentials.
+    #[error(
+        "POST {url}: HTTP {status} {} (check auth, user and secret_file of this destination)",
+        status_word(.status)
+    )]
+    Unauthorized { url: String, status: u16 },
+    /// STOW-RS: an HTTP status without a per-instance answer, with the first line of the body.
+    #[error("POST {url}: HTTP {status}{}", body_line(.body))]
+    Http {
+        url: String,
+        status: u16,
+        body: Option<String>,
+    },
+    /// STOW-RS: the archive was not reached (connection, DNS, TLS, timeout).
+    #[error("POST {url}")]
+    Connect {
+        url: String,
+        #[source]
+        source: stow::TransportError,
+    },
+    /// STOW-RS: an answer that is not the DICOM JSON of a STOW-RS response.
+    #[error(
+        "POST {url}: HTTP {status} without a STOW-RS answer (is the URL the DICOMweb root, e.g. \
+         http://pacs:8042/dicom-web?){}",
+        body_line(.body)
+    )]
+    NotStow {
+        url: String,
+        status: u16,
+        body: Option<String>,
+        #[source]
+        source: Option<serde_json::Error>,
+    },
+    /// STOW-RS: an answer that leaves an instance of the batch out.
+    #[error("POST {url}: incomplete STOW-RS answer")]
+    Answer {
+        url: String,
+        #[source]
+        source: stow::Unmentioned,
+    },
+    /// C-STORE: no association (refused, rejected, unreachable).
+    #[error(
+        "C-STORE association with {peer}{}",
+        association_hint(.source)
+    )]
+    Association {
+        peer: String,
+        #[source]
+        source: Box<dicom_ul::association::Error>,
+    },
+    /// C-STORE: one instance's exchange on an open association failed.
+    #[error("C-STORE to {peer} of {file}")]
+    Store {
+        peer: String,
+        file: String,
+        #[source]
+        source: cstore::StoreError,
+    },
+    #[error("C-STORE release of the association with {peer}")]
+    Release {
+        peer: String,
+        #[source]
+        source: Box<dicom_ul::association::Error>,
+    },
+}
+
+/// The reason phrase of 401 and 403.
+fn status_word(status: &u16) -> &'static str {
+    if *status == 401 {
+        "Unauthorized"
+    } else {
+        "Forbidden"
+    }
+}
+
+/// What to check when the archive rejects the association.
+fn association_hint(error: &dicom_ul::association::Error) -> &'static str {
+    if matches!(error, dicom_ul::association::Error::Rejected { .. }) {
+        " (check called_ae and calling_ae: the archive must know this printer's AE title)"
+    } else {
+        ""
+    }
+}
+
+/// `: the line` of an answer's body, or nothing.
+fn body_line(body: &Option<String>) -> String {
+    body.as_ref().map(|t| format!(": {t}")).unwrap_or_default()
 }
 
 /// How an archive is reached.
@@ -147,7 +264,7 @@ impl Destination {
             return Err(bad());
         }
         if let Some((_, message)) = config.problem() {
-            return Err(PacsError::Transport {
+            return Err(PacsError::Invalid {
                 destination: to.to_string(),
                 message,
             });
@@ -218,19 +335,28 @@ pub struct Instance {
 
 impl Instance {
     /// Reads `root/file`; a file that is not Part 10 DICOM is an error naming it.
-    pub fn read(root: &Path, file: &str) -> Result<Instance, String> {
+    pub fn read(root: &Path, file: &str) -> Result<Instance, PacsError> {
         let path = root.join(file);
-        let bytes = std::fs::read(&path).map_err(|e| format!("cannot read {file}: {e}"))?;
+        let bytes = std::fs::read(&path).map_err(|source| PacsError::Read {
+            file: file.to_string(),
+            source,
+        })?;
         if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
-            return Err(format!(
-                "{file} is not a DICOM Part 10 file (no DICM prefix)"
-            ));
+            return Err(PacsError::NotPart10 {
+                file: file.to_string(),
+            });
         }
-        let meta = dicom_object::FileMetaTable::from_reader(&bytes[128..])
-            .map_err(|e| format!("{file}: unreadable DICOM file meta group: {e}"))?;
+        let meta = dicom_object::FileMetaTable::from_reader(&bytes[128..]).map_err(|source| {
+            PacsError::Meta {
+                file: file.to_string(),
+                source: Box::new(source),
+            }
+        })?;
         let dataset_offset = 132 + 12 + meta.information_group_length as usize;
         if dataset_offset > bytes.len() {
-            return Err(format!("{file}: file meta group longer than the file"));
+            return Err(PacsError::MetaLength {
+                file: file.to_string(),
+            });
         }
         Ok(Instance {
             file: file.to_string(),
@@ -259,7 +385,7 @@ pub enum Outcome {
 /// was not reached or did not answer for the batch (retry later); per-instance refusals are
 /// [`Outcome::Rejected`].
 pub trait Sender: Send {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String>;
+    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError>;
 }
 
 /// Batches stay below this many bytes (and [`BATCH_FILES`] files).
@@ -329,7 +455,8 @@ impl Queue {
                     }
                     // The file vanished (a series rewritten): nothing to push.
                     Err(_) if !self.root.join(file).exists() => {}
-                    Err(reason) => {
+                    Err(e) => {
+                        let reason = crate::logging::chain(&e);
                         self.record(&PushRecord::Rejected {
                             file: file.clone(),
                             sop_instance_uid: String::new(),
@@ -345,18 +472,20 @@ impl Queue {
             }
             let outcomes = match sender.send(&batch) {
                 Ok(outcomes) => outcomes,
-                Err(message) => {
+                // Whatever the sender met, the batch's fate is unknown: a transport error, retried.
+                Err(source) => {
+                    let message = crate::logging::chain(&source);
                     if self.last_logged_error.as_deref() != Some(&message) {
                         warn!(destination = %self.destination.name, error = %message, "pacs: push failed; will retry");
                         self.record(&PushRecord::Error {
                             message: message.clone(),
                             at: clock.now(),
                         })?;
-                        self.last_logged_error = Some(message.clone());
+                        self.last_logged_error = Some(message);
                     }
                     return Err(PacsError::Transport {
                         destination: self.destination.name.clone(),
-                        message,
+                        source: Box::new(source),
                     });
                 }
             };

@@ -3,7 +3,7 @@
 //! archive stored, its FailedSOPSequence (0008,1198) what it refused, with FailureReason
 //! (0008,1197).
 
-use super::{status_text, Destination, Instance, Outcome, Sender, Target};
+use super::{status_text, Destination, Instance, Outcome, PacsError, Sender, Target};
 use serde_json::Value;
 use std::collections::HashMap;
 
@@ -55,7 +55,7 @@ pub fn multipart(batch: &[Instance]) -> (Vec<u8>, String) {
 }
 
 impl Sender for StowClient {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, String> {
+    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
         let (body, boundary) = multipart(batch);
         let mut request = self
             .agent
@@ -68,6 +68,7 @@ impl Sender for StowClient {
         if let Some(authorization) = &self.authorization {
             request = request.set("Authorization", authorization);
         }
+        let url = || self.url.clone();
         let (status, text) = match request.send_bytes(&body) {
             Ok(response) => {
                 let status = response.status();
@@ -77,48 +78,71 @@ impl Sender for StowClient {
             Err(ureq::Error::Status(status, response)) => {
                 let text = response.into_string().unwrap_or_default();
                 match status {
-                    401 | 403 => {
-                        return Err(format!(
-                            "POST {}: HTTP {status} {}: check auth, user and secret_file of this \
-                             destination",
-                            self.url,
-                            if status == 401 {
-                                "Unauthorized"
-                            } else {
-                                "Forbidden"
-                            }
-                        ))
-                    }
-                    400 | 409 | 415 if parse_json(&text).is_some() => (status, text),
+                    401 | 403 => return Err(PacsError::Unauthorized { url: url(), status }),
+                    400 | 409 | 415 if parse_json(&text).is_ok() => (status, text),
                     _ => {
-                        return Err(format!(
-                            "POST {}: HTTP {status}{}",
-                            self.url,
-                            short(&text).map(|t| format!(": {t}")).unwrap_or_default()
-                        ))
+                        return Err(PacsError::Http {
+                            url: url(),
+                            status,
+                            body: short(&text),
+                        })
                     }
                 }
             }
             Err(ureq::Error::Transport(e)) => {
-                return Err(format!("POST {}: {e}", self.url));
+                return Err(PacsError::Connect {
+                    url: url(),
+                    source: TransportError(Box::new(e)),
+                });
             }
         };
-        let answer = parse_json(&text).ok_or_else(|| {
-            format!(
-                "POST {}: HTTP {status} without a STOW-RS answer (is the URL the DICOMweb root, e.g. \
-                 http://pacs:8042/dicom-web?){}",
-                self.url,
-                short(&text).map(|t| format!(": {t}")).unwrap_or_default()
-            )
+        let answer = parse_json(&text).map_err(|source| PacsError::NotStow {
+            url: url(),
+            status,
+            body: short(&text),
+            source,
         })?;
-        outcomes(batch, &answer).map_err(|m| format!("POST {}: {m}", self.url))
+        outcomes(batch, &answer).map_err(|source| PacsError::Answer { url: url(), source })
     }
 }
 
-fn parse_json(text: &str) -> Option<Value> {
-    serde_json::from_str::<Value>(text)
-        .ok()
-        .filter(Value::is_object)
+/// A ureq transport error said once: its own `Display` repeats its source (and the URL, which
+/// [`PacsError::Connect`] names); this one leaves the source to the chain.
+#[derive(Debug)]
+pub struct TransportError(pub Box<ureq::Transport>);
+
+impl std::fmt::Display for TransportError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0.kind())?;
+        if let Some(message) = self.0.message() {
+            write!(f, ": {message}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for TransportError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        std::error::Error::source(self.0.as_ref())
+    }
+}
+
+/// An instance the STOW-RS answer does not mention: the batch's fate is unknown (an error: the
+/// batch is sent again later).
+#[derive(Debug, thiserror::Error)]
+#[error("the answer does not mention instance {uid} ({file})")]
+pub struct Unmentioned {
+    pub uid: String,
+    pub file: String,
+}
+
+/// The answer as a DICOM JSON object; not JSON (the parser's error), or JSON but not an object.
+fn parse_json(text: &str) -> Result<Value, Option<serde_json::Error>> {
+    match serde_json::from_str::<Value>(text) {
+        Ok(value) if value.is_object() => Ok(value),
+        Ok(_) => Err(None),
+        Err(e) => Err(Some(e)),
+    }
 }
 
 /// The first line of a body, shortened, for an error message.
@@ -143,7 +167,7 @@ fn first_value<'a>(item: &'a Value, tag: &str) -> Option<&'a Value> {
 
 /// Each instance's outcome from the STOW-RS answer; an instance the answer does not mention
 /// means the batch's fate is unknown (an error: the batch is sent again later).
-pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, String> {
+pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, Unmentioned> {
     let mut by_uid: HashMap<String, Outcome> = HashMap::new();
     for item in items(answer, "00081199") {
         if let Some(uid) = first_value(item, "00081155").and_then(Value::as_str) {
@@ -169,11 +193,9 @@ pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, Stri
             by_uid
                 .get(&instance.sop_instance_uid)
                 .cloned()
-                .ok_or_else(|| {
-                    format!(
-                        "the answer does not mention instance {} ({})",
-                        instance.sop_instance_uid, instance.file
-                    )
+                .ok_or_else(|| Unmentioned {
+                    uid: instance.sop_instance_uid.clone(),
+                    file: instance.file.clone(),
                 })
         })
         .collect()
@@ -209,7 +231,9 @@ mod tests {
             got[1],
             Outcome::Rejected("STOW-RS FailureReason 0110H (processing failure)".into())
         );
-        let err = outcomes(&[instance("1.3")], &answer).unwrap_err();
+        let err = outcomes(&[instance("1.3")], &answer)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("1.3"), "{err}");
     }
 

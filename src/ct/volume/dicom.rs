@@ -23,6 +23,14 @@ fn dicom_err(path: &Path, message: impl Into<String>) -> CtError {
     }
 }
 
+fn value_err(path: &Path, key: &str, source: dicom_core::value::ConvertValueError) -> CtError {
+    CtError::DicomValue {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        source,
+    }
+}
+
 type DicomObject = dicom_object::DefaultDicomObject;
 
 fn dicom_numbers(
@@ -39,7 +47,7 @@ fn dicom_numbers(
     })?;
     let v = e
         .to_multi_float64()
-        .map_err(|err| dicom_err(path, format!("{name}: {err}")))?;
+        .map_err(|source| value_err(path, name, source))?;
     if v.len() < n || v.iter().any(|x| !x.is_finite()) {
         return Err(dicom_err(
             path,
@@ -61,7 +69,7 @@ fn dicom_optional(
         Some(e) if dicom_core::header::HasLength::is_empty(e) => Ok(default),
         Some(e) => e
             .to_float64()
-            .map_err(|err| dicom_err(path, format!("{name}: {err}"))),
+            .map_err(|source| value_err(path, name, source)),
     }
 }
 
@@ -74,7 +82,7 @@ fn dicom_uint(obj: &DicomObject, path: &Path, tag: dicom_core::Tag, name: &str) 
         })?
         .to_int::<u32>()
         .map(|v| v as usize)
-        .map_err(|err| dicom_err(path, format!("{name}: {err}")))
+        .map_err(|source| value_err(path, name, source))
 }
 
 /// Read a folder holding one DICOM CT series (one slice per file, any orientation).
@@ -97,7 +105,11 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
         let part10 = crate::dicom::check_lengths(&path).map_err(|e| match e {
             crate::dicom::DicomError::Damaged { message, .. } => dicom_err(&path, message),
             crate::dicom::DicomError::Io { source, .. } => io_err(&path)(source),
-            other => dicom_err(&path, other.to_string()),
+            other => CtError::Decode {
+                path: path.clone(),
+                what: "check the lengths of",
+                source: Box::new(other),
+            },
         })?;
         let obj = match dicom_object::OpenFileOptions::new()
             .read_until(tags::PIXEL_DATA)
@@ -106,10 +118,10 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
             Ok(obj) => obj,
             // A DICOM file that does not parse is damaged: named, never silently left out.
             Err(e) if part10 => {
-                return Err(dicom_err(
-                    &path,
-                    format!("not a readable DICOM file ({e}): export the series again"),
-                ))
+                return Err(CtError::UnreadableDicom {
+                    path,
+                    source: Box::new(e),
+                })
             }
             // Not a DICOM file (a DICOMDIR's companions, notes, thumbnails): skip it.
             Err(_) => continue,
