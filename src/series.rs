@@ -59,7 +59,10 @@ pub enum SeriesError {
         "{0}: not a layerwise build directory ({1} missing); pass the daemon's build.output_dir"
     )]
     NotABuild(PathBuf, &'static str),
-    /// The configuration or the calibration file.
+    /// The build's configuration snapshot.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    /// The calibration file.
     #[error(transparent)]
     File(#[from] TomlFileError),
     #[error(transparent)]

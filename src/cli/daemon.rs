@@ -360,8 +360,8 @@ pub struct DemoArgs {
 impl DemoArgs {
     pub fn run(self) -> Result<()> {
         let (layers, out) = (self.layers, self.out.as_path());
-        let inject = layerwise::config::inspection::parse_injections(&self.inject)
-            .map_err(|e| anyhow::anyhow!("--inject: {e}"))?;
+        let inject =
+            layerwise::config::inspection::parse_injections(&self.inject).context("--inject")?;
         let mut config = demo_config(layers, out)?;
         if let CameraConfig::Mock(mock) = &mut config.camera {
             mock.inject = inject;
@@ -374,7 +374,7 @@ impl DemoArgs {
             config
                 .web
                 .validate()
-                .map_err(|(_, message)| anyhow::anyhow!("--listen: {message}"))?;
+                .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?;
         }
         let started = std::time::Instant::now();
         let process = Shutdown::new();

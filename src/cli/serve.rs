@@ -42,12 +42,13 @@ impl ServeArgs {
             idle_timeout_s: self.idle_timeout_s,
             ..WebConfig::default()
         };
-        config.validate().map_err(|(key, message)| {
-            anyhow::anyhow!("--{}: {message}", &key[4..].replace('_', "-"))
+        config.validate().map_err(|invalid| {
+            let flag = invalid.key["web.".len()..].replace('_', "-");
+            anyhow::anyhow!("--{flag}: {}", invalid.message)
         })?;
         let addr = config
             .address()
-            .map_err(|m| anyhow::anyhow!("--listen: {m}"))?
+            .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
             .context("--listen must name an address")?;
         let process = Shutdown::new();
         let _signals =

@@ -4,6 +4,7 @@
 //! score reaches `critical_factor` times its threshold is critical, else a warning.
 //! Also the mock camera's anomaly injections (`[camera] inject = [...]`, `demo --inject`).
 
+use super::Invalid;
 use crate::shot::Light;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -38,114 +39,130 @@ pub enum AlarmSeverity {
     Critical,
 }
 
+/// A key left out takes its value from [`InspectionConfig::default`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct InspectionConfig {
     /// Inspect every layer in the processing worker once its views are rectified (needs
     /// calibration.file). Parts are known from build.vectors; without it only the plate-wide
     /// detectors (streaks, short feed) run.
-    #[serde(default = "yes")]
     pub enabled: bool,
     /// Cell size of the inspection grid in mm: the series grid binned to about this.
-    #[serde(default = "d_pixel")]
     pub pixel_mm: f64,
     /// Axis the recoater travels along.
-    #[serde(default)]
     pub recoat_axis: Axis,
     /// Light of the pre-scan view searched for streaks and short feed.
-    #[serde(default = "d_top")]
     pub pre_light: Light,
     /// Light of the pre-scan view searched for super-elevation (raking light shows relief).
-    #[serde(default = "d_side")]
     pub elevation_light: Light,
     /// Light of the post-scan view compared with the vectors.
-    #[serde(default = "d_top")]
     pub post_light: Light,
     /// Plate border left out (the plate edge and its shadow), mm.
-    #[serde(default = "d_edge")]
     pub edge_margin_mm: f64,
     /// Streak: robust z of a line mean against its neighbours across the recoating direction.
-    #[serde(default = "d_streak_z")]
     pub streak_z: f64,
     /// Streak: the plate is cut into segments this long along the recoating direction, so a
     /// partial streak is not diluted by the whole line.
-    #[serde(default = "d_segment")]
     pub streak_segment_mm: f64,
     /// Streak: wider bands than this are not streaks (short feed and lighting are).
-    #[serde(default = "d_streak_width")]
     pub streak_max_width_mm: f64,
     /// Short feed: robust z of a band's mean or texture against the same view's reference
     /// (median of the previous `reference_layers` layers).
-    #[serde(default = "d_short_z")]
     pub short_feed_z: f64,
     /// Short feed: narrowest band reported, mm.
-    #[serde(default = "d_short_width")]
     pub short_feed_min_width_mm: f64,
     /// Layers in the short-feed reference (the detector waits until 3 are seen).
-    #[serde(default = "d_reference")]
     pub reference_layers: usize,
     /// Super-elevation: robust z (3x3-smoothed) of a spot over the previous layer's footprint
     /// against the powder around the part.
-    #[serde(default = "d_elevation_z")]
     pub elevation_z: f64,
     /// Fusion: a cell is fused when its texture (local standard deviation) exceeds this many
     /// times the plate's median texture.
-    #[serde(default = "d_fused_factor")]
     pub fused_texture_factor: f64,
     /// Fusion: how far the fused edge may stray from the vectors, mm.
-    #[serde(default = "d_tolerance")]
     pub fusion_tolerance_mm: f64,
     /// Fusion: largest unfused fraction of a part's core (its footprint less one cell).
-    #[serde(default = "d_unfused")]
     pub max_unfused: f64,
     /// Fusion: largest fused area beyond the tolerance around a part, as a fraction of its area
     /// (and at least `min_excess_mm2`).
-    #[serde(default = "d_excess")]
     pub max_excess: f64,
-    #[serde(default = "d_min_excess")]
     pub min_excess_mm2: f64,
     /// Spatter / stray scan: smallest fused blob away from every part, mm².
-    #[serde(default = "d_spatter")]
     pub spatter_min_mm2: f64,
     /// Drift: robust z of a part metric against the median/MAD of its earlier layers (a layer half
     /// this far off does not enter the baseline).
-    #[serde(default = "d_drift_z")]
     pub drift_z: f64,
     /// Drift: layers in the running baseline; the detector waits for `drift_min_layers`.
-    #[serde(default = "d_drift_window")]
     pub drift_window: usize,
-    #[serde(default = "d_drift_min")]
     pub drift_min_layers: usize,
     /// Score ≥ this × threshold: critical.
-    #[serde(default = "d_critical")]
     pub critical_factor: f64,
-    #[serde(default)]
     pub alarm: AlarmConfig,
 }
 
+impl Default for InspectionConfig {
+    fn default() -> Self {
+        InspectionConfig {
+            enabled: true,
+            pixel_mm: 0.5,
+            recoat_axis: Axis::X,
+            pre_light: Light::Top,
+            elevation_light: Light::Side,
+            post_light: Light::Top,
+            edge_margin_mm: 4.0,
+            streak_z: 7.0,
+            streak_segment_mm: 40.0,
+            streak_max_width_mm: 5.0,
+            short_feed_z: 8.0,
+            short_feed_min_width_mm: 3.0,
+            reference_layers: 5,
+            elevation_z: 8.0,
+            fused_texture_factor: 3.5,
+            fusion_tolerance_mm: 0.75,
+            max_unfused: 0.3,
+            max_excess: 0.1,
+            min_excess_mm2: 4.0,
+            spatter_min_mm2: 1.5,
+            drift_z: 10.0,
+            drift_window: 30,
+            drift_min_layers: 10,
+            critical_factor: 2.0,
+            alarm: AlarmConfig::default(),
+        }
+    }
+}
+
 /// The stack light switched by a flag: one channel of a relay board or GPIO line set, driven
-/// through the same backends as the lights. Off by default.
+/// through the same backends as the lights. Off by default; a key left out takes its value from
+/// [`AlarmConfig::default`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct AlarmConfig {
     /// The output: kind = "none" (default), "serial-relay", "gpio" (as `[lights]`), or "mock".
-    #[serde(default)]
     pub output: super::LightsConfig,
     /// Which channel of that output the stack light hangs on.
-    #[serde(default = "d_top")]
     pub channel: Light,
     /// Lowest severity that switches it on.
-    #[serde(default = "d_alarm_severity")]
     pub severity: AlarmSeverity,
     /// Keep it on until an operator acknowledges it (`layerwise alarm ack`; it stays on across
     /// a daemon restart), or (false) switch it off after a clean layer.
-    #[serde(default = "yes")]
     pub latch: bool,
     /// A message to the printer's controller on a serial line, sent once each time the alarm is
     /// raised (none by default), e.g.
     /// `serial = { port = "/dev/ttyUSB1", baud = 9600, message = "LAYERWISE ALARM {layer} {kind}\r\n" }`.
-    #[serde(default)]
     pub serial: Option<AlarmSerialConfig>,
+}
+
+impl Default for AlarmConfig {
+    fn default() -> Self {
+        AlarmConfig {
+            output: super::LightsConfig::None,
+            channel: Light::Top,
+            severity: AlarmSeverity::Critical,
+            latch: true,
+            serial: None,
+        }
+    }
 }
 
 /// `[inspection.alarm] serial`: the alarm's message to the printer.
@@ -154,12 +171,19 @@ pub struct AlarmConfig {
 pub struct AlarmSerialConfig {
     /// The serial port (opened when the first message is due, reopened after an error).
     pub port: String,
-    #[serde(default = "d_alarm_baud")]
+    #[serde(default = "default_alarm_baud")]
     pub baud: u32,
     /// The text sent: `{layer}`, `{kind}`, `{severity}` and `{part}` are replaced by the flag
     /// that raised the alarm; TOML escapes (`\r`, `\n`) end the line as the printer expects.
-    #[serde(default = "d_alarm_message")]
+    #[serde(default = "default_alarm_message")]
     pub message: String,
+}
+
+fn default_alarm_baud() -> u32 {
+    9600
+}
+fn default_alarm_message() -> String {
+    "LAYERWISE ALARM {layer} {kind} {severity}\r\n".into()
 }
 
 impl AlarmSerialConfig {
@@ -173,28 +197,10 @@ impl AlarmSerialConfig {
     }
 }
 
-impl Default for AlarmConfig {
-    fn default() -> Self {
-        AlarmConfig {
-            output: super::LightsConfig::None,
-            channel: Light::Top,
-            severity: d_alarm_severity(),
-            latch: true,
-            serial: None,
-        }
-    }
-}
-
-impl Default for InspectionConfig {
-    fn default() -> Self {
-        // The defaults of an empty table, from the one place they are declared.
-        toml::from_str("").expect("every field of [inspection] has a default")
-    }
-}
-
 impl InspectionConfig {
-    /// Checks values serde cannot: positive sizes and thresholds.
-    pub fn check(&self) -> Result<(), (String, String)> {
+    /// Checks the section (values serde cannot): positive sizes and thresholds, baselines of 3
+    /// layers or more, an alarm message that can be sent.
+    pub fn validate(&self) -> Result<(), Invalid> {
         let positive = [
             ("pixel_mm", self.pixel_mm),
             ("streak_z", self.streak_z),
@@ -212,7 +218,7 @@ impl InspectionConfig {
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err((
+                return Err(Invalid::new(
                     format!("inspection.{key}"),
                     format!("must be a finite number above 0, got {v}"),
                 ));
@@ -224,104 +230,28 @@ impl InspectionConfig {
             ("min_excess_mm2", self.min_excess_mm2),
         ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err((
+                return Err(Invalid::new(
                     format!("inspection.{key}"),
                     format!("must be a finite number, 0 or more, got {v}"),
                 ));
             }
         }
         if self.reference_layers < 3 || self.drift_window < 3 || self.drift_min_layers < 3 {
-            return Err((
-                "inspection.reference_layers / drift_window / drift_min_layers".into(),
-                "must be 3 or more (a median of fewer layers is no baseline)".into(),
+            return Err(Invalid::new(
+                "inspection.reference_layers / drift_window / drift_min_layers",
+                "must be 3 or more (a median of fewer layers is no baseline)",
             ));
         }
         if let Some(serial) = &self.alarm.serial {
             if serial.port.trim().is_empty() || serial.message.is_empty() || serial.baud == 0 {
-                return Err((
-                    "inspection.alarm.serial".into(),
-                    "needs a port, a baud rate above 0 and a non-empty message".into(),
+                return Err(Invalid::new(
+                    "inspection.alarm.serial",
+                    "needs a port, a baud rate above 0 and a non-empty message",
                 ));
             }
         }
         Ok(())
     }
-}
-
-fn d_alarm_baud() -> u32 {
-    9600
-}
-fn d_alarm_message() -> String {
-    "LAYERWISE ALARM {layer} {kind} {severity}\r\n".into()
-}
-fn yes() -> bool {
-    true
-}
-fn d_pixel() -> f64 {
-    0.5
-}
-fn d_top() -> Light {
-    Light::Top
-}
-fn d_side() -> Light {
-    Light::Side
-}
-fn d_edge() -> f64 {
-    4.0
-}
-fn d_streak_z() -> f64 {
-    7.0
-}
-fn d_segment() -> f64 {
-    40.0
-}
-fn d_streak_width() -> f64 {
-    5.0
-}
-fn d_short_z() -> f64 {
-    8.0
-}
-fn d_short_width() -> f64 {
-    3.0
-}
-fn d_reference() -> usize {
-    5
-}
-fn d_elevation_z() -> f64 {
-    8.0
-}
-fn d_fused_factor() -> f64 {
-    3.5
-}
-fn d_tolerance() -> f64 {
-    0.75
-}
-fn d_unfused() -> f64 {
-    0.3
-}
-fn d_excess() -> f64 {
-    0.1
-}
-fn d_min_excess() -> f64 {
-    4.0
-}
-fn d_spatter() -> f64 {
-    1.5
-}
-fn d_drift_z() -> f64 {
-    10.0
-}
-fn d_drift_window() -> usize {
-    30
-}
-fn d_drift_min() -> usize {
-    10
-}
-fn d_critical() -> f64 {
-    2.0
-}
-fn d_alarm_severity() -> AlarmSeverity {
-    AlarmSeverity::Critical
 }
 
 /// What the mock camera can get wrong on purpose.
@@ -419,20 +349,57 @@ impl MockInjection {
     }
 }
 
+/// How `kind@layer[..last][/key=value…]` is written, for the errors that quote it.
+const INJECTION_USAGE: &str = "expected kind@layer[..last][/key=value…], e.g. streak@40/y=12/c=6";
+
+/// An injection (`[camera] inject`, `demo --inject`) that does not say what to render. Each names
+/// the text as given.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum InjectionError {
+    #[error("{text}: {}", INJECTION_USAGE)]
+    NoLayer { text: String },
+    #[error("{text}: unknown anomaly `{kind}` (one of {})", kind_names())]
+    UnknownKind { text: String, kind: String },
+    #[error("{text}: `{layer}` is not a layer number (1 to 99999)")]
+    NotALayer { text: String, layer: String },
+    #[error("{text}: layers {first}..{last} run backwards")]
+    Backwards { text: String, first: u32, last: u32 },
+    #[error("{text}: `{param}`: {}", INJECTION_USAGE)]
+    NoValue { text: String, param: String },
+    #[error("{text}: {} takes {}, not `{param}`", kind.name(), param_names(*kind))]
+    UnknownParameter {
+        text: String,
+        kind: InjectKind,
+        param: String,
+    },
+    #[error("{text}: `{value}` is not a number")]
+    NotANumber { text: String, value: String },
+}
+
+fn kind_names() -> String {
+    let names: Vec<_> = InjectKind::ALL.iter().map(|k| k.name()).collect();
+    names.join(", ")
+}
+
+fn param_names(kind: InjectKind) -> String {
+    let keys: Vec<_> = kind.defaults().iter().map(|(k, _)| *k).collect();
+    keys.join(", ")
+}
+
 impl FromStr for MockInjection {
-    type Err = String;
+    type Err = InjectionError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let usage = "expected kind@layer[..last][/key=value…], e.g. streak@40/y=12/c=6";
-        let (head, rest) = s.trim().split_once('@').ok_or(format!("{s}: {usage}"))?;
+        let text = || s.to_string();
+        let (head, rest) = s
+            .trim()
+            .split_once('@')
+            .ok_or_else(|| InjectionError::NoLayer { text: text() })?;
         let kind = InjectKind::ALL
             .into_iter()
             .find(|k| k.name() == head)
-            .ok_or_else(|| {
-                let names: Vec<_> = InjectKind::ALL.iter().map(|k| k.name()).collect();
-                format!(
-                    "{s}: unknown anomaly `{head}` (one of {})",
-                    names.join(", ")
-                )
+            .ok_or_else(|| InjectionError::UnknownKind {
+                text: text(),
+                kind: head.to_string(),
             })?;
         let mut parts = rest.split('/');
         let layers = parts.next().unwrap_or_default();
@@ -440,31 +407,43 @@ impl FromStr for MockInjection {
             t.parse::<u32>()
                 .ok()
                 .filter(|l| (1..=crate::shot::MAX_LAYER).contains(l))
-                .ok_or(format!("{s}: `{t}` is not a layer number (1 to 99999)"))
+                .ok_or_else(|| InjectionError::NotALayer {
+                    text: text(),
+                    layer: t.to_string(),
+                })
         };
         let (first, last) = match layers.split_once("..") {
             Some((a, b)) => (layer(a)?, layer(b)?),
             None => (layer(layers)?, layer(layers)?),
         };
         if last < first {
-            return Err(format!("{s}: layers {first}..{last} run backwards"));
+            return Err(InjectionError::Backwards {
+                text: text(),
+                first,
+                last,
+            });
         }
         let mut params = BTreeMap::new();
         for p in parts {
-            let (k, v) = p.split_once('=').ok_or(format!("{s}: `{p}`: {usage}"))?;
+            let (k, v) = p.split_once('=').ok_or_else(|| InjectionError::NoValue {
+                text: text(),
+                param: p.to_string(),
+            })?;
             if !kind.defaults().iter().any(|(d, _)| *d == k) {
-                let keys: Vec<_> = kind.defaults().iter().map(|(k, _)| *k).collect();
-                return Err(format!(
-                    "{s}: {} takes {}, not `{k}`",
-                    kind.name(),
-                    keys.join(", ")
-                ));
+                return Err(InjectionError::UnknownParameter {
+                    text: text(),
+                    kind,
+                    param: k.to_string(),
+                });
             }
             let v: f64 = v
                 .parse()
                 .ok()
                 .filter(|v: &f64| v.is_finite())
-                .ok_or(format!("{s}: `{v}` is not a number"))?;
+                .ok_or_else(|| InjectionError::NotANumber {
+                    text: text(),
+                    value: v.to_string(),
+                })?;
             params.insert(k.to_string(), v);
         }
         Ok(MockInjection {
@@ -477,7 +456,7 @@ impl FromStr for MockInjection {
 }
 
 impl TryFrom<String> for MockInjection {
-    type Error = String;
+    type Error = InjectionError;
     fn try_from(s: String) -> Result<Self, Self::Error> {
         s.parse()
     }
@@ -503,7 +482,7 @@ impl fmt::Display for MockInjection {
 }
 
 /// A comma-separated list of injections (`demo --inject`).
-pub fn parse_injections(list: &str) -> Result<Vec<MockInjection>, String> {
+pub fn parse_injections(list: &str) -> Result<Vec<MockInjection>, InjectionError> {
     list.split(',')
         .filter(|s| !s.trim().is_empty())
         .map(str::parse)
@@ -525,25 +504,53 @@ mod tests {
         for item in &list {
             assert_eq!(&item.to_string().parse::<MockInjection>().unwrap(), item);
         }
-        for bad in [
-            "streak",
-            "blob@3",
-            "streak@0",
-            "streak@5..2",
-            "streak@4/q=1",
-            "streak@4/y=x",
+        for (bad, message) in [
+            (
+                "streak",
+                "streak: expected kind@layer[..last][/key=value…], e.g. streak@40/y=12/c=6",
+            ),
+            (
+                "blob@3",
+                "blob@3: unknown anomaly `blob` (one of streak, short-feed, elevation, no-fusion, \
+                 wide-fusion, spatter, drift)",
+            ),
+            (
+                "streak@0",
+                "streak@0: `0` is not a layer number (1 to 99999)",
+            ),
+            ("streak@5..2", "streak@5..2: layers 5..2 run backwards"),
+            (
+                "streak@4/q",
+                "streak@4/q: `q`: expected kind@layer[..last][/key=value…], e.g. \
+                 streak@40/y=12/c=6",
+            ),
+            (
+                "streak@4/q=1",
+                "streak@4/q=1: streak takes y, from, to, w, c, not `q`",
+            ),
+            ("streak@4/y=x", "streak@4/y=x: `x` is not a number"),
         ] {
-            assert!(bad.parse::<MockInjection>().is_err(), "{bad}");
+            let err = bad.parse::<MockInjection>().unwrap_err();
+            assert_eq!(err.to_string(), message, "{bad}");
         }
+        let err = parse_injections("streak@40, blob@3").unwrap_err();
+        assert!(matches!(err, InjectionError::UnknownKind { .. }), "{err}");
+        assert!(
+            err.to_string()
+                .starts_with(" blob@3: unknown anomaly `blob`"),
+            "{err}"
+        );
     }
 
     #[test]
     fn defaults_pass_their_own_check() {
         let c = InspectionConfig::default();
-        assert!(c.enabled && c.check().is_ok());
+        assert!(c.enabled && c.validate().is_ok());
         assert!(matches!(c.alarm.output, super::super::LightsConfig::None));
         let mut bad = c.clone();
         bad.streak_z = 0.0;
-        assert_eq!(bad.check().unwrap_err().0, "inspection.streak_z");
+        let refused = bad.validate().unwrap_err();
+        assert_eq!(refused.key, "inspection.streak_z");
+        assert_eq!(refused.message, "must be a finite number above 0, got 0");
     }
 }

@@ -2,8 +2,9 @@
 //! (`url`) or DIMSE C-STORE (`host`, `port`, `called_ae`). Secrets are read from a file named
 //! here (`secret_file`), never written in the configuration.
 
+use super::Invalid;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// One archive.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -74,8 +75,9 @@ pub fn valid_ae_title(ae: &str) -> bool {
 }
 
 impl PacsDestination {
-    /// What is wrong with this destination, as (key, message).
-    pub fn problem(&self) -> Option<(&'static str, String)> {
+    /// Checks one destination; the key is the destination's own (`url`), [`validate`] puts it
+    /// under `pacs[i]`.
+    pub fn validate(&self) -> Result<(), Invalid> {
         if self.name.is_empty()
             || !self
                 .name
@@ -83,38 +85,35 @@ impl PacsDestination {
                 .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_' || c == '.')
             || self.name.starts_with('.')
         {
-            return Some((
+            return Err(Invalid::new(
                 "name",
-                "must be a short name of letters, digits, `-`, `_` or `.` (it names the push log)"
-                    .into(),
+                "must be a short name of letters, digits, `-`, `_` or `.` (it names the push log)",
             ));
         }
         match (&self.url, &self.host) {
             (Some(_), Some(_)) | (None, None) => {
-                return Some((
+                return Err(Invalid::new(
                     "url",
                     "give either `url` (DICOMweb STOW-RS) or `host`, `port` and `called_ae` \
-                     (DIMSE C-STORE)"
-                        .into(),
+                     (DIMSE C-STORE)",
                 ))
             }
             (Some(url), None) => {
                 if !(url.starts_with("http://") || url.starts_with("https://")) {
-                    return Some((
+                    return Err(Invalid::new(
                         "url",
                         "must start with http:// or https:// (the DICOMweb root, e.g. \
-                         http://pacs:8042/dicom-web)"
-                            .into(),
+                         http://pacs:8042/dicom-web)",
                     ));
                 }
                 match (self.auth, &self.user, &self.secret_file) {
                     (Some(PacsAuth::Basic), None, _) => {
-                        return Some(("user", "auth = \"basic\" needs `user`".into()))
+                        return Err(Invalid::new("user", "auth = \"basic\" needs `user`"))
                     }
                     (Some(_), _, None) => {
-                        return Some((
+                        return Err(Invalid::new(
                             "secret_file",
-                            "auth needs `secret_file`: a file holding the password or token".into(),
+                            "auth needs `secret_file`: a file holding the password or token",
                         ))
                     }
                     _ => {}
@@ -122,56 +121,55 @@ impl PacsDestination {
             }
             (None, Some(_)) => {
                 if self.port.is_none_or(|p| p == 0) {
-                    return Some(("port", "C-STORE needs the archive's DICOM port".into()));
+                    return Err(Invalid::new(
+                        "port",
+                        "C-STORE needs the archive's DICOM port",
+                    ));
                 }
                 if !self.called_ae.as_deref().is_some_and(valid_ae_title) {
-                    return Some((
+                    return Err(Invalid::new(
                         "called_ae",
-                        "C-STORE needs the archive's AE title: 1 to 16 printable ASCII characters"
-                            .into(),
+                        "C-STORE needs the archive's AE title: 1 to 16 printable ASCII characters",
                     ));
                 }
                 if self.auth.is_some() {
-                    return Some(("auth", "only STOW-RS (`url`) takes auth".into()));
+                    return Err(Invalid::new("auth", "only STOW-RS (`url`) takes auth"));
                 }
             }
         }
         if !valid_ae_title(&self.calling_ae) {
-            return Some((
+            return Err(Invalid::new(
                 "calling_ae",
-                "must be 1 to 16 printable ASCII characters".into(),
+                "must be 1 to 16 printable ASCII characters",
             ));
         }
         if self.timeout_s == 0 {
-            return Some(("timeout_s", "must be at least 1 second".into()));
+            return Err(Invalid::new("timeout_s", "must be at least 1 second"));
         }
         let [first, max] = self.retry_backoff_ms;
         if first == 0 || max < first {
-            return Some((
+            return Err(Invalid::new(
                 "retry_backoff_ms",
-                "must be [first, longest] with 0 < first <= longest".into(),
+                "must be [first, longest] with 0 < first <= longest",
             ));
         }
-        None
+        Ok(())
     }
 }
 
 /// Checks every destination and that names are unique.
-pub fn validate(destinations: &[PacsDestination], file: &Path) -> Result<(), super::ConfigError> {
+pub fn validate(destinations: &[PacsDestination]) -> Result<(), Invalid> {
     for (i, destination) in destinations.iter().enumerate() {
-        let invalid = |key: &str, message: String| super::ConfigError::Invalid {
-            file: file.to_path_buf(),
-            key: format!("pacs[{i}].{key}"),
-            message,
+        let under = |invalid: Invalid| Invalid {
+            key: format!("pacs[{i}].{}", invalid.key),
+            ..invalid
         };
-        if let Some((key, message)) = destination.problem() {
-            return Err(invalid(key, message));
-        }
+        destination.validate().map_err(under)?;
         if destinations[..i].iter().any(|d| d.name == destination.name) {
-            return Err(invalid(
+            return Err(under(Invalid::new(
                 "name",
                 format!("\"{}\" is used twice", destination.name),
-            ));
+            )));
         }
     }
     Ok(())
@@ -181,13 +179,22 @@ pub fn validate(destinations: &[PacsDestination], file: &Path) -> Result<(), sup
 mod tests {
     use super::*;
 
-    fn parse(text: &str) -> Result<Vec<PacsDestination>, String> {
+    /// Why a `[[pacs]]` text is refused: not of the shape, or a value that fails its check.
+    #[derive(Debug, thiserror::Error)]
+    enum Refused {
+        #[error(transparent)]
+        Toml(#[from] toml::de::Error),
+        #[error(transparent)]
+        Invalid(#[from] Invalid),
+    }
+
+    fn parse(text: &str) -> Result<Vec<PacsDestination>, Refused> {
         #[derive(Deserialize)]
         struct Doc {
             pacs: Vec<PacsDestination>,
         }
-        let doc: Doc = toml::from_str(text).map_err(|e| e.to_string())?;
-        validate(&doc.pacs, Path::new("t.toml")).map_err(|e| e.to_string())?;
+        let doc: Doc = toml::from_str(text)?;
+        validate(&doc.pacs)?;
         Ok(doc.pacs)
     }
 
@@ -222,15 +229,26 @@ mod tests {
                 "pacs[0].secret_file",
             ),
         ] {
-            let err = parse(&format!("[[pacs]]\n{text}")).unwrap_err();
-            assert!(err.contains(key), "{text}: {err}");
+            match parse(&format!("[[pacs]]\n{text}")).unwrap_err() {
+                Refused::Invalid(invalid) => assert_eq!(invalid.key, key, "{text}: {invalid}"),
+                other => panic!("{text}: {other}"),
+            }
         }
         let twice = parse(
             "[[pacs]]\nname = \"a\"\nurl = \"http://x\"\n[[pacs]]\nname = \"a\"\nurl = \"http://y\"\n",
         )
         .unwrap_err();
-        assert!(twice.contains("used twice"), "{twice}");
+        match twice {
+            Refused::Invalid(invalid) => {
+                assert_eq!(invalid.key, "pacs[1].name");
+                assert_eq!(invalid.message, "\"a\" is used twice");
+            }
+            other => panic!("{other}"),
+        }
         let inline = parse("[[pacs]]\nname = \"a\"\nurl = \"http://x\"\npassword = \"p\"\n");
-        assert!(inline.unwrap_err().contains("password"));
+        match inline.unwrap_err() {
+            Refused::Toml(e) => assert!(e.to_string().contains("password"), "{e}"),
+            other => panic!("{other}"),
+        }
     }
 }

@@ -186,3 +186,117 @@ fn config_control_characters_in_the_build_name_are_refused() {
         "build.name",
     );
 }
+
+#[test]
+fn a_pattern_that_does_not_compile_keeps_the_regex_error_as_its_source() {
+    let text = DEMO_CONFIG.replacen(
+        "[trigger]\nkind = \"mock\"",
+        "[trigger]\nkind = \"serial\"\nport = \"/dev/ttyUSB0\"\npattern = \"LAYER (\"",
+        1,
+    );
+    let text = text.replacen("layers = 20\nfirst_layer = 1\ninterval_ms = 0\n", "", 1);
+    let err = parse(&text).unwrap_err();
+    let ConfigError::Invalid {
+        key,
+        message,
+        source: Some(cause),
+        ..
+    } = &err
+    else {
+        panic!("{err:?}");
+    };
+    assert_eq!(key, "trigger.pattern");
+    assert_eq!(message, "is not a valid regular expression");
+    #[allow(clippy::invalid_regex)] // the very pattern the configuration gives
+    let regex = regex::Regex::new("LAYER (").unwrap_err();
+    assert_eq!(cause.to_string(), regex.to_string());
+    // What the binary prints: the same words as when the cause was part of the message.
+    assert_eq!(
+        crate::logging::chain(&err),
+        format!("test.toml: key `trigger.pattern`: is not a valid regular expression: {regex}")
+    );
+}
+
+#[test]
+fn every_refusal_is_an_invalid_key_of_the_file() {
+    let err = demo_with("queue_capacity = 16", "queue_capacity = 0").unwrap_err();
+    let ConfigError::Invalid {
+        file, key, source, ..
+    } = &err
+    else {
+        panic!("{err:?}");
+    };
+    assert_eq!(
+        (file.as_path(), key.as_str()),
+        (Path::new("test.toml"), "storage.queue_capacity")
+    );
+    assert!(source.is_none());
+    assert_eq!(
+        err.to_string(),
+        format!(
+            "test.toml: key `storage.queue_capacity`: must be 1 to {MAX_QUEUE} (frames wait on \
+             disk when the queue is full)"
+        )
+    );
+    let err = demo_with("layer_thickness_mm = 0.03", "layer_thickness_mm = \"thin\"").unwrap_err();
+    assert!(
+        matches!(err, ConfigError::File(TomlFileError::Parse(_))),
+        "{err:?}"
+    );
+}
+
+#[test]
+fn the_examples_round_trip_through_their_snapshot() {
+    for (name, text) in [
+        ("demo.toml", DEMO_CONFIG),
+        (
+            "layerwise.toml",
+            include_str!("../../config/layerwise.toml"),
+        ),
+    ] {
+        let config = parse(text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let snapshot = toml::to_string(&config).unwrap();
+        let again = parse(&snapshot).unwrap_or_else(|e| panic!("{name} snapshot: {e}"));
+        assert_eq!(toml::to_string(&again).unwrap(), snapshot, "{name}");
+    }
+}
+
+#[test]
+fn sections_left_out_or_empty_take_the_same_defaults() {
+    let minimal = "[build]\nname = \"b\"\noutput_dir = \"/tmp/x\"\n[trigger]\nkind = \"mock\"\n\
+                   [camera]\nkind = \"mock\"\n";
+    let empty_tables = format!(
+        "{minimal}[capture]\n[views]\n[storage]\n[web]\n[series]\n[inspection]\n\
+         [inspection.alarm]\n"
+    );
+    let left_out = parse(minimal).unwrap();
+    let empty = parse(&empty_tables).unwrap();
+    assert_eq!(
+        toml::to_string(&left_out).unwrap(),
+        toml::to_string(&empty).unwrap()
+    );
+    let capture = &left_out.capture;
+    assert_eq!(
+        (
+            capture.settle_ms,
+            capture.call_timeout_s,
+            capture.retries,
+            capture.retry_backoff_ms,
+            capture.reopen_attempts
+        ),
+        (0, 60, 8, [100, 3000], 5)
+    );
+    assert_eq!(left_out.views.phases, crate::shot::Phase::ALL);
+    assert_eq!(left_out.views.lights, crate::shot::Light::ALL);
+    let storage = &left_out.storage;
+    assert!(storage.fsync);
+    assert_eq!((storage.queue_capacity, storage.min_free_gb), (64, 20.0));
+    assert_eq!(storage.dicom, crate::dicom::Compression::None);
+    let inspection = &left_out.inspection;
+    assert!(inspection.enabled && inspection.alarm.latch);
+    assert_eq!((inspection.streak_z, inspection.drift_window), (7.0, 30));
+    assert_eq!(
+        inspection.alarm.severity,
+        inspection::AlarmSeverity::Critical
+    );
+}

@@ -1,5 +1,6 @@
 //! `[web]`: the operator page the daemon serves (src/web), and `layerwise serve`.
 
+use super::Invalid;
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -50,25 +51,32 @@ impl Default for WebConfig {
 }
 
 impl WebConfig {
-    /// The address to listen on, or None when the page is off.
-    pub fn address(&self) -> Result<Option<SocketAddr>, String> {
+    /// The address to listen on, or None when the page is off; refused under `web.listen`.
+    pub fn address(&self) -> Result<Option<SocketAddr>, Invalid> {
         let text = self.listen.trim();
         if text.is_empty() {
             return Ok(None);
         }
-        text.parse().map(Some).map_err(|e| {
-            format!(
-                "\"{text}\" is not host:port ({e}); e.g. \"127.0.0.1:8040\", or \"\" for no page"
-            )
-        })
+        // A socket address that does not parse says no more than this (std's AddrParseError of
+        // a socket address is always "invalid socket address syntax"): no cause to keep.
+        text.parse()
+            .map(Some)
+            .map_err(|_: std::net::AddrParseError| {
+                Invalid::new(
+                    "web.listen",
+                    format!(
+                        "\"{text}\" is not host:port (invalid socket address syntax); e.g. \
+                     \"127.0.0.1:8040\", or \"\" for no page"
+                    ),
+                )
+            })
     }
 
-    /// Checks the section; the error is (key, message).
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        let address = self.address().map_err(|m| ("web.listen", m))?;
-        if let Some(address) = address {
+    /// Checks the section: an address (beyond loopback only with a token) and bounds that fit.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        if let Some(address) = self.address()? {
             if !address.ip().is_loopback() && self.token_file.is_none() {
-                return Err((
+                return Err(Invalid::new(
                     "web.listen",
                     format!(
                         "{address} is reachable from other machines: set web.token_file to a file \
@@ -78,25 +86,28 @@ impl WebConfig {
             }
         }
         if !(1..=MAX_CONNECTIONS).contains(&self.max_connections) {
-            return Err((
+            return Err(Invalid::new(
                 "web.max_connections",
                 format!("must be 1 to {MAX_CONNECTIONS}"),
             ));
         }
         if !(1..=self.max_connections).contains(&self.max_event_streams) {
-            return Err((
+            return Err(Invalid::new(
                 "web.max_event_streams",
-                "must be 1 to web.max_connections".into(),
+                "must be 1 to web.max_connections",
             ));
         }
         if !(1..=3600).contains(&self.idle_timeout_s) {
-            return Err(("web.idle_timeout_s", "must be 1 to 3600 seconds".into()));
+            return Err(Invalid::new(
+                "web.idle_timeout_s",
+                "must be 1 to 3600 seconds",
+            ));
         }
         if !(64..=4096).contains(&self.preview_px) {
-            return Err(("web.preview_px", "must be 64 to 4096 pixels".into()));
+            return Err(Invalid::new("web.preview_px", "must be 64 to 4096 pixels"));
         }
         if !(1..=4096).contains(&self.cache_mb) {
-            return Err(("web.cache_mb", "must be 1 to 4096 MB".into()));
+            return Err(Invalid::new("web.cache_mb", "must be 1 to 4096 MB"));
         }
         Ok(())
     }
@@ -117,13 +128,24 @@ mod tests {
         web.listen = "".into();
         assert_eq!(web.address().unwrap(), None);
         web.listen = "0.0.0.0:8040".into();
-        assert_eq!(web.validate().unwrap_err().0, "web.listen");
+        assert_eq!(web.validate().unwrap_err().key, "web.listen");
         web.token_file = Some("/etc/layerwise/web.token".into());
         assert!(web.validate().is_ok());
         web.listen = "printer:80".into();
-        assert!(web.validate().unwrap_err().1.contains("host:port"));
+        let refused = web.validate().unwrap_err();
+        assert_eq!(refused.key, "web.listen");
+        // The words std gives, where they always stood.
+        let cause = "printer:80".parse::<SocketAddr>().unwrap_err();
+        assert_eq!(
+            refused.message,
+            format!(
+                "\"printer:80\" is not host:port ({cause}); e.g. \"127.0.0.1:8040\", or \"\" for \
+                 no page"
+            )
+        );
+        assert_eq!(web.address().unwrap_err().message, refused.message);
         web.listen = "[::1]:8040".into();
         web.max_event_streams = 0;
-        assert_eq!(web.validate().unwrap_err().0, "web.max_event_streams");
+        assert_eq!(web.validate().unwrap_err().key, "web.max_event_streams");
     }
 }

@@ -263,10 +263,10 @@ impl Destination {
         } else {
             return Err(bad());
         }
-        if let Some((_, message)) = config.problem() {
+        if let Err(invalid) = config.validate() {
             return Err(PacsError::Invalid {
                 destination: to.to_string(),
-                message,
+                message: invalid.message,
             });
         }
         Destination::from_config(&config)
