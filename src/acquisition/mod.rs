@@ -48,6 +48,8 @@ pub enum AcquisitionError {
     Storage(#[from] WriteError),
     #[error(transparent)]
     Journal(#[from] JournalError),
+    #[error(transparent)]
+    Manifest(#[from] crate::build_dir::manifest::ManifestError),
     #[error("cannot open the camera")]
     CameraOpen(#[source] CameraError),
     #[error("camera hung; exiting so that systemd restarts the service")]

@@ -7,10 +7,24 @@ use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// A `build.json` that does not parse: the cause of [`BuildManifest::load_or_create`]'s error.
+/// Why `build.json` could not be read or written.
 #[derive(Debug, thiserror::Error)]
-#[error("not a build manifest")]
-pub struct NotAManifest(#[source] pub serde_json::Error);
+pub enum ManifestError {
+    #[error("{}: cannot read the build manifest", path.display())]
+    Read {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: not a build manifest (restore it from a backup, or move it away to start a new build in this folder)", path.display())]
+    Parse {
+        path: std::path::PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    #[error(transparent)]
+    Write(#[from] WriteError),
+}
 
 /// Facts of a build fixed at its start: one study, one frame of reference, one StudyDate/Time.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -30,13 +44,11 @@ impl BuildManifest {
     pub fn load_or_create(
         dir: &Path,
         make: impl FnOnce() -> BuildManifest,
-    ) -> Result<BuildManifest, WriteError> {
+    ) -> Result<BuildManifest, ManifestError> {
         let path = dir.join(MANIFEST);
         match std::fs::read(&path) {
-            Ok(bytes) => serde_json::from_slice(&bytes).map_err(|e| WriteError {
-                path: path.clone(),
-                source: std::io::Error::new(std::io::ErrorKind::InvalidData, NotAManifest(e)),
-            }),
+            Ok(bytes) => serde_json::from_slice(&bytes)
+                .map_err(|source| ManifestError::Parse { path, source }),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 let manifest = make();
                 let json = serde_json::to_vec_pretty(&manifest).map_err(|e| WriteError {
@@ -46,7 +58,7 @@ impl BuildManifest {
                 write_atomic(&path, &json, true)?;
                 Ok(manifest)
             }
-            Err(source) => Err(WriteError { path, source }),
+            Err(source) => Err(ManifestError::Read { path, source }),
         }
     }
 

@@ -291,7 +291,10 @@ fn build_report_settings(build: &std::path::Path) -> layerwise::build_dir::statu
     let config = Config::load(&snapshot)
         .inspect_err(|e| {
             if snapshot.exists() {
-                eprintln!("warning: {e}; using the default storage.min_free_gb and [series] take");
+                eprintln!(
+                    "warning: {}; using the default storage.min_free_gb and [series] take",
+                    layerwise::logging::Chain(e)
+                );
             }
         })
         .ok();

@@ -112,7 +112,7 @@ impl InspectArgs {
             .map(layerwise::vectors::LayerIndex::build)
             .transpose()?;
         let rectifier = Rectifier::new(&calibration.camera(), grid, interpolation, fill)
-            .map_err(|e| anyhow!("calibration: {e}"))?;
+            .context("calibration")?;
         let mut inspector = Inspector::new(&cfg, grid, &views, index);
         if let Some(footprint) = layerwise::inspect::camera_footprint_mm(rectifier.camera(), &grid)
         {

@@ -1,7 +1,7 @@
 //! `layerwise build start|stop|list`: the next build without editing the configuration or
 //! restarting the service (`[build] builds_dir`, build_dir::lifecycle).
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, Context, Result};
 use clap::{Args, Subcommand};
 use layerwise::build_dir::lifecycle::{self, StartRequest};
 use layerwise::config::Config;
@@ -137,12 +137,8 @@ impl BuildCommand {
 
 /// The vector file as an absolute path (the daemon runs elsewhere), checked to exist.
 fn resolve_vectors(path: &Path) -> Result<PathBuf> {
-    let meta = std::fs::metadata(path).map_err(|e| {
-        anyhow!(
-            "--vectors {}: {e}; give the build's CLI file",
-            path.display()
-        )
-    })?;
+    let meta = std::fs::metadata(path)
+        .with_context(|| format!("--vectors {} (give the build's CLI file)", path.display()))?;
     if !meta.is_file() {
         anyhow::bail!("--vectors {}: not a regular file", path.display());
     }

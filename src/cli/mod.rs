@@ -112,18 +112,10 @@ impl Command {
     }
 }
 
-/// An error with its causes, each said once: a cause whose text the message already contains
-/// (library errors often name their source inline) is not repeated.
+/// An error with its causes: `message: cause: cause`. Library errors write their own message
+/// only and keep the cause as their source, so each is said once.
 pub fn report(error: &anyhow::Error) -> String {
-    let mut out = error.to_string();
-    for cause in error.chain().skip(1) {
-        let text = cause.to_string();
-        if !text.is_empty() && !out.contains(&text) {
-            out.push_str(": ");
-            out.push_str(&text);
-        }
-    }
-    out
+    format!("{error:#}")
 }
 
 #[cfg(test)]
