@@ -3,9 +3,8 @@
 //! place, within seconds, under a 2 GiB address-space limit (an allocation sized by a wild header
 //! aborts the child instead of swapping the machine), never a panic, a hang or a silent exit 0.
 
-mod common;
-
-use common::{demo_config, layerwise, report, write_config, SmallView};
+use crate::common;
+use crate::common::{demo_config, layerwise, report, write_config, SmallView};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};

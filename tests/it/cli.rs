@@ -1,8 +1,6 @@
 //! The `layerwise` binary as operators and systemd use it.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use layerwise::config::TriggerConfig;
 use std::path::Path;
 use std::process::Stdio;
@@ -159,9 +157,7 @@ fn status_of_a_directory_that_is_not_a_build() {
 fn status_warns_when_the_disk_will_not_last() {
     let dir = tempfile::tempdir().unwrap();
     let config = demo_config(dir.path(), 2);
-    runtime()
-        .block_on(run(&config, layerwise::acquisition::RunOptions::new()))
-        .unwrap();
+    run_daemon(&config, layerwise::acquisition::RunOptions::new()).unwrap();
     // Pretend the build has a million layers still to come.
     let manifest_path = dir.path().join("build.json");
     let mut manifest = read_json(&manifest_path);

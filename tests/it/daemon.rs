@@ -1,8 +1,6 @@
 //! The acquisition daemon driven in-process with the mock trigger, lights and camera.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use layerwise::acquisition::{AcquisitionError, RunOptions};
 use layerwise::series::{FrameProcessor, ProcessError};
 use layerwise::shot::{Light, Phase, Shot};
@@ -20,15 +18,14 @@ fn options_with_log() -> (RunOptions, Arc<Mutex<Option<MockLightsLog>>>) {
 }
 
 /// Runs the simulated build, keeping the mock lights' log in `slot`.
-async fn run_logged(
+fn run_logged(
     config: &layerwise::config::Config,
     options: RunOptions,
     slot: &Arc<Mutex<Option<MockLightsLog>>>,
 ) -> Result<layerwise::acquisition::RunSummary, AcquisitionError> {
-    run_with(config, options, |_, sim| {
+    run_daemon_with(config, options, |_, sim| {
         *slot.lock().unwrap() = sim.lights_log.clone();
     })
-    .await
 }
 
 fn log_of(slot: &Arc<Mutex<Option<MockLightsLog>>>) -> MockLightsLog {
@@ -48,9 +45,7 @@ fn a_clean_build_stores_every_view_lit_and_turns_lights_off() {
     let dir = tempfile::tempdir().unwrap();
     let config = demo_config(dir.path(), 3);
     let (options, slot) = options_with_log();
-    let summary = runtime()
-        .block_on(run_logged(&config, options, &slot))
-        .unwrap();
+    let summary = run_logged(&config, options, &slot).unwrap();
     assert_eq!((summary.stored, summary.missing), (18, 0));
     assert_eq!(originals(dir.path()), expected_originals(3));
     assert!(frame_records(dir.path()).values().all(|&n| n == 1));
@@ -88,9 +83,7 @@ fn busy_disconnect_and_a_dead_frame_are_survived() {
     add_fault(&mut config, "disconnect", 3, "pre", "front", 0, 0);
     add_fault(&mut config, "fail", 3, "post", "side", 0, 0);
     let (options, slot) = options_with_log();
-    let summary = runtime()
-        .block_on(run_logged(&config, options, &slot))
-        .unwrap();
+    let summary = run_logged(&config, options, &slot).unwrap();
     assert_eq!((summary.stored, summary.missing), (23, 1));
 
     let sidecar = |stem: &str| read_json(&dir.path().join(format!("raw/{stem}.json")));
@@ -145,7 +138,7 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
     add_fault(&mut config, "hang", 2, "pre", "side", 0, 4000);
     let (options, slot) = options_with_log();
     let started = Instant::now();
-    let result = runtime().block_on(run_logged(&config, options, &slot));
+    let result = run_logged(&config, options, &slot);
     assert!(
         matches!(result, Err(AcquisitionError::CameraHung(_))),
         "{result:?}"
@@ -180,10 +173,10 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
 fn a_restart_resumes_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
     let first = demo_config(dir.path(), 2);
-    runtime().block_on(run(&first, RunOptions::new())).unwrap();
+    run_daemon(&first, RunOptions::new()).unwrap();
     // The same build, restarted: the trigger replays layers 1-2 (already stored) then goes on.
     let second = demo_config(dir.path(), 4);
-    let summary = runtime().block_on(run(&second, RunOptions::new())).unwrap();
+    let summary = run_daemon(&second, RunOptions::new()).unwrap();
     assert_eq!((summary.stored, summary.skipped), (12, 12));
     assert_eq!(originals(dir.path()), expected_originals(4));
     assert!(frame_records(dir.path()).values().all(|&n| n == 1));
@@ -222,7 +215,7 @@ fn capture_never_waits_for_processing() {
     options.processor = Some(processor.clone());
     options.drain_at_end = true;
     let build = dir.path().to_path_buf();
-    let daemon = std::thread::spawn(move || runtime().block_on(run(&config, options)));
+    let daemon = std::thread::spawn(move || run_daemon(&config, options));
     // All 24 frames reach the disk while processing is stuck on the first one (a timeout here:
     // capture was blocked by processing).
     wait_for_originals(&build, 24, Duration::from_secs(60));
@@ -256,10 +249,7 @@ fn bad_trigger_script_fails_with_its_line() {
         mock.script = Some(script);
     }
     let (options, slot) = options_with_log();
-    let err = runtime()
-        .block_on(run_logged(&config, options, &slot))
-        .unwrap_err()
-        .to_string();
+    let err = run_logged(&config, options, &slot).unwrap_err().to_string();
     assert!(
         err.contains("printer.txt") && err.contains("line 2"),
         "{err}"
@@ -287,7 +277,7 @@ fn irregular_signals_are_journaled_and_no_original_is_overwritten() {
     }
     let mut options = RunOptions::new();
     options.drain_at_end = true;
-    let summary = runtime().block_on(run(&config, options)).unwrap();
+    let summary = run_daemon(&config, options).unwrap();
     assert_eq!((summary.stored, summary.retakes), (12, 3));
     let raw = dir.path().join("raw");
     let first: std::collections::BTreeMap<String, String> = records(dir.path())
@@ -345,7 +335,7 @@ fn irregular_signals_are_journaled_and_no_original_is_overwritten() {
     // A restart that replays the same signals changes nothing: no new take, no new flag.
     let mut options = RunOptions::new();
     options.drain_at_end = true;
-    let again = runtime().block_on(run(&config, options)).unwrap();
+    let again = run_daemon(&config, options).unwrap();
     assert_eq!((again.stored, again.retakes), (0, 0));
     assert_eq!(
         status(dir.path()),

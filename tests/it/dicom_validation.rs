@@ -2,9 +2,7 @@
 //! dcmtk (dcmftest, dcmdump, dcmconv, dcmj2pnm), pydicom and SimpleITK (tests/dicom_check.py in
 //! the venv that tests/run.sh makes). The README's test command installs all of them.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use layerwise::acquisition::RunOptions;
 use layerwise::config::Config;
 use layerwise::dicom::Compression;
@@ -136,10 +134,10 @@ fn live_series_pass_dicom3tools_dcmtk_pydicom_and_simpleitk_and_survive_a_restar
     let dir = tempfile::tempdir().unwrap();
     let build = dir.path().join("build");
     let config = calibrated_config(&build, 2, Compression::None);
-    runtime().block_on(run(&config, drained())).unwrap();
+    run_daemon(&config, drained()).unwrap();
     // Restart: the series continue with the same UIDs and no duplicate instance.
     let config = calibrated_config(&build, 4, Compression::None);
-    runtime().block_on(run(&config, drained())).unwrap();
+    run_daemon(&config, drained()).unwrap();
 
     let files = all_dcm(&build);
     assert_eq!(files.len(), 24, "6 views x 4 layers");
@@ -213,7 +211,7 @@ fn compressed_series_decode_to_the_same_pixels() {
     }
     let plain_build = dir.path().join("none");
     let plain = calibrated_config(&plain_build, 1, Compression::None);
-    runtime().block_on(run(&plain, drained())).unwrap();
+    run_daemon(&plain, drained()).unwrap();
     let reference = plain_build.join("dicom/post_top/L00001.dcm");
     let pixels_of = |file: &Path| {
         python_says("import sys, pydicom, hashlib; print(hashlib.sha256(pydicom.dcmread(sys.argv[1]).pixel_array.tobytes()).hexdigest())", file)
@@ -225,7 +223,7 @@ fn compressed_series_decode_to_the_same_pixels() {
         let build = dir.path().join(format!("{compression:?}"));
         // The same originals: copy them, so only the encoding differs.
         let config = calibrated_config(&build, 1, compression);
-        runtime().block_on(run(&config, drained())).unwrap();
+        run_daemon(&config, drained()).unwrap();
         let file = build.join("dicom/post_top/L00001.dcm");
         let original_a = std::fs::read(plain_build.join("raw/L00001_post_top.jpg")).unwrap();
         let original_b = std::fs::read(build.join("raw/L00001_post_top.jpg")).unwrap();
@@ -253,7 +251,7 @@ fn a_truncated_file_is_named_by_dicom_info() {
     let dir = tempfile::tempdir().unwrap();
     let build = dir.path().join("build");
     let config = calibrated_config(&build, 1, Compression::None);
-    runtime().block_on(run(&config, drained())).unwrap();
+    run_daemon(&config, drained()).unwrap();
     let file = build.join("dicom/pre_front/L00001.dcm");
     let bytes = std::fs::read(&file).unwrap();
     std::fs::write(&file, &bytes[..300]).unwrap();
@@ -317,7 +315,7 @@ fn a_part_crop_and_vector_layer_heights_shape_the_series() {
     let (build, mut config) = box_build(dir.path(), 3);
     config.calibration.crop_part = Some(7);
     config.calibration.crop_margin_mm = 5.0;
-    runtime().block_on(run(&config, drained())).unwrap();
+    run_daemon(&config, drained()).unwrap();
     let series = layerwise()
         .args(["dicom", "info", "--json"])
         .arg(build.join("dicom/post_top"))
@@ -353,7 +351,7 @@ fn a_part_crop_and_vector_layer_heights_shape_the_series() {
 fn export_writes_one_valid_study_idempotently_in_dicom_and_nrrd() {
     let dir = tempfile::tempdir().unwrap();
     let (build, config) = box_build(dir.path(), 2);
-    runtime().block_on(run(&config, drained())).unwrap();
+    run_daemon(&config, drained()).unwrap();
     let out = dir.path().join("export");
     let export = |extra: &[&str]| {
         layerwise()

@@ -5,11 +5,10 @@
 //! binary on a small tmpfs in a private mount namespace (needs root, as CI runs it); another
 //! drives the disk guard through the simulated probe (`sim::disk`).
 
-mod common;
-#[path = "../benches/support/tmpfs.rs"]
+#[path = "../../benches/support/tmpfs.rs"]
 mod tmpfs;
 
-use common::*;
+use crate::common::*;
 use layerwise::acquisition::RunOptions;
 use layerwise::build_dir::journal::Record;
 use layerwise::fsutil::FreeSpace;
@@ -282,7 +281,7 @@ fn disk_low_keeps_originals_and_the_next_start_catches_up_the_series() {
     let mut options = RunOptions::new();
     options.drain_at_end = true;
     options.free_space = Arc::new(disk.clone());
-    let summary = runtime().block_on(run(&config, options)).unwrap();
+    let summary = run_daemon(&config, options).unwrap();
     assert_eq!((summary.stored, summary.missing), (18, 0));
     assert_eq!(originals(&build), expected_originals(3));
     let low = replay(&build);
@@ -296,7 +295,7 @@ fn disk_low_keeps_originals_and_the_next_start_catches_up_the_series() {
     let mut options = RunOptions::new();
     options.drain_at_end = true;
     options.free_space = Arc::new(disk);
-    runtime().block_on(run(&config, options)).unwrap();
+    run_daemon(&config, options).unwrap();
     let caught_up = replay(&build);
     assert_eq!(caught_up.processed.len(), 18, "the series caught up");
     assert!(records(&build)

@@ -6,9 +6,8 @@
 
 #![allow(clippy::needless_range_loop)]
 
-mod common;
-
-use common::{layerwise, Run};
+use crate::common;
+use crate::common::{layerwise, Run};
 use layerwise::ct::{synth, CtRegistration, CtSource};
 use layerwise::geometry::Rigid3;
 use std::path::{Path, PathBuf};

@@ -8,9 +8,8 @@
 //! an error, never a panic (an allocation sized by a wild header shows up as a capacity panic or
 //! an abort). A mutant that panics is kept in target/fuzz-smoke/ and named in the failure.
 
-mod common;
-
-use common::Rng;
+use crate::common;
+use crate::common::Rng;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 
@@ -189,8 +188,8 @@ fn vector_files() {
 #[test]
 fn configuration_calibration_and_points_files() {
     let configs = vec![
-        include_bytes!("../config/demo.toml").to_vec(),
-        include_bytes!("../config/layerwise.toml").to_vec(),
+        include_bytes!("../../config/demo.toml").to_vec(),
+        include_bytes!("../../config/layerwise.toml").to_vec(),
     ];
     assert_no_panics(fuzz("config", &configs, |b| {
         let _ = layerwise::config::Config::parse(&String::from_utf8_lossy(b), Path::new("f.toml"));

@@ -2,9 +2,8 @@
 //! warning for the trigger, camera, lights, processing and disk, and systemd's STATUS= carries
 //! the same one-line summary.
 
-mod common;
-
-use common::*;
+use crate::common;
+use crate::common::*;
 use std::os::unix::net::UnixDatagram;
 use std::time::Duration;
 
@@ -187,7 +186,7 @@ fn status_min_free_gb_defaults_to_the_builds_configuration() {
 
 #[test]
 fn lights_that_fail_mid_build_show_in_status_and_sd_notify() {
-    use common::pty::PtyPair;
+    use crate::common::pty::PtyPair;
     let dir = tempfile::tempdir().unwrap();
     let (printer_dir, relay_dir) = (dir.path().join("printer"), dir.path().join("relay"));
     std::fs::create_dir_all(&printer_dir).unwrap();

@@ -2,16 +2,15 @@
 //! frames, JPEG-encoded, decoded, rectified and inspected exactly as the daemon's worker does,
 //! without the daemon around them), one with at least 10 injections of each anomaly at varied
 //! positions and strengths, one clean. Prints recall and false alarms per kind (the README
-//! table): `cargo test --release --test inspection -- --nocapture`.
+//! table): `cargo test --release --test it inspection:: -- --nocapture`.
 
+use crate::common;
 use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
 use layerwise::config::inspection::{InjectKind, InspectionConfig, MockInjection};
 use layerwise::inspect::Inspector;
 use layerwise::rectify::{Calibration, Grid, Rectifier};
 use layerwise::shot::{Light, Phase, View};
 use std::collections::BTreeMap;
-
-mod common;
 
 const LAYERS: u32 = 200;
 const WIDTH: u32 = 960;
@@ -277,8 +276,8 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// `layerwise inspect --build` over the stored build finds the same flags and plots them (PNG).
 #[test]
 fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agrees() {
-    use common::pty::{PtyPair, PtyReader};
-    use common::Run;
+    use crate::common::pty::{PtyPair, PtyReader};
+    use crate::common::Run;
     use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
     use std::time::{Duration, Instant};
     let tmp = tempfile::tempdir().expect("tmp");

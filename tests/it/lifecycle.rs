@@ -2,9 +2,7 @@
 //! daemon (`[build] builds_dir`) from build to build without editing the configuration or
 //! restarting the service.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 

@@ -3,9 +3,8 @@
 //! test thread enters a new namespace, brings loopback up, and everything it starts (Orthanc,
 //! layerwise) and every request it makes stays inside.
 
-mod common;
-
-use common::{calibrated_config, layerwise, write_config, Run};
+use crate::common;
+use crate::common::{calibrated_config, layerwise, write_config, Run};
 use layerwise::config::pacs::PacsDestination;
 use layerwise::dicom::Compression;
 use std::collections::BTreeMap;

@@ -1,8 +1,8 @@
 //! Tests of the rasteriser: analytic shapes, fill rules, spot width, coverage, the grid
 //! contract of docs/frames.md, the exemplar, the standard deviation filter and the real files.
 
-mod common;
-use common::shared_cli;
+use crate::common;
+use crate::common::shared_cli;
 use std::f64::consts::{PI, TAU};
 use std::path::PathBuf;
 

@@ -2,11 +2,8 @@
 //! stores the NEF originals and its live series hold their linear luminance; `layerwise rectify`
 //! takes a NEF; a broken NEF is named. The NEFs come from mock_camera (a D810 file layout, both
 //! 14-bit modes), so nothing binary is checked in.
-#![cfg(feature = "nef")]
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use dicom_dictionary_std::tags;
 use layerwise::config::{CameraConfig, Config, MockFrameFormat};
 use layerwise::dicom::Compression;

@@ -2,9 +2,8 @@
 //! GE phoenix CT (.vol + .pcr) of that part placed with a known rotation and translation (partial
 //! volume, noise, the bottom slab lost), three clicked point pairs off by 0.2 mm.
 
-mod common;
-
-use common::layerwise;
+use crate::common;
+use crate::common::layerwise;
 use layerwise::vectors::{Direction, Format, Header, Layer, Polyline, VectorFile};
 use std::f64::consts::PI;
 

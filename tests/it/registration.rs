@@ -6,8 +6,7 @@
 //! ±6 px, as a user's clicks would be. The error is measured where it matters: the parts'
 //! contour points mapped into the image by the true and by the recovered mapping, in pixels.
 
-mod common;
-
+use crate::common;
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 

@@ -1,11 +1,10 @@
 //! `layerwise register images` on frames of a second, independently written renderer
-//! (tests/common/render2.rs: its own camera, lens, textures, halo, previous layer, light and
+//! (tests/it/common/render2.rs: its own camera, lens, textures, halo, previous layer, light and
 //! JPEG), judged against the renderer's known truth over the parts' pixels. Prints the accuracy
-//! table of the README (`cargo test --release --test renderer2 -- --nocapture`).
+//! table of the README (`cargo test --release --test it renderer2:: -- --nocapture`).
 
-mod common;
-#[path = "common/render2.rs"]
-mod render2;
+use crate::common;
+use crate::common::render2;
 
 use std::f64::consts::TAU;
 use std::path::PathBuf;

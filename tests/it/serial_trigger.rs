@@ -1,10 +1,8 @@
 //! The serial trigger through a real pseudo-terminal pair made by socat: the "printer" writes to
 //! one end, the trigger (and the daemon) read the other.
 
-mod common;
-
-use common::pty::{serial_config, PtyPair};
-use common::*;
+use crate::common::pty::{serial_config, PtyPair};
+use crate::common::*;
 use layerwise::config::TriggerConfig;
 use layerwise::hardware::trigger::{SerialTrigger, Trigger};
 use layerwise::shot::Phase;

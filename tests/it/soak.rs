@@ -3,13 +3,13 @@
 //! and freed (as root, as CI runs), one `kill -9` and restart. No original lost or overwritten,
 //! every injected event journaled. Memory flatness needs the long run: `cargo bench --bench soak`.
 
-#[path = "../benches/support/soak.rs"]
-mod soak;
+#[path = "../../benches/support/soak.rs"]
+mod driver;
 
 #[test]
 fn soak_driver_short_build_loses_nothing_and_journals_every_injection() {
     let dir = tempfile::tempdir().unwrap();
-    let mut options = soak::Options::new(
+    let mut options = driver::Options::new(
         env!("CARGO_BIN_EXE_layerwise").into(),
         dir.path().join("soak"),
         50,
@@ -18,7 +18,7 @@ fn soak_driver_short_build_loses_nothing_and_journals_every_injection() {
     options.window = 25;
     options.inject_every = 12;
     options.fsync = false;
-    let report = soak::run(&options);
+    let report = driver::run(&options);
     let table = report.table();
     assert!(report.data_ok(), "{table}");
     assert_eq!(report.kills, 1, "{table}");
@@ -26,7 +26,7 @@ fn soak_driver_short_build_loses_nothing_and_journals_every_injection() {
         report.events.iter().all(|(_, want, _)| *want > 0),
         "{table}"
     );
-    assert_eq!(report.disk_filled, soak::is_root(), "{table}");
+    assert_eq!(report.disk_filled, driver::is_root(), "{table}");
     assert!(report.originals >= 40 * 6, "{table}");
     assert_eq!(report.windows.len(), 2, "{table}");
 }

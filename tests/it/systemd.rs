@@ -1,8 +1,6 @@
 //! The shipped unit passes `systemd-analyze verify` (with ExecStart pointing at this build).
 
-mod common;
-
-use common::assert_success;
+use crate::common::assert_success;
 
 /// The unit as shipped.
 fn shipped_unit() -> String {

@@ -585,7 +585,7 @@ fn gradient_matches_finite_differences() {
     assert!(near > 50 && unit as f64 > 0.8 * near as f64);
 }
 
-/// A real CLI file (see tests/raster.rs).
+/// A real CLI file (see tests/it/raster.rs).
 fn shared_cli(name: &str) -> PathBuf {
     let dir = match std::env::var_os("LAYERWISE_SHARED_DATA") {
         Some(d) => PathBuf::from(d),

@@ -2,8 +2,7 @@
 //! `<!-- /tutorial -->` are extracted and run by bash in an empty folder with this build's
 //! `layerwise` first on the PATH, so the README cannot drift from what works.
 
-mod common;
-
+use crate::common;
 use std::path::Path;
 
 fn tutorial_script() -> String {

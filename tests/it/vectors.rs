@@ -1,8 +1,8 @@
 //! Tests of the CLI vector reader/writer against the real files in shared/data/cli and against
 //! generated and deliberately broken input.
 
-mod common;
-use common::{shared_cli, Rng, VECTORS_INFO_KEYS};
+use crate::common;
+use crate::common::{shared_cli, Rng, VECTORS_INFO_KEYS};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -2,11 +2,8 @@
 //! PTP camera (the `vusb` port library shipped in the PyPI `gphoto2` wheel): capture, download,
 //! settings and errors go through real libgphoto2 code. `tests/run.sh` installs the wheel in a
 //! venv and sets LAYERWISE_VCAM_LIBDIR to its `gphoto2/libgphoto2` folder.
-#![cfg(feature = "gphoto")]
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use layerwise::config::{CameraConfig, Config, Gphoto2Config};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -2,9 +2,7 @@
 //! originals, vectors, events; requests that try to leave the build directory), and the daemon
 //! serving its page while it captures, with many connections open.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::Path;

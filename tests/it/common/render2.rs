@@ -19,7 +19,6 @@
 //! - radial lens distortion (k1 with the focal length in pixels, about the image centre), the
 //!   same model the calibration fits: recorded = c + (p − c)(1 + k1 r²), r = |p − c| / f;
 //! - written as JPEG quality 90 by the image crate's encoder.
-#![allow(dead_code)]
 
 use image::RgbImage;
 use layerwise::vectors::Layer;
