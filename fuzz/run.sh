@@ -3,7 +3,7 @@
 #
 #   bash fuzz/run.sh SEEDS SECONDS [--beside DIR]
 #
-# SEEDS: a folder with one sub-folder of seed inputs per target (tests/fuzz_smoke.rs writes it
+# SEEDS: a folder with one sub-folder of seed inputs per target (tests/it/fuzz_smoke.rs writes it
 # when LAYERWISE_FUZZ_SEEDS is set); SECONDS: the time each target runs (0 skips the step).
 # libFuzzer needs no nightly compiler: the coverage instrumentation is LLVM's sanitizer-coverage
 # pass, asked for with the same flags cargo-fuzz passes (its AddressSanitizer option alone needs
@@ -19,7 +19,7 @@
 #   instrumented build of every dependency took 8 to 10 minutes on 2 cores, too long for CI.
 #
 # Targets run side by side, one per core. A crashing input is kept in fuzz/artifacts/TARGET/ and
-# becomes a regression test in tests/fuzz_smoke.rs.
+# becomes a regression test in tests/it/fuzz_smoke.rs.
 set -euo pipefail
 seeds=$(realpath "${1:?seed folder}")
 seconds=${2:-25}

@@ -7,8 +7,9 @@ cd "$(dirname "$0")/.."
 # System packages: libgphoto2 for the real camera backend (bindgen needs libclang), socat for the
 # serial-trigger pty tests, systemd for `systemd-analyze verify`, dicom3tools and dcmtk to validate
 # the DICOM we write, cmake and g++ to build CharLS (JPEG-LS), python3-venv for the test venv;
-# orthanc, orthanc-dicomweb and iproute2: the real PACS tests/pacs.rs pushes to (STOW-RS, C-STORE);
-# chromium and chromium-driver for the browser test of the operator page (tests/web.rs).
+# orthanc, orthanc-dicomweb and iproute2: the real PACS tests/it/pacs.rs pushes to (STOW-RS,
+# C-STORE); chromium and chromium-driver for the browser test of the operator page
+# (tests/it/web.rs).
 packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver)
 missing=()
 for p in "${packages[@]}"; do
@@ -36,8 +37,8 @@ if ((${#missing[@]})); then
 fi
 
 # A Python venv with: the PyPI gphoto2 wheel (it bundles libgphoto2 with the vusb virtual PTP
-# camera, which tests/virtual_camera.rs drives through our real libgphoto2 backend); pydicom (with
-# a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back.
+# camera, which tests/it/virtual_camera.rs drives through our real libgphoto2 backend); pydicom
+# (with a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back.
 venv=target/test-venv
 if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg" 2>/dev/null; then
   python3 -m venv "$venv"
@@ -52,8 +53,8 @@ if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --all-features -- -D warnings
 # Coverage-guided fuzzing (fuzz/: libFuzzer on the stable toolchain, see fuzz/run.sh): the tests
-# write the seeds (tests/fuzz_smoke.rs, which also feeds every parser deterministic mutants), then
-# every target runs LAYERWISE_FUZZ_SECONDS (20; 0 skips it) on them; a crash, an abort, an
+# write the seeds (tests/it/fuzz_smoke.rs, which also feeds every parser deterministic mutants),
+# then every target runs LAYERWISE_FUZZ_SECONDS (20; 0 skips it) on them; a crash, an abort, an
 # allocation over 2 GB or an input taking over 10 s fails. Built beside the tests, on the
 # dependencies built for them: layerwise and the targets are compiled again, instrumented.
 fuzz_seconds="${LAYERWISE_FUZZ_SECONDS:-20}"
@@ -64,7 +65,7 @@ bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds" --beside target
 # takes: a NEF is refused with the feature to build, and check-config refuses a gphoto2 camera
 # it cannot drive (issue 13). Only layerwise and the crates whose features differ without rawler
 # compile again (3 min 20 s on 2 cores; with the lib's unit tests too it was 4 min 30 s).
-cargo test --no-default-features --test bounded_inputs -- without_the_feature
+cargo test --no-default-features --test it -- without_the_feature
 # Benchmarks are run by hand (cargo bench); here they only have to build, in the test profile
 # whose dependencies are built above (a release build of every dependency would add ~8 minutes).
 cargo test --workspace --all-features --benches --no-run

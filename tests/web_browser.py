@@ -1,5 +1,5 @@
 """Drives the operator page in headless Chromium through chromedriver (W3C WebDriver over plain
-HTTP, no client library) while a demo build runs; tests/web.rs starts the build and runs this.
+HTTP, no client library) while a demo build runs; tests/it/web.rs starts the build and runs this.
 
 usage: web_browser.py PAGE_URL CHROMEDRIVER SCREENSHOT_PNG [FLAGGED_LAYER VIEW X Y W H CLEAN_LAYER FLAG_PNG]
 

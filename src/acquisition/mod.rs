@@ -10,6 +10,7 @@
 pub mod alarm;
 pub mod check;
 pub mod disk;
+mod error;
 mod exposure;
 mod health;
 pub mod inspection;
@@ -19,89 +20,28 @@ pub mod processing;
 mod recorder;
 mod sequencer;
 pub mod storage;
+mod summary;
 
-use crate::build_dir::{BuildManifest, JournalError};
+use crate::build_dir::BuildManifest;
 use crate::clock::{SharedClock, SystemClock};
 use crate::config::Config;
-use crate::fsutil::WriteError;
-use crate::hardware::camera::{CameraActor, CameraError, RetryPolicy};
-use crate::hardware::lights::{LightsError, LightsGuard};
-use crate::hardware::trigger::TriggerError;
+use crate::hardware::camera::{CameraActor, RetryPolicy};
+use crate::hardware::lights::LightsGuard;
 use crate::hardware::Machine;
 use crate::logging::Chain;
 use crate::series::{FrameProcessor, KeepOriginals};
 use crate::shot::Phase;
 use crate::shutdown::{Shutdown, StopReason};
+pub use error::AcquisitionError;
 use exposure::Exposure;
 use processing::ProcessingQueue;
 use recorder::{Recorder, StatusSink};
 use sequencer::{Heartbeat, Sequencer};
 use std::collections::BTreeSet;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+pub use summary::RunSummary;
 use tracing::{error, info, warn};
-
-#[derive(Debug, thiserror::Error)]
-pub enum AcquisitionError {
-    #[error(transparent)]
-    Storage(#[from] WriteError),
-    #[error(transparent)]
-    Journal(#[from] JournalError),
-    #[error(transparent)]
-    Manifest(#[from] crate::build_dir::manifest::ManifestError),
-    #[error("cannot open the camera")]
-    CameraOpen(#[source] CameraError),
-    #[error("camera hung; exiting so that systemd restarts the service")]
-    CameraHung(#[source] CameraError),
-    #[error(transparent)]
-    Trigger(#[from] TriggerError),
-    #[error(transparent)]
-    Lights(#[from] LightsError),
-    #[error(transparent)]
-    Hardware(#[from] crate::hardware::HardwareError),
-    #[error(transparent)]
-    Calibration(#[from] crate::rectify::CalibrationError),
-    #[error(transparent)]
-    Series(#[from] crate::series::SeriesError),
-    #[error("cannot record the configuration")]
-    Snapshot(#[from] toml::ser::Error),
-    #[error("the journal's lock was poisoned by a panic on another thread")]
-    Poisoned,
-}
-
-/// What a run did.
-#[derive(Clone, Debug)]
-pub struct RunSummary {
-    pub build_dir: PathBuf,
-    /// Frames stored (first takes).
-    pub stored: u64,
-    /// Frames taken again for repeated signals, kept beside the first takes.
-    pub retakes: u64,
-    pub missing: u64,
-    pub skipped: u64,
-    /// Why the run stopped (set when it has).
-    pub stop_reason: Option<StopReason>,
-}
-
-impl RunSummary {
-    fn new(build_dir: PathBuf) -> RunSummary {
-        RunSummary {
-            build_dir,
-            stored: 0,
-            retakes: 0,
-            missing: 0,
-            skipped: 0,
-            stop_reason: None,
-        }
-    }
-
-    /// Stopped because the operator ended the build or started the next one (not by the
-    /// trigger, a signal or a failure).
-    pub fn stopped_on_request(&self) -> bool {
-        matches!(self.stop_reason, Some(StopReason::BuildStopped { .. }))
-    }
-}
 
 /// How to run: what to do with frames, the clock, and what stops the run.
 pub struct RunOptions {

@@ -4,7 +4,7 @@
 //! `layerwise status` shows the state the history ends in.
 
 use super::inspection::{FlagKind, Severity};
-use super::journal::LinesLog;
+use super::lines::LinesLog;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::fmt;

@@ -2,7 +2,7 @@
 //! appended and fsynced per record like the journal, a torn last record cut on reopening. The
 //! daemon and `layerwise inspect` write it; `layerwise status` reads its open flags.
 
-use super::journal::LinesLog;
+use super::lines::LinesLog;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

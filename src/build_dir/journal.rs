@@ -5,10 +5,12 @@ use crate::shot::{Light, Phase, Shot};
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
-use std::fs::{File, OpenOptions};
-use std::io::{BufRead, Seek, SeekFrom, Write};
+use std::fs::File;
 use std::path::{Path, PathBuf};
 use tracing::warn;
+
+use super::lines::{append_line, open_lines, scan_lines};
+pub use super::lines::{JournalError, LineError};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -121,38 +123,6 @@ pub struct IrregularEntry {
     pub signal: IrregularSignal,
     pub detail: String,
     pub at: DateTime<Utc>,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum JournalError {
-    #[error("{path}: cannot read or write")]
-    Io {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error(
-        "{path}: damaged at byte {offset} (line {line}), before its last record (frames recorded \
-         after it could be lost, so nothing is cut: keep a copy of the file, then repair or remove \
-         that line, or restore the journal from a backup, and start again)"
-    )]
-    Corrupt {
-        path: PathBuf,
-        /// Byte offset of the start of the damaged line.
-        offset: u64,
-        line: usize,
-        #[source]
-        source: LineError,
-    },
-}
-
-/// Why a line of a JSON-lines log cannot be read.
-#[derive(Debug, thiserror::Error)]
-pub enum LineError {
-    #[error("invalid UTF-8")]
-    Utf8(#[source] std::str::Utf8Error),
-    #[error(transparent)]
-    Json(#[from] serde_json::Error),
 }
 
 /// A captured frame as the journal knows it.
@@ -346,15 +316,6 @@ impl Replay {
     }
 }
 
-/// Opens (creating) an append-only log for reading it back and appending to it.
-pub(super) fn open_append(path: &Path) -> std::io::Result<File> {
-    OpenOptions::new()
-        .create(true)
-        .read(true)
-        .append(true)
-        .open(path)
-}
-
 pub struct Journal {
     path: PathBuf,
     file: File,
@@ -410,114 +371,6 @@ impl Journal {
     }
 }
 
-/// Opens (creating) a JSON-lines file for appending after calling `each` for every record in it;
-/// a torn last record, left by a crash in the middle of a write, is cut off. The journal and the
-/// inspection log open this way.
-pub(crate) fn open_lines<T: serde::de::DeserializeOwned>(
-    path: &Path,
-    each: impl FnMut(T),
-) -> Result<File, JournalError> {
-    let io = |source| JournalError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut file = open_append(path).map_err(io)?;
-    let good_end = scan_lines(path, &mut file, each)?;
-    let len = file.metadata().map_err(io)?.len();
-    if good_end < len {
-        warn!(file = %path.display(), offset = good_end, bytes = len - good_end, "cutting off a torn last record left by a crash");
-        file.set_len(good_end).map_err(io)?;
-    }
-    Ok(file)
-}
-
-/// Calls `each` for every JSON line of `file` and returns the byte offset after the last good
-/// one. Only the last line may be damaged (a write torn by a crash: cut short, or garbage after the
-/// last newline); damage anywhere before it is [`JournalError::Corrupt`], never skipped. The
-/// journal and the inspection log share it.
-pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
-    path: &Path,
-    file: &mut File,
-    mut each: impl FnMut(T),
-) -> Result<u64, JournalError> {
-    let io = |source| JournalError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    file.seek(SeekFrom::Start(0)).map_err(io)?;
-    // Line by line, not the whole file at once: a long build's journal is tens of MB and the
-    // daemon reads it at every start.
-    let mut reader = std::io::BufReader::with_capacity(64 * 1024, file);
-    let mut data = Vec::new();
-    let mut offset = 0usize;
-    let mut number = 0usize;
-    loop {
-        data.clear();
-        let read = reader.read_until(b'\n', &mut data).map_err(io)?;
-        if read == 0 {
-            break;
-        }
-        number += 1;
-        let complete = data.last() == Some(&b'\n');
-        let end = if complete { read - 1 } else { read };
-        let last = !complete || reader.fill_buf().map_err(io)?.is_empty();
-        let parsed = std::str::from_utf8(&data[..end])
-            .map_err(LineError::Utf8)
-            .and_then(|text| serde_json::from_str::<T>(text).map_err(LineError::Json));
-        match parsed {
-            Ok(record) if complete => each(record),
-            // A last line without its newline was torn even when it parses.
-            Ok(_) => return Ok(offset as u64),
-            Err(_) if last => return Ok(offset as u64),
-            Err(source) => {
-                return Err(JournalError::Corrupt {
-                    path: path.to_path_buf(),
-                    offset: offset as u64,
-                    line: number,
-                    source,
-                })
-            }
-        }
-        offset += read;
-    }
-    Ok(offset as u64)
-}
-
-/// Appends `record` to `file` as one JSON line in one write, fsynced when asked: the journal's and
-/// the inspection log's way of writing. A write that fails half way (a full disk) is cut back off,
-/// so the file never holds a torn line before a later record.
-pub(crate) fn append_line<T: serde::Serialize>(
-    file: &mut File,
-    path: &Path,
-    fsync: bool,
-    record: &T,
-) -> Result<(), JournalError> {
-    let io = |source| JournalError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut line = serde_json::to_vec(record).map_err(|e| io(std::io::Error::other(e)))?;
-    line.push(b'\n');
-    let before = file.metadata().map_err(io)?.len();
-    let written = file
-        .write_all(&line)
-        .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
-    if let Err(e) = written {
-        if let Err(cut) = file.set_len(before) {
-            warn!(file = %path.display(), error = %crate::logging::Chain(&cut), "cannot cut off a failed write");
-        }
-        return Err(io(e));
-    }
-    Ok(())
-}
-
-impl JournalError {
-    /// Whether the write failed for want of disk space.
-    pub fn is_disk_full(&self) -> bool {
-        matches!(self, JournalError::Io { source, .. } if crate::fsutil::is_disk_full(source))
-    }
-}
-
 impl Journal {
     /// Appends a record. On a full disk the record is held in memory (nothing torn is left in
     /// the file) and written, in order, before the next record once space returns; a crash in
@@ -558,70 +411,10 @@ impl Journal {
     }
 }
 
-/// A JSON-lines log of `T` records open for appending, written like the journal: one record per
-/// line in one write, a torn last record cut off when the writer reopens it. `inspection.jsonl`
-/// and `alarm.jsonl` are kept this way.
-pub struct LinesLog<T> {
-    path: PathBuf,
-    file: File,
-    fsync: bool,
-    records: std::marker::PhantomData<fn(&T)>,
-}
-
-impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
-    /// Opens (creating) the log and returns the records it holds; a torn last record is cut off.
-    pub fn open(path: &Path, fsync: bool) -> Result<(LinesLog<T>, Vec<T>), JournalError> {
-        let mut records = Vec::new();
-        let file = open_lines(path, |r| records.push(r))?;
-        Ok((LinesLog::new(path, file, fsync), records))
-    }
-
-    fn new(path: &Path, file: File, fsync: bool) -> LinesLog<T> {
-        LinesLog {
-            path: path.to_path_buf(),
-            file,
-            fsync,
-            records: std::marker::PhantomData,
-        }
-    }
-
-    /// Opens the log for appending without reading or repairing it (another process may be
-    /// writing it); every record fsynced.
-    pub fn append_only(path: &Path) -> Result<LinesLog<T>, JournalError> {
-        let file = open_append(path).map_err(|source| JournalError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Ok(LinesLog::new(path, file, true))
-    }
-
-    /// The records of a log without opening it for writing (none when there is no file yet; a
-    /// torn last one ignored).
-    pub fn read(path: &Path) -> Result<Vec<T>, JournalError> {
-        let mut file = match File::open(path) {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(source) => {
-                return Err(JournalError::Io {
-                    path: path.to_path_buf(),
-                    source,
-                })
-            }
-        };
-        let mut records = Vec::new();
-        scan_lines(path, &mut file, |r| records.push(r))?;
-        Ok(records)
-    }
-
-    /// Appends one record as one line, in one write (fsynced when the log was opened so).
-    pub fn append(&mut self, record: &T) -> Result<(), JournalError> {
-        append_line(&mut self.file, &self.path, self.fsync, record)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write;
 
     fn frame(layer: u32) -> Record {
         Record::Frame {

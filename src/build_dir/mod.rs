@@ -6,6 +6,7 @@ pub mod alarm;
 pub mod inspection;
 pub mod journal;
 pub mod lifecycle;
+pub mod lines;
 pub mod manifest;
 pub mod progress;
 pub mod pushlog;

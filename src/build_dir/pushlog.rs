@@ -123,7 +123,7 @@ impl PushLog {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        let mut file = super::journal::open_append(path).map_err(io)?;
+        let mut file = super::lines::open_append(path).map_err(io)?;
         let mut data = Vec::new();
         file.read_to_end(&mut data).map_err(io)?;
         let (state, good_end) = replay(&data);

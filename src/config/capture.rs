@@ -1,6 +1,7 @@
 //! `[capture]`: how frames are taken: light settling, camera call bounds and retries.
 
-use super::{check_backoff, Invalid};
+use super::common::check_backoff;
+use super::Invalid;
 use serde::{Deserialize, Serialize};
 
 /// How frames are taken: light settling, camera call bounds and retries. A key left out takes

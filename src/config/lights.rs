@@ -1,7 +1,8 @@
 //! `[lights]`: the lamps switched in turn for each view (a serial relay board, GPIO lines, or the
 //! simulation). The inspection's stack light (`[inspection.alarm] output`) takes the same kinds.
 
-use super::{default_baud, default_gpio_chip, Invalid, ViewsConfig};
+use super::common::{default_baud, default_gpio_chip};
+use super::{Invalid, ViewsConfig};
 use crate::shot::Light;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -9,6 +9,8 @@ mod build;
 mod calibration;
 mod camera;
 mod capture;
+mod common;
+mod error;
 pub mod inspection;
 mod lights;
 pub mod pacs;
@@ -25,6 +27,7 @@ pub use camera::{
     CameraConfig, Gphoto2Config, MockCameraConfig, MockFaultConfig, MockFrameFormat, MAX_MOCK_SIDE,
 };
 pub use capture::CaptureConfig;
+pub use error::{Cause, ConfigError, Invalid};
 pub use lights::{GpioLightsConfig, LightsConfig, SerialRelayConfig};
 pub use storage::{StorageConfig, MAX_QUEUE};
 pub use trigger::{
@@ -38,72 +41,13 @@ pub use crate::shot::MAX_LAYER;
 
 use crate::fsutil::{parse_toml, TomlFileError};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Largest configuration file read.
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
 
 /// The demo's configuration, embedded so `layerwise demo` runs with no files around.
 pub const DEMO_CONFIG: &str = include_str!("../../config/demo.toml");
-
-/// What made a value invalid, when another error did (a regular expression that does not compile).
-pub type Cause = Box<dyn std::error::Error + Send + Sync + 'static>;
-
-/// A value a section refuses: the key (`section.field`, `pacs[1].url`) and what is wrong with it.
-/// Every section's `validate` returns this; [`Config::parse`] adds the file ([`Invalid::in_file`]).
-#[derive(Debug, thiserror::Error)]
-#[error("key `{key}`: {message}")]
-pub struct Invalid {
-    pub key: String,
-    /// What was expected, in our words (never the text of `source`).
-    pub message: String,
-    #[source]
-    pub source: Option<Cause>,
-}
-
-impl Invalid {
-    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Invalid {
-        Invalid {
-            key: key.into(),
-            message: message.into(),
-            source: None,
-        }
-    }
-
-    /// The same refusal, caused by `source`.
-    pub fn because(mut self, source: impl Into<Cause>) -> Invalid {
-        self.source = Some(source.into());
-        self
-    }
-
-    /// The refusal of a value of `file`.
-    pub fn in_file(self, file: &Path) -> ConfigError {
-        ConfigError::Invalid {
-            file: file.to_path_buf(),
-            key: self.key,
-            message: self.message,
-            source: self.source,
-        }
-    }
-}
-
-/// A configuration that could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    /// Unreadable, or not TOML of the configuration's shape (the file, the line and column, the
-    /// key and what was expected).
-    #[error(transparent)]
-    File(#[from] TomlFileError),
-    /// A value that fails its section's check ([`Invalid`], in a file).
-    #[error("{file}: key `{key}`: {message}")]
-    Invalid {
-        file: PathBuf,
-        key: String,
-        message: String,
-        #[source]
-        source: Option<Cause>,
-    },
-}
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -193,28 +137,6 @@ impl Config {
     pub fn build_id(&self) -> &str {
         self.build.id.as_deref().unwrap_or(&self.build.name)
     }
-}
-
-/// Serial line speed of the trigger and the light relay when none is given.
-fn default_baud() -> u32 {
-    9600
-}
-
-/// GPIO character device of the trigger and the lights when none is given.
-fn default_gpio_chip() -> PathBuf {
-    PathBuf::from("/dev/gpiochip0")
-}
-
-/// A back-off `[first, max]` in ms under `key`: both positive, first ≤ max (a zero back-off
-/// spins).
-fn check_backoff(key: &str, [first, max]: [u64; 2]) -> Result<(), Invalid> {
-    if first == 0 || max < first {
-        return Err(Invalid::new(
-            key,
-            format!("[{first}, {max}]: {key} needs 0 < first ≤ max, e.g. [250, 5000]"),
-        ));
-    }
-    Ok(())
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! `[trigger]`: where layer signals come from (a serial line, GPIO lines, or the simulation).
 
-use super::{check_backoff, default_baud, default_gpio_chip, Invalid, MAX_LAYER};
+use super::common::{check_backoff, default_baud, default_gpio_chip};
+use super::{Invalid, MAX_LAYER};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 

@@ -8,9 +8,8 @@ use rayon::prelude::*;
 
 use crate::geometry::Rigid3;
 
-use super::{
-    io_err, CtError, CtParams, CtRegistration, DistanceField, Registered, Result, Termination,
-};
+use super::error::{io_err, CtError, Result};
+use super::params::{CtParams, CtRegistration, DistanceField, PointPair, Registered, Termination};
 
 pub const IDENTITY: [[f64; 4]; 4] = [
     [1.0, 0.0, 0.0, 0.0],
@@ -18,13 +17,6 @@ pub const IDENTITY: [[f64; 4]; 4] = [
     [0.0, 0.0, 1.0, 0.0],
     [0.0, 0.0, 0.0, 1.0],
 ];
-
-/// One correspondence: a point in CT physical mm and the same point in build mm.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PointPair {
-    pub ct: [f64; 3],
-    pub build: [f64; 3],
-}
 
 /// Read POINTS.txt: one pair per line, `cx cy cz bx by bz` (whitespace or commas); `#` comments
 /// and blank lines are skipped.

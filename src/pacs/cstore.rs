@@ -2,7 +2,9 @@
 //! presentation context per (SOP class, transfer syntax) of the batch's files, each file's data
 //! set sent as it is on disk (no transcoding), each C-STORE-RSP status checked.
 
-use super::{status_text, Destination, Instance, Outcome, PacsError, Sender, Target};
+use super::destination::{Destination, Target};
+use super::error::{PacsError, StoreError};
+use super::instance::{status_text, Instance, Outcome, Sender};
 use dicom_core::{dicom_value, DataElement, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
@@ -73,31 +75,6 @@ fn wire_dataset(instance: &Instance) -> Result<std::borrow::Cow<'_, [u8]>, Store
     )
     .map_err(StoreError::Inflate)?;
     Ok(std::borrow::Cow::Owned(inflated))
-}
-
-/// What went wrong sending one instance on an open association ([`PacsError::Store`] names the
-/// peer and the file).
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    #[error("cannot inflate the data set")]
-    Inflate(#[source] std::io::Error),
-    #[error("cannot encode the command")]
-    Encode(#[source] Box<dicom_object::WriteError>),
-    #[error("cannot send the command")]
-    Command(#[source] Box<dicom_ul::association::Error>),
-    #[error("cannot send the data set")]
-    Data(#[source] std::io::Error),
-    #[error("no answer")]
-    Receive(#[source] Box<dicom_ul::association::Error>),
-    /// The archive aborted the association (the abort's source as the PDU gives it).
-    #[error("the archive aborted ({0})")]
-    Aborted(String),
-    #[error("unexpected answer {0}")]
-    Unexpected(String),
-    #[error("unreadable C-STORE-RSP")]
-    Response(#[source] Box<dicom_object::ReadError>),
-    #[error("C-STORE-RSP without a Status")]
-    NoStatus,
 }
 
 /// The C-STORE-RQ command set.

@@ -2,7 +2,9 @@
 //! `poll`, pushes them, and backs off while the archive is unreachable. It shares nothing with
 //! capture or processing but the files on disk, so neither ever waits for an archive.
 
-use super::{Destination, PacsError, Queue};
+use super::destination::Destination;
+use super::error::PacsError;
+use super::queue::Queue;
 use crate::clock::{Backoff, SharedClock};
 use crate::logging::Chain;
 use crate::shutdown::Shutdown;
@@ -65,7 +67,7 @@ impl Pusher {
     /// [`Pusher::start`] with the sender of each destination given.
     pub fn start_with(
         root: &Path,
-        destinations: Vec<(Destination, Box<dyn super::Sender>)>,
+        destinations: Vec<(Destination, Box<dyn super::instance::Sender>)>,
         clock: SharedClock,
         plan: PushPlan,
     ) -> Result<Pusher, PacsError> {
@@ -105,7 +107,7 @@ impl Pusher {
 
 fn push_loop(
     mut queue: Queue,
-    mut sender: Box<dyn super::Sender>,
+    mut sender: Box<dyn super::instance::Sender>,
     mut woken: Receiver<()>,
     clock: SharedClock,
     plan: PushPlan,

@@ -3,7 +3,9 @@
 //! archive stored, its FailedSOPSequence (0008,1198) what it refused, with FailureReason
 //! (0008,1197).
 
-use super::{status_text, Destination, Instance, Outcome, PacsError, Sender, Target};
+use super::destination::{Destination, Target};
+use super::error::{PacsError, TransportError, Unmentioned};
+use super::instance::{status_text, Instance, Outcome, Sender};
 use serde_json::Value;
 use std::collections::HashMap;
 
@@ -104,36 +106,6 @@ impl Sender for StowClient {
         })?;
         outcomes(batch, &answer).map_err(|source| PacsError::Answer { url: url(), source })
     }
-}
-
-/// A ureq transport error said once: its own `Display` repeats its source (and the URL, which
-/// [`PacsError::Connect`] names); this one leaves the source to the chain.
-#[derive(Debug)]
-pub struct TransportError(pub Box<ureq::Transport>);
-
-impl std::fmt::Display for TransportError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}", self.0.kind())?;
-        if let Some(message) = self.0.message() {
-            write!(f, ": {message}")?;
-        }
-        Ok(())
-    }
-}
-
-impl std::error::Error for TransportError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        std::error::Error::source(self.0.as_ref())
-    }
-}
-
-/// An instance the STOW-RS answer does not mention: the batch's fate is unknown (an error: the
-/// batch is sent again later).
-#[derive(Debug, thiserror::Error)]
-#[error("the answer does not mention instance {uid} ({file})")]
-pub struct Unmentioned {
-    pub uid: String,
-    pub file: String,
 }
 
 /// The answer as a DICOM JSON object; not JSON (the parser's error), or JSON but not an object.

@@ -2,7 +2,7 @@
 //! it to [`Camera`]. It photographs the layer and phase it is asked for, lit by whichever lamps
 //! the simulated lights left on in the [`MockWorld`].
 
-use super::MockWorld;
+use super::world::MockWorld;
 use crate::config::{MockCameraConfig, MockFrameFormat};
 use crate::hardware::camera::{Camera, CameraError, DriverError, Frame};
 use crate::shot::{Light, Phase, Shot};

@@ -1,7 +1,7 @@
 //! The simulated lights: they record every switch (tests read the log) and light the simulated
 //! plate the mock camera photographs.
 
-use super::MockWorld;
+use super::world::MockWorld;
 use crate::hardware::lights::{Lights, LightsError};
 use crate::shot::Light;
 use std::collections::BTreeMap;

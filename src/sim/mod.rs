@@ -10,48 +10,17 @@ pub mod disk;
 pub mod inject;
 pub mod lights;
 pub mod trigger;
+mod world;
 
 pub use camera::{fault_schedule, MockCameraBody};
 pub use lights::{LightSwitch, MockLights, MockLightsLog};
 pub use trigger::{MockTrigger, ScriptStep};
+pub use world::MockWorld;
 
 use crate::clock::SharedClock;
 use crate::config::{CameraConfig, Config, LightsConfig, TriggerConfig};
 use crate::hardware::camera::Camera;
 use crate::hardware::{self, HardwareError, Machine};
-use crate::shot::Light;
-use std::collections::BTreeSet;
-use std::sync::{Arc, Mutex};
-
-/// The simulated plate's lamps: the mock lights switch them, the mock camera sees them.
-#[derive(Clone, Debug, Default)]
-pub struct MockWorld {
-    lit: Arc<Mutex<BTreeSet<Light>>>,
-}
-
-impl MockWorld {
-    pub fn new() -> MockWorld {
-        MockWorld::default()
-    }
-    pub fn set_light(&self, light: Light, on: bool) {
-        if let Ok(mut lit) = self.lit.lock() {
-            if on {
-                lit.insert(light);
-            } else {
-                lit.remove(&light);
-            }
-        }
-    }
-    pub fn all_lights_off(&self) {
-        if let Ok(mut lit) = self.lit.lock() {
-            lit.clear();
-        }
-    }
-    /// The lamps on now.
-    pub fn lit(&self) -> BTreeSet<Light> {
-        self.lit.lock().map(|l| l.clone()).unwrap_or_default()
-    }
-}
 
 /// What a test can see of the simulated machine while the daemon runs on it.
 #[derive(Clone, Default)]

@@ -13,21 +13,20 @@
 pub mod calibration;
 pub mod listener;
 pub mod preview;
+mod priority;
 mod routes;
+mod state;
 pub mod timeline;
 
-use crate::build_dir::status::{self, StatusReport};
 use crate::config::WebConfig;
-use crate::geometry::Grid;
-use crate::series::BuildRecord;
-use crate::shot::View;
 use crate::shutdown::Shutdown;
-use crate::vectors::{LayerIndex, VectorError};
-use preview::{Pictures, Rectification};
+use preview::Pictures;
+use priority::lower_priority;
+pub(crate) use state::PageState;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicUsize;
-use std::sync::{Arc, Mutex, OnceLock, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant, SystemTime};
 use timeline::Timeline;
 use tokio::sync::{watch, Semaphore};
@@ -56,92 +55,6 @@ pub enum WebError {
     TokenInvalid { path: PathBuf },
     #[error("cannot start the page server")]
     Runtime(#[source] std::io::Error),
-}
-
-/// What is known of the build from its configuration snapshot (once the daemon wrote it).
-pub(crate) struct BuildInfo {
-    pub views: Vec<View>,
-    pub grid: Grid,
-    pub rectification: Option<Rectification>,
-    pub vectors_file: Option<PathBuf>,
-    /// How printer layers pair with the vector file's layers (docs/frames.md).
-    pub numbering: crate::vectors::LayerNumbering,
-    pub vectors: OnceLock<Result<LayerIndex, Arc<VectorError>>>,
-    /// What the status report takes from the build's configuration.
-    pub report: status::ReportSettings,
-}
-
-impl BuildInfo {
-    fn open(dir: &Path) -> Option<BuildInfo> {
-        let record = BuildRecord::open(dir).ok()?;
-        Some(BuildInfo {
-            views: record.config.views.all(),
-            grid: record.grid,
-            rectification: record.calibration.map(|calibration| Rectification {
-                calibration,
-                grid: record.grid,
-            }),
-            vectors_file: record.config.build.vectors.clone(),
-            numbering: record.config.build.numbering(),
-            vectors: OnceLock::new(),
-            report: crate::series::report_settings(Some(&record.config)),
-        })
-    }
-
-    /// The vector file's layer index, read once.
-    pub fn vectors(&self) -> Option<Result<&LayerIndex, Arc<VectorError>>> {
-        let path = self.vectors_file.as_ref()?;
-        Some(
-            self.vectors
-                .get_or_init(|| LayerIndex::build(path).map_err(Arc::new))
-                .as_ref()
-                .map_err(Arc::clone),
-        )
-    }
-}
-
-/// Everything the handlers share.
-pub(crate) struct PageState {
-    pub dir: PathBuf,
-    pub config: WebConfig,
-    pub token: Option<String>,
-    pub timeline: RwLock<Timeline>,
-    pub status: RwLock<Option<Arc<StatusReport>>>,
-    info: Mutex<Option<Arc<BuildInfo>>>,
-    pub pictures: Pictures,
-    /// Pictures are made one at a time: the page never takes more than one core.
-    pub encode: Semaphore,
-    pub updates: watch::Sender<u64>,
-    pub streams: AtomicUsize,
-    /// The server's stop: open event streams end on it.
-    pub stop: Shutdown,
-}
-
-impl PageState {
-    /// The build's configuration snapshot, read once it exists.
-    pub fn info(&self) -> Option<Arc<BuildInfo>> {
-        let mut info = self.info.lock().unwrap_or_else(|e| e.into_inner());
-        if info.is_none() {
-            *info = BuildInfo::open(&self.dir).map(Arc::new);
-        }
-        info.clone()
-    }
-
-    /// The build's settings for its status report (the configuration's defaults until its
-    /// snapshot exists).
-    fn report_settings(&self) -> status::ReportSettings {
-        self.info()
-            .map_or_else(|| crate::series::report_settings(None), |i| i.report)
-    }
-
-    /// Makes the status report again (blocking).
-    pub fn refresh_status(&self) -> Option<Arc<StatusReport>> {
-        let report = status::report(&self.dir, self.report_settings())
-            .ok()
-            .map(Arc::new);
-        *self.status.write().unwrap_or_else(|e| e.into_inner()) = report.clone();
-        report
-    }
 }
 
 /// A running page server. It stops when the shutdown it was started with is requested, or when
@@ -264,13 +177,6 @@ impl Drop for WebServer {
         }
         self.wait();
     }
-}
-
-/// The page's threads yield the CPU to capture and processing (nice +10, best effort: the
-/// hardened unit's system call filter may refuse it, which changes nothing else).
-fn lower_priority() {
-    // SAFETY: nice() only changes the calling thread's scheduling priority on Linux.
-    let _ = unsafe { libc::nice(10) };
 }
 
 fn read_token(path: &Path) -> Result<String, WebError> {

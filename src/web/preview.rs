@@ -293,7 +293,7 @@ fn page_pool() -> &'static rayon::ThreadPool {
         rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .thread_name(|_| "layerwise-web-pictures".into())
-            .start_handler(|_| super::lower_priority())
+            .start_handler(|_| super::priority::lower_priority())
             .build()
             .unwrap_or_else(|_| {
                 // Without a thread of its own the page shares the global pool, as before.

@@ -2,8 +2,8 @@
 //! Requests name layers and views only; both are checked before anything reaches the disk.
 
 use super::preview::{self, Kind, PreviewError, Region};
+use super::state::PageState;
 use super::timeline::LayerState;
-use super::PageState;
 use crate::build_dir::RAW_DIR;
 use crate::logging::chain;
 use crate::shot::{Shot, View, MAX_LAYER};

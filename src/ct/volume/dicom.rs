@@ -2,7 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{io_err, with_voxels, CtError, Result, Volume, Voxel, VoxelData};
+use super::voxels::{with_voxels, Volume, Voxel, VoxelData};
+use crate::ct::error::io_err;
+use crate::ct::{CtError, Result};
 
 /// One slice's header, read without its pixels.
 struct DicomSlice {
@@ -220,7 +222,7 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
         }
     }
     let nz = slices.len();
-    super::check_voxels(dir, [columns, rows, nz], max_voxels)?;
+    super::raw::check_voxels(dir, [columns, rows, nz], max_voxels)?;
     let p0 = nalgebra::Vector3::from(slices[0].position);
     let step = if nz > 1 {
         (nalgebra::Vector3::from(slices[nz - 1].position) - p0) / (nz - 1) as f64

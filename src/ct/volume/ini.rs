@@ -3,7 +3,8 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use super::{io_err, CtError, Result};
+use crate::ct::error::io_err;
+use crate::ct::{CtError, Result};
 
 /// A parsed INI-like header: `[section]` then `key = value`; names are case-insensitive.
 pub(super) struct Ini {

@@ -3,7 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use super::ini::Ini;
-use super::{read_raw, CtError, RawDtype, RawSpec, Result, Volume, VoxelData};
+use super::raw::{read_raw, RawDtype, RawSpec};
+use super::voxels::{Volume, VoxelData};
+use crate::ct::{CtError, Result};
 
 /// The `.vol` next to a `.pcr` (or the `.pcr` next to a `.vol`).
 fn sibling(path: &Path, ext: &str) -> PathBuf {

@@ -3,7 +3,9 @@
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use super::{io_err, CtError, Result, Volume, VoxelData};
+use super::voxels::{Volume, VoxelData};
+use crate::ct::error::io_err;
+use crate::ct::{CtError, Result};
 
 /// Stored type of a raw volume.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

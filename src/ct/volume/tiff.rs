@@ -2,7 +2,10 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{check_voxels, io_err, CtError, Result, Volume, VoxelData};
+use super::raw::check_voxels;
+use super::voxels::{Volume, VoxelData};
+use crate::ct::error::io_err;
+use crate::ct::{CtError, Result};
 
 /// Read a folder of `.tif`/`.tiff` slices sorted by name (slice k at z = k × voxel); at most
 /// `max_voxels` voxels, checked from the first slice's header and the number of files before

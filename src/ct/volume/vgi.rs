@@ -3,7 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use super::ini::Ini;
-use super::{read_raw, CtError, RawDtype, RawSpec, Result, Volume};
+use super::raw::{read_raw, RawDtype, RawSpec};
+use super::voxels::Volume;
+use crate::ct::{CtError, Result};
 
 /// Read a VGStudio `.vgi` and the raw file it names; at most `max_voxels` voxels.
 pub fn read_vgi(path: &Path, max_voxels: usize) -> Result<Volume> {

@@ -1,0 +1,64 @@
+//! What a configuration's checks say: one refusal shape, [`Invalid`], that names the key; and
+//! [`ConfigError`], the refusal in its file (or the file unreadable).
+
+use crate::fsutil::TomlFileError;
+use std::path::{Path, PathBuf};
+
+/// What made a value invalid, when another error did (a regular expression that does not compile).
+pub type Cause = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// A value a section refuses: the key (`section.field`, `pacs[1].url`) and what is wrong with it.
+/// Every section's `validate` returns this; [`Config::parse`] adds the file ([`Invalid::in_file`]).
+#[derive(Debug, thiserror::Error)]
+#[error("key `{key}`: {message}")]
+pub struct Invalid {
+    pub key: String,
+    /// What was expected, in our words (never the text of `source`).
+    pub message: String,
+    #[source]
+    pub source: Option<Cause>,
+}
+
+impl Invalid {
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Invalid {
+        Invalid {
+            key: key.into(),
+            message: message.into(),
+            source: None,
+        }
+    }
+
+    /// The same refusal, caused by `source`.
+    pub fn because(mut self, source: impl Into<Cause>) -> Invalid {
+        self.source = Some(source.into());
+        self
+    }
+
+    /// The refusal of a value of `file`.
+    pub fn in_file(self, file: &Path) -> ConfigError {
+        ConfigError::Invalid {
+            file: file.to_path_buf(),
+            key: self.key,
+            message: self.message,
+            source: self.source,
+        }
+    }
+}
+
+/// A configuration that could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// Unreadable, or not TOML of the configuration's shape (the file, the line and column, the
+    /// key and what was expected).
+    #[error(transparent)]
+    File(#[from] TomlFileError),
+    /// A value that fails its section's check ([`Invalid`], in a file).
+    #[error("{file}: key `{key}`: {message}")]
+    Invalid {
+        file: PathBuf,
+        key: String,
+        message: String,
+        #[source]
+        source: Option<Cause>,
+    },
+}

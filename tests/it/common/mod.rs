@@ -1,0 +1,18 @@
+//! Helpers shared by the integration tests, one file per topic. Every helper is used by some
+//! test module of this one binary (an unused one is a compiler warning, and is deleted).
+
+mod build_dir;
+mod cli;
+mod daemon;
+mod data;
+mod fixtures;
+pub mod pty;
+pub mod render2;
+mod rng;
+
+pub use build_dir::*;
+pub use cli::*;
+pub use daemon::*;
+pub use data::*;
+pub use fixtures::*;
+pub use rng::*;

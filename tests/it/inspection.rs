@@ -1,0 +1,567 @@
+//! Inspection against known truth: 200-layer mock builds rendered in-process (the mock camera's
+//! frames, JPEG-encoded, decoded, rectified and inspected exactly as the daemon's worker does,
+//! without the daemon around them), one with at least 10 injections of each anomaly at varied
+//! positions and strengths, one clean. Prints recall and false alarms per kind (the README
+//! table): `cargo test --release --test it inspection:: -- --nocapture`.
+
+use crate::common;
+use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
+use layerwise::config::inspection::{InjectKind, InspectionConfig, MockInjection};
+use layerwise::inspect::Inspector;
+use layerwise::rectify::{Calibration, Grid, Rectifier};
+use layerwise::shot::{Light, Phase, View};
+use std::collections::BTreeMap;
+
+const LAYERS: u32 = 200;
+const WIDTH: u32 = 960;
+const HEIGHT: u32 = 640;
+
+fn grid() -> Grid {
+    common::plate_grid()
+}
+
+/// Renders, encodes, decodes, rectifies and inspects every layer.
+fn run_build(injections: &[MockInjection], vectors: &std::path::Path) -> Vec<InspectionRecord> {
+    let cfg = InspectionConfig::default();
+    let views = layerwise::config::ViewsConfig::default().all();
+    let index = layerwise::vectors::LayerIndex::build(vectors).expect("vectors");
+    let mut inspector = Inspector::new(&cfg, grid(), &views, Some(index));
+    let truth = mock_camera::Homography::oblique_view(WIDTH, HEIGHT);
+    let calibration = Calibration {
+        build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
+        distortion: None,
+        grid: Some(grid()),
+        fit: None,
+    };
+    let rectifier =
+        Rectifier::new(&calibration.camera(), grid(), Default::default(), 0).expect("rectifier");
+    let mut renderer = mock_camera::Renderer::new(WIDTH, HEIGHT, truth);
+    renderer.seed = 7;
+    let needed: Vec<View> = views.into_iter().filter(|v| inspector.needs(*v)).collect();
+    let at = chrono::DateTime::from_timestamp(1_800_000_000, 0).expect("time");
+    let mut records = Vec::new();
+    for layer in 1..=LAYERS {
+        for view in &needed {
+            let (fused, defects) = layerwise::sim::inject::scene(injections, layer, view.phase);
+            renderer.defects = defects;
+            let jpeg = renderer.render_jpeg(
+                &mock_camera::Scene {
+                    layer,
+                    fused: &fused,
+                    scanned: view.phase == Phase::Post,
+                    illumination: match view.light {
+                        Light::Front => mock_camera::Illumination::Front,
+                        Light::Side => mock_camera::Illumination::Side,
+                        Light::Top => mock_camera::Illumination::Top,
+                    },
+                },
+                90,
+            );
+            let luma = layerwise::rectify::decode_frame_luma(&jpeg).expect("decode");
+            let cells = inspector.cells(&luma.rectified(&rectifier));
+            records.extend(inspector.add(layer, *view, cells, at));
+        }
+    }
+    records.extend(inspector.flush(at));
+    records
+}
+
+fn flag_kind(kind: InjectKind) -> FlagKind {
+    match kind {
+        InjectKind::Streak => FlagKind::Streak,
+        InjectKind::ShortFeed => FlagKind::ShortFeed,
+        InjectKind::Elevation => FlagKind::Elevation,
+        InjectKind::NoFusion => FlagKind::UnderFusion,
+        InjectKind::WideFusion => FlagKind::OverFusion,
+        InjectKind::Spatter => FlagKind::Spatter,
+        InjectKind::Drift => FlagKind::Drift,
+    }
+}
+
+/// At least 10 of each kind, spread over the build, positions and strengths varied at or above
+/// the detectability stated in the README.
+fn injections() -> Vec<MockInjection> {
+    let mut list = Vec::new();
+    for k in 0..12u32 {
+        let layer = 8 + 16 * k;
+        let f = f64::from(k);
+        let streak_y = -110.0 + 19.0 * f;
+        list.push(format!(
+            "streak@{layer}/y={streak_y}/from={}/to={}/w={}/c={}",
+            -120.0 + 5.0 * f,
+            40.0 + 7.0 * f,
+            1.0 + 0.25 * (f % 3.0),
+            if k % 2 == 0 {
+                6.0 + f % 4.0
+            } else {
+                -(6.0 + f % 4.0)
+            }
+        ));
+        list.push(format!(
+            "no-fusion@{}/part={}",
+            layer + 1,
+            if k % 2 == 0 { 1 } else { 3 }
+        ));
+        list.push(format!(
+            "short-feed@{}/x={}/c={}",
+            layer + 4,
+            60.0 + 5.0 * f,
+            6.0 + 2.0 * (f % 4.0)
+        ));
+        list.push(format!(
+            "wide-fusion@{}/part={}/d={}",
+            layer + 5,
+            if k % 2 == 0 { 3 } else { 1 },
+            1.5 + 0.25 * (f % 3.0)
+        ));
+        list.push(format!(
+            "elevation@{}/part={}/w={}/c={}",
+            layer + 8,
+            if k % 2 == 0 { 3 } else { 1 },
+            1.5 + 0.5 * (f % 2.0),
+            15.0 + 5.0 * (f % 4.0)
+        ));
+        list.push(format!(
+            "spatter@{}/n={}/r={}/x={}/y={}",
+            layer + 11,
+            1 + k % 4,
+            0.8 + 0.2 * (f % 3.0),
+            -80.0 + 14.0 * f,
+            if k % 2 == 0 { -20.0 } else { 90.0 }
+        ));
+        // A ramp over the 8 layers after the slot's elevation, on a part no other injection
+        // touches then, brighter or darker.
+        list.push(format!(
+            "drift@{}..{}/part={}/c={}",
+            layer + 9,
+            layer + 16,
+            if k % 2 == 0 { 3 } else { 1 },
+            if k % 2 == 0 { 1.0 } else { -1.0 } * (44.0 + 4.0 * (f % 3.0))
+        ));
+    }
+    list.into_iter()
+        .map(|s| s.parse().expect("injection"))
+        .filter(|i: &MockInjection| i.last <= LAYERS)
+        .collect()
+}
+
+#[test]
+fn recall_and_false_alarms_per_kind_on_200_layer_mock_builds() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let vectors = dir.path().join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, LAYERS).expect("vectors");
+
+    // The clean and the injected build side by side: each is mostly one thread (JPEG encode
+    // and decode), and this is the longest test of the suite.
+    let list = injections();
+    let (clean, records) = std::thread::scope(|s| {
+        let clean = s.spawn(|| run_build(&[], &vectors));
+        let records = run_build(&list, &vectors);
+        (clean.join().expect("clean build"), records)
+    });
+    assert_eq!(clean.len(), LAYERS as usize);
+    let clean_flags: Vec<String> = clean
+        .iter()
+        .flat_map(|r| {
+            r.flags
+                .iter()
+                .filter(|f| f.severity >= Severity::Warning)
+                .map(move |f| layerwise::inspect::describe(r.layer, f))
+        })
+        .collect();
+
+    let by_layer: BTreeMap<u32, &InspectionRecord> = records.iter().map(|r| (r.layer, r)).collect();
+    let injected: std::collections::BTreeSet<u32> =
+        list.iter().flat_map(|i| i.first..=i.last).collect();
+    println!("| anomaly | injected | found | recall | false alarms (clean build) | false alarms (other layers of the injected build) |");
+    println!("| --- | --- | --- | --- | --- | --- |");
+    let mut failures = Vec::new();
+    for kind in InjectKind::ALL {
+        let of_kind: Vec<&MockInjection> = list.iter().filter(|i| i.kind == kind).collect();
+        let want = flag_kind(kind);
+        // A single-layer anomaly is found on its layer; a drift somewhere along its ramp, on
+        // its part, before the ramp ends.
+        let hit = |i: &MockInjection| {
+            let part = (kind == InjectKind::Drift).then(|| i.get("part") as i64);
+            let last = if part.is_some() { i.last } else { i.first };
+            (i.first..=last).any(|l| {
+                by_layer.get(&l).is_some_and(|r| {
+                    r.flags
+                        .iter()
+                        .any(|f| f.kind == want && (part.is_none() || f.part == part))
+                })
+            })
+        };
+        let found = of_kind.iter().filter(|i| hit(i)).count();
+        let missed: Vec<String> = of_kind
+            .iter()
+            .filter(|i| !hit(i))
+            .map(|i| i.to_string())
+            .collect();
+        let false_clean = clean
+            .iter()
+            .flat_map(|r| &r.flags)
+            .filter(|f| f.kind == want && f.severity >= Severity::Warning)
+            .count();
+        let false_other = records
+            .iter()
+            .filter(|r| !injected.contains(&r.layer))
+            .flat_map(|r| &r.flags)
+            .filter(|f| f.kind == want)
+            .count();
+        let other_layers = LAYERS as usize - injected.len();
+        println!(
+            "| {} | {} | {found} | {:.0}% | {false_clean} in {LAYERS} layers | {false_other} in {other_layers} layers |",
+            kind.name(),
+            of_kind.len(),
+            100.0 * found as f64 / of_kind.len() as f64
+        );
+        if !missed.is_empty() {
+            println!("  missed: {}", missed.join(", "));
+        }
+        for i in of_kind
+            .iter()
+            .filter(|i| !hit(i) && i.kind == InjectKind::Drift)
+        {
+            let part = i.get("part") as i64;
+            for l in i.first.saturating_sub(3)..=i.last {
+                let Some(r) = by_layer.get(&l) else { continue };
+                let m = r.parts.iter().find(|m| m.part == part);
+                let flags: Vec<String> = r.flags.iter().map(|f| f.message.clone()).collect();
+                println!(
+                    "    layer {l}: part {part} post_mean {:?} flags {flags:?}",
+                    m.map(|m| m.post_mean)
+                );
+            }
+        }
+        assert!(
+            of_kind.len() >= 10,
+            "{kind:?}: only {} injections",
+            of_kind.len()
+        );
+        if (found as f64) < 0.95 * of_kind.len() as f64 {
+            failures.push(format!("{}: recall {found}/{}", kind.name(), of_kind.len()));
+        }
+        if false_other * 100 > other_layers {
+            failures.push(format!("{}: {false_other} false alarms", kind.name()));
+        }
+    }
+    let ms: Vec<f64> = records.iter().map(|r| r.ms).collect();
+    println!(
+        "inspection per layer (3 views on {} x {} cells): median {:.1} ms",
+        inspector_cells(),
+        inspector_cells(),
+        median(ms)
+    );
+    assert!(
+        clean_flags.is_empty(),
+        "clean build flagged: {clean_flags:#?}"
+    );
+    assert!(failures.is_empty(), "{failures:?}");
+}
+
+fn inspector_cells() -> usize {
+    grid().rows()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// The daemon through the binary: a part left unfused on layer 6 shows in inspection.jsonl, as a
+/// WARN line in the log, in `layerwise status`, and raises the alarm: the (mock) stack light goes
+/// on, the printer gets one message on its serial line (a pty pair), `status` says it is raised,
+/// `layerwise alarm ack` acknowledges it and the running daemon switches the light off. Then
+/// `layerwise inspect --build` over the stored build finds the same flags and plots them (PNG).
+#[test]
+fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agrees() {
+    use crate::common::pty::{PtyPair, PtyReader};
+    use crate::common::Run;
+    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
+    use std::time::{Duration, Instant};
+    let tmp = tempfile::tempdir().expect("tmp");
+    let pair = PtyPair::start(tmp.path());
+    let printer = PtyReader::start(&pair.printer);
+    let dir = tmp.path().join("build");
+    let layers = 8;
+    let mut config = common::calibrated_config(&dir, layers, layerwise::dicom::Compression::None);
+    let (w, h) = (640, 427);
+    if let CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = w;
+        mock.height = h;
+        mock.inject = vec!["no-fusion@6/part=3".parse().expect("injection")];
+    }
+    config.calibration.file = Some(common::write_true_calibration(
+        tmp.path(),
+        &mock_camera::Homography::oblique_view(w, h),
+    ));
+    let vectors = tmp.path().join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    // The printer keeps the daemon waiting after the last layer, as a real build between layers.
+    let script: String = (1..=layers)
+        .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
+        .collect::<String>()
+        + "WAIT 120000\n";
+    let script_path = tmp.path().join("printer.txt");
+    std::fs::write(&script_path, script).expect("script");
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script_path);
+    }
+    config.inspection.alarm.output = LightsConfig::Mock;
+    config.inspection.alarm.serial = Some(layerwise::config::inspection::AlarmSerialConfig {
+        port: pair.daemon.display().to_string(),
+        baud: 9600,
+        message: "LAYERWISE ALARM {layer} {kind}\n".into(),
+    });
+    let path = tmp.path().join("layerwise.toml");
+    common::write_config(&config, &path);
+    let log_path = tmp.path().join("daemon.log");
+    let child = common::spawn_build(
+        &path,
+        std::process::Stdio::from(std::fs::File::create(&log_path).expect("log")),
+    );
+    let wait_for_log = |text: &str| {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+            if log.contains(text) {
+                return log;
+            }
+            assert!(Instant::now() < deadline, "no {text:?} in the log: {log}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+
+    printer.wait_for("\n", Duration::from_secs(120));
+    let status = || {
+        common::layerwise()
+            .args(["status", "--build"])
+            .arg(&dir)
+            .stdout_ok()
+    };
+    let raised = status();
+    assert!(
+        raised.contains("alarm      RAISED since layer 6") && raised.contains("under_fusion"),
+        "{raised}"
+    );
+    let ack = common::layerwise()
+        .args([
+            "alarm",
+            "ack",
+            "--by",
+            "ana",
+            "--note",
+            "build stopped",
+            "--build",
+        ])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(ack.contains("acknowledged by ana at"), "{ack}");
+    wait_for_log("inspection alarm off: acknowledged by ana");
+    let after = status();
+    assert!(
+        after.contains("alarm      acknowledged by ana at")
+            && after.contains("(raised at layer 6): build stopped"),
+        "{after}"
+    );
+    // A second acknowledgement has nothing to acknowledge.
+    let again = common::layerwise()
+        .args(["alarm", "ack", "--build"])
+        .arg(&dir)
+        .output()
+        .expect("runs");
+    assert!(
+        common::assert_exit_1(&again).contains("the alarm is not raised"),
+        "{again:?}"
+    );
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .map_or(0, |r| r.len())
+        < layers as usize
+    {
+        assert!(Instant::now() < deadline, "not every layer inspected");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let out = common::terminate(child);
+    common::assert_success(&out);
+    assert_eq!(
+        printer.text(),
+        "LAYERWISE ALARM 6 under_fusion\n",
+        "one message for the one raise"
+    );
+    pair.stop();
+    let log = std::fs::read_to_string(&log_path).expect("log");
+
+    let live = layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .expect("inspection.jsonl");
+    assert_eq!(
+        live.iter().map(|r| r.layer).collect::<Vec<_>>(),
+        (1..=layers).collect::<Vec<_>>()
+    );
+    let flagged: Vec<(u32, FlagKind, Option<i64>)> = live
+        .iter()
+        .flat_map(|r| r.flags.iter().map(move |f| (r.layer, f.kind, f.part)))
+        .filter(|(_, kind, _)| *kind == FlagKind::UnderFusion)
+        .collect();
+    assert_eq!(
+        flagged,
+        vec![(6, FlagKind::UnderFusion, Some(3))],
+        "{live:#?}"
+    );
+    let flag = live[5]
+        .flags
+        .iter()
+        .find(|f| f.kind == FlagKind::UnderFusion)
+        .expect("flag");
+    assert_eq!(flag.severity, Severity::Critical);
+    let [x0, y0, x1, y1] = flag.bbox_mm;
+    assert!(
+        (x0 - 40.0).abs() < 1.0 && (x1 - 60.0).abs() < 1.0,
+        "{:?}",
+        flag.bbox_mm
+    );
+    assert!(
+        (y0 - 44.0).abs() < 1.0 && (y1 - 56.0).abs() < 1.0,
+        "{:?}",
+        flag.bbox_mm
+    );
+    assert!(
+        log.contains("layer 6: part 3 at x = 40..60 mm, y = 44..56 mm is not fused"),
+        "{log}"
+    );
+    assert!(log.contains("WARN"), "{log}");
+    assert!(log.contains("inspection alarm ON: layer 6"), "{log}");
+
+    let status = common::layerwise()
+        .args(["status", "--build"])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(
+        status.contains("L00006 under_fusion (critical): part 3"),
+        "{status}"
+    );
+
+    let plot = tmp.path().join("plot.png");
+    let again = common::layerwise()
+        .args(["inspect", "--json", "--plot"])
+        .arg(&plot)
+        .arg("--build")
+        .arg(&dir)
+        .stdout_ok();
+    let offline: Vec<InspectionRecord> = again
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("record"))
+        .collect();
+    let flags =
+        |records: &[InspectionRecord]| -> Vec<(u32, layerwise::build_dir::inspection::Flag)> {
+            records
+                .iter()
+                .flat_map(|r| r.flags.iter().map(move |f| (r.layer, f.clone())))
+                .collect()
+        };
+    assert_eq!(flags(&offline), flags(&live));
+    let parts = |records: &[InspectionRecord]| -> Vec<_> {
+        records.iter().map(|r| r.parts.clone()).collect()
+    };
+    assert_eq!(parts(&offline), parts(&live));
+    assert_flags_marked(&plot, &offline);
+}
+
+/// The PNG decodes, and in every panel the columns of the layers with a flag at warning or above
+/// hold the flag colour while the others do not; its labels are drawn: the title and the flag
+/// letters' legend, each panel's value ticks and layer ticks, each flagged layer's letter.
+fn assert_flags_marked(plot: &std::path::Path, records: &[InspectionRecord]) {
+    use layerwise::inspect::plot;
+    let image = image::open(plot).expect("the PNG decodes").to_rgb8();
+    // Pixels of `colour` in the box x0..x1, y0..y1 (the rows of a label on its baseline y1).
+    let count = |colour: [u8; 3], (x0, x1): (f64, f64), (y0, y1): (f64, f64)| {
+        let (x0, x1) = (x0.max(0.0) as u32, (x1 as u32).min(image.width() - 1));
+        (y0.max(0.0) as u32..=y1 as u32)
+            .flat_map(|y| (x0..=x1).map(move |x| (x, y)))
+            .filter(|&(x, y)| image.get_pixel(x, y).0 == colour)
+            .count()
+    };
+    let ink = [0, 0, 0];
+    let text_rows = |baseline: f64| (baseline - 7.0, baseline);
+    assert!(
+        count(ink, (70.0, 500.0), text_rows(plot::TITLE_Y)) > 100,
+        "the title"
+    );
+    assert!(
+        count(plot::FLAG, (70.0, 700.0), text_rows(plot::LEGEND_Y)) > 100,
+        "the legend of the flag letters"
+    );
+    let ticks = plot::layer_ticks(records);
+    assert!(ticks.len() >= 3, "{ticks:?}");
+    for (top, bottom) in plot::panel_rows() {
+        for y in [top, bottom] {
+            assert!(
+                count(ink, (2.0, 66.0), (y - 4.0, y + 4.0)) > 15,
+                "value tick label at row {y}"
+            );
+        }
+        for &layer in &ticks {
+            let x = plot::layer_x(records, layer);
+            assert!(
+                count(ink, (x - 12.0, x + 12.0), text_rows(bottom + 14.0)) > 8,
+                "layer tick label {layer} under the panel at row {bottom}"
+            );
+        }
+        for r in records {
+            let x = plot::layer_x(records, r.layer);
+            let letter = count(plot::FLAG, (x - 4.0, x + 4.0), text_rows(top - 14.0));
+            if r.flags.iter().any(|f| f.severity >= Severity::Warning) {
+                assert!(letter > 8, "layer {}: no flag letter", r.layer);
+            }
+        }
+    }
+    let flagged: Vec<u32> = records
+        .iter()
+        .filter(|r| r.flags.iter().any(|f| f.severity >= Severity::Warning))
+        .map(|r| r.layer)
+        .collect();
+    assert!(flagged.contains(&6), "{flagged:?}");
+    for r in records {
+        let x = plot::layer_x(records, r.layer).round() as u32;
+        for (top, bottom) in plot::panel_rows() {
+            let red = (top as u32 + 2..bottom as u32 - 2)
+                .filter(|&y| image.get_pixel(x, y).0 == plot::FLAG)
+                .count();
+            let height = (bottom - top) as usize;
+            if flagged.contains(&r.layer) {
+                assert!(red > height / 2, "layer {}: {red} red pixels", r.layer);
+            } else {
+                assert_eq!(red, 0, "layer {} is not flagged", r.layer);
+            }
+        }
+    }
+}
+
+#[test]
+fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let out = common::layerwise()
+        .args([
+            "demo",
+            "--layers",
+            "1",
+            "--inject",
+            "streak@2,blob@3",
+            "--out",
+        ])
+        .arg(tmp.path().join("demo"))
+        .output()
+        .expect("runs");
+    let text = common::assert_exit_1(&out);
+    assert!(
+        text.contains("--inject: blob@3: unknown anomaly `blob` (one of streak, short-feed"),
+        "{text}"
+    );
+    assert!(!tmp.path().join("demo").exists(), "nothing written");
+}

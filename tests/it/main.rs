@@ -1,0 +1,46 @@
+//! Every integration test of layerwise in one binary: one link of a large test binary per build
+//! instead of one per file. Each module was a file of its own under tests/; a test's name is
+//! `module::test` (`cargo test --test it daemon::` runs one module). Modules that need an
+//! optional feature are compiled with it only; `cargo test --workspace --all-features` (the CI
+//! command, tests/run.sh) runs them all.
+//!
+//! No test here needs a process of its own: the ones that change process-wide state do it per
+//! thread (each test runs on its own thread: the mount and network namespaces of `disk`, `pacs`
+//! and `soak` are the test thread's) or only in the children they start (environment variables,
+//! resource limits, the working directory). The in-process daemon (`common::run_daemon`) watches
+//! SIGTERM and SIGINT, which no test sends to this process.
+
+mod common;
+
+mod architecture;
+mod bounded_inputs;
+mod cli;
+#[cfg(feature = "testkit")]
+mod ct_accuracy;
+#[cfg(feature = "testkit")]
+mod ct_dicom;
+mod daemon;
+mod dicom_validation;
+mod disk;
+#[cfg(feature = "testkit")]
+mod flaws;
+mod fuzz_smoke;
+mod health;
+mod inspection;
+mod lifecycle;
+mod pacs;
+mod raster;
+#[cfg(feature = "nef")]
+mod raw_frames;
+mod register_ct_cli;
+mod registration;
+mod renderer2;
+mod serial_trigger;
+mod soak;
+mod systemd;
+mod tsdf;
+mod tutorial;
+mod vectors;
+#[cfg(feature = "gphoto")]
+mod virtual_camera;
+mod web;
