@@ -64,7 +64,8 @@ bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds" --beside target
 # The binary built without optional features (`--no-default-features`), through the path a user
 # takes: a NEF is refused with the feature to build, and check-config refuses a gphoto2 camera
 # it cannot drive (issue 13). Only layerwise and the crates whose features differ without rawler
-# compile again (3 min 20 s on 2 cores; with the lib's unit tests too it was 4 min 30 s).
+# compile again (3 min 20 s on 2 cores; with the lib's unit tests too it was 4 min 30 s); the test
+# binary leaves out its modules that need testkit, nef or gphoto, and runs bounded_inputs' two.
 cargo test --no-default-features --test it -- without_the_feature
 # Benchmarks are run by hand (cargo bench); here they only have to build, in the test profile
 # whose dependencies are built above (a release build of every dependency would add ~8 minutes).

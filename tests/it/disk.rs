@@ -5,8 +5,8 @@
 //! binary on a small tmpfs in a private mount namespace (needs root, as CI runs it); another
 //! drives the disk guard through the simulated probe (`sim::disk`).
 
-// The soak driver (benches/support/soak.rs, loaded by the soak test) loads it too: a bench
-// support file shared by the benches and this binary.
+// The soak driver (benches/support/soak.rs, the `soak` module here) includes its own copy: the
+// bench needs it without this crate. 50 lines twice, private to each.
 #[allow(clippy::duplicate_mod)]
 #[path = "../../benches/support/tmpfs.rs"]
 mod tmpfs;
