@@ -4,7 +4,7 @@
 //! is freed (a tmpfs in a private mount namespace, when run as root), and a `kill -9` every
 //! 1,000 layers followed by a restart, as systemd would. It then checks that no original was
 //! lost or overwritten, that every injected event is in the journal and that the daemon's
-//! resident memory stays flat. `benches/soak.rs` runs it for 10,000 layers; `tests/soak.rs` runs
+//! resident memory stays flat. `benches/soak.rs` runs it for 10,000 layers; `tests/it/soak.rs` runs
 //! it for a few dozen so the driver does not rot.
 // The bench and the test each use a part of the report.
 #![allow(dead_code)]

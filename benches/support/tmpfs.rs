@@ -1,5 +1,5 @@
 //! A small tmpfs in a private mount namespace, as a build disk a test or a benchmark can fill
-//! without touching the host's (needs root): tests/disk.rs and the soak benchmark.
+//! without touching the host's (needs root): tests/it/disk.rs and the soak benchmark.
 
 use std::path::Path;
 

@@ -149,7 +149,7 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
 mod tests {
     use super::*;
 
-    // Files with lengths that fit and lengths that lie: tests/bounded_inputs.rs (through the
+    // Files with lengths that fit and lengths that lie: tests/it/bounded_inputs.rs (through the
     // binary, with a sequence of undefined length holding an item of defined length).
     #[test]
     fn a_file_without_the_part10_magic_is_left_to_the_parser() {

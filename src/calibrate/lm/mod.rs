@@ -23,7 +23,7 @@
 //!   tracks makes every part look wider in the frame than its vectors; a homography cannot
 //!   follow that and turns it into a false scale, worst at the far parts. Each frame gets one δ
 //!   (the exemplar's edges moved outward by δ pixels, to first order I_E + δ·|∇I_E|), fitted in
-//!   closed form with φ (`pass::fit_photometric`). Measured on tests/renderer2.rs's frames
+//!   closed form with φ (`pass::fit_photometric`). Measured on tests/it/renderer2.rs's frames
 //!   (a 0.8 mm halo): 0.197 → 0.154 px mean, 0.38 → 0.27 px max (a 1 mm halo: 0.365 → 0.153
 //!   and 0.97 → 0.27 px); on the mock camera's frames (no halo) δ ≈ 0.03 px and the result is
 //!   unchanged.
