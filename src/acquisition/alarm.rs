@@ -100,10 +100,21 @@ impl Alarm {
         }
     }
 
-    /// Switches on for a record with a flag at the alarm's severity (and sends the message);
-    /// off after a clean layer unless latched.
+    /// Switches on for a record with a new flag at the alarm's severity (and sends the message);
+    /// off after a clean layer unless latched. A flag that persists from an earlier layer
+    /// (`since`) keeps the alarm from clearing but does not raise it again once acknowledged.
     pub fn after_layer(&mut self, record: &InspectionRecord, now: DateTime<Utc>) {
-        let raised = record.flags.iter().find(|f| f.severity >= self.level);
+        let at_level = |f: &&crate::build_dir::inspection::Flag| f.severity >= self.level;
+        let raised = record
+            .flags
+            .iter()
+            .filter(at_level)
+            .find(|f| f.since.is_none());
+        let persisting = record
+            .flags
+            .iter()
+            .filter(at_level)
+            .any(|f| f.since.is_some());
         match raised {
             Some(flag) if !self.on => {
                 if self.switch(true) {
@@ -134,7 +145,7 @@ impl Alarm {
                     message: flag.message.clone(),
                 });
             }
-            None if self.on && !self.latch && self.switch(false) => {
+            None if self.on && !self.latch && !persisting && self.switch(false) => {
                 info!(
                     layer = record.layer,
                     "inspection alarm off: layer {} is clean", record.layer
@@ -292,9 +303,14 @@ mod tests {
                     score: 2.0,
                     threshold: 1.0,
                     message: "spot".into(),
+                    since: None,
+                    evidence: vec![],
                 })
                 .into_iter()
                 .collect(),
+            axis: None,
+            bed: None,
+            notes: vec![],
         }
     }
 

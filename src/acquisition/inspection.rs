@@ -41,7 +41,7 @@ impl InspectingSeries {
                 super::AcquisitionError::Series(crate::series::SeriesError::Vectors(e))
             })?),
             None => {
-                warn!("inspection: no build.vectors, so only streaks and short feed are looked for (parts need the vector file)");
+                warn!("inspection: no build.vectors, so only the plate-wide checks run (streaks, short feed, coverage; parts need the vector file)");
                 None
             }
         };
@@ -84,9 +84,19 @@ impl InspectingSeries {
     }
 
     fn record(&self, record: &InspectionRecord) {
+        for note in &record.notes {
+            if note.level == "warn" {
+                warn!(layer = record.layer, "inspection: {}", note.message);
+            } else {
+                info!(layer = record.layer, "inspection: {}", note.message);
+            }
+        }
         for flag in &record.flags {
             let line = crate::inspect::describe(record.layer, flag);
-            if flag.severity >= Severity::Warning {
+            if flag.since.is_some() {
+                // A flag that persists was logged on its first layer.
+                info!(layer = record.layer, kind = %flag.kind, since = flag.since, "{line}");
+            } else if flag.severity >= Severity::Warning {
                 warn!(layer = record.layer, kind = %flag.kind, severity = %flag.severity, part = flag.part, "{line}");
             } else {
                 info!(layer = record.layer, kind = %flag.kind, "{line}");

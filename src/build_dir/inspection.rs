@@ -42,6 +42,9 @@ pub enum FlagKind {
     Streak,
     /// A band the new powder did not cover.
     ShortFeed,
+    /// A region of the fresh powder unlike the bed's running reference: uneven spreading,
+    /// powder too thin, the layer below showing through, something standing above it.
+    Coverage,
     /// A part standing above the fresh powder (super-elevation, swelling).
     Elevation,
     /// Less fused than the vectors say (part not or partly fused).
@@ -55,9 +58,10 @@ pub enum FlagKind {
 }
 
 impl FlagKind {
-    pub const ALL: [FlagKind; 7] = [
+    pub const ALL: [FlagKind; 8] = [
         FlagKind::Streak,
         FlagKind::ShortFeed,
+        FlagKind::Coverage,
         FlagKind::Elevation,
         FlagKind::UnderFusion,
         FlagKind::OverFusion,
@@ -68,6 +72,7 @@ impl FlagKind {
         match self {
             FlagKind::Streak => "streak",
             FlagKind::ShortFeed => "short_feed",
+            FlagKind::Coverage => "coverage",
             FlagKind::Elevation => "elevation",
             FlagKind::UnderFusion => "under_fusion",
             FlagKind::OverFusion => "over_fusion",
@@ -99,6 +104,46 @@ pub struct Flag {
     pub score: f64,
     pub threshold: f64,
     /// What an operator reads: "recoater streak across x = -40..95 mm at y = 12.3 mm".
+    pub message: String,
+    /// The first layer of a flag that continues one of the layer before (the same cause in the
+    /// same place): a persisting flag, reported on every layer it is seen but raising no new
+    /// alarm. Absent on a new flag (and in records written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub since: Option<u32>,
+    /// What else the same cause explains, folded into this flag (a part's drifts beside its
+    /// fusion flag, the coverage regions of a short feed): one line each.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub evidence: Vec<String>,
+}
+
+/// How the recoater axis of a layer's plate-wide checks was chosen.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AxisRecord {
+    /// `x`, `y`, or `both` while the frames have not told yet (both are searched).
+    pub axis: String,
+    /// `configured`, `found` (from the frames), or `undetermined`.
+    pub source: String,
+    /// The frames' evidence so far: positive for y (lines run along the image's columns),
+    /// negative for x; a decision at ±3.
+    pub evidence: f64,
+}
+
+/// The powder bed the plate-wide checks judge, as found from the frames within the plate.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BedRecord {
+    /// `[x_min, y_min, x_max, y_max]` in build mm.
+    pub bbox_mm: [f64; 4],
+    pub area_mm2: f64,
+    /// The outline, build mm (a closed polygon, at most a few dozen vertices); written on the
+    /// layer where the bed was settled, empty on the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub outline_mm: Vec<[f64; 2]>,
+}
+
+/// Something about the inspection itself worth a line in the log (`warn` or `info`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Note {
+    pub level: String,
     pub message: String,
 }
 
@@ -140,23 +185,55 @@ pub struct InspectionRecord {
     pub plate: BTreeMap<String, f64>,
     pub parts: Vec<PartMetrics>,
     pub flags: Vec<Flag>,
+    /// The recoater axis the plate-wide checks used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<AxisRecord>,
+    /// The powder bed judged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bed: Option<BedRecord>,
+    /// What the inspection says about itself on this layer (the axis found, a configured axis
+    /// the frames disagree with).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub notes: Vec<Note>,
 }
 
 /// The inspection log of a build, open for appending.
 pub type InspectionLog = LinesLog<InspectionRecord>;
 
-/// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`.
+/// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`; a flag that
+/// persists over layers is listed once, on its first layer, with the last layer it was seen on.
 pub fn open_flags(dir: &Path) -> Vec<String> {
     let Ok(records) = InspectionLog::read(&dir.join(super::INSPECTION)) else {
         return Vec::new();
     };
-    records
-        .iter()
-        .flat_map(|r| {
-            r.flags
-                .iter()
-                .filter(|f| f.severity >= Severity::Warning)
-                .map(move |f| format!("L{:05} {} ({}): {}", r.layer, f.kind, f.severity, f.message))
+    // (first layer, kind, view, message) → the last layer it was seen on.
+    let mut flags: Vec<(u32, &Flag, u32)> = Vec::new();
+    for r in &records {
+        for f in r.flags.iter().filter(|f| f.severity >= Severity::Warning) {
+            let first = f.since.and_then(|since| {
+                flags
+                    .iter_mut()
+                    .rev()
+                    .find(|(layer, g, _)| *layer == since && g.kind == f.kind && g.view == f.view)
+            });
+            match first {
+                Some((_, _, last)) => *last = r.layer,
+                None => flags.push((r.layer, f, r.layer)),
+            }
+        }
+    }
+    flags
+        .into_iter()
+        .map(|(layer, f, last)| {
+            let span = if last > layer {
+                format!(" (persists to layer {last})")
+            } else {
+                String::new()
+            };
+            format!(
+                "L{layer:05} {} ({}): {}{span}",
+                f.kind, f.severity, f.message
+            )
         })
         .collect()
 }
@@ -178,6 +255,8 @@ pub(crate) mod tests {
             score: 9.0,
             threshold: 7.0,
             message: "recoater streak".into(),
+            since: None,
+            evidence: vec![],
         }
     }
 
@@ -191,6 +270,9 @@ pub(crate) mod tests {
             plate: BTreeMap::new(),
             parts: vec![],
             flags,
+            axis: None,
+            bed: None,
+            notes: vec![],
         }
     }
 

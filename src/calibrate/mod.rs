@@ -45,7 +45,10 @@ pub use exemplar::F32Image;
 pub use lm::{align, Alignment, LevelReport, LmOptions, Pair, PairFit, Termination};
 pub use overlay::draw_overlay;
 pub use pipeline::{register_frames, register_images};
-pub use points::{dlt_build_from_image, parse_points, read_points, Correspondence};
+pub use points::{
+    calibrate_from_points, dlt_build_from_image, parse_points, read_points, Correspondence,
+    PointsFit,
+};
 pub use prepare::{filter_frame, load_image, luma_f32, render_exemplar};
 
 /// Half the side of the ProX320 plate, mm (the default output grid spans it).

@@ -143,6 +143,54 @@ pub fn dlt_build_from_image(
     })
 }
 
+/// A calibration from points alone (`layerwise register points`): the DLT homography through
+/// the correspondences, with each point's residual (where the homography puts its image point
+/// against the build point given), for machines without a vector file to refine against.
+#[derive(Clone, Debug)]
+pub struct PointsFit {
+    pub calibration: crate::rectify::Calibration,
+    /// (line of the points file, residual in mm), in file order.
+    pub residuals: Vec<(usize, f64)>,
+    pub rms_mm: f64,
+    pub max_mm: f64,
+}
+
+/// Fits [`PointsFit`] to the points of `file` (at least 4; with exactly 4 the homography passes
+/// through them and the residuals are 0: more points show how well it fits).
+pub fn calibrate_from_points(file: &Path) -> Result<PointsFit, RegistrationError> {
+    let points = read_points(file)?;
+    let h = dlt_build_from_image(&points, file)?;
+    let residuals: Vec<(usize, f64)> = points
+        .iter()
+        .map(|p| {
+            let d = h
+                .apply(p.image.u, p.image.v)
+                .map_or(f64::INFINITY, |(x, y)| (x - p.build.x).hypot(y - p.build.y));
+            (p.line, d)
+        })
+        .collect();
+    let rms_mm =
+        (residuals.iter().map(|(_, d)| d * d).sum::<f64>() / residuals.len() as f64).sqrt();
+    let max_mm = residuals.iter().map(|(_, d)| *d).fold(0.0, f64::max);
+    let mut fit = toml::Table::new();
+    fit.insert("method".into(), "points (DLT)".into());
+    fit.insert("points_file".into(), file.display().to_string().into());
+    fit.insert("points".into(), (points.len() as i64).into());
+    fit.insert("rms_mm".into(), rms_mm.into());
+    fit.insert("max_mm".into(), max_mm.into());
+    Ok(PointsFit {
+        calibration: crate::rectify::Calibration {
+            build_from_image: h,
+            distortion: None,
+            grid: None,
+            fit: Some(fit),
+        },
+        residuals,
+        rms_mm,
+        max_mm,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -225,6 +273,31 @@ mod tests {
                 assert!((got - want).abs() <= 1e-9 * want.abs().max(1e-3), "{h:?}");
             }
         }
+    }
+
+    #[test]
+    fn points_alone_give_a_calibration_with_residuals() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("points.txt");
+        let mut pts = correspondences(&[
+            [100.0, 80.0],
+            [1300.0, 90.0],
+            [1250.0, 900.0],
+            [60.0, 850.0],
+            [700.0, 500.0],
+        ]);
+        pts[4].build.x += 0.5;
+        let text: String = pts
+            .iter()
+            .map(|p| format!("{} {} {} {}\n", p.image.u, p.image.v, p.build.x, p.build.y))
+            .collect();
+        std::fs::write(&file, text).unwrap();
+        let fit = calibrate_from_points(&file).unwrap();
+        assert_eq!(fit.residuals.len(), 5);
+        assert!(fit.max_mm > 0.05 && fit.max_mm < 0.5, "{fit:?}");
+        assert!(fit.rms_mm <= fit.max_mm);
+        let back = crate::rectify::Calibration::parse(&fit.calibration.to_toml(), &file).unwrap();
+        assert_eq!(back.build_from_image, fit.calibration.build_from_image);
     }
 
     #[test]

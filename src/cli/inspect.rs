@@ -18,9 +18,18 @@ pub struct InspectArgs {
     #[arg(long, required_unless_present = "frames", conflicts_with = "frames")]
     build: Option<PathBuf>,
     /// Instead of a build: a folder of frames named L{layer:05}_{phase}_{light}.{ext}
-    /// (docs/frames.md); needs --calibration (and --vectors for the per-part checks).
-    #[arg(long, requires = "calibration")]
+    /// (docs/frames.md), or any folder of pictures, taken in name order as consecutive layers
+    /// of --view. Without --calibration the frames are taken as top-down views; without
+    /// --vectors only the plate-wide checks run.
+    #[arg(long)]
     frames: Option<PathBuf>,
+    /// The view a folder of plainly named pictures shows.
+    #[arg(long, default_value = "pre_top", value_parser = parse_view)]
+    view: layerwise::shot::View,
+    /// Without --calibration: plate millimetres a frame pixel covers (default: the frame's
+    /// wider side taken as the 275 mm plate).
+    #[arg(long, conflicts_with = "calibration")]
+    pixel_mm: Option<f64>,
     /// The build's laser vector file (default: the build's build.vectors).
     #[arg(long)]
     vectors: Option<PathBuf>,
@@ -48,65 +57,84 @@ pub struct InspectArgs {
 impl InspectArgs {
     pub fn run(self) -> Result<()> {
         let given = self.config.as_deref().map(Config::load).transpose()?;
-        let (frames, calibration, grid, interpolation, fill, cfg, views, vectors) =
-            match &self.build {
-                Some(dir) => {
-                    let record = layerwise::series::BuildRecord::open(dir)?;
-                    let config = given.unwrap_or(record.config.clone());
-                    let calibration = match &self.calibration {
-                        Some(path) => Calibration::load(path)?,
-                        None => record.calibration.clone().ok_or_else(|| {
-                            anyhow!(
-                                "{}: the build has no calibration.toml; pass --calibration",
-                                dir.display()
-                            )
-                        })?,
-                    };
-                    (
-                        offline::build_frames(dir)?,
-                        calibration,
-                        record.grid,
-                        config.calibration.interpolation,
-                        config.calibration.fill,
-                        config.inspection.clone(),
-                        config.views.all(),
-                        self.vectors.clone().or(config.build.vectors.clone()),
-                    )
+        let (frames, calibration, grid, interpolation, fill, cfg, views, vectors) = match &self
+            .build
+        {
+            Some(dir) => {
+                let record = layerwise::series::BuildRecord::open(dir)?;
+                let config = given.unwrap_or(record.config.clone());
+                let calibration = match &self.calibration {
+                    Some(path) => Calibration::load(path)?,
+                    None => record.calibration.clone().ok_or_else(|| {
+                        anyhow!(
+                            "{}: the build has no calibration.toml; pass --calibration",
+                            dir.display()
+                        )
+                    })?,
+                };
+                (
+                    offline::build_frames(dir)?,
+                    calibration,
+                    record.grid,
+                    config.calibration.interpolation,
+                    config.calibration.fill,
+                    config.inspection.clone(),
+                    config.views.all(),
+                    self.vectors.clone().or(config.build.vectors.clone()),
+                )
+            }
+            None => {
+                let dir = self.frames.as_ref().context("--build or --frames")?;
+                let frames = offline::any_frames(dir, self.view)?;
+                let (calibration, grid) = match &self.calibration {
+                    Some(path) => {
+                        let calibration = Calibration::load(path)?;
+                        let grid = match &given {
+                            Some(c) => c.rectify,
+                            None => calibration.grid.unwrap_or_else(Grid::plate),
+                        };
+                        (calibration, grid)
+                    }
+                    None => {
+                        let (w, h) = offline::frame_size(&frames)?;
+                        let (calibration, grid) = offline::top_down(w, h, self.pixel_mm)?;
+                        eprintln!(
+                                "no --calibration: the frames are taken as top-down views of {w} x {h} pixels, {:.3} mm a pixel{}",
+                                grid.pixel_mm,
+                                if self.pixel_mm.is_some() { "" } else { " (the wider side taken as the 275 mm plate; --pixel-mm sets it)" }
+                            );
+                        (calibration, grid)
+                    }
+                };
+                let (mut cfg, interpolation, fill) = match &given {
+                    Some(c) => (
+                        c.inspection.clone(),
+                        c.calibration.interpolation,
+                        c.calibration.fill,
+                    ),
+                    None => (InspectionConfig::default(), Default::default(), 0),
+                };
+                let views: Vec<layerwise::shot::View> = frames
+                    .keys()
+                    .map(|s| s.view())
+                    .collect::<std::collections::BTreeSet<_>>()
+                    .into_iter()
+                    .collect();
+                if views == [self.view] && self.view.phase == layerwise::shot::Phase::Pre {
+                    cfg.pre_light = self.view.light;
                 }
-                None => {
-                    let dir = self.frames.as_ref().context("--build or --frames")?;
-                    let path = self.calibration.as_ref().context("--calibration")?;
-                    let calibration = Calibration::load(path)?;
-                    let grid = match &given {
-                        Some(c) => c.rectify,
-                        None => calibration.grid.unwrap_or_else(Grid::plate),
-                    };
-                    let (cfg, views, interpolation, fill) = match &given {
-                        Some(c) => (
-                            c.inspection.clone(),
-                            c.views.all(),
-                            c.calibration.interpolation,
-                            c.calibration.fill,
-                        ),
-                        None => (
-                            InspectionConfig::default(),
-                            layerwise::config::ViewsConfig::default().all(),
-                            Default::default(),
-                            0,
-                        ),
-                    };
-                    (
-                        offline::folder_frames(dir)?,
-                        calibration,
-                        grid,
-                        interpolation,
-                        fill,
-                        cfg,
-                        views,
-                        self.vectors.clone(),
-                    )
-                }
-            };
+                (
+                    frames,
+                    calibration,
+                    grid,
+                    interpolation,
+                    fill,
+                    cfg,
+                    views,
+                    self.vectors.clone(),
+                )
+            }
+        };
         let index = vectors
             .as_deref()
             .map(layerwise::vectors::LayerIndex::build)
@@ -154,8 +182,16 @@ impl InspectArgs {
         }
         let mut kinds: BTreeMap<FlagKind, usize> = BTreeMap::new();
         let mut critical = 0;
+        let mut persisting = 0;
         for r in &records {
+            for n in &r.notes {
+                println!("layer {}: {}: {}", r.layer, n.level, n.message);
+            }
             for f in r.flags.iter().filter(|f| f.severity >= Severity::Warning) {
+                if f.since.is_some() {
+                    persisting += 1;
+                    continue;
+                }
                 println!("{}", layerwise::inspect::describe(r.layer, f));
                 *kinds.entry(f.kind).or_default() += 1;
                 critical += usize::from(f.severity == Severity::Critical);
@@ -166,8 +202,18 @@ impl InspectArgs {
             _ => String::new(),
         };
         let per_kind: Vec<String> = kinds.iter().map(|(k, n)| format!("{n} {k}")).collect();
+        let axis = records
+            .iter()
+            .rev()
+            .find_map(|r| r.axis.as_ref())
+            .map(|a| format!("; recoater axis {} ({})", a.axis, a.source))
+            .unwrap_or_default();
+        let flagged = records
+            .iter()
+            .filter(|r| r.flags.iter().any(|f| f.severity >= Severity::Warning))
+            .count();
         println!(
-            "inspected {} layers{span}: {} flags ({critical} critical){}{}",
+            "inspected {} layers{span}: {} new flags ({critical} critical){}{}; {persisting} times a flag persisted from the layer before; {flagged} layers flagged{axis}",
             records.len(),
             kinds.values().sum::<usize>(),
             if per_kind.is_empty() { "" } else { ": " },
@@ -175,4 +221,14 @@ impl InspectArgs {
         );
         Ok(())
     }
+}
+
+fn parse_view(text: &str) -> std::result::Result<layerwise::shot::View, String> {
+    let (phase, light) = text
+        .split_once('_')
+        .ok_or_else(|| format!("`{text}`: a view is phase_light, e.g. pre_top"))?;
+    Ok(layerwise::shot::View {
+        phase: phase.parse().map_err(|e| format!("{e}"))?,
+        light: light.parse().map_err(|e| format!("{e}"))?,
+    })
 }

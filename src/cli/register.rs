@@ -1,4 +1,5 @@
-//! `register images` (camera → build plate, paper §3.1) and `register ct` (CT → build, §3.2).
+//! `register images` (camera → build plate, paper §3.1), `register points` (camera → build plate
+//! from clicked points alone) and `register ct` (CT → build, §3.2).
 
 use anyhow::{bail, Result};
 use clap::{Args, Subcommand, ValueEnum};
@@ -15,6 +16,43 @@ pub enum RegisterCommand {
     /// Refine the camera → build-plate homography against the laser vectors (paper §3.1) and
     /// write the calibration the daemon reads.
     Images(ImagesArgs),
+    /// A calibration from point correspondences alone (no vector file to refine against):
+    /// the homography through at least four `u v x y` lines, each point's residual reported.
+    Points(PointsArgs),
+}
+
+#[derive(Args)]
+pub struct PointsArgs {
+    /// Lines `u v x y` (image pixel column and row, build mm), at least 4 (more show residuals).
+    #[arg(long)]
+    points: PathBuf,
+    /// Where to write calibration.toml.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+impl PointsArgs {
+    fn run(self) -> Result<()> {
+        let fit = layerwise::calibrate::calibrate_from_points(&self.points)?;
+        println!("point   residual (mm)");
+        for (line, d) in &fit.residuals {
+            println!("line {line:<3} {d:>9.3}");
+        }
+        println!(
+            "{} points: rms {:.3} mm, max {:.3} mm{}",
+            fit.residuals.len(),
+            fit.rms_mm,
+            fit.max_mm,
+            if fit.residuals.len() == 4 {
+                " (4 points fix the homography exactly: add points to see how well it fits)"
+            } else {
+                ""
+            }
+        );
+        layerwise::fsutil::write_atomic(&self.out, fit.calibration.to_toml().as_bytes(), false)?;
+        println!("wrote {}", self.out.display());
+        Ok(())
+    }
 }
 
 impl RegisterCommand {
@@ -22,6 +60,7 @@ impl RegisterCommand {
         match self {
             RegisterCommand::Ct(args) => args.run(),
             RegisterCommand::Images(args) => args.run(),
+            RegisterCommand::Points(args) => args.run(),
         }
     }
 }

@@ -21,6 +21,47 @@ pub enum Axis {
     Y,
 }
 
+/// `recoat_axis`: found from the build's frames (`auto`, the default: streaks and recoating marks
+/// run along the blade's travel) or set (`x`, `y`: honoured, with a WARN when the frames say the
+/// other).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RecoatAxis {
+    #[default]
+    Auto,
+    X,
+    Y,
+}
+
+impl RecoatAxis {
+    /// The axis set by hand, `None` for `auto`.
+    pub fn fixed(self) -> Option<Axis> {
+        match self {
+            RecoatAxis::Auto => None,
+            RecoatAxis::X => Some(Axis::X),
+            RecoatAxis::Y => Some(Axis::Y),
+        }
+    }
+}
+
+impl fmt::Display for RecoatAxis {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.fixed() {
+            Some(a) => a.fmt(f),
+            None => f.write_str("auto"),
+        }
+    }
+}
+
+impl Axis {
+    pub fn other(self) -> Axis {
+        match self {
+            Axis::X => Axis::Y,
+            Axis::Y => Axis::X,
+        }
+    }
+}
+
 impl fmt::Display for Axis {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
@@ -49,8 +90,8 @@ pub struct InspectionConfig {
     pub enabled: bool,
     /// Cell size of the inspection grid in mm: the series grid binned to about this.
     pub pixel_mm: f64,
-    /// Axis the recoater travels along.
-    pub recoat_axis: Axis,
+    /// Axis the recoater travels along: `auto` (found from the frames), `x` or `y`.
+    pub recoat_axis: RecoatAxis,
     /// Light of the pre-scan view searched for streaks and short feed.
     pub pre_light: Light,
     /// Light of the pre-scan view searched for super-elevation (raking light shows relief).
@@ -71,8 +112,18 @@ pub struct InspectionConfig {
     pub short_feed_z: f64,
     /// Short feed: narrowest band reported, mm.
     pub short_feed_min_width_mm: f64,
-    /// Layers in the short-feed reference (the detector waits until 3 are seen).
+    /// Layers in the short-feed reference and in the powder bed's running reference (the
+    /// detectors that compare with earlier layers wait until 3 are seen).
     pub reference_layers: usize,
+    /// Coverage (uneven spreading, powder too thin, the layer below showing): robust z of a
+    /// region of the pre-scan view against the bed's running reference, in units of this
+    /// layer's own layer-to-layer variation over the bed.
+    pub coverage_z: f64,
+    /// Coverage: smallest region reported, mm².
+    pub coverage_min_mm2: f64,
+    /// Illumination flattening: the scale of the smooth light field (vignetting, uneven light)
+    /// divided out before judging the powder, mm.
+    pub flatten_mm: f64,
     /// Super-elevation: robust z (3x3-smoothed) of a spot over the previous layer's footprint
     /// against the powder around the part.
     pub elevation_z: f64,
@@ -105,7 +156,7 @@ impl Default for InspectionConfig {
         InspectionConfig {
             enabled: true,
             pixel_mm: 0.5,
-            recoat_axis: Axis::X,
+            recoat_axis: RecoatAxis::Auto,
             pre_light: Light::Top,
             elevation_light: Light::Side,
             post_light: Light::Top,
@@ -116,6 +167,9 @@ impl Default for InspectionConfig {
             short_feed_z: 8.0,
             short_feed_min_width_mm: 3.0,
             reference_layers: 5,
+            coverage_z: 10.0,
+            coverage_min_mm2: 20.0,
+            flatten_mm: 30.0,
             elevation_z: 8.0,
             fused_texture_factor: 3.5,
             fusion_tolerance_mm: 0.75,
@@ -208,6 +262,9 @@ impl InspectionConfig {
             ("streak_max_width_mm", self.streak_max_width_mm),
             ("short_feed_z", self.short_feed_z),
             ("short_feed_min_width_mm", self.short_feed_min_width_mm),
+            ("coverage_z", self.coverage_z),
+            ("coverage_min_mm2", self.coverage_min_mm2),
+            ("flatten_mm", self.flatten_mm),
             ("elevation_z", self.elevation_z),
             ("fused_texture_factor", self.fused_texture_factor),
             ("max_unfused", self.max_unfused),

@@ -10,270 +10,9 @@ use crate::build_dir::inspection::{FlagKind, PartMetrics};
 use crate::config::inspection::{Axis, InspectionConfig};
 use crate::geometry::Grid;
 
-/// One finding, in cells of the inspection grid.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Found {
-    pub kind: FlagKind,
-    pub part: Option<i64>,
-    pub cells: CellBox,
-    pub score: f64,
-    pub threshold: f64,
-    pub message: String,
-}
-
-/// MAD to standard deviation for normal noise.
-const MAD_SIGMA: f64 = 1.4826;
-
-pub(crate) fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mid = values.len() / 2;
-    let (_, m, _) = values.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
-    *m
-}
-
-/// Median and MAD-based sigma (at least `floor`) of the finite values.
-pub(crate) fn robust(values: impl Iterator<Item = f64>, floor: f64) -> (f64, f64) {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    let m = median(&mut v);
-    let mut dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-    (m, (MAD_SIGMA * median(&mut dev)).max(floor))
-}
-
-/// Build mm `[x_min, y_min, x_max, y_max]` of a cell box.
-pub fn box_mm(grid: &Grid, b: CellBox) -> [f64; 4] {
-    let p = grid.pixel_mm;
-    [
-        grid.x_min + b.c0 as f64 * p,
-        grid.y_max - (b.r1 + 1) as f64 * p,
-        grid.x_min + (b.c1 + 1) as f64 * p,
-        grid.y_max - b.r0 as f64 * p,
-    ]
-}
-
-fn cells_of(mm: f64, grid: &Grid) -> usize {
-    (mm / grid.pixel_mm).round().max(0.0) as usize
-}
-
-/// Lines and positions along them for the recoating axis: streaks run along it.
-struct Lines {
-    lines: usize,
-    along: usize,
-    cols: usize,
-    axis: Axis,
-}
-
-impl Lines {
-    fn new(cells: &Cells, axis: Axis) -> Lines {
-        let (lines, along) = match axis {
-            Axis::X => (cells.rows, cells.cols),
-            Axis::Y => (cells.cols, cells.rows),
-        };
-        Lines {
-            lines,
-            along,
-            cols: cells.cols,
-            axis,
-        }
-    }
-    fn index(&self, line: usize, pos: usize) -> usize {
-        match self.axis {
-            Axis::X => line * self.cols + pos,
-            Axis::Y => pos * self.cols + line,
-        }
-    }
-    fn cell_box(&self, l0: usize, l1: usize, p0: usize, p1: usize) -> CellBox {
-        match self.axis {
-            Axis::X => CellBox {
-                r0: l0,
-                r1: l1,
-                c0: p0,
-                c1: p1,
-            },
-            Axis::Y => CellBox {
-                r0: p0,
-                r1: p1,
-                c0: l0,
-                c1: l1,
-            },
-        }
-    }
-}
-
-/// `x = a..b mm at y = c mm` for a line along the recoating axis.
-fn along_text(axis: Axis, mm: [f64; 4]) -> String {
-    let [x0, y0, x1, y1] = mm;
-    match axis {
-        Axis::X => format!(
-            "across x = {x0:.0}..{x1:.0} mm at y = {:.1} mm",
-            (y0 + y1) / 2.0
-        ),
-        Axis::Y => format!(
-            "across y = {y0:.0}..{y1:.0} mm at x = {:.1} mm",
-            (x0 + x1) / 2.0
-        ),
-    }
-}
-
-/// Lines of one segment above the threshold (a streak candidate).
-struct Run {
-    segment: usize,
-    first: usize,
-    last: usize,
-    score: f64,
-    sign: f64,
-    /// Positions along the lines the segment covers.
-    from: usize,
-    to: usize,
-}
-
-/// Recoater streaks: in segments along the recoating axis, the profile of line means across it,
-/// less its running median, in robust z. Runs of lines above the threshold no wider than
-/// `streak_max_width_mm` are streaks; runs in neighbouring segments on the same lines merge.
-/// Returns the streaks and the largest |z| seen.
-pub fn streaks(
-    grid: &Grid,
-    cells: &Cells,
-    valid: &Mask,
-    cfg: &InspectionConfig,
-) -> (Vec<Found>, f64) {
-    let lines = Lines::new(cells, cfg.recoat_axis);
-    let thr = cfg.streak_z;
-    let seg_cells = cells_of(cfg.streak_segment_mm, grid).max(4);
-    let nseg = ((lines.along as f64 / seg_cells as f64).round() as usize).max(1);
-    let max_width = cells_of(cfg.streak_max_width_mm, grid).max(1);
-    let half = (3 * max_width).max(7);
-    let mut best = 0f64;
-    let mut runs: Vec<Run> = Vec::new();
-    for s in 0..nseg {
-        let (p0, p1) = (s * lines.along / nseg, (s + 1) * lines.along / nseg);
-        let mut counts = vec![0usize; lines.lines];
-        let profile: Vec<f64> = (0..lines.lines)
-            .map(|l| {
-                let (mut sum, mut n) = (0f64, 0usize);
-                for p in p0..p1 {
-                    let i = lines.index(l, p);
-                    if valid.on[i] {
-                        sum += f64::from(cells.mean[i]);
-                        n += 1;
-                    }
-                }
-                counts[l] = n;
-                if n >= 3 && 2 * n >= p1 - p0 {
-                    sum / n as f64
-                } else {
-                    f64::NAN
-                }
-            })
-            .collect();
-        let residual: Vec<f64> = (0..lines.lines)
-            .map(|l| {
-                // A window centred on the line (shrinking toward the ends, so a slope in the
-                // lighting does not bias it); lines too near an end are not judged.
-                let h = half.min(l).min(lines.lines - 1 - l);
-                if !profile[l].is_finite() || h < 3 {
-                    return f64::NAN;
-                }
-                let (lo, hi) = (l - h, l + h + 1);
-                let mut window: Vec<f64> = profile[lo..hi]
-                    .iter()
-                    .copied()
-                    .filter(|v| v.is_finite())
-                    .collect();
-                profile[l] - median(&mut window)
-            })
-            .collect();
-        // A line with fewer cells (a part's footprint left out) has a noisier mean: weigh each
-        // residual by the square root of its cell count so one scale fits all lines.
-        let mut n: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
-        let n_ref = median(&mut n).max(1.0);
-        let residual: Vec<f64> = residual
-            .iter()
-            .zip(&counts)
-            .map(|(r, &c)| r * (c as f64 / n_ref).sqrt())
-            .collect();
-        let (m, sigma) = robust(residual.iter().copied(), 0.05);
-        let z: Vec<f64> = residual.iter().map(|r| (r - m) / sigma).collect();
-        let mut l = 0;
-        while l < lines.lines {
-            if z[l].is_nan() || z[l].abs() < thr {
-                l += 1;
-                continue;
-            }
-            let sign = z[l].signum();
-            let (mut a, mut b) = (l, l);
-            // Grow over the run's shoulders (same sign, half the threshold).
-            while a > 0 && z[a - 1] * sign >= thr / 2.0 {
-                a -= 1;
-            }
-            while b + 1 < lines.lines && z[b + 1] * sign >= thr / 2.0 {
-                b += 1;
-            }
-            let score = z[a..=b].iter().map(|v| v * sign).fold(0.0, f64::max);
-            if b - a < max_width {
-                runs.push(Run {
-                    segment: s,
-                    first: a,
-                    last: b,
-                    score,
-                    sign,
-                    from: p0,
-                    to: p1 - 1,
-                });
-            }
-            l = b + 1;
-        }
-        best = best.max(
-            z.iter()
-                .filter(|v| v.is_finite())
-                .fold(0.0, |a, v| a.max(v.abs())),
-        );
-    }
-    // Merge runs on overlapping lines in neighbouring segments.
-    runs.sort_by_key(|r| (r.first, r.segment));
-    let mut merged: Vec<Run> = Vec::new();
-    for r in runs {
-        let joined = merged.iter_mut().find(|m| {
-            m.sign == r.sign
-                && r.first <= m.last + 1
-                && m.first <= r.last + 1
-                && (r.segment == m.segment + 1 || m.segment == r.segment + 1)
-        });
-        match joined {
-            Some(m) => {
-                m.segment = m.segment.max(r.segment);
-                m.first = m.first.min(r.first);
-                m.last = m.last.max(r.last);
-                m.score = m.score.max(r.score);
-                m.from = m.from.min(r.from);
-                m.to = m.to.max(r.to);
-            }
-            None => merged.push(r),
-        }
-    }
-    let found = merged
-        .into_iter()
-        .map(|r| {
-            let cells = lines.cell_box(r.first, r.last, r.from, r.to);
-            let mm = box_mm(grid, cells);
-            let width = (r.last - r.first + 1) as f64 * grid.pixel_mm;
-            Found {
-                kind: FlagKind::Streak,
-                part: None,
-                cells,
-                score: r.score,
-                threshold: thr,
-                message: format!(
-                    "recoater streak {} ({width:.1} mm wide, {})",
-                    along_text(cfg.recoat_axis, mm),
-                    if r.sign > 0.0 { "brighter" } else { "darker" }
-                ),
-            }
-        })
-        .collect();
-    (found, best)
-}
+pub use super::stats::{box_mm, Found};
+use super::stats::{cells_of, Lines};
+pub(crate) use super::stats::{median, robust};
 
 /// Mean of the middle 60% of the values: a spot does not move it, and unlike a median of 8-bit
 /// grey levels it is not quantised.
@@ -302,7 +41,7 @@ pub struct Profile {
 }
 
 pub fn profile(cells: &Cells, valid: &Mask, axis: Axis) -> Profile {
-    let lines = Lines::new(cells, axis);
+    let lines = Lines::new(cells.rows, cells.cols, axis);
     let mut mean = Vec::with_capacity(lines.along);
     let mut texture = Vec::with_capacity(lines.along);
     for p in 0..lines.along {
@@ -332,6 +71,7 @@ pub fn short_feed(
     valid: &Mask,
     now: &Profile,
     earlier: &[Profile],
+    axis: Axis,
     cfg: &InspectionConfig,
 ) -> Option<(Vec<Found>, f64)> {
     if earlier.len() < 3 {
@@ -373,7 +113,7 @@ pub fn short_feed(
     let best = z.iter().copied().fold(0.0, f64::max);
     let thr = cfg.short_feed_z;
     let min_width = cells_of(cfg.short_feed_min_width_mm, grid).max(2);
-    let lines = match cfg.recoat_axis {
+    let lines = match axis {
         Axis::X => valid.bbox().map(|b| (b.r0, b.r1)),
         Axis::Y => valid.bbox().map(|b| (b.c0, b.c1)),
     }?;
@@ -398,7 +138,7 @@ pub fn short_feed(
         }
         let mut shift: Vec<f64> = zm[start..p].to_vec();
         let darker = median(&mut shift) < 0.0;
-        let cells = match cfg.recoat_axis {
+        let cells = match axis {
             Axis::X => CellBox {
                 r0: lines.0,
                 r1: lines.1,
@@ -413,7 +153,7 @@ pub fn short_feed(
             },
         };
         let [x0, y0, x1, y1] = box_mm(grid, cells);
-        let band = match cfg.recoat_axis {
+        let band = match axis {
             Axis::X => format!("x = {x0:.0}..{x1:.0} mm"),
             Axis::Y => format!("y = {y0:.0}..{y1:.0} mm"),
         };

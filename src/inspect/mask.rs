@@ -207,6 +207,101 @@ impl Mask {
         b
     }
 
+    /// Turns on every cell of `b`.
+    pub fn set_box(&mut self, b: CellBox) {
+        for r in b.r0..=b.r1.min(self.rows.saturating_sub(1)) {
+            for c in b.c0..=b.c1.min(self.cols.saturating_sub(1)) {
+                self.on[r * self.cols + c] = true;
+            }
+        }
+    }
+
+    /// The largest 8-connected blob as a mask of its own.
+    pub fn largest_blob(&self) -> Option<Mask> {
+        self.labelled()
+            .into_iter()
+            .max_by_key(|cells| cells.len())
+            .map(|cells| {
+                let mut m = Mask::new(self.rows, self.cols);
+                for i in cells {
+                    m.on[i] = true;
+                }
+                m
+            })
+    }
+
+    /// 8-connected blobs, each as its cells' indices.
+    pub fn labelled(&self) -> Vec<Vec<usize>> {
+        let mut seen = vec![false; self.on.len()];
+        let mut out = Vec::new();
+        for start in 0..self.on.len() {
+            if !self.on[start] || seen[start] {
+                continue;
+            }
+            seen[start] = true;
+            let mut cells = vec![start];
+            let mut k = 0;
+            while k < cells.len() {
+                let i = cells[k];
+                k += 1;
+                let (r, c) = (i / self.cols, i % self.cols);
+                for rr in r.saturating_sub(1)..(r + 2).min(self.rows) {
+                    for cc in c.saturating_sub(1)..(c + 2).min(self.cols) {
+                        let j = rr * self.cols + cc;
+                        if self.on[j] && !seen[j] {
+                            seen[j] = true;
+                            cells.push(j);
+                        }
+                    }
+                }
+            }
+            out.push(cells);
+        }
+        out
+    }
+
+    /// With its holes filled: every off cell that cannot reach the border through off cells
+    /// (4-connected) turned on.
+    pub fn filled(&self) -> Mask {
+        let (rows, cols) = (self.rows, self.cols);
+        let mut outside = vec![false; rows * cols];
+        let mut stack: Vec<usize> = (0..rows * cols)
+            .filter(|&i| {
+                let (r, c) = (i / cols, i % cols);
+                (r == 0 || c == 0 || r + 1 == rows || c + 1 == cols) && !self.on[i]
+            })
+            .collect();
+        for &i in &stack {
+            outside[i] = true;
+        }
+        while let Some(i) = stack.pop() {
+            let (r, c) = (i / cols, i % cols);
+            let mut visit = |j: usize| {
+                if !self.on[j] && !outside[j] {
+                    outside[j] = true;
+                    stack.push(j);
+                }
+            };
+            if r > 0 {
+                visit(i - cols);
+            }
+            if r + 1 < rows {
+                visit(i + cols);
+            }
+            if c > 0 {
+                visit(i - 1);
+            }
+            if c + 1 < cols {
+                visit(i + 1);
+            }
+        }
+        Mask {
+            rows,
+            cols,
+            on: outside.iter().map(|o| !o).collect(),
+        }
+    }
+
     /// 8-connected blobs: (cells, box), largest first.
     pub fn blobs(&self) -> Vec<(usize, CellBox)> {
         let mut seen = vec![false; self.on.len()];

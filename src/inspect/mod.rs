@@ -11,12 +11,20 @@
 //! layer's are, with what arrived), always in layer order. A trained model can join as one more
 //! detector on the same cells.
 
+pub mod axis;
+pub mod bed;
 pub mod cells;
+pub mod check;
 pub mod detect;
 pub mod drift;
 pub mod mask;
 pub mod offline;
+pub mod persist;
+pub mod plate;
 pub mod plot;
+pub mod powder;
+pub mod stats;
+pub mod streak;
 
 use crate::build_dir::inspection::{Flag, FlagKind, InspectionRecord, PartMetrics, Severity};
 use crate::config::inspection::InspectionConfig;
@@ -26,10 +34,12 @@ use crate::rectify::FrameLuma;
 use crate::shot::{Phase, View};
 use crate::vectors::LayerIndex;
 use cells::Cells;
+use check::{Check, LayerInput};
 use chrono::{DateTime, Utc};
-use detect::{Found, Profile};
 use mask::Mask;
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use plate::PlateChecks;
+use stats::Found;
+use std::collections::{BTreeMap, BTreeSet};
 
 /// The layers' part masks on the inspection grid, by part id.
 type Parts = Vec<(i64, Mask)>;
@@ -64,9 +74,12 @@ pub struct Inspector {
     needed: BTreeSet<View>,
     pending: BTreeMap<u32, BTreeMap<View, Cells>>,
     done: BTreeSet<u32>,
-    references: VecDeque<Profile>,
+    plate_checks: PlateChecks,
     baseline: drift::Baseline,
     parts: BTreeMap<u32, std::sync::Arc<Parts>>,
+    checks: Vec<Box<dyn Check>>,
+    /// The last inspected layer and its flags (what a flag may continue).
+    last: Option<(u32, Vec<Flag>)>,
 }
 
 impl Inspector {
@@ -113,14 +126,21 @@ impl Inspector {
             needed,
             pending: BTreeMap::new(),
             done: BTreeSet::new(),
-            references: VecDeque::new(),
+            plate_checks: PlateChecks::new(cfg),
             baseline: drift::Baseline::new(
                 cfg.drift_window,
                 cfg.drift_min_layers,
                 cfg.drift_z / 2.0,
             ),
             parts: BTreeMap::new(),
+            checks: Vec::new(),
+            last: None,
         }
+    }
+
+    /// Adds a check run after the classical ones on every layer (a trained model).
+    pub fn add_check(&mut self, check: Box<dyn Check>) {
+        self.checks.push(check);
     }
 
     /// Tells the inspector how much of the plate one camera pixel covers (the largest
@@ -169,9 +189,12 @@ impl Inspector {
         Cells::from_luma(luma, &self.view_grid, self.bin)
     }
 
-    /// Takes up where an earlier run stopped: its layers count as done and the drift baseline
-    /// is rebuilt from their metrics. (The short-feed reference warms up again over 3 layers.)
+    /// Takes up where an earlier run stopped: its layers count as done, the drift baseline is
+    /// rebuilt from their metrics, the recoater axis found is kept and the last layer's flags
+    /// may continue. (The bed and the powder's references warm up again over 3 layers.)
     pub fn resume(&mut self, records: &[InspectionRecord]) {
+        self.plate_checks.resume(records);
+        self.last = records.last().map(|r| (r.layer, r.flags.clone()));
         for r in records {
             self.done.insert(r.layer);
             for m in &r.parts {
@@ -325,6 +348,10 @@ impl Inspector {
         let view = |phase, light| View { phase, light };
 
         let pre = view(Phase::Pre, cfg.pre_light);
+        let mut axis = None;
+        let mut bed = None;
+        let mut bed_mask = None;
+        let mut notes = Vec::new();
         if let Some(cells) = views.get(&pre) {
             let valid = self.valid(cells);
             let (m, _) = detect::robust(
@@ -337,25 +364,15 @@ impl Inspector {
                 0.0,
             );
             plate.insert("pre_mean".into(), m);
-            let powder = valid.minus(&previous_all.dilate(2));
-            let (streaks, z) = detect::streaks(&grid, cells, &powder, &cfg);
-            plate.insert("streak_z".into(), z);
-            found.extend(streaks.into_iter().map(|f| (pre, f)));
-            let profile = detect::profile(cells, &valid, cfg.recoat_axis);
-            let earlier: Vec<Profile> = self.references.iter().cloned().collect();
-            match detect::short_feed(&grid, &valid, &profile, &earlier, &cfg) {
-                Some((short, z)) => {
-                    plate.insert("short_feed_z".into(), z);
-                    if short.is_empty() {
-                        self.references.push_back(profile);
-                    }
-                    found.extend(short.into_iter().map(|f| (pre, f)));
-                }
-                None => self.references.push_back(profile),
-            }
-            while self.references.len() > cfg.reference_layers {
-                self.references.pop_front();
-            }
+            let outcome =
+                self.plate_checks
+                    .inspect(&grid, &cfg, cells, &valid, &previous_all.dilate(2));
+            plate.extend(outcome.metrics);
+            found.extend(outcome.found.into_iter().map(|f| (pre, f)));
+            axis = Some(outcome.axis);
+            bed = outcome.bed;
+            bed_mask = Some(outcome.bed_mask);
+            notes = outcome.notes;
         }
 
         let mut pre_means = Vec::new();
@@ -414,11 +431,26 @@ impl Inspector {
             let flagged = found.iter().any(|(_, f)| f.part == Some(m.part));
             self.baseline.push(m, flagged);
         }
+        for check in &mut self.checks {
+            let more = check.check(&LayerInput {
+                layer,
+                grid: &grid,
+                views,
+                bed: bed_mask.as_ref(),
+                found: &found,
+            });
+            found.extend(more);
+        }
         self.done.insert(layer);
-        let flags = found
+        let flags: Vec<Flag> = found
             .into_iter()
             .map(|(view, f)| self.flag(view, f))
             .collect();
+        let mut flags = persist::group(flags);
+        if let Some((before, earlier)) = &self.last {
+            persist::mark_persisting(&mut flags, earlier, *before);
+        }
+        self.last = Some((layer, flags.clone()));
         InspectionRecord {
             layer,
             at,
@@ -427,6 +459,9 @@ impl Inspector {
             plate,
             parts,
             flags,
+            axis,
+            bed,
+            notes,
         }
     }
 
@@ -453,6 +488,8 @@ impl Inspector {
             score: f.score,
             threshold: f.threshold,
             message: f.message,
+            since: None,
+            evidence: Vec::new(),
         }
     }
 }
@@ -475,10 +512,19 @@ impl Reducer {
 }
 
 /// The log line of a flag: `layer 142: recoater streak across x = -40..95 mm at y = 12.3 mm
-/// (score 7.1, threshold 6.0, critical)`.
+/// (score 7.1, threshold 6.0, critical)`, with `, since layer N` for a flag that persists and
+/// `; also: …` for what the same cause explains.
 pub fn describe(layer: u32, flag: &Flag) -> String {
+    let since = flag
+        .since
+        .map_or(String::new(), |s| format!(", since layer {s}"));
+    let also = if flag.evidence.is_empty() {
+        String::new()
+    } else {
+        format!("; also: {}", flag.evidence.join("; "))
+    };
     format!(
-        "layer {layer}: {} (score {:.2}, threshold {:.2}, {})",
+        "layer {layer}: {} (score {:.2}, threshold {:.2}, {}{since}){also}",
         flag.message, flag.score, flag.threshold, flag.severity
     )
 }

@@ -1,6 +1,8 @@
-//! Inspection after the fact: the originals of a stored build (from its journal) or a folder of
-//! frames named as docs/frames.md says, decoded and rectified exactly as the daemon's worker does
-//! (the build's calibration, grid, interpolation and fill), inspected in layer order.
+//! Inspection after the fact: the originals of a stored build (from its journal), a folder of
+//! frames named as docs/frames.md says, or any folder of pictures (taken in name order as
+//! consecutive layers of one view), decoded and rectified exactly as the daemon's worker does
+//! (the build's calibration, grid, interpolation and fill), inspected in layer order. Without a
+//! calibration the frames are taken as top-down views ([`top_down`]).
 
 use super::Inspector;
 use crate::build_dir::inspection::InspectionRecord;
@@ -29,6 +31,139 @@ pub enum OfflineError {
     },
     #[error("{path}: no frames named L{{layer:05}}_{{phase}}_{{light}}.{{ext}} (docs/frames.md)")]
     NoFrames { path: PathBuf },
+    #[error("{path}: no pictures (.jpg, .jpeg, .png, .tif, .tiff, .nef) in the folder")]
+    NoPictures { path: PathBuf },
+    #[error("{path}: {count} pictures, more than the {max} layers a build can have")]
+    TooMany {
+        path: PathBuf,
+        count: usize,
+        max: u32,
+    },
+    #[error("--pixel-mm {0}: must be a finite number above 0")]
+    PixelSize(f64),
+}
+
+/// Extensions of the pictures a plain folder is read for (any case).
+const PICTURES: [&str; 6] = ["jpg", "jpeg", "png", "tif", "tiff", "nef"];
+
+/// Any folder of frames: named as docs/frames.md says when some are, else every picture in name
+/// order as layers 1, 2, … of `view`.
+pub fn any_frames(
+    dir: &Path,
+    view: crate::shot::View,
+) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+    match folder_frames(dir) {
+        Err(OfflineError::NoFrames { .. }) => plain_frames(dir, view),
+        other => other,
+    }
+}
+
+/// Every picture of a folder in name order, as consecutive layers of `view` from 1.
+pub fn plain_frames(
+    dir: &Path,
+    view: crate::shot::View,
+) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| OfflineError::Read {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let mut pictures: Vec<PathBuf> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_file())
+        .filter(|p| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| PICTURES.iter().any(|k| e.eq_ignore_ascii_case(k)))
+        })
+        .collect();
+    pictures.sort();
+    if pictures.is_empty() {
+        return Err(OfflineError::NoPictures {
+            path: dir.to_path_buf(),
+        });
+    }
+    if pictures.len() > crate::shot::MAX_LAYER as usize {
+        return Err(OfflineError::TooMany {
+            path: dir.to_path_buf(),
+            count: pictures.len(),
+            max: crate::shot::MAX_LAYER,
+        });
+    }
+    Ok(pictures
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let shot = Shot {
+                layer: i as u32 + 1,
+                phase: view.phase,
+                light: view.light,
+            };
+            (shot, p)
+        })
+        .collect())
+}
+
+/// Plate millimetres across the wider side of a frame taken as top-down without a pixel size:
+/// the plate's side (the frame is assumed to show about the plate). Only the sizes in mm of the
+/// report depend on it; the checks' scales (segments, widths, areas) follow it.
+pub const TOP_DOWN_SPAN_MM: f64 = 2.0 * crate::geometry::PLATE_HALF_MM;
+
+/// The calibration and grid of a frame of `width` x `height` pixels taken as a top-down view:
+/// the frame's centre at the build origin, x to the right, y up (docs/frames.md), `pixel_mm` a
+/// pixel (default: the wider side spans [`TOP_DOWN_SPAN_MM`]); the grid is the frame's own
+/// pixels.
+pub fn top_down(
+    width: u32,
+    height: u32,
+    pixel_mm: Option<f64>,
+) -> Result<(crate::rectify::Calibration, crate::geometry::Grid), OfflineError> {
+    let p = pixel_mm.unwrap_or(TOP_DOWN_SPAN_MM / f64::from(width.max(height).max(1)));
+    if !(p.is_finite() && p > 0.0) {
+        return Err(OfflineError::PixelSize(p));
+    }
+    let (w, h) = (f64::from(width) * p, f64::from(height) * p);
+    let build_from_image = crate::geometry::Homography::from_matrix([
+        [p, 0.0, -w / 2.0],
+        [0.0, -p, h / 2.0],
+        [0.0, 0.0, 1.0],
+    ]);
+    let grid = crate::geometry::Grid {
+        x_min: -w / 2.0,
+        x_max: w / 2.0,
+        y_min: -h / 2.0,
+        y_max: h / 2.0,
+        pixel_mm: p,
+    };
+    Ok((
+        crate::rectify::Calibration {
+            build_from_image,
+            distortion: None,
+            grid: Some(grid),
+            fit: None,
+        },
+        grid,
+    ))
+}
+
+/// The size of the first frame of `frames`, decoded.
+pub fn frame_size(frames: &BTreeMap<Shot, PathBuf>) -> Result<(u32, u32), OfflineError> {
+    let Some(path) = frames.values().next() else {
+        return Ok((0, 0));
+    };
+    let bytes = std::fs::read(path).map_err(|source| OfflineError::Read {
+        path: path.clone(),
+        source,
+    })?;
+    let luma =
+        crate::rectify::decode_frame_luma(&bytes).map_err(|source| OfflineError::Decode {
+            path: path.clone(),
+            source,
+        })?;
+    Ok(match luma {
+        crate::rectify::FrameLuma::Gamma8(g) => g.dimensions(),
+        crate::rectify::FrameLuma::Linear16(g) => g.dimensions(),
+    })
 }
 
 /// The first takes of a stored build, from its journal.

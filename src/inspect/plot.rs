@@ -51,6 +51,7 @@ pub fn kind_letter(kind: FlagKind) -> char {
     match kind {
         FlagKind::Streak => 'S',
         FlagKind::ShortFeed => 'F',
+        FlagKind::Coverage => 'C',
         FlagKind::Elevation => 'E',
         FlagKind::UnderFusion => 'U',
         FlagKind::OverFusion => 'O',

@@ -2,7 +2,7 @@
 //! a 100 x 100 mm grid at 0.5 mm.
 
 use super::*;
-use crate::config::inspection::InspectionConfig;
+use crate::config::inspection::{Axis, InspectionConfig};
 
 const N: usize = 200;
 
@@ -79,12 +79,12 @@ fn part_mask(f: &dyn Fn(f64, f64) -> bool) -> Mask {
 fn a_partial_streak_is_found_where_it_is_and_clean_powder_is_quiet() {
     let (g, c) = (grid(), cfg());
     for seed in 0..5 {
-        let (none, _) = detect::streaks(&g, &clean(seed), &all_valid(), &c);
+        let (none, _) = streak::streaks(&g, &clean(seed).mean, &all_valid(), Axis::X, &c);
         assert!(none.is_empty(), "seed {seed}: {none:?}");
     }
     let band = rect(-30.0, 12.0, 45.0, 13.0);
     let cells = view(3, &|_, _| false, &|x, y| if band(x, y) { 8.0 } else { 0.0 });
-    let (found, best) = detect::streaks(&g, &cells, &all_valid(), &c);
+    let (found, best) = streak::streaks(&g, &cells.mean, &all_valid(), Axis::X, &c);
     assert_eq!(found.len(), 1, "{found:?}");
     let [x0, y0, x1, y1] = detect::box_mm(&g, found[0].cells);
     assert!(
@@ -105,16 +105,16 @@ fn a_partial_streak_is_found_where_it_is_and_clean_powder_is_quiet() {
 fn a_short_fed_band_stands_out_against_earlier_layers() {
     let (g, c) = (grid(), cfg());
     let valid = all_valid();
-    let earlier: Vec<Profile> = (0..4)
-        .map(|s| detect::profile(&clean(s), &valid, c.recoat_axis))
+    let earlier: Vec<detect::Profile> = (0..4)
+        .map(|s| detect::profile(&clean(s), &valid, Axis::X))
         .collect();
-    let quiet = detect::profile(&clean(9), &valid, c.recoat_axis);
-    let (none, _) = detect::short_feed(&g, &valid, &quiet, &earlier, &c).unwrap();
+    let quiet = detect::profile(&clean(9), &valid, Axis::X);
+    let (none, _) = detect::short_feed(&g, &valid, &quiet, &earlier, Axis::X, &c).unwrap();
     assert!(none.is_empty(), "{none:?}");
-    assert!(detect::short_feed(&g, &valid, &quiet, &earlier[..2], &c).is_none());
+    assert!(detect::short_feed(&g, &valid, &quiet, &earlier[..2], Axis::X, &c).is_none());
     let short = view(9, &|_, _| false, &|x, _| if x > 30.0 { -8.0 } else { 0.0 });
-    let now = detect::profile(&short, &valid, c.recoat_axis);
-    let (found, _) = detect::short_feed(&g, &valid, &now, &earlier, &c).unwrap();
+    let now = detect::profile(&short, &valid, Axis::X);
+    let (found, _) = detect::short_feed(&g, &valid, &now, &earlier, Axis::X, &c).unwrap();
     assert_eq!(found.len(), 1, "{found:?}");
     let [x0, _, x1, _] = detect::box_mm(&g, found[0].cells);
     assert!((x0 - 30.0).abs() <= 1.0 && x1 >= 49.0, "{x0} {x1}");
@@ -214,20 +214,31 @@ fn the_inspector_waits_for_its_views_and_inspects_layers_in_order() {
         inspector.add(2, pre, clean(5), at).is_empty(),
         "done layers stay done"
     );
+    // The first layers are the bed's baseline; a streak that appears after them is flagged,
+    // and the same streak on the next layer persists.
+    inspector.add(3, pre, clean(6), at);
     let band = rect(-30.0, 12.0, 45.0, 13.0);
-    inspector.add(
-        3,
-        pre,
-        view(3, &|_, _| false, &|x, y| if band(x, y) { 6.0 } else { 0.0 }),
-        at,
-    );
+    let streaked = |seed| {
+        view(seed, &|_, _| false, &|x, y| {
+            if band(x, y) {
+                6.0
+            } else {
+                0.0
+            }
+        })
+    };
+    inspector.add(4, pre, streaked(7), at);
+    inspector.add(5, pre, streaked(8), at);
     let last = inspector.flush(at);
-    assert_eq!(last.len(), 1);
-    assert_eq!(last[0].flags.len(), 1);
-    let flag = &last[0].flags[0];
+    assert_eq!(last.len(), 3);
+    assert!(last[0].flags.is_empty(), "{:?}", last[0].flags);
+    assert_eq!(last[1].flags.len(), 1, "{:?}", last[1].flags);
+    assert_eq!(last[2].flags.len(), 1, "{:?}", last[2].flags);
+    assert_eq!(last[2].flags[0].since, Some(4));
+    let flag = &last[1].flags[0];
     assert_eq!(flag.kind, FlagKind::Streak);
     assert_eq!(flag.view, "pre_top");
-    assert!(describe(3, flag).starts_with("layer 3: recoater streak across x = "));
+    assert!(describe(4, flag).starts_with("layer 4: recoater streak across x = "));
     // Grid pixels of the series grid: rows of y = 12..13 mm.
     assert!(
         flag.bbox_px[1] >= 72 && flag.bbox_px[3] <= 77,

@@ -26,6 +26,7 @@ mod disk;
 mod flaws;
 mod fuzz_smoke;
 mod health;
+mod inspect_frames;
 mod inspection;
 mod lifecycle;
 mod pacs;

@@ -46,3 +46,23 @@ pub fn shared_cli(name: &str) -> std::path::PathBuf {
     );
     path
 }
+
+/// A class folder of the real powder-bed frames, `shared/data/real/pblm/<class>` (beside
+/// `$LAYERWISE_SHARED_DATA`'s cli folder when that is set); its pictures in name order. Fails
+/// when the folder is missing.
+pub fn shared_pblm(class: &str) -> Vec<std::path::PathBuf> {
+    let dir = shared_cli_dir().join("../real/pblm").join(class);
+    let mut pictures: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| {
+            panic!(
+                "test data {} is missing ({e}): put shared/ beside the checkout or set LAYERWISE_SHARED_DATA",
+                dir.display()
+            )
+        })
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg"))
+        .collect();
+    pictures.sort();
+    pictures
+}

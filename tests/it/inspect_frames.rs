@@ -1,0 +1,112 @@
+//! `layerwise inspect --frames` on a folder of plainly named real frames (shared/data/real/pblm:
+//! good layers, then layers the recoater scratched), with no calibration and no vectors, as a new
+//! user points it at a camera's folder; and `register points` for a calibration from points.
+
+use crate::common::{self, Run};
+use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
+
+#[test]
+fn inspect_takes_any_folder_of_frames_finds_the_axis_and_flags_the_scratched_layers() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().join("camera");
+    std::fs::create_dir(&dir).expect("dir");
+    let good = common::shared_pblm("No_Defect");
+    let scratched = common::shared_pblm("Powder_Uneven_With_Scratch");
+    let frames: Vec<_> = good.iter().chain(scratched.iter().take(8)).collect();
+    for (i, from) in frames.iter().enumerate() {
+        std::fs::copy(from, dir.join(format!("img {:03}.JPG", i + 1))).expect("copy");
+    }
+    std::fs::write(dir.join("notes.txt"), "not a frame").expect("note");
+    let out = common::layerwise()
+        .args(["inspect", "--json", "--frames"])
+        .arg(&dir)
+        .succeeds();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(
+            "no --calibration: the frames are taken as top-down views of 1024 x 1024 pixels"
+        ),
+        "{stderr}"
+    );
+    let records: Vec<InspectionRecord> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("record"))
+        .collect();
+    assert_eq!(records.len(), frames.len());
+    let flagged = |r: &InspectionRecord| r.flags.iter().any(|f| f.severity >= Severity::Warning);
+    let good_flagged = records[..good.len()].iter().filter(|r| flagged(r)).count();
+    assert!(good_flagged <= 1, "{:#?}", &records[..good.len()]);
+    assert!(records[..good.len()]
+        .iter()
+        .all(|r| r.flags.iter().all(|f| f.severity < Severity::Critical)));
+    for r in &records[good.len()..] {
+        assert!(
+            r.flags.iter().any(|f| f.kind == FlagKind::Streak),
+            "layer {}: {:#?}",
+            r.layer,
+            r.flags
+        );
+    }
+    let axis = records.last().and_then(|r| r.axis.clone()).expect("axis");
+    assert_eq!((axis.axis.as_str(), axis.source.as_str()), ("y", "found"));
+    let bed = records.iter().find_map(|r| r.bed.clone()).expect("bed");
+    assert!(
+        bed.area_mm2 > 0.5 * 275.0 * 275.0 && bed.area_mm2 < 0.98 * 275.0 * 275.0,
+        "{bed:?}"
+    );
+
+    // The text report says what was found, and a persisting streak is one flag.
+    let text = common::layerwise()
+        .args(["inspect", "--frames"])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(
+        text.contains("recoater axis found from the frames: y"),
+        "{text}"
+    );
+    assert!(text.contains("recoater axis y (found)"), "{text}");
+    assert!(text.contains("times a flag persisted"), "{text}");
+}
+
+#[test]
+fn register_points_writes_a_calibration_and_reports_residuals() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let points = tmp.path().join("points.txt");
+    std::fs::write(
+        &points,
+        "# u v x y\n0 0 -137.5 137.5\n1024 0 137.5 137.5\n1024 1024 137.5 -137.5\n0 1024 -137.5 -137.5\n512 512 0.4 0\n",
+    )
+    .expect("points");
+    let out_path = tmp.path().join("calibration.toml");
+    let text = common::layerwise()
+        .args(["register", "points", "--points"])
+        .arg(&points)
+        .arg("--out")
+        .arg(&out_path)
+        .stdout_ok();
+    assert!(text.contains("line 6"), "{text}");
+    assert!(text.contains("5 points: rms"), "{text}");
+    let calibration = layerwise::rectify::Calibration::load(&out_path).expect("loads");
+    let (x, y) = calibration
+        .build_from_image
+        .apply(256.0, 256.0)
+        .expect("in front");
+    assert!(
+        (x + 68.75).abs() < 0.5 && (y - 68.75).abs() < 0.5,
+        "{x} {y}"
+    );
+    // Three points are refused with the file and the fix named.
+    std::fs::write(&points, "0 0 0 0\n1 0 1 0\n0 1 0 1\n").expect("points");
+    let refused = common::layerwise()
+        .args(["register", "points", "--points"])
+        .arg(&points)
+        .arg("--out")
+        .arg(&out_path)
+        .output()
+        .expect("runs");
+    let err = common::assert_exit_1(&refused);
+    assert!(
+        err.contains("points.txt") && err.contains("at least 4"),
+        "{err}"
+    );
+}
