@@ -11,7 +11,7 @@ use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
 use layerwise::config::inspection::InspectionConfig;
 use layerwise::inspect::{offline, Inspector};
 use layerwise::rectify::Rectifier;
-use layerwise::shot::{Light, Phase, Shot, View};
+use layerwise::shot::{Light, Phase, View};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
@@ -40,18 +40,7 @@ fn inspect(paths: &[PathBuf]) -> Vec<InspectionRecord> {
         phase: Phase::Pre,
         light: Light::Top,
     };
-    let frames: BTreeMap<Shot, PathBuf> = paths
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let shot = Shot {
-                layer: i as u32 + 1,
-                phase: view.phase,
-                light: view.light,
-            };
-            (shot, p.clone())
-        })
-        .collect();
+    let frames = offline::as_layers(paths, view);
     let (w, h) = offline::frame_size(&frames).expect("first frame");
     let (calibration, grid) = offline::top_down(w, h, None).expect("top-down");
     let rectifier =

@@ -90,8 +90,13 @@ pub fn plain_frames(
             max: crate::shot::MAX_LAYER,
         });
     }
-    Ok(pictures
-        .into_iter()
+    Ok(as_layers(&pictures, view))
+}
+
+/// `pictures` as consecutive layers of `view` from 1, in the order given.
+pub fn as_layers(pictures: &[PathBuf], view: crate::shot::View) -> BTreeMap<Shot, PathBuf> {
+    pictures
+        .iter()
         .enumerate()
         .map(|(i, p)| {
             let shot = Shot {
@@ -99,9 +104,9 @@ pub fn plain_frames(
                 phase: view.phase,
                 light: view.light,
             };
-            (shot, p)
+            (shot, p.clone())
         })
-        .collect())
+        .collect()
 }
 
 /// Plate millimetres across the wider side of a frame taken as top-down without a pixel size:
