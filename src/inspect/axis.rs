@@ -13,6 +13,8 @@ use crate::config::inspection::{Axis, RecoatAxis};
 
 /// Evidence at which the axis is decided (each layer adds at most 1 in size).
 pub const DECIDE: f64 = 3.0;
+/// A layer's evidence smaller than this counts as none.
+const DEAD_ZONE: f64 = 0.2;
 /// Below this a layer's own evidence says little, and streaks found along one axis vote.
 const QUIET: f64 = 0.25;
 /// Layers seen before a decision.
@@ -101,6 +103,13 @@ impl AxisFinder {
             (0, n) if n > 0 => 1.0,
             (n, 0) if n > 0 => -1.0,
             _ => 0.0,
+        };
+        // A layer whose marks barely lean one way tells nothing: the grain's own texture, or
+        // the resampling of an oblique view, can lean a little, the same way every layer.
+        let evidence = if evidence.abs() < DEAD_ZONE {
+            0.0
+        } else {
+            evidence
         };
         if self.found.is_none() {
             self.evidence += evidence + streak_vote;
