@@ -5,6 +5,10 @@
 //! `Plateform_Powder_Uneven` frames as a sequence of their own. Prints the table of
 //! docs/inspection.md: per class, layers flagged (any severity, critical) and by kind.
 //!
+//! Then the same sequences with the good frames and each class in reverse name order: each layer
+//! follows other layers than the ones it was developed against, and with the good layers, the
+//! largest score / threshold any check reached on them (how near a false alarm they came).
+//!
 //! `cargo run --release --example inspect_real [-- DATA_DIR [--json OUT_DIR]]`
 
 use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
@@ -109,6 +113,90 @@ fn row(name: &str, c: &Count) -> String {
     )
 }
 
+/// One table: the good frames (then each class) as sequences, in name order or reversed.
+struct Table {
+    rows: Vec<String>,
+    notes: Vec<String>,
+    ms: Vec<f64>,
+}
+
+/// The largest score / threshold of any flag kind on the good layers, and the flags there.
+fn good_margin(records: &[&InspectionRecord]) -> String {
+    let mut worst: BTreeMap<FlagKind, f64> = BTreeMap::new();
+    for f in records.iter().flat_map(|r| &r.flags) {
+        let ratio = f.score / f.threshold;
+        let w = worst.entry(f.kind).or_insert(ratio);
+        *w = w.max(ratio);
+    }
+    if worst.is_empty() {
+        return "no flag at any severity".into();
+    }
+    worst
+        .iter()
+        .map(|(k, r)| format!("{k} score/threshold up to {r:.2}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn sequences(data: &Path, good: &[PathBuf], reversed: bool, json: Option<&Path>) -> Table {
+    let mut good = good.to_vec();
+    if reversed {
+        good.reverse();
+    }
+    let mut table = Table {
+        rows: Vec::new(),
+        notes: Vec::new(),
+        ms: Vec::new(),
+    };
+    for class in CLASSES {
+        let mut frames = pictures(&data.join(class));
+        if reversed {
+            frames.reverse();
+        }
+        let sequence: Vec<PathBuf> = good.iter().chain(&frames).cloned().collect();
+        let records = inspect(&sequence);
+        if let Some(dir) = json {
+            std::fs::create_dir_all(dir).expect("json dir");
+            let text: String = records
+                .iter()
+                .map(|r| serde_json::to_string(r).expect("json") + "\n")
+                .collect();
+            let name = format!("{class}{}.jsonl", if reversed { "-reversed" } else { "" });
+            std::fs::write(dir.join(name), text).expect("write");
+        }
+        table.ms.extend(records.iter().map(|r| r.ms));
+        let (before, after): (Vec<&InspectionRecord>, Vec<&InspectionRecord>) =
+            records.iter().partition(|r| r.layer as usize <= good.len());
+        // The good layers open every sequence the same way (inspection looks only back): one
+        // row, the first sequence's.
+        if table.rows.is_empty() {
+            table.rows.push(row(
+                &format!("{GOOD} (layers 1..{})", good.len()),
+                &count(&before),
+            ));
+            table
+                .notes
+                .push(format!("{GOOD}: {}", good_margin(&before)));
+        }
+        table.rows.push(row(
+            &format!("{class} (layers {}..)", good.len() + 1),
+            &count(&after),
+        ));
+        let axis = records.last().and_then(|r| r.axis.clone());
+        let decided = records
+            .iter()
+            .find(|r| r.axis.as_ref().is_some_and(|a| a.source != "undetermined"))
+            .map(|r| r.layer);
+        table.notes.push(format!(
+            "{class}: recoater axis {} ({}) from layer {}",
+            axis.as_ref().map_or("-", |a| a.axis.as_str()),
+            axis.as_ref().map_or("-", |a| a.source.as_str()),
+            decided.map_or("-".into(), |l| l.to_string())
+        ));
+    }
+    table
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let data = args
@@ -121,68 +209,41 @@ fn main() {
         .position(|a| a == "--json")
         .and_then(|i| args.get(i + 1))
         .map(PathBuf::from);
+    let mut platform_detail = None;
     let good = pictures(&data.join(GOOD));
     let started = std::time::Instant::now();
-    let mut rows = Vec::new();
-    let mut good_counts = Vec::new();
-    let mut axes = Vec::new();
     let mut ms = Vec::new();
-    for class in CLASSES {
-        let frames = pictures(&data.join(class));
-        let sequence: Vec<PathBuf> = good.iter().chain(&frames).cloned().collect();
-        let records = inspect(&sequence);
-        if let Some(dir) = &json {
-            std::fs::create_dir_all(dir).expect("json dir");
-            let text: String = records
-                .iter()
-                .map(|r| serde_json::to_string(r).expect("json") + "\n")
-                .collect();
-            std::fs::write(dir.join(format!("{class}.jsonl")), text).expect("write");
+    // The same frames as another sequence: every class and the good frames in reverse name
+    // order, so each layer follows other layers than the ones it was looked at after.
+    for (order, reversed) in [("name order", false), ("reversed name order", true)] {
+        let table = sequences(&data, &good, reversed, json.as_deref());
+        ms.extend(table.ms);
+        println!("frames in {order}:");
+        println!(
+            "| frames (sequence: {} good layers, then the class) | layers | flagged (any) | critical | by kind (layers) |",
+            good.len()
+        );
+        println!("| --- | --- | --- | --- | --- |");
+        for r in &table.rows {
+            println!("{r}");
         }
-        ms.extend(records.iter().map(|r| r.ms));
-        let (before, after): (Vec<&InspectionRecord>, Vec<&InspectionRecord>) =
-            records.iter().partition(|r| r.layer as usize <= good.len());
-        good_counts.push(count(&before));
-        rows.push(row(
-            &format!("{class} (layers {}..)", good.len() + 1),
-            &count(&after),
-        ));
-        let axis = records.last().and_then(|r| r.axis.clone());
-        let decided = records
-            .iter()
-            .find(|r| r.axis.as_ref().is_some_and(|a| a.source != "undetermined"))
-            .map(|r| r.layer);
-        axes.push(format!(
-            "{class}: recoater axis {} ({}) from layer {}",
-            axis.as_ref().map_or("-", |a| a.axis.as_str()),
-            axis.as_ref().map_or("-", |a| a.source.as_str()),
-            decided.map_or("-".into(), |l| l.to_string())
-        ));
+        if !reversed {
+            let platform = pictures(&data.join(PLATFORM));
+            let records = inspect(&platform);
+            let all: Vec<&InspectionRecord> = records.iter().collect();
+            println!(
+                "{}",
+                row(&format!("{PLATFORM} (a build of its own)"), &count(&all))
+            );
+            platform_detail = Some((platform, records));
+        }
+        println!();
+        for a in &table.notes {
+            println!("{order}: {a}");
+        }
+        println!();
     }
-    println!("| frames (sequence: {} good layers, then the class) | layers | flagged (any) | critical | by kind (layers) |", good.len());
-    println!("| --- | --- | --- | --- | --- |");
-    // The good layers open every sequence the same way: one row (the first sequence's).
-    println!(
-        "{}",
-        row(
-            &format!("{GOOD} (layers 1..{})", good.len()),
-            &good_counts[0]
-        )
-    );
-    for r in &rows {
-        println!("{r}");
-    }
-    let platform = pictures(&data.join(PLATFORM));
-    let records = inspect(&platform);
-    let all: Vec<&InspectionRecord> = records.iter().collect();
-    println!(
-        "{}",
-        row(&format!("{PLATFORM} (a build of its own)"), &count(&all))
-    );
-    println!();
-    for a in &axes {
-        println!("{a}");
-    }
+    let (platform, records) = platform_detail.expect("name order ran");
     for r in &records {
         let flags: Vec<String> = r
             .flags

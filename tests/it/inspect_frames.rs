@@ -68,6 +68,66 @@ fn inspect_takes_any_folder_of_frames_finds_the_axis_and_flags_the_scratched_lay
     assert!(text.contains("times a flag persisted"), "{text}");
 }
 
+/// An explicit `recoat_axis` is honoured, and the frames disagreeing with it is said once, at
+/// warning level, in the report and in the records.
+#[test]
+fn a_configured_recoater_axis_is_honoured_and_a_disagreement_is_warned_about() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().join("camera");
+    std::fs::create_dir(&dir).expect("dir");
+    for (i, from) in common::shared_pblm("No_Defect").iter().enumerate() {
+        std::fs::copy(from, dir.join(format!("frame-{i:02}.jpg"))).expect("copy");
+    }
+    let shipped = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/layerwise.toml"),
+    )
+    .expect("config/layerwise.toml");
+    assert!(shipped.contains("recoat_axis = \"auto\""), "the default");
+    let config = tmp.path().join("layerwise.toml");
+    std::fs::write(
+        &config,
+        shipped.replace("recoat_axis = \"auto\"", "recoat_axis = \"x\""),
+    )
+    .expect("config");
+    let run = |json: bool| {
+        let mut cmd = common::layerwise();
+        cmd.args(["inspect", "--frames"])
+            .arg(&dir)
+            .arg("--config")
+            .arg(&config);
+        if json {
+            cmd.arg("--json");
+        }
+        cmd.stdout_ok()
+    };
+    let text = run(false);
+    let warning =
+        "recoat_axis = \"x\" is configured but the frames' streaks and recoating marks run along y";
+    assert_eq!(text.matches(warning).count(), 1, "{text}");
+    assert!(text.contains("recoater axis x (configured)"), "{text}");
+    let records: Vec<InspectionRecord> = run(true)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("record"))
+        .collect();
+    let warned: Vec<u32> = records
+        .iter()
+        .filter(|r| {
+            r.notes
+                .iter()
+                .any(|n| n.level == "warn" && n.message.contains(warning))
+        })
+        .map(|r| r.layer)
+        .collect();
+    assert_eq!(warned.len(), 1, "{warned:?}");
+    for r in &records {
+        let axis = r.axis.as_ref().expect("axis recorded");
+        assert_eq!(
+            (axis.axis.as_str(), axis.source.as_str()),
+            ("x", "configured")
+        );
+    }
+}
+
 #[test]
 fn register_points_writes_a_calibration_and_reports_residuals() {
     let tmp = tempfile::tempdir().expect("tmp");
