@@ -23,6 +23,18 @@ use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// CPU seconds this process has used (all threads): on a machine shared with other builds the
+/// wall time of a step grows with the load, its CPU time much less.
+fn cpu_seconds() -> f64 {
+    // SAFETY: getrusage only writes the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return f64::NAN;
+    }
+    let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    seconds(usage.ru_utime) + seconds(usage.ru_stime)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
@@ -152,21 +164,26 @@ fn main() {
     let reducer = inspector.reducer();
     let mut reduce = Vec::new();
     let mut inspect = Vec::new();
+    let (mut reduce_cpu, mut inspect_cpu) = (Vec::new(), Vec::new());
     let at = chrono::Utc::now();
     for layer in 1..=(2 * rounds) {
         let t = Instant::now();
+        let c = cpu_seconds();
         let cells: Vec<_> = rectified
             .par_iter()
             .filter(|(view, _)| reducer.needs(*view))
             .map(|(view, luma)| (*view, reducer.cells(luma)))
             .collect();
         reduce.push(t.elapsed().as_secs_f64());
+        reduce_cpu.push(cpu_seconds() - c);
         let t = Instant::now();
+        let c = cpu_seconds();
         let mut records = Vec::new();
         for (view, cells) in cells {
             records.extend(inspector.add(layer, view, cells, at));
         }
         inspect.push(t.elapsed().as_secs_f64());
+        inspect_cpu.push(cpu_seconds() - c);
         assert_eq!(records.len(), 1);
     }
     println!(
@@ -174,6 +191,12 @@ fn main() {
         median(reduce.clone()),
         median(inspect.clone()),
         median(reduce) + median(inspect)
+    );
+    println!(
+        "  CPU time per layer (all threads): reduce {:.3} s + inspect {:.3} s = {:.3} s",
+        median(reduce_cpu.clone()),
+        median(inspect_cpu.clone()),
+        median(reduce_cpu) + median(inspect_cpu)
     );
 
     // In the worker: the same layer through the live series, without and with inspection.
