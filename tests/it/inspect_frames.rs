@@ -1,21 +1,38 @@
 //! `layerwise inspect --frames` on a folder of plainly named real frames (shared/data/real/pblm:
-//! good layers, then layers the recoater scratched), with no calibration and no vectors, as a new
-//! user points it at a camera's folder; and `register points` for a calibration from points.
+//! good layers, then layers the recoater scratched or spread unevenly), with no calibration and
+//! no vectors, as a new user points it at a camera's folder; a configured recoater axis the frames
+//! disagree with; and `register points` for a calibration from points.
 
 use crate::common::{self, Run};
 use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
+use std::path::{Path, PathBuf};
+
+/// A camera's folder in `tmp`: the good frames, then the first 8 frames of `class`, copied under
+/// plain names in that order. Returns the folder, how many good frames open it and how many
+/// frames it holds.
+fn camera_folder(tmp: &Path, class: Option<&str>) -> (PathBuf, usize, usize) {
+    let good = common::shared_pblm("No_Defect");
+    let then = class.map(common::shared_pblm).unwrap_or_default();
+    let frames: Vec<_> = good.iter().chain(then.iter().take(8)).collect();
+    let dir = tmp.join("camera");
+    std::fs::create_dir(&dir).expect("dir");
+    for (i, from) in frames.iter().enumerate() {
+        std::fs::copy(from, dir.join(format!("img {:03}.JPG", i + 1))).expect("copy");
+    }
+    (dir, good.len(), frames.len())
+}
+
+fn records_of(stdout: &[u8]) -> Vec<InspectionRecord> {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("record"))
+        .collect()
+}
 
 #[test]
 fn inspect_takes_any_folder_of_frames_finds_the_axis_and_flags_the_scratched_layers() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let dir = tmp.path().join("camera");
-    std::fs::create_dir(&dir).expect("dir");
-    let good = common::shared_pblm("No_Defect");
-    let scratched = common::shared_pblm("Powder_Uneven_With_Scratch");
-    let frames: Vec<_> = good.iter().chain(scratched.iter().take(8)).collect();
-    for (i, from) in frames.iter().enumerate() {
-        std::fs::copy(from, dir.join(format!("img {:03}.JPG", i + 1))).expect("copy");
-    }
+    let (dir, good, total) = camera_folder(tmp.path(), Some("Powder_Uneven_With_Scratch"));
     std::fs::write(dir.join("notes.txt"), "not a frame").expect("note");
     let out = common::layerwise()
         .args(["inspect", "--json", "--frames"])
@@ -28,18 +45,15 @@ fn inspect_takes_any_folder_of_frames_finds_the_axis_and_flags_the_scratched_lay
         ),
         "{stderr}"
     );
-    let records: Vec<InspectionRecord> = String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("record"))
-        .collect();
-    assert_eq!(records.len(), frames.len());
+    let records = records_of(&out.stdout);
+    assert_eq!(records.len(), total);
     let flagged = |r: &InspectionRecord| r.flags.iter().any(|f| f.severity >= Severity::Warning);
-    let good_flagged = records[..good.len()].iter().filter(|r| flagged(r)).count();
-    assert!(good_flagged <= 1, "{:#?}", &records[..good.len()]);
-    assert!(records[..good.len()]
+    let good_flagged = records[..good].iter().filter(|r| flagged(r)).count();
+    assert!(good_flagged <= 1, "{:#?}", &records[..good]);
+    assert!(records[..good]
         .iter()
         .all(|r| r.flags.iter().all(|f| f.severity < Severity::Critical)));
-    for r in &records[good.len()..] {
+    for r in &records[good..] {
         assert!(
             r.flags.iter().any(|f| f.kind == FlagKind::Streak),
             "layer {}: {:#?}",
@@ -68,16 +82,51 @@ fn inspect_takes_any_folder_of_frames_finds_the_axis_and_flags_the_scratched_lay
     assert!(text.contains("times a flag persisted"), "{text}");
 }
 
+/// Uneven spreading as it looks on real frames (a strip along the bed's left edge where the powder
+/// is thin) is a coverage flag at critical level where the strip is, continued as one flag.
+#[test]
+fn uneven_spreading_on_real_frames_is_flagged_as_coverage_where_it_is() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let (dir, good, total) = camera_folder(tmp.path(), Some("Powder_Uneven"));
+    let out = common::layerwise()
+        .args(["inspect", "--json", "--frames"])
+        .arg(&dir)
+        .succeeds();
+    let records = records_of(&out.stdout);
+    assert_eq!(records.len(), total);
+    let (before, after) = records.split_at(good);
+    assert!(
+        before
+            .iter()
+            .all(|r| r.flags.iter().all(|f| f.kind != FlagKind::Coverage)),
+        "{before:#?}"
+    );
+    // On the strip: the left fifth of the 275 mm plate.
+    let on_strip = |r: &InspectionRecord| {
+        r.flags.iter().any(|f| {
+            f.kind == FlagKind::Coverage && f.severity == Severity::Critical && f.bbox_mm[2] < -80.0
+        })
+    };
+    let found = after.iter().filter(|r| on_strip(r)).count();
+    assert!(
+        found * 10 >= after.len() * 8,
+        "{found} of {}: {after:#?}",
+        after.len()
+    );
+    let continued = after
+        .iter()
+        .flat_map(|r| &r.flags)
+        .filter(|f| f.kind == FlagKind::Coverage && f.since.is_some())
+        .count();
+    assert!(continued > 0, "{after:#?}");
+}
+
 /// An explicit `recoat_axis` is honoured, and the frames disagreeing with it is said once, at
 /// warning level, in the report and in the records.
 #[test]
 fn a_configured_recoater_axis_is_honoured_and_a_disagreement_is_warned_about() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let dir = tmp.path().join("camera");
-    std::fs::create_dir(&dir).expect("dir");
-    for (i, from) in common::shared_pblm("No_Defect").iter().enumerate() {
-        std::fs::copy(from, dir.join(format!("frame-{i:02}.jpg"))).expect("copy");
-    }
+    let (dir, _, _) = camera_folder(tmp.path(), None);
     let shipped = std::fs::read_to_string(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/layerwise.toml"),
     )
@@ -105,10 +154,7 @@ fn a_configured_recoater_axis_is_honoured_and_a_disagreement_is_warned_about() {
         "recoat_axis = \"x\" is configured but the frames' streaks and recoating marks run along y";
     assert_eq!(text.matches(warning).count(), 1, "{text}");
     assert!(text.contains("recoater axis x (configured)"), "{text}");
-    let records: Vec<InspectionRecord> = run(true)
-        .lines()
-        .map(|l| serde_json::from_str(l).expect("record"))
-        .collect();
+    let records = records_of(run(true).as_bytes());
     let warned: Vec<u32> = records
         .iter()
         .filter(|r| {
