@@ -326,7 +326,8 @@ fn serve_answers_the_page_json_pictures_and_events_and_nothing_outside_the_build
 fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("build");
-    let config = injected_config(&dir, 4, &["streak@2/y=-60/w=3/c=30", "no-fusion@3/part=3"]);
+    // The first three layers are the bed's reference: a streak is judged from layer 4 on.
+    let config = injected_config(&dir, 6, &["streak@4/y=-60/w=3/c=30", "no-fusion@5/part=3"]);
     let config_path = tmp.path().join("layerwise.toml");
     write_config(&config, &config_path);
     run_build(&config_path);
@@ -342,7 +343,7 @@ fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
         .map(|l| l["worst"].as_str().unwrap_or("").to_string())
         .collect();
     assert_eq!(worst[0], "", "{worst:?}");
-    assert!(!worst[1].is_empty() && !worst[2].is_empty(), "{worst:?}");
+    assert!(!worst[3].is_empty() && !worst[4].is_empty(), "{worst:?}");
 
     let clean = get_json(addr, "/api/layers/1");
     assert_eq!(clean["inspection"], serde_json::json!([]), "{clean}");
@@ -378,7 +379,7 @@ fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
         }
     };
 
-    let streaky = get_json(addr, "/api/layers/2");
+    let streaky = get_json(addr, "/api/layers/4");
     let streak = streaky["inspection"]
         .as_array()
         .unwrap()
@@ -399,7 +400,7 @@ fn the_layer_detail_outlines_inspection_flags_in_picture_fractions() {
         serde_json::json!(["pre_front", "pre_side", "pre_top"])
     );
 
-    let unfused = get_json(addr, "/api/layers/3");
+    let unfused = get_json(addr, "/api/layers/5");
     let flag = unfused["inspection"]
         .as_array()
         .unwrap()
