@@ -134,10 +134,13 @@ fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), Acqu
         let target = dir.join(build_dir::CALIBRATION_COPY);
         let same = std::fs::canonicalize(calibration).ok() == std::fs::canonicalize(&target).ok();
         if !same {
-            let bytes = std::fs::read(calibration).map_err(|source| WriteError {
-                path: calibration.clone(),
-                source,
-            })?;
+            // The calibration as `run` checked it: a regular file of a calibration's size
+            // (rectify::Calibration::load takes at most 1 MiB).
+            let bytes =
+                crate::fsutil::read_bounded(calibration, 1 << 20).map_err(|source| WriteError {
+                    path: calibration.clone(),
+                    source,
+                })?;
             storage.write_atomic(&target, &bytes)?;
         }
     }

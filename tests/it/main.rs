@@ -38,6 +38,7 @@ mod renderer2;
 mod serial_trigger;
 mod soak;
 mod systemd;
+mod trusted_files;
 mod tsdf;
 mod tutorial;
 mod vectors;
