@@ -29,6 +29,7 @@ mod health;
 mod inspection;
 mod lifecycle;
 mod pacs;
+mod pacs_push;
 mod raster;
 #[cfg(feature = "nef")]
 mod raw_frames;
