@@ -117,11 +117,15 @@ pub fn outcome(status: u16, comment: Option<&str>) -> Outcome {
 
 impl Sender for CStoreClient {
     fn send(&mut self, batch: &[Instance], deadline: Duration) -> Result<Vec<Outcome>, Unfinished> {
-        // The exchange runs on a runtime of its own, on this thread, so that a deadline can end
+        // The exchange runs on a runtime of its own, from this thread, so that a deadline can end
         // it wherever it waits: dropping the association's future closes its socket (a blocking
         // read cannot be ended, and an archive trickling one byte at a time never lets a read
         // timeout fire).
-        let runtime = tokio::runtime::Builder::new_current_thread()
+        // (Multi-threaded, one worker: dicom-ul's P-DATA writer flushes on drop through
+        // `block_in_place`, which a current-thread runtime refuses.)
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name(format!("pacs-cstore-{}", self.called_ae))
             .enable_io()
             .enable_time()
             .build()
