@@ -84,6 +84,56 @@ pub fn is_temporary(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
 }
 
+/// The process id a temporary file's name (`.NAME.PID.N.tmp`) carries, if it is one of ours.
+fn temporary_pid(name: &str) -> Option<i32> {
+    if !is_temporary(name) {
+        return None;
+    }
+    let mut parts = name.trim_end_matches(".tmp").rsplit('.');
+    let _n: u64 = parts.next()?.parse().ok()?;
+    parts.next()?.parse().ok()
+}
+
+/// Removes the temporary files in `dir` that a process which no longer runs left (a kill -9
+/// between writing and renaming): ours by their name (`.NAME.PID.N.tmp`), regular files only,
+/// never a link; those of a process still running are its own to finish. Returns their names.
+pub fn remove_stale_temporaries(dir: &Path) -> std::io::Result<Vec<String>> {
+    let mut removed = Vec::new();
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(removed),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = temporary_pid(&name) else {
+            continue;
+        };
+        if !entry.file_type()?.is_file() || process_runs(pid) {
+            continue;
+        }
+        match std::fs::remove_file(entry.path()) {
+            Ok(()) => removed.push(name),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(removed)
+}
+
+/// Whether process `pid` exists (another user's too). This process counts as not running: a
+/// restart looks before it writes there, and a daemon that is PID 1 in its container has the
+/// same id as the one killed before it.
+fn process_runs(pid: i32) -> bool {
+    if pid <= 0 || pid as u32 == std::process::id() {
+        return false;
+    }
+    // SAFETY: kill with signal 0 sends nothing; it only checks that the process exists.
+    let result = unsafe { libc::kill(pid, 0) };
+    result == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
 /// Creates a new temporary file next to `path`: `.NAME.PID.N.tmp`, opened with `O_EXCL` and
 /// `O_NOFOLLOW`, so a file or symlink planted under that name is never written through.
 fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
@@ -394,6 +444,49 @@ mod tests {
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
         assert_eq!(names, ["a.txt"]);
+    }
+
+    #[test]
+    fn stale_temporaries_go_those_of_a_running_process_and_other_files_stay() {
+        let dir = tempfile::tempdir().unwrap();
+        let dead = {
+            let mut child = std::process::Command::new("true").spawn().unwrap();
+            child.wait().unwrap();
+            child.id()
+        };
+        let stale = format!(".L00007.dcm.{dead}.3.tmp");
+        // PID 1 always runs.
+        let running = ".L00008.dcm.1.0.tmp";
+        for name in [
+            stale.as_str(),
+            running,
+            "L00007.dcm",
+            ".hidden.tmp",
+            "x.tmp",
+        ] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        let link = format!(".L00009.dcm.{dead}.0.tmp");
+        std::os::unix::fs::symlink(dir.path().join("L00007.dcm"), dir.path().join(&link)).unwrap();
+        assert_eq!(remove_stale_temporaries(dir.path()).unwrap(), [stale]);
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                ".L00008.dcm.1.0.tmp",
+                &link,
+                ".hidden.tmp",
+                "L00007.dcm",
+                "x.tmp"
+            ]
+        );
+        assert!(remove_stale_temporaries(&dir.path().join("absent"))
+            .unwrap()
+            .is_empty());
     }
 
     #[test]

@@ -36,6 +36,13 @@ pub trait FrameProcessor: Send + Sync {
     /// Called once by the processing worker when it ends (drained or stopped): a processor with
     /// threads of its own (the inspection's alarm) stops them here.
     fn finish(&self) {}
+
+    /// Frames already processed that this processor wants again before new ones, with their
+    /// take and the journal's file (the inspection's layers a stop left uninspected): the
+    /// worker processes them first, with the backlog.
+    fn catch_up(&self) -> Vec<(Shot, u32, String)> {
+        Vec::new()
+    }
 }
 
 /// Keeps originals only.

@@ -124,11 +124,16 @@ pub fn run(
     trigger.resume_after(progress.last_event);
     let trigger_health = trigger.health();
 
-    let backlog = progress.take_backlog(config.series.take);
+    let mut backlog = progress.take_backlog(config.series.take);
     let processor = match options.processor.take() {
         Some(p) => p,
         None => default_processor(config, &manifest, (alarm, alarm_message), &clock)?,
     };
+    // What the processor wants again (layers a stop left uninspected) goes first, in build
+    // order with the backlog, so that layers complete in order.
+    backlog.extend(processor.catch_up());
+    backlog.sort_by_key(|a| (a.0, a.1));
+    backlog.dedup_by(|a, b| (a.0, a.1) == (b.0, b.1));
     let journal = Arc::new(Mutex::new(journal));
     let queue = ProcessingQueue::start(
         processor,

@@ -36,6 +36,7 @@ mod raw_frames;
 mod register_ct_cli;
 mod registration;
 mod renderer2;
+mod restart;
 mod serial_trigger;
 mod soak;
 mod systemd;
