@@ -132,10 +132,10 @@ pub struct RectifyArgs {
     #[arg(long)]
     out: PathBuf,
     /// The layer (DICOM InstanceNumber; z = layer x layer thickness).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = super::values::layer)]
     layer: u32,
     /// Layer thickness in mm, for the slice's z.
-    #[arg(long, default_value_t = 0.03)]
+    #[arg(long, default_value_t = 0.03, value_parser = super::values::layer_thickness_mm)]
     layer_thickness_mm: f64,
     /// The configuration whose [rectify] grid to use (default: the built-in plate grid).
     #[arg(long, conflicts_with = "build")]

@@ -13,6 +13,7 @@
 mod common;
 
 mod architecture;
+mod argument_values;
 mod bounded_inputs;
 mod cli;
 #[cfg(feature = "testkit")]
