@@ -262,6 +262,14 @@ impl DicomCommand {
                 print!("{s}");
             }
         }
+        let unsound = series.iter().filter(|s| !s.problems.is_empty()).count();
+        if unsound > 0 {
+            anyhow::bail!(
+                "{unsound} of {} series have problems (PROBLEM above): their geometry or pixels \
+                 cannot be trusted; fix or re-export them",
+                series.len()
+            );
+        }
         Ok(())
     }
 }
