@@ -63,9 +63,12 @@ pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
     build_dir.join(DICOM_DIR).join(view.to_string())
 }
 
+/// The extensions an original may have (camera JPEG, raw NEF, PNG and TIFF frames).
+pub const FRAME_EXTENSIONS: [&str; 5] = ["jpg", "jpeg", "nef", "png", "tif"];
+
 /// The stored original of a shot (first take), whatever its extension, if it is on disk.
 pub fn original_path(build_dir: &Path, shot: &crate::shot::Shot) -> Option<PathBuf> {
-    original::FRAME_EXTENSIONS
+    FRAME_EXTENSIONS
         .iter()
         .map(|ext| build_dir.join(format!("{RAW_DIR}/{}.{ext}", shot.stem())))
         .find(|p| p.exists())

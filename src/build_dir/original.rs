@@ -8,8 +8,7 @@ use super::{read_record_file, Sidecar, RAW_DIR};
 use crate::shot::Shot;
 use std::path::{Path, PathBuf};
 
-/// The extensions an original can have (what cameras deliver).
-pub const FRAME_EXTENSIONS: [&str; 5] = ["jpg", "jpeg", "nef", "png", "tif"];
+pub use super::FRAME_EXTENSIONS;
 
 #[derive(Debug, thiserror::Error)]
 pub enum OriginalError {

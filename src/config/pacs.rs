@@ -85,33 +85,43 @@ pub const MAX_BACKOFF_MS: u64 = 3_600_000;
 /// Checks a STOW-RS URL: printable (no space, CR, LF or other control character: it goes into
 /// the request line), a URL of http or https with a host, no credentials (a password in a URL
 /// ends up in logs: give it in `secret_file`), no fragment.
-pub fn check_stow_url(url: &str) -> Result<url::Url, String> {
+pub fn check_stow_url(url: &str) -> Result<url::Url, Invalid> {
     if let Some(c) = url.chars().find(|c| c.is_whitespace() || c.is_control()) {
-        return Err(format!(
-            "holds {} (a space, CR, LF or control character): a URL has none",
-            c.escape_unicode()
+        return Err(Invalid::new(
+            "url",
+            format!(
+                "holds {} (a space, CR, LF or control character): a URL has none",
+                c.escape_unicode()
+            ),
         ));
     }
-    let parsed = url::Url::parse(url).map_err(|e| format!("is not a URL ({e})"))?;
+    let parsed =
+        url::Url::parse(url).map_err(|e| Invalid::new("url", format!("is not a URL ({e})")))?;
     if !matches!(parsed.scheme(), "http" | "https") {
-        return Err(
+        return Err(Invalid::new(
+            "url",
             "must start with http:// or https:// (the DICOMweb root, e.g. \
-             http://pacs:8042/dicom-web)"
-                .into(),
-        );
+             http://pacs:8042/dicom-web)",
+        ));
     }
     if parsed.host_str().is_none_or(str::is_empty) {
-        return Err("has no host (e.g. http://pacs:8042/dicom-web)".into());
+        return Err(Invalid::new(
+            "url",
+            "has no host (e.g. http://pacs:8042/dicom-web)",
+        ));
     }
     if !parsed.username().is_empty() || parsed.password().is_some() {
-        return Err(
+        return Err(Invalid::new(
+            "url",
             "holds credentials: give `auth`, `user` and `secret_file` instead (a URL is \
-             logged and shown)"
-                .into(),
-        );
+             logged and shown)",
+        ));
     }
     if parsed.fragment().is_some() {
-        return Err("has a #fragment, which HTTP never sends".into());
+        return Err(Invalid::new(
+            "url",
+            "has a #fragment, which HTTP never sends",
+        ));
     }
     Ok(parsed)
 }
@@ -157,7 +167,7 @@ impl PacsDestination {
                 ))
             }
             (Some(url), None) => {
-                check_stow_url(url).map_err(|message| Invalid::new("url", message))?;
+                check_stow_url(url)?;
                 if let Some(user) = &self.user {
                     if user.is_empty() || user.contains(':') || user.chars().any(char::is_control) {
                         return Err(Invalid::new(
