@@ -175,7 +175,9 @@ fn main() {
             let mut queue = Queue::open(&build, Destination::resolve(to, &[]).unwrap()).unwrap();
             let mut sender = queue.destination.connect();
             let t = Instant::now();
-            let count = queue.push_pending(sender.as_mut(), false, &clock).unwrap();
+            let count = queue
+                .push_pending(sender.as_mut(), false, &clock, None)
+                .unwrap();
             let seconds = t.elapsed().as_secs_f64();
             assert!(count.rejected.is_empty(), "{:?}", count.rejected);
             let (_, disk) = stored(files.len());

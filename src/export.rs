@@ -19,6 +19,8 @@ pub enum ExportError {
     )]
     NotABuild(PathBuf, &'static str),
     #[error(transparent)]
+    Manifest(#[from] crate::build_dir::manifest::ManifestError),
+    #[error(transparent)]
     Series(#[from] SeriesError),
     #[error(transparent)]
     Vectors(#[from] VectorError),
@@ -159,14 +161,14 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
             request.build.display()
         ))
     })?;
-    let manifest: crate::build_dir::BuildManifest =
-        std::fs::read(request.build.join(crate::build_dir::MANIFEST))
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok())
-            .ok_or(ExportError::NotABuild(
-                request.build.clone(),
-                crate::build_dir::MANIFEST,
-            ))?;
+    let manifest = crate::build_dir::BuildManifest::read(&request.build).map_err(|e| match e {
+        crate::build_dir::manifest::ManifestError::Read { source, .. }
+            if source.kind() == std::io::ErrorKind::NotFound =>
+        {
+            ExportError::NotABuild(request.build.clone(), crate::build_dir::MANIFEST)
+        }
+        other => other.into(),
+    })?;
     let mut settings = SeriesSettings::from_config(&record.config)?;
     let label = match request.part {
         Some(part) => {
@@ -246,11 +248,9 @@ pub fn export(request: &ExportRequest) -> Result<ExportSummary, ExportError> {
                     }
                 }
                 ExportFormat::Nrrd => {
-                    let bytes = std::fs::read(path).map_err(|source| ExportError::Io {
-                        path: path.clone(),
-                        action: "read",
-                        source,
-                    })?;
+                    let bytes = crate::build_dir::original::read(path)
+                        .map_err(|e| frame(e.into()))?
+                        .bytes;
                     let luma = live.rectified_luma(&bytes).map_err(frame)?;
                     volume.extend(luma.into_u16());
                     zs.push(heights.z(shot.layer));

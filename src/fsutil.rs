@@ -84,6 +84,56 @@ pub fn is_temporary(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
 }
 
+/// The process id a temporary file's name (`.NAME.PID.N.tmp`) carries, if it is one of ours.
+fn temporary_pid(name: &str) -> Option<i32> {
+    if !is_temporary(name) {
+        return None;
+    }
+    let mut parts = name.trim_end_matches(".tmp").rsplit('.');
+    let _n: u64 = parts.next()?.parse().ok()?;
+    parts.next()?.parse().ok()
+}
+
+/// Removes the temporary files in `dir` that a process which no longer runs left (a kill -9
+/// between writing and renaming): ours by their name (`.NAME.PID.N.tmp`), regular files only,
+/// never a link; those of a process still running are its own to finish. Returns their names.
+pub fn remove_stale_temporaries(dir: &Path) -> std::io::Result<Vec<String>> {
+    let mut removed = Vec::new();
+    let entries = match std::fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(removed),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(pid) = temporary_pid(&name) else {
+            continue;
+        };
+        if !entry.file_type()?.is_file() || process_runs(pid) {
+            continue;
+        }
+        match std::fs::remove_file(entry.path()) {
+            Ok(()) => removed.push(name),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(removed)
+}
+
+/// Whether process `pid` exists (another user's too). This process counts as not running: a
+/// restart looks before it writes there, and a daemon that is PID 1 in its container has the
+/// same id as the one killed before it.
+fn process_runs(pid: i32) -> bool {
+    if pid <= 0 || pid as u32 == std::process::id() {
+        return false;
+    }
+    // SAFETY: kill with signal 0 sends nothing; it only checks that the process exists.
+    let result = unsafe { libc::kill(pid, 0) };
+    result == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
 /// Creates a new temporary file next to `path`: `.NAME.PID.N.tmp`, opened with `O_EXCL` and
 /// `O_NOFOLLOW`, so a file or symlink planted under that name is never written through.
 fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
@@ -172,17 +222,60 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
 /// (the open itself is non-blocking, so it cannot wait for a writer), `/dev/zero` never ends, a
 /// directory is not a file.
 pub fn open_regular(path: &Path) -> std::io::Result<File> {
-    let file = OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_CLOEXEC)
-        .open(path)?;
-    if !file.metadata()?.is_file() {
+    open_checked(OpenOptions::new().read(true), path, 0)
+}
+
+/// [`open_regular`] that also refuses a symbolic link as the last component (`O_NOFOLLOW`): for
+/// the files of a build directory, which are only ever what the daemon wrote there.
+pub fn open_regular_nofollow(path: &Path) -> std::io::Result<File> {
+    open_checked(OpenOptions::new().read(true), path, libc::O_NOFOLLOW)
+}
+
+/// Opens (creating) an append-only log of a build directory for reading it back and appending:
+/// refused unless it is a regular file (a FIFO would hang the reader, `/dev/zero` never ends)
+/// and not a symbolic link (it would be written through).
+pub fn open_append_regular(path: &Path) -> std::io::Result<File> {
+    open_checked(
+        OpenOptions::new().create(true).read(true).append(true),
+        path,
+        libc::O_NOFOLLOW,
+    )
+}
+
+/// Opens with `O_NONBLOCK` (so neither the open nor a later read can wait on a FIFO), refuses
+/// what is not a regular file, then goes back to blocking mode (reads from a regular file never
+/// block).
+fn open_checked(options: &mut OpenOptions, path: &Path, flags: i32) -> std::io::Result<File> {
+    let file = options
+        .custom_flags(libc::O_NONBLOCK | libc::O_CLOEXEC | flags)
+        .open(path)
+        .map_err(|e| match e.raw_os_error() {
+            // O_NOFOLLOW on a symbolic link.
+            Some(libc::ELOOP) => std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                NotRegular("a symbolic link, where only a file the daemon wrote belongs"),
+            ),
+            _ => e,
+        })?;
+    let kind = file.metadata()?.file_type();
+    if !kind.is_file() {
+        use std::os::unix::fs::FileTypeExt;
+        let what = if kind.is_fifo() {
+            "a FIFO"
+        } else if kind.is_dir() {
+            "a directory"
+        } else if kind.is_char_device() || kind.is_block_device() {
+            "a device"
+        } else if kind.is_socket() {
+            "a socket"
+        } else {
+            "not a file"
+        };
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            "not a regular file (a FIFO, device or directory cannot be read as a file)",
+            NotRegular(what),
         ));
     }
-    // Reads from a regular file never block; back to ordinary blocking mode all the same.
     // SAFETY: fcntl on a descriptor this function owns.
     unsafe {
         use std::os::fd::AsRawFd;
@@ -194,29 +287,71 @@ pub fn open_regular(path: &Path) -> std::io::Result<File> {
     Ok(file)
 }
 
-/// Reads a whole input file (a frame, a vector file) that must be a regular file (see
-/// [`open_regular`]).
-pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+/// Why an input was refused by type: the cause of [`open_regular`]'s `InvalidInput` error.
+#[derive(Debug, thiserror::Error)]
+#[error("not a regular file ({0}: it cannot be read as a file)")]
+pub struct NotRegular(pub &'static str);
+
+/// A file larger than its kind can be: the cause of the bounded readers' `InvalidData` error.
+#[derive(Debug, thiserror::Error)]
+#[error("larger than {max_bytes} bytes ({size} bytes): not a file of this kind")]
+pub struct TooLarge {
+    pub max_bytes: u64,
+    pub size: u64,
+}
+
+/// An `InvalidData` error for a file of `size` bytes over `max_bytes`.
+pub fn too_large(size: u64, max_bytes: u64) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        TooLarge { max_bytes, size },
+    )
+}
+
+/// Refuses an open file whose size is over `max_bytes` (before anything is read).
+pub fn check_size(file: &File, max_bytes: u64) -> std::io::Result<u64> {
+    let size = file.metadata()?.len();
+    if size > max_bytes {
+        return Err(too_large(size, max_bytes));
+    }
+    Ok(size)
+}
+
+/// Reads an open regular file whole, refused if it is or grows over `max_bytes`.
+pub fn read_file_bounded(file: File, max_bytes: u64) -> std::io::Result<Vec<u8>> {
     use std::io::Read;
-    let mut file = open_regular(path)?;
-    let mut bytes = Vec::with_capacity(file.metadata()?.len().min(1 << 30) as usize);
-    file.read_to_end(&mut bytes)?;
+    let size = check_size(&file, max_bytes)?;
+    // Reserved by the size on disk up to 1 GiB; beyond, as it is read (a sparse file reads as
+    // zeros it never stored).
+    let mut bytes = Vec::with_capacity(size.min(1 << 30) as usize);
+    file.take(max_bytes.saturating_add(1))
+        .read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_large(bytes.len() as u64, max_bytes));
+    }
     Ok(bytes)
+}
+
+/// Reads a whole input file that must be a regular file (see [`open_regular`]) of at most
+/// `max_bytes` (the cap of its kind: a frame, a DICOM instance, a JSON record).
+pub fn read_bounded(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    read_file_bounded(open_regular(path)?, max_bytes)
+}
+
+/// The largest frame (an original: JPEG, NEF, TIFF, PNG) any reader takes: a 100 MP raw is
+/// about 200 MB.
+pub const MAX_FRAME_BYTES: u64 = 1 << 30;
+
+/// Reads a whole input file (a frame, a vector file) that must be a regular file (see
+/// [`open_regular`]) of at most [`MAX_FRAME_BYTES`].
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    read_bounded(path, MAX_FRAME_BYTES)
 }
 
 /// Reads a small text file (a configuration, a calibration, a points file) whole: refused unless
 /// it is a regular file (a FIFO would block, `/dev/zero` never ends) of at most `max_bytes`.
 pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String> {
-    use std::io::Read;
-    let file = open_regular(path)?;
-    let mut bytes = Vec::new();
-    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > max_bytes {
-        return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("larger than {max_bytes} bytes: not a file of this kind"),
-        ));
-    }
+    let bytes = read_bounded(path, max_bytes)?;
     String::from_utf8(bytes)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, NotUtf8(e)))
 }
@@ -312,6 +447,49 @@ mod tests {
     }
 
     #[test]
+    fn stale_temporaries_go_those_of_a_running_process_and_other_files_stay() {
+        let dir = tempfile::tempdir().unwrap();
+        let dead = {
+            let mut child = std::process::Command::new("true").spawn().unwrap();
+            child.wait().unwrap();
+            child.id()
+        };
+        let stale = format!(".L00007.dcm.{dead}.3.tmp");
+        // PID 1 always runs.
+        let running = ".L00008.dcm.1.0.tmp";
+        for name in [
+            stale.as_str(),
+            running,
+            "L00007.dcm",
+            ".hidden.tmp",
+            "x.tmp",
+        ] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        let link = format!(".L00009.dcm.{dead}.0.tmp");
+        std::os::unix::fs::symlink(dir.path().join("L00007.dcm"), dir.path().join(&link)).unwrap();
+        assert_eq!(remove_stale_temporaries(dir.path()).unwrap(), [stale]);
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            [
+                ".L00008.dcm.1.0.tmp",
+                &link,
+                ".hidden.tmp",
+                "L00007.dcm",
+                "x.tmp"
+            ]
+        );
+        assert!(remove_stale_temporaries(&dir.path().join("absent"))
+            .unwrap()
+            .is_empty());
+    }
+
+    #[test]
     fn a_planted_symlink_is_not_written_through() {
         let dir = tempfile::tempdir().unwrap();
         let outside = dir.path().join("outside");
@@ -341,7 +519,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         for device in ["/dev/zero", "/dev/null"] {
             let err = read_text_bounded(Path::new(device), 1024).unwrap_err();
-            assert!(err.to_string().contains("not a regular file"), "{err}");
+            assert!(
+                err.to_string().contains("not a regular file (a device"),
+                "{err}"
+            );
         }
         let fifo = dir.path().join("fifo");
         let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
@@ -356,7 +537,7 @@ mod tests {
         assert!(read_text_bounded(&big, 1024)
             .unwrap_err()
             .to_string()
-            .contains("larger than 1024"));
+            .contains("larger than 1024 bytes (2048 bytes)"));
         std::fs::write(&big, "a = 1\n").unwrap();
         assert_eq!(read_text_bounded(&big, 1024).unwrap(), "a = 1\n");
     }

@@ -29,6 +29,8 @@ pub enum LocateError {
         #[source]
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Original(#[from] crate::build_dir::original::OriginalError),
     #[error("{path}: cannot decode the frame")]
     Decode {
         path: PathBuf,
@@ -295,10 +297,7 @@ pub fn mark(
         let Some(original) = &v.original else {
             continue;
         };
-        let bytes = std::fs::read(original).map_err(|source| LocateError::Read {
-            path: original.clone(),
-            source,
-        })?;
+        let bytes = crate::build_dir::original::read(original)?.bytes;
         let luma =
             crate::rectify::decode_frame_luma(&bytes).map_err(|source| LocateError::Decode {
                 path: original.clone(),

@@ -54,11 +54,68 @@ pub fn chain(error: &(dyn std::error::Error + 'static)) -> String {
     Chain(error).to_string()
 }
 
+/// Whether a character acts on a terminal or on the order of the text around it instead of
+/// showing: C0 and C1 controls (escape sequences, carriage return, newline), DEL, the line and
+/// paragraph separators, and the bidirectional marks, embeddings, overrides and isolates (a
+/// right-to-left override makes `gpj.exe` read `exe.jpg`).
+pub fn is_hidden_char(c: char) -> bool {
+    c.is_control()
+        || matches!(
+            c,
+            '\u{061C}'
+                | '\u{200E}'
+                | '\u{200F}'
+                | '\u{2028}'
+                | '\u{2029}'
+                | '\u{202A}'..='\u{202E}'
+                | '\u{2066}'..='\u{2069}'
+        )
+}
+
+/// Text from outside (an archive's error, an operator's note, a file name from a record) shown
+/// as it is but with every [`is_hidden_char`] written out (`\u{1b}`, `\n`), so that nothing
+/// printed can move the cursor, clear the screen, retitle the terminal or reorder a line.
+pub struct Escaped<'a>(pub &'a str);
+
+impl std::fmt::Display for Escaped<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use std::fmt::Write;
+        for c in self.0.chars() {
+            if is_hidden_char(c) {
+                match c {
+                    '\n' | '\r' | '\t' => write!(f, "{}", c.escape_default())?,
+                    c => write!(f, "{}", c.escape_unicode())?,
+                }
+            } else {
+                f.write_char(c)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// [`Escaped`] as a string.
+pub fn escape(text: &str) -> String {
+    Escaped(text).to_string()
+}
+
 #[cfg(test)]
 mod tests {
     #[derive(Debug, thiserror::Error)]
     #[error("cannot read {0}")]
     struct Read(&'static str, #[source] std::io::Error);
+
+    #[test]
+    fn escapes_leave_nothing_for_the_terminal_to_act_on() {
+        let hostile = "ok\u{1b}]0;pwned\u{7}\u{1b}[2J\r\nnext\u{202e}gpj.exe\u{9b}31m";
+        let shown = super::escape(hostile);
+        assert!(!shown.chars().any(super::is_hidden_char), "{shown}");
+        assert_eq!(
+            shown,
+            "ok\\u{1b}]0;pwned\\u{7}\\u{1b}[2J\\r\\nnext\\u{202e}gpj.exe\\u{9b}31m"
+        );
+        assert_eq!(super::escape("Grüße, 東京 ✓"), "Grüße, 東京 ✓");
+    }
 
     #[test]
     fn the_chain_says_each_cause_once() {

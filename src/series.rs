@@ -2,7 +2,7 @@
 //! MONOCHROME2; colour stays in the original), rectified onto the build grid through the
 //! calibration and written as the slice of its layer in its view's series.
 
-use crate::build_dir::{BuildManifest, Sidecar};
+use crate::build_dir::BuildManifest;
 use crate::config::Config;
 use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, SliceSource, Study};
 use crate::fsutil::TomlFileError;
@@ -36,6 +36,13 @@ pub trait FrameProcessor: Send + Sync {
     /// Called once by the processing worker when it ends (drained or stopped): a processor with
     /// threads of its own (the inspection's alarm) stops them here.
     fn finish(&self) {}
+
+    /// Frames already processed that this processor wants again before new ones, with their
+    /// take and the journal's file (the inspection's layers a stop left uninspected): the
+    /// worker processes them first, with the backlog.
+    fn catch_up(&self) -> Vec<(Shot, u32, String)> {
+        Vec::new()
+    }
 }
 
 /// Keeps originals only.
@@ -73,12 +80,8 @@ pub enum SeriesError {
     Decode(#[from] RectifyError),
     #[error(transparent)]
     Dicom(#[from] DicomError),
-    #[error("cannot read {path}")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Original(#[from] crate::build_dir::original::OriginalError),
     #[error("calibration.crop_part: {file} has no part {part} with geometry")]
     NoSuchPart { file: PathBuf, part: i64 },
     #[error("view {0} is not configured")]
@@ -376,20 +379,13 @@ pub fn source_file(build_dir: &Path, original: &Path) -> String {
         .into_owned()
 }
 
-/// A stored original's bytes and, from its sidecar, when it was captured.
+/// A stored original's bytes, checked against its sidecar, and when it was captured
+/// (build_dir::original: from `raw/` only, a regular file of a frame's size at most).
 pub fn read_original(
     original: &Path,
 ) -> Result<(Vec<u8>, Option<chrono::DateTime<chrono::Utc>>), SeriesError> {
-    let bytes = std::fs::read(original).map_err(|source| SeriesError::Read {
-        path: original.to_path_buf(),
-        source,
-    })?;
-    let sidecar = original.with_extension("json");
-    let acquired = std::fs::read(&sidecar)
-        .ok()
-        .and_then(|b| serde_json::from_slice::<Sidecar>(&b).ok())
-        .map(|s| s.captured_at);
-    Ok((bytes, acquired))
+    let original = crate::build_dir::original::read(original)?;
+    Ok((original.bytes, Some(original.sidecar.captured_at)))
 }
 
 impl FrameProcessor for LiveSeries {

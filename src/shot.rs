@@ -177,6 +177,16 @@ impl Shot {
 }
 
 impl Shot {
+    /// File stem of take `take` of the shot: the shot's stem, then `.r{take}` from the second
+    /// take on (a retake, docs/frames.md).
+    pub fn take_stem(&self, take: u32) -> String {
+        if take <= 1 {
+            self.stem()
+        } else {
+            format!("{}.r{take}", self.stem())
+        }
+    }
+
     /// The shot and take of a stored original's stem: `L00003_post_front` is take 1,
     /// `L00003_post_front.r2` take 2 (a retake, docs/frames.md).
     pub fn from_take_stem(stem: &str) -> Option<(Shot, u32)> {

@@ -19,6 +19,9 @@ use tracing::{error, info, warn};
 /// The live series plus the inspection of every layer.
 pub struct InspectingSeries {
     live: LiveSeries,
+    /// The first takes of the layers processed before a stop but never inspected: the
+    /// worker processes them again first ([`FrameProcessor::catch_up`]).
+    missed: Vec<(Shot, u32, String)>,
     reducer: Reducer,
     inspector: Mutex<Inspector>,
     log: Mutex<InspectionLog>,
@@ -70,11 +73,13 @@ impl InspectingSeries {
             );
         }
         inspector.resume(&done);
+        let missed = missed_layers(build_dir, &inspector, &config.views.all())?;
         let mut alarm = alarm;
         alarm.resume(build_dir, config.storage.fsync)?;
         let alarm = AlarmThread::spawn(alarm, build_dir.to_path_buf(), clock.clone());
         Ok(InspectingSeries {
             live,
+            missed,
             reducer: inspector.reducer(),
             inspector: Mutex::new(inspector),
             log: Mutex::new(log),
@@ -159,4 +164,53 @@ impl FrameProcessor for InspectingSeries {
     fn finish(&self) {
         self.alarm.finish();
     }
+
+    fn catch_up(&self) -> Vec<(Shot, u32, String)> {
+        self.missed.clone()
+    }
+}
+
+/// The first takes, in the views the inspection uses, of every layer the journal has processed
+/// views of but `inspection.jsonl` has no record of: a stop (a kill -9 between a layer's last
+/// slice and its record) left them uninspected. Said at WARN with the layers.
+fn missed_layers(
+    build_dir: &Path,
+    inspector: &Inspector,
+    views: &[crate::shot::View],
+) -> Result<Vec<(Shot, u32, String)>, super::AcquisitionError> {
+    let journal = build_dir.join(crate::build_dir::JOURNAL);
+    if !journal.exists() {
+        return Ok(Vec::new());
+    }
+    let replay = crate::build_dir::Journal::read(&journal)?;
+    let uninspected: std::collections::BTreeSet<u32> = replay
+        .processed
+        .iter()
+        .filter(|shot| inspector.needs(shot.view()) && !inspector.is_done(shot.layer))
+        .map(|shot| shot.layer)
+        .collect();
+    let (Some(first), Some(last)) = (uninspected.first(), uninspected.last()) else {
+        return Ok(Vec::new());
+    };
+    warn!(
+        layers = uninspected.len(),
+        first,
+        last,
+        "inspection: {} layers were processed before the stop but never inspected (layers \
+         {first} to {last}); inspecting them now",
+        uninspected.len()
+    );
+    Ok(uninspected
+        .iter()
+        .flat_map(|&layer| {
+            views
+                .iter()
+                .map(move |view| Shot::new(layer, view.phase, view.light))
+        })
+        .filter(|shot| inspector.needs(shot.view()))
+        .filter_map(|shot| {
+            let entry = replay.frames.get(&shot)?;
+            Some((shot, 1, entry.file.clone()))
+        })
+        .collect())
 }

@@ -16,6 +16,7 @@ mod health;
 pub mod inspection;
 pub mod lifecycle;
 mod open;
+mod preflight;
 pub mod processing;
 mod recorder;
 mod sequencer;
@@ -34,6 +35,7 @@ use crate::shot::Phase;
 use crate::shutdown::{Shutdown, StopReason};
 pub use error::AcquisitionError;
 use exposure::Exposure;
+pub use preflight::{preflight, PreflightError};
 use processing::ProcessingQueue;
 use recorder::{Recorder, StatusSink};
 use sequencer::{Heartbeat, Sequencer};
@@ -122,15 +124,16 @@ pub fn run(
     trigger.resume_after(progress.last_event);
     let trigger_health = trigger.health();
 
-    let backlog: Vec<_> = progress
-        .take_backlog(config.series.take)
-        .into_iter()
-        .map(|(shot, take, file)| (shot, take, dir.join(file)))
-        .collect();
+    let mut backlog = progress.take_backlog(config.series.take);
     let processor = match options.processor.take() {
         Some(p) => p,
         None => default_processor(config, &manifest, (alarm, alarm_message), &clock)?,
     };
+    // What the processor wants again (layers a stop left uninspected) goes first, in build
+    // order with the backlog, so that layers complete in order.
+    backlog.extend(processor.catch_up());
+    backlog.sort_by_key(|a| (a.0, a.1));
+    backlog.dedup_by(|a, b| (a.0, a.1) == (b.0, b.1));
     let journal = Arc::new(Mutex::new(journal));
     let queue = ProcessingQueue::start(
         processor,

@@ -71,6 +71,7 @@ pub(super) fn open_build(
         journal.append(&record)?;
         progress.apply(&record);
     }
+    remove_stale_temporaries(&dir)?;
     journal.append(&Record::Start {
         at: clock.now(),
         pid: std::process::id(),
@@ -134,11 +135,48 @@ fn snapshot_configuration(config: &Config, storage: &Storage) -> Result<(), Acqu
         let target = dir.join(build_dir::CALIBRATION_COPY);
         let same = std::fs::canonicalize(calibration).ok() == std::fs::canonicalize(&target).ok();
         if !same {
-            let bytes = std::fs::read(calibration).map_err(|source| WriteError {
-                path: calibration.clone(),
-                source,
-            })?;
+            // The calibration as `run` checked it: a regular file of a calibration's size
+            // (rectify::Calibration::load takes at most 1 MiB).
+            let bytes =
+                crate::fsutil::read_bounded(calibration, 1 << 20).map_err(|source| WriteError {
+                    path: calibration.clone(),
+                    source,
+                })?;
             storage.write_atomic(&target, &bytes)?;
+        }
+    }
+    Ok(())
+}
+
+/// Removes the temporary files a killed run left in the build directory and in each series
+/// folder of `dicom/` (slices half written when the kill came), said at WARN. `raw/`'s are
+/// removed by [`Storage::recover`].
+fn remove_stale_temporaries(dir: &std::path::Path) -> Result<(), AcquisitionError> {
+    let io = |path: &std::path::Path| {
+        let path = path.to_path_buf();
+        move |source| AcquisitionError::Storage(WriteError { path, source })
+    };
+    let dicom = dir.join(build_dir::DICOM_DIR);
+    let mut folders = vec![dir.to_path_buf()];
+    if let Ok(entries) = std::fs::read_dir(&dicom) {
+        for entry in entries {
+            let entry = entry.map_err(io(&dicom))?;
+            // Folders only, never through a link.
+            if entry.file_type().is_ok_and(|t| t.is_dir()) {
+                folders.push(entry.path());
+            }
+        }
+    }
+    for folder in folders {
+        let removed = crate::fsutil::remove_stale_temporaries(&folder).map_err(io(&folder))?;
+        if !removed.is_empty() {
+            warn!(
+                folder = %folder.display(),
+                files = removed.len(),
+                "removed {} temporary files a stopped run left: {}",
+                removed.len(),
+                removed.join(", ")
+            );
         }
     }
     Ok(())

@@ -71,7 +71,7 @@ pub struct ProcessingQueue {
 pub struct WorkerPlan {
     /// The frames the journal says are not processed yet, with their take and file
     /// ([`crate::build_dir::journal::Replay::unprocessed_takes`]).
-    pub backlog: Vec<(Shot, u32, PathBuf)>,
+    pub backlog: Vec<(Shot, u32, String)>,
     /// Whether retakes replace their slice.
     pub take: SeriesTake,
     /// The frames of one layer signal (the lights of a phase): a layer's line is logged once
@@ -355,7 +355,7 @@ enum CatchUp {
 
 impl Worker<'_> {
     /// The backlog, then what is handed over, until stopped, or hung up and done.
-    fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, PathBuf)>, choice: SeriesTake) {
+    fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, String)>, choice: SeriesTake) {
         let state = self.state;
         if !backlog.is_empty() {
             info!(
@@ -376,7 +376,7 @@ impl Worker<'_> {
                 state.overflowed.store(true, Ordering::SeqCst);
                 break;
             }
-            self.process(*shot, *take, original, None);
+            self.process_recorded(*shot, *take, original);
         }
         // Shots a catch-up pass processed while they were still queued: skipped when they come
         // out.
@@ -495,21 +495,46 @@ impl Worker<'_> {
                 return CatchUp::Paused;
             }
             if let Some(entry) = replay.take_entry(&shot, take) {
-                self.process(shot, take, &self.build_dir.join(&entry.file), None);
+                self.process_recorded(shot, take, &entry.file);
                 caught_up.insert((shot, take));
             }
         }
         CatchUp::Done
     }
 
+    /// Processes the take a journal record names: only its own file in `raw/`
+    /// (build_dir::original); a record naming anything else is a failure of the frame,
+    /// journaled as such.
+    fn process_recorded(&self, shot: Shot, take: u32, recorded: &str) {
+        match crate::build_dir::original::recorded_path(self.build_dir, &shot, take, recorded) {
+            Ok(original) => self.process(shot, take, &original, None),
+            Err(refused) => {
+                let start = self.clock.elapsed();
+                self.conclude(shot, take, start, Err(Box::new(refused)), None)
+            }
+        }
+    }
+
     /// Processes one take, journals the result, counts it for its layer's line.
     fn process(&self, shot: Shot, take: u32, original: &Path, submitted: Option<Duration>) {
-        let (state, clock) = (self.state, self.clock);
-        let start = clock.elapsed();
-        let record = match self
+        let start = self.clock.elapsed();
+        let result = self
             .processor
-            .process_take(self.build_dir, shot, take, original)
-        {
+            .process_take(self.build_dir, shot, take, original);
+        self.conclude(shot, take, start, result, submitted)
+    }
+
+    /// Journals what processing one take gave, counts it for its layer's line.
+    fn conclude(
+        &self,
+        shot: Shot,
+        take: u32,
+        start: Duration,
+        result: Result<(), crate::series::ProcessError>,
+        submitted: Option<Duration>,
+    ) {
+        let (state, clock) = (self.state, self.clock);
+        let record = match result {
             Err(reason) if disk_full(&reason) => {
                 // Not a failure of the frame: it waits (paused) and is caught up from the
                 // journal once the disk has room again.

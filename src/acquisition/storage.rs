@@ -10,17 +10,8 @@ use chrono::{DateTime, Utc};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// File stem of take `take` of `shot`: the shot's stem, then `.r{take}` from the second take on.
-pub fn take_stem(shot: &Shot, take: u32) -> String {
-    if take <= 1 {
-        shot.stem()
-    } else {
-        format!("{}.r{take}", shot.stem())
-    }
-}
-
 fn take_name(shot: &Shot, take: u32, extension: &str) -> String {
-    format!("{}.{extension}", take_stem(shot, take))
+    format!("{}.{extension}", shot.take_stem(take))
 }
 
 pub struct Storage {
@@ -75,7 +66,7 @@ impl Storage {
         {
             take += 1;
         }
-        let stem = take_stem(shot, take);
+        let stem = shot.take_stem(take);
         let name = format!("{stem}.{}", frame.extension);
         let sidecar = Sidecar {
             layer: shot.layer,
@@ -140,13 +131,22 @@ impl Storage {
             if ext == "json" || known(&shot) {
                 continue;
             }
-            let data = std::fs::read(&path).map_err(|source| WriteError {
-                path: path.clone(),
-                source,
-            })?;
+            // Only what the daemon writes is adopted: a link, a FIFO or a device planted under
+            // an original's name is left alone (and said).
+            if !entry.file_type().is_ok_and(|t| t.is_file()) {
+                tracing::warn!(file = %path.display(), "not a regular file: not adopted as an original");
+                continue;
+            }
+            // What the camera left: a regular file of a frame's size at most, never a link.
+            let data = crate::fsutil::open_regular_nofollow(&path)
+                .and_then(|f| crate::fsutil::read_file_bounded(f, crate::fsutil::MAX_FRAME_BYTES))
+                .map_err(|source| WriteError {
+                    path: path.clone(),
+                    source,
+                })?;
             let sidecar_path = self.raw.join(format!("{}.json", shot.stem()));
             let sha = sha256_hex(&data);
-            let existing: Option<Sidecar> = std::fs::read(&sidecar_path)
+            let existing: Option<Sidecar> = crate::build_dir::read_record_file(&sidecar_path)
                 .ok()
                 .and_then(|b| serde_json::from_slice(&b).ok());
             let sidecar = match existing {

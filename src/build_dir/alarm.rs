@@ -5,6 +5,7 @@
 
 use super::inspection::{FlagKind, Severity};
 use super::lines::LinesLog;
+use crate::logging::Escaped;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -109,8 +110,9 @@ impl fmt::Display for AlarmState {
                 message,
             } => write!(
                 f,
-                "RAISED since layer {layer} at {} ({kind}: {message}); acknowledge with `layerwise alarm ack --build DIR`",
-                at.format("%Y-%m-%d %H:%M:%S UTC")
+                "RAISED since layer {layer} at {} ({kind}: {}); acknowledge with `layerwise alarm ack --build DIR`",
+                at.format("%Y-%m-%d %H:%M:%S UTC"),
+                Escaped(message)
             ),
             AlarmState::Acknowledged {
                 layer,
@@ -118,13 +120,16 @@ impl fmt::Display for AlarmState {
                 at,
                 note,
             } => {
+                // Who and the note come from a file anyone with the build's rights can write:
+                // shown escaped, never acted on by the terminal.
                 write!(
                     f,
-                    "acknowledged by {by} at {} (raised at layer {layer})",
+                    "acknowledged by {} at {} (raised at layer {layer})",
+                    Escaped(by),
                     at.format("%Y-%m-%d %H:%M:%S UTC")
                 )?;
                 match note {
-                    Some(note) => write!(f, ": {note}"),
+                    Some(note) => write!(f, ": {}", Escaped(note)),
                     None => Ok(()),
                 }
             }

@@ -9,7 +9,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use tracing::warn;
 
-use super::lines::{append_line, open_lines, scan_lines};
+use super::lines::{append_line, open_lines, open_read, scan_lines, MAX_JOURNAL_BYTES};
 pub use super::lines::{JournalError, LineError};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -342,7 +342,7 @@ impl Journal {
         fsync: bool,
         each: impl FnMut(Record),
     ) -> Result<Journal, JournalError> {
-        let file = open_lines(path, each)?;
+        let file = open_lines(path, MAX_JOURNAL_BYTES, each)?;
         Ok(Journal {
             path: path.to_path_buf(),
             file,
@@ -354,9 +354,9 @@ impl Journal {
     /// Replays a journal without opening it for writing (for `layerwise status`): the same
     /// records the daemon would replay, a torn last record ignored as the daemon would cut it.
     pub fn read(path: &Path) -> Result<Replay, JournalError> {
-        let mut file = File::open(path).map_err(|source| JournalError::Io {
+        let mut file = open_read(path, MAX_JOURNAL_BYTES)?.ok_or_else(|| JournalError::Io {
             path: path.to_path_buf(),
-            source,
+            source: std::io::ErrorKind::NotFound.into(),
         })?;
         let mut replay = Replay::default();
         Self::scan(path, &mut file, |r| replay.apply(&r))?;

@@ -55,8 +55,13 @@ pub enum OrderError {
     Toml(crate::fsutil::TomlError),
     #[error(transparent)]
     Name(Box<LifecycleError>),
-    #[error("folder {0:?} is not a plain folder name")]
+    #[error(
+        "folder \"{0}\" is not a folder inside builds_dir (one plain name: no `/`, no `..`, \
+         not hidden, not a link out of it)"
+    )]
     Folder(String),
+    #[error("layers = {0}: must be 1 to {max}", max = crate::shot::MAX_LAYER)]
+    Layers(u32),
 }
 
 /// A build an operator started: what the daemon records into until the next order.
@@ -108,8 +113,11 @@ pub fn check_name(name: &str) -> Result<(), LifecycleError> {
     if name.chars().count() > MAX_NAME {
         return fail(&format!("is longer than {MAX_NAME} characters"));
     }
-    if name.chars().any(|c| c.is_control()) {
-        return fail("contains a control character (newline, NUL, ...); use printable text");
+    if name.chars().any(crate::logging::is_hidden_char) {
+        return fail(
+            "contains a control character or a bidirectional override (newline, NUL, U+202E, \
+             ...); use printable text",
+        );
     }
     if name.contains(['/', '\\', '^', '=']) {
         return fail(
@@ -153,14 +161,52 @@ pub fn current(builds_dir: &Path) -> Result<Option<BuildOrder>, LifecycleError> 
         path: path.clone(),
         source: OrderError::Name(Box::new(e)),
     })?;
-    // One plain name below builds_dir: no separator, no `..`, nothing hidden.
-    if Path::new(&order.folder).components().count() != 1 || order.folder.starts_with('.') {
+    if let Some(id) = &order.id {
+        check_name(id).map_err(|e| LifecycleError::Parse {
+            path: path.clone(),
+            source: OrderError::Name(Box::new(e)),
+        })?;
+    }
+    if order
+        .layers
+        .is_some_and(|n| n == 0 || n > crate::shot::MAX_LAYER)
+    {
         return Err(LifecycleError::Parse {
             path,
-            source: OrderError::Folder(order.folder),
+            source: OrderError::Layers(order.layers.unwrap_or_default()),
+        });
+    }
+    if !inside(builds_dir, &order.folder) {
+        return Err(LifecycleError::Parse {
+            path,
+            source: OrderError::Folder(crate::logging::escape(&order.folder)),
         });
     }
     Ok(Some(order))
+}
+
+/// Whether `folder` names one folder inside `builds_dir`: a single plain component (not `/`,
+/// `.`, `..`, nothing hidden) and, when it exists, not a link leading out of `builds_dir`.
+fn inside(builds_dir: &Path, folder: &str) -> bool {
+    let mut components = Path::new(folder).components();
+    let plain = matches!(
+        (components.next(), components.next()),
+        (Some(std::path::Component::Normal(_)), None)
+    ) && !folder.contains('/')
+        && !folder.starts_with('.')
+        && !folder.chars().any(crate::logging::is_hidden_char);
+    if !plain {
+        return false;
+    }
+    let dir = builds_dir.join(folder);
+    match (
+        std::fs::canonicalize(&dir),
+        std::fs::canonicalize(builds_dir),
+    ) {
+        (Ok(dir), Ok(builds)) => dir.parent() == Some(builds.as_path()),
+        // Not there yet: the daemon creates it under builds_dir.
+        _ => true,
+    }
 }
 
 fn write(builds_dir: &Path, order: &BuildOrder) -> Result<(), LifecycleError> {
@@ -277,11 +323,9 @@ pub fn list(builds_dir: &Path) -> Result<Vec<BuildEntry>, LifecycleError> {
             layers_seen: 0,
             state: "not started yet".into(),
         };
-        if let Ok(bytes) = std::fs::read(path.join(MANIFEST)) {
-            if let Ok(m) = serde_json::from_slice::<super::BuildManifest>(&bytes) {
-                build.name = Some(m.name);
-                build.created_at = Some(m.created_at);
-            }
+        if let Ok(m) = super::BuildManifest::read(&path) {
+            build.name = Some(m.name);
+            build.created_at = Some(m.created_at);
         }
         if path.join(JOURNAL).exists() {
             match status::report(&path, status::ReportSettings::default()) {
@@ -347,7 +391,16 @@ mod tests {
 
     #[test]
     fn names_with_control_characters_or_paths_are_refused_and_a_bad_order_is_an_error() {
-        for bad in ["", "  ", "a\nb", "a\0b", "../x", "a^b", &"x".repeat(65)] {
+        for bad in [
+            "",
+            "  ",
+            "a\nb",
+            "a\0b",
+            "a\u{202e}b",
+            "../x",
+            "a^b",
+            &"x".repeat(65),
+        ] {
             assert!(check_name(bad).is_err(), "{bad:?}");
         }
         let tmp = tempfile::tempdir().unwrap();
@@ -360,7 +413,7 @@ started_at = "2026-12-02T01:02:03Z"
         )
         .unwrap();
         let e = crate::logging::chain(&current(tmp.path()).unwrap_err());
-        assert!(e.contains("not a plain folder name"), "{e}");
+        assert!(e.contains("not a folder inside builds_dir"), "{e}");
         std::fs::write(tmp.path().join(CURRENT), "garbage").unwrap();
         let e = current(tmp.path()).unwrap_err().to_string();
         assert!(e.contains("current-build.toml: not a build order"), "{e}");

@@ -3,7 +3,7 @@
 //! `inspection.jsonl`, `alarm.jsonl` and the push logs are kept this way.
 
 use serde::Serialize;
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{BufRead, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use tracing::warn;
@@ -36,17 +36,44 @@ pub enum JournalError {
 pub enum LineError {
     #[error("invalid UTF-8")]
     Utf8(#[source] std::str::Utf8Error),
+    #[error("a line longer than {MAX_LINE_BYTES} bytes (no record is that long)")]
+    TooLong,
     #[error(transparent)]
     Json(#[from] serde_json::Error),
 }
 
-/// Opens (creating) an append-only log for reading it back and appending to it.
+/// The longest line a record of these logs can be: every record is a few hundred bytes (a
+/// frame's camera settings, an inspection's flags); a longer line is damage.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
+/// The largest journal read back: a 10,000-layer build's is about 30 MB.
+pub const MAX_JOURNAL_BYTES: u64 = 1 << 30;
+
+/// The largest log whose records are kept in memory when read (inspection.jsonl,
+/// alarm.jsonl, a push log): tens of MB for the longest build.
+pub const MAX_LOG_BYTES: u64 = 256 << 20;
+
+/// Opens (creating) an append-only log for reading it back and appending to it: a regular file
+/// only, never through a symbolic link (fsutil::open_append_regular).
 pub(crate) fn open_append(path: &Path) -> std::io::Result<File> {
-    OpenOptions::new()
-        .create(true)
-        .read(true)
-        .append(true)
-        .open(path)
+    crate::fsutil::open_append_regular(path)
+}
+
+/// Opens an existing log for reading only (`None` when there is none yet): a regular file of
+/// at most `max_bytes`, never through a symbolic link.
+pub(crate) fn open_read(path: &Path, max_bytes: u64) -> Result<Option<File>, JournalError> {
+    let io = |source| JournalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    match crate::fsutil::open_regular_nofollow(path) {
+        Ok(file) => {
+            crate::fsutil::check_size(&file, max_bytes).map_err(io)?;
+            Ok(Some(file))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(io(source)),
+    }
 }
 
 /// Opens (creating) a JSON-lines file for appending after calling `each` for every record in it;
@@ -54,6 +81,7 @@ pub(crate) fn open_append(path: &Path) -> std::io::Result<File> {
 /// inspection log open this way.
 pub(crate) fn open_lines<T: serde::de::DeserializeOwned>(
     path: &Path,
+    max_bytes: u64,
     each: impl FnMut(T),
 ) -> Result<File, JournalError> {
     let io = |source| JournalError::Io {
@@ -61,6 +89,7 @@ pub(crate) fn open_lines<T: serde::de::DeserializeOwned>(
         source,
     };
     let mut file = open_append(path).map_err(io)?;
+    crate::fsutil::check_size(&file, max_bytes).map_err(io)?;
     let good_end = scan_lines(path, &mut file, each)?;
     let len = file.metadata().map_err(io)?.len();
     if good_end < len {
@@ -92,17 +121,25 @@ pub(crate) fn scan_lines<T: serde::de::DeserializeOwned>(
     let mut number = 0usize;
     loop {
         data.clear();
-        let read = reader.read_until(b'\n', &mut data).map_err(io)?;
+        // At most one line's worth: a file of zeros (a sparse file, a device) is not one line
+        // held in memory.
+        let read = std::io::Read::take(&mut reader, MAX_LINE_BYTES as u64 + 1)
+            .read_until(b'\n', &mut data)
+            .map_err(io)?;
         if read == 0 {
             break;
         }
         number += 1;
         let complete = data.last() == Some(&b'\n');
         let end = if complete { read - 1 } else { read };
-        let last = !complete || reader.fill_buf().map_err(io)?.is_empty();
-        let parsed = std::str::from_utf8(&data[..end])
-            .map_err(LineError::Utf8)
-            .and_then(|text| serde_json::from_str::<T>(text).map_err(LineError::Json));
+        let last = reader.fill_buf().map_err(io)?.is_empty();
+        let parsed = if end > MAX_LINE_BYTES {
+            Err(LineError::TooLong)
+        } else {
+            std::str::from_utf8(&data[..end])
+                .map_err(LineError::Utf8)
+                .and_then(|text| serde_json::from_str::<T>(text).map_err(LineError::Json))
+        };
         match parsed {
             Ok(record) if complete => each(record),
             // A last line without its newline was torn even when it parses.
@@ -171,7 +208,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
     /// Opens (creating) the log and returns the records it holds; a torn last record is cut off.
     pub fn open(path: &Path, fsync: bool) -> Result<(LinesLog<T>, Vec<T>), JournalError> {
         let mut records = Vec::new();
-        let file = open_lines(path, |r| records.push(r))?;
+        let file = open_lines(path, MAX_LOG_BYTES, |r| records.push(r))?;
         Ok((LinesLog::new(path, file, fsync), records))
     }
 
@@ -197,15 +234,8 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
     /// The records of a log without opening it for writing (none when there is no file yet; a
     /// torn last one ignored).
     pub fn read(path: &Path) -> Result<Vec<T>, JournalError> {
-        let mut file = match File::open(path) {
-            Ok(file) => file,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(source) => {
-                return Err(JournalError::Io {
-                    path: path.to_path_buf(),
-                    source,
-                })
-            }
+        let Some(mut file) = open_read(path, MAX_LOG_BYTES)? else {
+            return Ok(Vec::new());
         };
         let mut records = Vec::new();
         scan_lines(path, &mut file, |r| records.push(r))?;

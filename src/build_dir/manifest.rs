@@ -46,7 +46,7 @@ impl BuildManifest {
         make: impl FnOnce() -> BuildManifest,
     ) -> Result<BuildManifest, ManifestError> {
         let path = dir.join(MANIFEST);
-        match std::fs::read(&path) {
+        match super::read_record_file(&path) {
             Ok(bytes) => serde_json::from_slice(&bytes)
                 .map_err(|source| ManifestError::Parse { path, source }),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -62,25 +62,49 @@ impl BuildManifest {
         }
     }
 
+    /// Reads the manifest of a build (bounded: a regular file of a few KB).
+    pub fn read(dir: &Path) -> Result<BuildManifest, ManifestError> {
+        let path = dir.join(MANIFEST);
+        let bytes = super::read_record_file(&path).map_err(|source| ManifestError::Read {
+            path: path.clone(),
+            source,
+        })?;
+        serde_json::from_slice(&bytes).map_err(|source| ManifestError::Parse { path, source })
+    }
+
     /// The DICOM study this build is: one study, one frame of reference, one StudyDate/Time.
     pub fn study(&self) -> Study {
         let manifest = self;
         let start = manifest.created_at;
+        // What the configuration refuses (control and bidirectional characters, the value
+        // separator) never reaches a DICOM file from an older or hand-edited build.json either.
+        let plain = |text: &str| -> String {
+            text.chars()
+                .map(|c| {
+                    if crate::logging::is_hidden_char(c) || c == '\\' {
+                        '_'
+                    } else {
+                        c
+                    }
+                })
+                .collect()
+        };
+        let (name, id) = (plain(&manifest.name), plain(&manifest.id));
         // StudyID is a short string (SH, 16 chars): the build id, cut to fit.
-        let study_id: String = manifest.id.chars().take(16).collect();
+        let study_id: String = id.chars().take(16).collect();
         Study {
             study_instance_uid: manifest.study_instance_uid.clone(),
             frame_of_reference_uid: manifest.frame_of_reference_uid.clone(),
             date: start.format("%Y%m%d").to_string(),
             time: start.format("%H%M%S").to_string(),
-            patient_name: crate::dicom::person_name(&manifest.name),
-            patient_id: manifest.id.chars().take(64).collect(),
+            patient_name: crate::dicom::person_name(&name),
+            patient_id: id.chars().take(64).collect(),
             study_id: if study_id.is_empty() {
                 "1".into()
             } else {
                 study_id
             },
-            description: format!("layerwise build {}", manifest.name),
+            description: format!("layerwise build {name}"),
         }
     }
 }

@@ -8,6 +8,7 @@ pub mod journal;
 pub mod lifecycle;
 pub mod lines;
 pub mod manifest;
+pub mod original;
 pub mod progress;
 pub mod pushlog;
 pub mod status;
@@ -43,14 +44,31 @@ pub const RAW_DIR: &str = "raw";
 /// The live series, one folder per view.
 pub const DICOM_DIR: &str = "dicom";
 
+/// The largest small file of a build directory read whole (build.json, status.json, a
+/// sidecar): each is a few KB.
+pub const MAX_RECORD_BYTES: u64 = 16 << 20;
+
+/// Reads one of the build directory's small files whole (build.json, status.json, a sidecar):
+/// a regular file of at most [`MAX_RECORD_BYTES`], never through a symbolic link (a FIFO, a
+/// device or a planted link is refused, never waited on or followed).
+pub fn read_record_file(path: &Path) -> std::io::Result<Vec<u8>> {
+    crate::fsutil::read_file_bounded(
+        crate::fsutil::open_regular_nofollow(path)?,
+        MAX_RECORD_BYTES,
+    )
+}
+
 /// The series folder of a view: `dicom/<phase>_<light>/` (docs/frames.md).
 pub fn series_dir(build_dir: &Path, view: View) -> PathBuf {
     build_dir.join(DICOM_DIR).join(view.to_string())
 }
 
+/// The extensions an original may have (camera JPEG, raw NEF, PNG and TIFF frames).
+pub const FRAME_EXTENSIONS: [&str; 5] = ["jpg", "jpeg", "nef", "png", "tif"];
+
 /// The stored original of a shot (first take), whatever its extension, if it is on disk.
 pub fn original_path(build_dir: &Path, shot: &crate::shot::Shot) -> Option<PathBuf> {
-    ["jpg", "jpeg", "nef", "png", "tif"]
+    FRAME_EXTENSIONS
         .iter()
         .map(|ext| build_dir.join(format!("{RAW_DIR}/{}.{ext}", shot.stem())))
         .find(|p| p.exists())

@@ -10,6 +10,8 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
+use super::lines::MAX_LOG_BYTES;
+
 /// The folder of the push logs, inside the build directory or export folder.
 pub const PACS_DIR: &str = "pacs";
 
@@ -124,6 +126,7 @@ impl PushLog {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
         let mut file = super::lines::open_append(path).map_err(io)?;
+        crate::fsutil::check_size(&file, MAX_LOG_BYTES).map_err(io)?;
         let mut data = Vec::new();
         file.read_to_end(&mut data).map_err(io)?;
         let (state, good_end) = replay(&data);
@@ -172,8 +175,13 @@ fn replay(data: &[u8]) -> (PushState, usize) {
 }
 
 /// The log's state without opening it for writing (for `layerwise status`); no log, no pushes.
+/// A log that is not a regular file of at most [`MAX_LOG_BYTES`] is read as none (the push
+/// itself refuses it, naming it).
 pub fn read(path: &Path) -> PushState {
-    std::fs::read(path)
+    let Ok(Some(file)) = super::lines::open_read(path, MAX_LOG_BYTES) else {
+        return PushState::default();
+    };
+    crate::fsutil::read_file_bounded(file, MAX_LOG_BYTES)
         .map(|data| replay(&data).0)
         .unwrap_or_default()
 }

@@ -18,6 +18,10 @@ pub struct Correspondence {
     pub line: usize,
 }
 
+/// The largest coordinate of a point, pixels or mm: any camera or plate is far smaller, and
+/// beyond it the fit's squares overflow (a 1e308 point read as a duplicate).
+const MAX_COORDINATE: f64 = 1e6;
+
 /// Reads and parses a points file (see the module doc); at least 4 correspondences.
 pub fn read_points(path: &Path) -> Result<Vec<Correspondence>, RegistrationError> {
     let text = crate::fsutil::read_text_bounded(path, 1 << 20).map_err(|source| {
@@ -65,6 +69,12 @@ pub fn parse_points(text: &str, file: &Path) -> Result<Vec<Correspondence>, Regi
                         "line {line}: {name} = {f:?} is not a finite number"
                     ))
                 })?;
+            if slot.abs() > MAX_COORDINATE {
+                return Err(bad(format!(
+                    "line {line}: {name} = {f} is out of range: give -{MAX_COORDINATE} to \
+                     {MAX_COORDINATE} (pixels for u v, mm for x y)"
+                )));
+            }
         }
         out.push(Correspondence {
             image: ImagePoint::new(v[0], v[1]),

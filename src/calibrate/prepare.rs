@@ -185,7 +185,7 @@ pub(super) fn check_frame(
 /// Decodes a frame as the daemon does: JPEG through zune-jpeg, camera raw (NEF) through rawler,
 /// anything else through `image`.
 pub fn load_image(path: &Path) -> Result<DynamicImage, RegistrationError> {
-    let bytes = std::fs::read(path).map_err(|source| RegistrationError::Read {
+    let bytes = crate::fsutil::read_regular(path).map_err(|source| RegistrationError::Read {
         file: path.to_path_buf(),
         source,
     })?;

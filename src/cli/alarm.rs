@@ -47,6 +47,22 @@ impl AlarmArgs {
                         build.display()
                     );
                 }
+                for (flag, text, most) in [("--by", &by, 100), ("--note", &note, 2000)] {
+                    let chars = text.as_deref().map_or(0, |t| t.chars().count());
+                    if chars > most {
+                        bail!("{flag}: {chars} characters; at most {most}");
+                    }
+                    if let Some(c) = text
+                        .as_deref()
+                        .and_then(|t| t.chars().find(|&c| layerwise::logging::is_hidden_char(c)))
+                    {
+                        bail!(
+                            "{flag}: holds the control or bidirectional character {}; write \
+                             plain text (it is shown to every operator)",
+                            c.escape_unicode()
+                        );
+                    }
+                }
                 let by = by
                     .or_else(|| std::env::var("USER").ok())
                     .filter(|b| !b.trim().is_empty())

@@ -18,7 +18,7 @@ pub struct ExportArgs {
     #[arg(long)]
     part: Option<i64>,
     /// Margin around the part, with --part.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, allow_hyphen_values = true, value_parser = super::values::margin_mm)]
     margin_mm: f64,
     /// DICOM series, or NRRD volumes for 3D Slicer / napari.
     #[arg(long, value_enum, default_value = "dicom")]
@@ -55,6 +55,7 @@ pub struct LocateArgs {
         long,
         value_delimiter = ',',
         allow_hyphen_values = true,
+        value_parser = super::values::coordinate_mm,
         required_unless_present_any = ["ct_point", "flaw"]
     )]
     point: Vec<f64>,
@@ -63,6 +64,7 @@ pub struct LocateArgs {
         long,
         value_delimiter = ',',
         allow_hyphen_values = true,
+        value_parser = super::values::coordinate_mm,
         conflicts_with = "point",
         requires = "ct"
     )]
@@ -85,7 +87,7 @@ pub struct LocateArgs {
     #[arg(long)]
     flaws: Option<PathBuf>,
     /// Patch side in pixels for --flaw --mark (odd).
-    #[arg(long, default_value_t = 65)]
+    #[arg(long, default_value_t = 65, value_parser = super::values::patch_px)]
     patch_px: usize,
 }
 

@@ -23,7 +23,8 @@ pub struct RunArgs {
 impl RunArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.config)?;
-        config.check_backends(&self.config)?;
+        // What check-config checks, before anything touches the hardware.
+        acquisition::preflight(&config, &self.config)?;
         // SIGTERM (systemd's stop) and SIGINT end the process's shutdown, and every run with it.
         let process = Shutdown::new();
         let _signals =
@@ -196,7 +197,7 @@ pub struct CheckArgs {
 impl CheckArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.config)?;
-        config.check_backends(&self.config)?;
+        acquisition::preflight(&config, &self.config)?;
         if let Some(out) = &self.out {
             std::fs::create_dir_all(out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
@@ -230,7 +231,8 @@ pub struct CheckConfigArgs {
 impl CheckConfigArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.file)?;
-        config.check_backends(&self.file)?;
+        // Every check `run` makes before touching the hardware, every file it names read.
+        acquisition::preflight(&config, &self.file)?;
         println!(
             "{}: valid ({} views per layer, output in {})",
             self.file.display(),

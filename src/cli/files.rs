@@ -132,10 +132,10 @@ pub struct RectifyArgs {
     #[arg(long)]
     out: PathBuf,
     /// The layer (DICOM InstanceNumber; z = layer x layer thickness).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = super::values::layer)]
     layer: u32,
     /// Layer thickness in mm, for the slice's z.
-    #[arg(long, default_value_t = 0.03)]
+    #[arg(long, default_value_t = 0.03, value_parser = super::values::layer_thickness_mm)]
     layer_thickness_mm: f64,
     /// The configuration whose [rectify] grid to use (default: the built-in plate grid).
     #[arg(long, conflicts_with = "build")]
@@ -261,6 +261,14 @@ impl DicomCommand {
             for s in &series {
                 print!("{s}");
             }
+        }
+        let unsound = series.iter().filter(|s| !s.problems.is_empty()).count();
+        if unsound > 0 {
+            anyhow::bail!(
+                "{unsound} of {} series have problems (PROBLEM above): their geometry or pixels \
+                 cannot be trusted; fix or re-export them",
+                series.len()
+            );
         }
         Ok(())
     }

@@ -39,10 +39,10 @@ pub struct FlawsArgs {
     #[arg(long)]
     threshold: Option<f64>,
     /// Layer thickness for the layers a flaw spans when there is no --build.
-    #[arg(long, default_value_t = 0.03)]
+    #[arg(long, default_value_t = 0.03, value_parser = super::values::layer_thickness_mm)]
     layer_thickness_mm: f64,
     /// Patch side in pixels of the build's rectified grid (odd: the flaw is the centre pixel).
-    #[arg(long, default_value_t = 65)]
+    #[arg(long, default_value_t = 65, value_parser = super::values::patch_px)]
     patch_px: usize,
     #[command(flatten)]
     layout: super::register::RawLayoutArgs,

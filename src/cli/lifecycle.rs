@@ -52,7 +52,7 @@ pub struct StartArgs {
     #[arg(long)]
     vectors: Option<PathBuf>,
     /// Layers it will have, for the disk forecast; the configuration's by default.
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::layer_count)]
     layers: Option<u32>,
 }
 

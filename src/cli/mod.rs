@@ -14,6 +14,7 @@ mod register;
 // The push to archives (PACS).
 mod push;
 mod serve;
+mod values;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -4,8 +4,9 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use layerwise::build_dir::pushlog;
-use layerwise::clock::SystemClock;
+use layerwise::clock::{Clock, SystemClock};
 use layerwise::config::Config;
+use layerwise::logging::Escaped;
 use layerwise::pacs::{Destination, Queue};
 use std::path::PathBuf;
 
@@ -25,6 +26,11 @@ pub struct PushArgs {
     /// Send again the instances the archive rejected before.
     #[arg(long)]
     retry_rejected: bool,
+    /// Stop after this many seconds per destination (1 to 86400), what is left staying pending
+    /// for the next push; without it the push goes on while the archive answers (each instance
+    /// within its destination's deadline_s).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=86_400))]
+    deadline_s: Option<u64>,
 }
 
 impl PushArgs {
@@ -68,8 +74,11 @@ impl PushArgs {
             let already = instances - queue.pending(self.retry_rejected).len();
             let started = std::time::Instant::now();
             let mut sender = queue.destination.connect();
+            let until = self
+                .deadline_s
+                .map(|s| clock.elapsed() + std::time::Duration::from_secs(s));
             let count = queue
-                .push_pending(sender.as_mut(), self.retry_rejected, &clock)
+                .push_pending(sender.as_mut(), self.retry_rejected, &clock, until)
                 .with_context(|| {
                     format!(
                         "push of {} to {name} stopped; run it again to complete it",
@@ -86,7 +95,8 @@ impl PushArgs {
                 count.rejected.len(),
             );
             for (file, reason) in &count.rejected {
-                println!("  rejected {file}: {reason}");
+                // An archive's words, escaped: nothing it says acts on the terminal.
+                println!("  rejected {}: {}", Escaped(file), Escaped(reason));
             }
             rejected += count.rejected.len();
         }

@@ -151,6 +151,11 @@ impl RawLayoutArgs {
 impl CtArgs {
     fn run(self) -> Result<()> {
         use layerwise::ct;
+        // The small file first: a bad point is refused before the CT is read.
+        let init = match &self.init {
+            Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(points)?),
+            None => ct::InitialTransform::Centroid,
+        };
         let recorded = self.layout.source(&self.ct)?;
         let volume = recorded.read_capped(self.max_voxels)?;
         let mut params = ct::CtParams::default();
@@ -158,10 +163,6 @@ impl CtArgs {
             params.threshold = ct::surface::Threshold::Value(v);
         }
         params.huber_k_mm = self.huber_mm;
-        let init = match &self.init {
-            Some(points) => ct::InitialTransform::Points(ct::align::read_points_file(points)?),
-            None => ct::InitialTransform::Centroid,
-        };
         let out = self.out.clone();
         let numbering = match &self.build {
             Some(build) => layerwise::series::BuildRecord::open(build)?
@@ -226,7 +227,7 @@ pub struct ImagesArgs {
     vectors: PathBuf,
     /// The printer layer each image shows (from 1: the number in L00150_post_top.jpg); one for
     /// all images or one per --image, in order.
-    #[arg(long, required = true)]
+    #[arg(long, required = true, value_parser = super::values::layer)]
     layer: Vec<u32>,
     #[command(flatten)]
     numbering: super::numbering::NumberingArgs,
@@ -249,7 +250,7 @@ pub struct ImagesArgs {
     #[arg(long)]
     focal_px: Option<f64>,
     /// Pyramid levels (default from the exemplar size).
-    #[arg(long)]
+    #[arg(long, value_parser = super::values::pyramid_levels)]
     levels: Option<usize>,
     /// Std filter window of the exemplar, pixels (odd).
     #[arg(long, default_value_t = 11)]

@@ -43,6 +43,47 @@ pub struct BuildConfig {
     pub builds_dir: Option<PathBuf>,
 }
 
+/// Longest build name or id: a DICOM PatientID (LO) holds 64 characters, a PatientName
+/// component group 64.
+pub const MAX_DICOM_TEXT: usize = 64;
+
+/// Refuses what a DICOM text value of the build cannot hold as given: more than
+/// [`MAX_DICOM_TEXT`] characters (cut silently otherwise), a control or bidirectional-override
+/// character (a newline or NUL in PatientID, a right-to-left override reversing PatientName in
+/// a viewer), or a backslash (DICOM's value separator: one id would read as two).
+pub fn check_dicom_text(key: &str, text: &str, attribute: &str) -> Result<(), Invalid> {
+    let chars = text.chars().count();
+    if chars > MAX_DICOM_TEXT {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "is {chars} characters; at most {MAX_DICOM_TEXT} (it becomes the DICOM \
+                 {attribute}, which holds no more)"
+            ),
+        ));
+    }
+    if let Some(c) = text.chars().find(|&c| crate::logging::is_hidden_char(c)) {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "holds the control or bidirectional character {} (newline, NUL, U+202E, …): it \
+                 goes into the DICOM {attribute} and the logs; use printable text",
+                c.escape_unicode()
+            ),
+        ));
+    }
+    if text.contains('\\') {
+        return Err(Invalid::new(
+            key,
+            format!(
+                "holds a backslash, DICOM's value separator: the {attribute} would read as two \
+                 values; use another character"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn default_layer_thickness() -> f64 {
     0.03
 }
@@ -63,12 +104,15 @@ impl BuildConfig {
         if self.name.trim().is_empty() {
             return Err(Invalid::new("build.name", "must not be empty"));
         }
-        if self.name.chars().any(char::is_control) {
-            return Err(Invalid::new(
-                "build.name",
-                "must not contain control characters (newline, NUL, …): it goes into the DICOM \
-                 PatientName and the logs",
-            ));
+        check_dicom_text("build.name", &self.name, "PatientName")?;
+        if let Some(id) = &self.id {
+            if id.trim().is_empty() {
+                return Err(Invalid::new(
+                    "build.id",
+                    "must not be empty (leave the key out to use the name)",
+                ));
+            }
+            check_dicom_text("build.id", id, "PatientID")?;
         }
         if let Some(layers) = self.layers {
             if layers == 0 || layers > MAX_LAYER {

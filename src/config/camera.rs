@@ -9,6 +9,10 @@ use std::collections::BTreeMap;
 /// Largest simulated sensor side.
 pub const MAX_MOCK_SIDE: u32 = 16_384;
 
+/// Largest simulated sensor: 64 MP, above the largest full-frame bodies (a D850 is 45.7 MP); a
+/// 16384 x 16384 frame (268 MP) takes gigabytes to render, encode and rectify per shot.
+pub const MAX_MOCK_PIXELS: u64 = 64_000_000;
+
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
 pub enum CameraConfig {
@@ -132,6 +136,19 @@ impl MockCameraConfig {
                 format!(
                     "the mock sensor is at most {MAX_MOCK_SIDE} x {MAX_MOCK_SIDE} pixels (a D810 \
                      is 7360 x 4912)"
+                ),
+            ));
+        }
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        if pixels > MAX_MOCK_PIXELS {
+            return Err(Invalid::new(
+                "camera.width",
+                format!(
+                    "{} x {} is {:.0} MP; the mock sensor has at most {} MP (a D850 has 45.7)",
+                    self.width,
+                    self.height,
+                    pixels as f64 / 1e6,
+                    MAX_MOCK_PIXELS / 1_000_000
                 ),
             ));
         }

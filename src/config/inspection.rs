@@ -431,6 +431,24 @@ pub enum InjectionError {
     },
     #[error("{text}: `{value}` is not a number")]
     NotANumber { text: String, value: String },
+    #[error("{text}: {param} = {value} is out of range ({min} to {max})")]
+    OutOfRange {
+        text: String,
+        param: String,
+        value: String,
+        min: f64,
+        max: f64,
+    },
+}
+
+/// The values an injection's parameter may take: counts and part numbers are small positive
+/// integers (a count sizes what the mock camera draws), the rest mm or grey levels on the plate.
+fn parameter_range(param: &str) -> (f64, f64) {
+    match param {
+        "n" => (1.0, 1000.0),
+        "part" => (1.0, 99.0),
+        _ => (-1000.0, 1000.0),
+    }
 }
 
 fn kind_names() -> String {
@@ -493,6 +511,7 @@ impl FromStr for MockInjection {
                     param: k.to_string(),
                 });
             }
+            let given = v;
             let v: f64 = v
                 .parse()
                 .ok()
@@ -501,6 +520,16 @@ impl FromStr for MockInjection {
                     text: text(),
                     value: v.to_string(),
                 })?;
+            let (min, max) = parameter_range(k);
+            if !(min..=max).contains(&v) {
+                return Err(InjectionError::OutOfRange {
+                    text: text(),
+                    param: k.to_string(),
+                    value: given.to_string(),
+                    min,
+                    max,
+                });
+            }
             params.insert(k.to_string(), v);
         }
         Ok(MockInjection {
@@ -586,6 +615,14 @@ mod tests {
                 "streak@4/q=1: streak takes y, from, to, w, c, not `q`",
             ),
             ("streak@4/y=x", "streak@4/y=x: `x` is not a number"),
+            (
+                "spatter@1/n=4294967295",
+                "spatter@1/n=4294967295: n = 4294967295 is out of range (1 to 1000)",
+            ),
+            (
+                "streak@4/w=1e300",
+                "streak@4/w=1e300: w = 1e300 is out of range (-1000 to 1000)",
+            ),
         ] {
             let err = bad.parse::<MockInjection>().unwrap_err();
             assert_eq!(err.to_string(), message, "{bad}");

@@ -107,6 +107,7 @@ impl Config {
     pub fn check_backends(&self, file: &Path) -> Result<(), ConfigError> {
         self.camera
             .check_backend()
+            .and_then(|()| self.storage.check_backend())
             .map_err(|invalid| invalid.in_file(file))
     }
 

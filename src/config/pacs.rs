@@ -39,9 +39,15 @@ pub struct PacsDestination {
     /// C-STORE: this printer's AE title, as registered on the archive (DicomModalities).
     #[serde(default = "default_calling_ae")]
     pub calling_ae: String,
-    /// Longest wait for a connection or an answer.
+    /// Longest wait for a connection or for the next bytes of an answer.
     #[serde(default = "default_timeout_s")]
     pub timeout_s: u64,
+    /// Longest one instance may take, from connecting to the archive's answer, however the
+    /// bytes trickle: a STOW-RS batch of n instances gets n times this, a C-STORE exchange this
+    /// (and the association its own). A push over it stops, naming the destination, and
+    /// resumes later.
+    #[serde(default = "default_deadline_s")]
+    pub deadline_s: u64,
     /// Wait between attempts while the archive is unreachable: first and longest.
     #[serde(default = "default_retry_ms")]
     pub retry_backoff_ms: [u64; 2],
@@ -62,6 +68,64 @@ fn default_timeout_s() -> u64 {
     30
 }
 
+fn default_deadline_s() -> u64 {
+    60
+}
+
+/// Most archives one build is pushed to: each has a thread, a log and a connection.
+pub const MAX_DESTINATIONS: usize = 16;
+
+/// Longest destination name (it names the push log).
+pub const MAX_NAME: usize = 64;
+
+/// Longest `timeout_s` and `deadline_s`, and the longest back-off.
+pub const MAX_TIMEOUT_S: u64 = 3600;
+pub const MAX_BACKOFF_MS: u64 = 3_600_000;
+
+/// Checks a STOW-RS URL: printable (no space, CR, LF or other control character: it goes into
+/// the request line), a URL of http or https with a host, no credentials (a password in a URL
+/// ends up in logs: give it in `secret_file`), no fragment.
+pub fn check_stow_url(url: &str) -> Result<url::Url, Invalid> {
+    if let Some(c) = url.chars().find(|c| c.is_whitespace() || c.is_control()) {
+        return Err(Invalid::new(
+            "url",
+            format!(
+                "holds {} (a space, CR, LF or control character): a URL has none",
+                c.escape_unicode()
+            ),
+        ));
+    }
+    let parsed =
+        url::Url::parse(url).map_err(|e| Invalid::new("url", format!("is not a URL ({e})")))?;
+    if !matches!(parsed.scheme(), "http" | "https") {
+        return Err(Invalid::new(
+            "url",
+            "must start with http:// or https:// (the DICOMweb root, e.g. \
+             http://pacs:8042/dicom-web)",
+        ));
+    }
+    if parsed.host_str().is_none_or(str::is_empty) {
+        return Err(Invalid::new(
+            "url",
+            "has no host (e.g. http://pacs:8042/dicom-web)",
+        ));
+    }
+    if !parsed.username().is_empty() || parsed.password().is_some() {
+        return Err(Invalid::new(
+            "url",
+            "holds credentials: give `auth`, `user` and `secret_file` instead (a URL is \
+             logged and shown)",
+        ));
+    }
+    if parsed.fragment().is_some() {
+        return Err(Invalid::new(
+            "url",
+            "has a #fragment, which HTTP never sends",
+        ));
+    }
+    Ok(parsed)
+}
+
 fn default_retry_ms() -> [u64; 2] {
     [500, 30_000]
 }
@@ -79,6 +143,7 @@ impl PacsDestination {
     /// under `pacs[i]`.
     pub fn validate(&self) -> Result<(), Invalid> {
         if self.name.is_empty()
+            || self.name.len() > MAX_NAME
             || !self
                 .name
                 .chars()
@@ -87,7 +152,10 @@ impl PacsDestination {
         {
             return Err(Invalid::new(
                 "name",
-                "must be a short name of letters, digits, `-`, `_` or `.` (it names the push log)",
+                format!(
+                    "must be a short name (1 to {MAX_NAME}) of letters, digits, `-`, `_` or `.` \
+                     (it names the push log)"
+                ),
             ));
         }
         match (&self.url, &self.host) {
@@ -99,12 +167,14 @@ impl PacsDestination {
                 ))
             }
             (Some(url), None) => {
-                if !(url.starts_with("http://") || url.starts_with("https://")) {
-                    return Err(Invalid::new(
-                        "url",
-                        "must start with http:// or https:// (the DICOMweb root, e.g. \
-                         http://pacs:8042/dicom-web)",
-                    ));
+                check_stow_url(url)?;
+                if let Some(user) = &self.user {
+                    if user.is_empty() || user.contains(':') || user.chars().any(char::is_control) {
+                        return Err(Invalid::new(
+                            "user",
+                            "must be a user name without `:` or control characters",
+                        ));
+                    }
                 }
                 match (self.auth, &self.user, &self.secret_file) {
                     (Some(PacsAuth::Basic), None, _) => {
@@ -119,7 +189,20 @@ impl PacsDestination {
                     _ => {}
                 }
             }
-            (None, Some(_)) => {
+            (None, Some(host)) => {
+                let plain = host.trim_start_matches('[').trim_end_matches(']');
+                if host.len() > 253
+                    || host.chars().any(|c| c.is_whitespace() || c.is_control())
+                    || url::Host::parse(plain)
+                        .or_else(|_| plain.parse::<std::net::Ipv6Addr>().map(url::Host::Ipv6))
+                        .is_err()
+                {
+                    return Err(Invalid::new(
+                        "host",
+                        "must be a host name or an IP address (no space, CR, LF or control \
+                         character)",
+                    ));
+                }
                 if self.port.is_none_or(|p| p == 0) {
                     return Err(Invalid::new(
                         "port",
@@ -143,14 +226,23 @@ impl PacsDestination {
                 "must be 1 to 16 printable ASCII characters",
             ));
         }
-        if self.timeout_s == 0 {
-            return Err(Invalid::new("timeout_s", "must be at least 1 second"));
+        if !(1..=MAX_TIMEOUT_S).contains(&self.timeout_s) {
+            return Err(Invalid::new(
+                "timeout_s",
+                format!("must be 1 to {MAX_TIMEOUT_S} seconds"),
+            ));
+        }
+        if !(1..=MAX_TIMEOUT_S).contains(&self.deadline_s) {
+            return Err(Invalid::new(
+                "deadline_s",
+                format!("must be 1 to {MAX_TIMEOUT_S} seconds"),
+            ));
         }
         let [first, max] = self.retry_backoff_ms;
-        if first == 0 || max < first {
+        if first == 0 || max < first || max > MAX_BACKOFF_MS {
             return Err(Invalid::new(
                 "retry_backoff_ms",
-                "must be [first, longest] with 0 < first <= longest",
+                format!("must be [first, longest] with 0 < first <= longest <= {MAX_BACKOFF_MS}"),
             ));
         }
         Ok(())
@@ -159,6 +251,16 @@ impl PacsDestination {
 
 /// Checks every destination and that names are unique.
 pub fn validate(destinations: &[PacsDestination]) -> Result<(), Invalid> {
+    if destinations.len() > MAX_DESTINATIONS {
+        return Err(Invalid::new(
+            "pacs",
+            format!(
+                "{} destinations; at most {MAX_DESTINATIONS} (each has its own thread, log and \
+                 connection)",
+                destinations.len()
+            ),
+        ));
+    }
     for (i, destination) in destinations.iter().enumerate() {
         let under = |invalid: Invalid| Invalid {
             key: format!("pacs[{i}].{}", invalid.key),

@@ -49,4 +49,18 @@ impl StorageConfig {
         }
         Ok(())
     }
+
+    /// Whether this binary can write the configured transfer syntax (JPEG-LS needs the
+    /// `jpegls` feature: without it every slice would fail).
+    pub fn check_backend(&self) -> Result<(), Invalid> {
+        if self.dicom == crate::dicom::Compression::JpegLs && cfg!(not(feature = "jpegls")) {
+            return Err(Invalid::new(
+                "storage.dicom",
+                "\"jpeg-ls\" needs a layerwise built with the `jpegls` feature (cargo build \
+                 --release --features jpegls, with cmake and g++ installed); this one was built \
+                 without it: use \"deflate\" or \"none\"",
+            ));
+        }
+        Ok(())
+    }
 }

@@ -41,10 +41,15 @@ pub fn read_points_file(path: &Path) -> Result<Vec<PointPair>> {
                     .map_err(|_| err(format!("{s:?} is not a number")))
             })
             .collect::<Result<_>>()?;
-        if xs.len() != 6 || xs.iter().any(|x| !x.is_finite()) {
+        if xs.len() != 6 {
             return Err(err(format!(
                 "expected 6 numbers `cx cy cz bx by bz`, got {}",
                 xs.len()
+            )));
+        }
+        if let Some(x) = xs.iter().find(|x| !x.is_finite() || x.abs() > MAX_POINT_MM) {
+            return Err(err(format!(
+                "{x} is not a coordinate: give finite mm, -{MAX_POINT_MM} to {MAX_POINT_MM}"
             )));
         }
         pairs.push(PointPair {
@@ -54,6 +59,9 @@ pub fn read_points_file(path: &Path) -> Result<Vec<PointPair>> {
     }
     Ok(pairs)
 }
+
+/// The largest coordinate of a point pair, mm: a CT or a build plate is far smaller.
+const MAX_POINT_MM: f64 = 1e6;
 
 /// Horn's closed-form absolute orientation with unit quaternions (Horn 1987): the rigid
 /// transform (CT → build) minimising Σ |R·ct + t − build|².

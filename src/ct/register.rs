@@ -146,7 +146,7 @@ impl CtRequest {
 /// The study of a build (its build.json).
 pub fn build_study(dir: &Path) -> Result<Study> {
     let path = dir.join(crate::build_dir::MANIFEST);
-    let bytes = std::fs::read(&path).map_err(|source| CtError::NotABuild {
+    let bytes = crate::build_dir::read_record_file(&path).map_err(|source| CtError::NotABuild {
         dir: dir.to_path_buf(),
         source,
     })?;

@@ -64,6 +64,59 @@ pub struct SeriesSummary {
     pub z_max: f64,
     pub transfer_syntax: String,
     pub instance_numbers: (i64, i64),
+    /// What makes the series' geometry or pixels untrustworthy (spacing, orientation, short
+    /// pixel data), each with the first file it was seen in; empty when it is sound.
+    pub problems: Vec<String>,
+}
+
+/// What is wrong with one file's geometry or pixel data: PixelSpacing not two positive finite
+/// numbers, ImageOrientationPatient not two orthonormal vectors, uncompressed pixel data
+/// shorter than Rows x Columns x samples x bytes (told by the file's size).
+fn file_problems(obj: &InMemDicomObject, path: &Path, ts: &str) -> Vec<String> {
+    let mut problems = Vec::new();
+    let spacing = floats(obj, tags::PIXEL_SPACING);
+    if spacing.len() != 2 || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        problems.push(format!(
+            "PixelSpacing {:?} is not two positive numbers of mm",
+            text(obj, tags::PIXEL_SPACING).unwrap_or_default()
+        ));
+    }
+    let o = floats(obj, tags::IMAGE_ORIENTATION_PATIENT);
+    let orthonormal = o.len() == 6 && {
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        let (row, col) = o.split_at(3);
+        (dot(row, row) - 1.0).abs() < 1e-3
+            && (dot(col, col) - 1.0).abs() < 1e-3
+            && dot(row, col).abs() < 1e-3
+    };
+    if !orthonormal {
+        problems.push(format!(
+            "ImageOrientationPatient {:?} is not two orthonormal vectors",
+            text(obj, tags::IMAGE_ORIENTATION_PATIENT).unwrap_or_default()
+        ));
+    }
+    let uint = |tag| {
+        obj.element(tag)
+            .ok()
+            .and_then(|e| e.to_int::<u64>().ok())
+            .unwrap_or(0)
+    };
+    let native = [
+        "1.2.840.10008.1.2",
+        "1.2.840.10008.1.2.1",
+        "1.2.840.10008.1.2.2",
+    ];
+    let needed = uint(tags::ROWS)
+        * uint(tags::COLUMNS)
+        * uint(tags::SAMPLES_PER_PIXEL).max(1)
+        * uint(tags::BITS_ALLOCATED).div_ceil(8);
+    let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    if native.contains(&ts) && size < needed {
+        problems.push(format!(
+            "pixel data is short: {size} bytes in the file for {needed} bytes of pixels"
+        ));
+    }
+    problems
 }
 
 fn text(obj: &InMemDicomObject, tag: Tag) -> Option<String> {
@@ -112,6 +165,12 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
         let instance: i64 = text(&obj, tags::INSTANCE_NUMBER)
             .and_then(|s| s.parse().ok())
             .unwrap_or(0);
+        let ts = obj
+            .meta()
+            .transfer_syntax()
+            .trim_end_matches('\0')
+            .to_string();
+        let problems = file_problems(&obj, &path, &ts);
         let entry = series.entry(uid.clone()).or_insert_with(|| SeriesSummary {
             series_instance_uid: uid,
             number: text(&obj, tags::SERIES_NUMBER).unwrap_or_default(),
@@ -139,13 +198,19 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
             first_position: [x, y, z],
             z_min: z,
             z_max: z,
-            transfer_syntax: obj
-                .meta()
-                .transfer_syntax()
-                .trim_end_matches('\0')
-                .to_string(),
+            transfer_syntax: ts,
             instance_numbers: (instance, instance),
+            problems: Vec::new(),
         });
+        for problem in problems {
+            // The first of each, ten at most: a thousand damaged slices make one line each.
+            let seen = entry.problems.iter().any(|p| p.ends_with(&problem));
+            if !seen && entry.problems.len() < 10 {
+                entry
+                    .problems
+                    .push(format!("{}: {problem}", path.display()));
+            }
+        }
         entry.files.push(path);
         entry.slices += 1;
         entry.z_min = entry.z_min.min(z);
@@ -232,7 +297,11 @@ impl std::fmt::Display for SeriesSummary {
             f,
             "  study {}  frame of reference {}",
             self.study_instance_uid, self.frame_of_reference_uid
-        )
+        )?;
+        for problem in &self.problems {
+            writeln!(f, "  PROBLEM {problem}")?;
+        }
+        Ok(())
     }
 }
 

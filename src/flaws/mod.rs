@@ -73,6 +73,8 @@ pub enum FlawsError {
         path: PathBuf,
         source: std::io::Error,
     },
+    #[error(transparent)]
+    Original(#[from] crate::build_dir::original::OriginalError),
     #[error("no flaw {id} in {path} (ids 1 to {count})")]
     NoSuchFlaw {
         id: u32,

@@ -210,10 +210,7 @@ fn cut(record: &BuildRecord, jobs: &[Job]) -> Result<Vec<Vec<Option<Patch>>>> {
             let Some(path) = crate::build_dir::original_path(&record.dir, &shot) else {
                 return Ok(Vec::new());
             };
-            let bytes = std::fs::read(&path).map_err(|source| FlawsError::Read {
-                path: path.clone(),
-                source,
-            })?;
+            let bytes = crate::build_dir::original::read(&path)?.bytes;
             let luma = crate::rectify::decode_frame_luma(&bytes)
                 .map_err(|source| FlawsError::Frame { path, source })?;
             by_layer[&layer]

@@ -29,6 +29,8 @@ pub enum OfflineError {
         #[source]
         source: RectifyError,
     },
+    #[error(transparent)]
+    Original(#[from] crate::build_dir::original::OriginalError),
     #[error("{path}: no frames named L{{layer:05}}_{{phase}}_{{light}}.{{ext}} (docs/frames.md)")]
     NoFrames { path: PathBuf },
     #[error("{path}: no pictures (.jpg, .jpeg, .png, .tif, .tiff, .nef) in the folder")]
@@ -171,18 +173,34 @@ pub fn frame_size(frames: &BTreeMap<Shot, PathBuf>) -> Result<(u32, u32), Offlin
     })
 }
 
-/// The first takes of a stored build, from its journal.
-pub fn build_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+/// The frames to inspect, per shot, and where they come from.
+pub struct Frames {
+    pub paths: BTreeMap<Shot, PathBuf>,
+    /// The originals of a build: each read only with its sidecar, which it must match
+    /// (build_dir::original); a folder's frames are taken as they are.
+    pub of_build: bool,
+}
+
+/// The first takes of a stored build, from its journal: each record's file only if it is the
+/// shot's own name in `raw/` (a record naming anything else is refused).
+pub fn build_frames(dir: &Path) -> Result<Frames, OfflineError> {
     let replay = Journal::read(&dir.join(crate::build_dir::JOURNAL))?;
-    Ok(replay
+    let paths = replay
         .frames
         .iter()
-        .map(|(shot, entry)| (*shot, dir.join(&entry.file)))
-        .collect())
+        .map(|(shot, entry)| {
+            crate::build_dir::original::recorded_path(dir, shot, 1, &entry.file)
+                .map(|path| (*shot, path))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(Frames {
+        paths,
+        of_build: true,
+    })
 }
 
 /// Frames in a folder named `L00042_post_top.jpg` (retakes `….r2.jpg` and sidecars left out).
-pub fn folder_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+pub fn folder_frames(dir: &Path) -> Result<Frames, OfflineError> {
     let entries = std::fs::read_dir(dir).map_err(|source| OfflineError::Read {
         path: dir.to_path_buf(),
         source,
@@ -202,7 +220,10 @@ pub fn folder_frames(dir: &Path) -> Result<BTreeMap<Shot, PathBuf>, OfflineError
             path: dir.to_path_buf(),
         });
     }
-    Ok(frames)
+    Ok(Frames {
+        paths: frames,
+        of_build: false,
+    })
 }
 
 /// A frame that could not be inspected (the rest go on, as in the daemon).
@@ -218,14 +239,14 @@ pub struct Skipped {
 pub fn run(
     inspector: &mut Inspector,
     rectifier: &Rectifier,
-    frames: &BTreeMap<Shot, PathBuf>,
+    frames: &Frames,
     from: u32,
     to: u32,
     at: chrono::DateTime<chrono::Utc>,
 ) -> (Vec<InspectionRecord>, Vec<Skipped>) {
     let reducer = inspector.reducer();
     let mut by_layer: BTreeMap<u32, Vec<(Shot, &PathBuf)>> = BTreeMap::new();
-    for (shot, path) in frames.range(
+    for (shot, path) in frames.paths.range(
         Shot {
             layer: from,
             phase: crate::shot::Phase::Pre,
@@ -245,11 +266,17 @@ pub fn run(
         let cells: Vec<_> = shots
             .par_iter()
             .map(|(shot, path)| {
-                let cells = std::fs::read(path)
-                    .map_err(|source| OfflineError::Read {
+                let bytes = if frames.of_build {
+                    crate::build_dir::original::read(path)
+                        .map(|original| original.bytes)
+                        .map_err(OfflineError::from)
+                } else {
+                    crate::fsutil::read_regular(path).map_err(|source| OfflineError::Read {
                         path: path.to_path_buf(),
                         source,
                     })
+                };
+                let cells = bytes
                     .and_then(|bytes| {
                         crate::rectify::decode_frame_luma(&bytes).map_err(|source| {
                             OfflineError::Decode {

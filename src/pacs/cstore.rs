@@ -4,14 +4,13 @@
 
 use super::destination::{Destination, Target};
 use super::error::{PacsError, StoreError};
-use super::instance::{status_text, Instance, Outcome, Sender};
+use super::instance::{status_text, Instance, Outcome, Sender, Unfinished};
 use dicom_core::{dicom_value, DataElement, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
 use dicom_transfer_syntax_registry::entries::IMPLICIT_VR_LITTLE_ENDIAN;
 use dicom_ul::pdu::{PDataValue, PDataValueType, PresentationContextResultReason};
 use dicom_ul::{ClientAssociationOptions, Pdu};
-use std::io::Write;
 use std::time::Duration;
 
 pub struct CStoreClient {
@@ -20,6 +19,8 @@ pub struct CStoreClient {
     called_ae: String,
     calling_ae: String,
     timeout: Duration,
+    /// Longest the association, or one instance's exchange, may take.
+    deadline: Duration,
 }
 
 impl CStoreClient {
@@ -36,6 +37,7 @@ impl CStoreClient {
                 called_ae: called_ae.clone(),
                 calling_ae: calling_ae.clone(),
                 timeout: destination.timeout,
+                deadline: destination.deadline,
             },
             Target::Stow { .. } => unreachable!("a C-STORE client for a STOW-RS destination"),
         }
@@ -114,8 +116,47 @@ pub fn outcome(status: u16, comment: Option<&str>) -> Outcome {
 }
 
 impl Sender for CStoreClient {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
+    fn send(&mut self, batch: &[Instance], deadline: Duration) -> Result<Vec<Outcome>, Unfinished> {
+        // The exchange runs on a runtime of its own, from this thread, so that a deadline can end
+        // it wherever it waits: dropping the association's future closes its socket (a blocking
+        // read cannot be ended, and an archive trickling one byte at a time never lets a read
+        // timeout fire).
+        // (Multi-threaded, one worker: dicom-ul's P-DATA writer flushes on drop through
+        // `block_in_place`, which a current-thread runtime refuses.)
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name(format!("pacs-cstore-{}", self.called_ae))
+            .enable_io()
+            .enable_time()
+            .build()
+            .map_err(|source| PacsError::Thread {
+                destination: self.peer(),
+                source,
+            })?;
+        runtime.block_on(self.send_within(batch, deadline))
+    }
+}
+
+impl CStoreClient {
+    /// The batch on one association: at most `self.deadline` to associate and per instance,
+    /// `deadline` in all.
+    async fn send_within(
+        &self,
+        batch: &[Instance],
+        deadline: Duration,
+    ) -> Result<Vec<Outcome>, Unfinished> {
+        use tokio::time::{timeout_at, Instant};
         let peer = self.peer();
+        let end = Instant::now() + deadline;
+        let step_end = || (Instant::now() + self.deadline).min(end);
+        let late = |until: Instant| PacsError::Deadline {
+            peer: format!("C-STORE to {peer}"),
+            seconds: if until == end {
+                deadline.as_secs_f64()
+            } else {
+                self.deadline.as_secs_f64()
+            },
+        };
         let mut contexts: Vec<(&str, &str)> = batch
             .iter()
             .map(|i| (trim(&i.sop_class_uid), wire_syntax(i)))
@@ -132,13 +173,19 @@ impl Sender for CStoreClient {
             options = options.with_presentation_context(*class, vec![*syntax]);
         }
         let address = format!("{}:{}", self.host, self.port);
+        let until = step_end();
         let mut association =
-            options
-                .establish(address.as_str())
-                .map_err(|source| PacsError::Association {
-                    peer: peer.clone(),
-                    source: Box::new(source),
-                })?;
+            match timeout_at(until, options.establish_async(address.as_str())).await {
+                Ok(Ok(association)) => association,
+                Ok(Err(source)) => {
+                    return Err(PacsError::Association {
+                        peer: peer.clone(),
+                        source: Box::new(source),
+                    }
+                    .into())
+                }
+                Err(_) => return Err(late(until).into()),
+            };
         // Many small PDUs per instance: without this, each waits for the peer's delayed ACK.
         let _ = association.inner_stream().set_nodelay(true);
         let accepted: Vec<_> = association
@@ -154,6 +201,10 @@ impl Sender for CStoreClient {
             })
             .collect();
         let mut outcomes = Vec::with_capacity(batch.len());
+        let unfinished = |outcomes: Vec<Outcome>, error| Unfinished {
+            answered: outcomes.into_iter().enumerate().collect(),
+            error,
+        };
         for (message_id, instance) in (1u16..).zip(batch) {
             let context = accepted.iter().find(|(_, class, syntax)| {
                 class == trim(&instance.sop_class_uid) && syntax == wire_syntax(instance)
@@ -166,33 +217,50 @@ impl Sender for CStoreClient {
                 )));
                 continue;
             };
-            match store_one(&mut association, *id, instance, message_id) {
-                Ok(outcome) => outcomes.push(outcome),
-                Err(source) => {
-                    let _ = association.abort();
-                    return Err(PacsError::Store {
+            let until = step_end();
+            match timeout_at(
+                until,
+                store_one(&mut association, *id, instance, message_id),
+            )
+            .await
+            {
+                Ok(Ok(outcome)) => outcomes.push(outcome),
+                Ok(Err(source)) => {
+                    let _ = timeout_at(step_end(), association.abort()).await;
+                    let error = PacsError::Store {
                         peer,
                         file: instance.file.clone(),
                         source,
-                    });
+                    };
+                    return Err(unfinished(outcomes, error));
                 }
+                // Dropping the association closes the connection.
+                Err(_) => return Err(unfinished(outcomes, late(until))),
             }
         }
-        association.release().map_err(|source| PacsError::Release {
-            peer,
-            source: Box::new(source),
-        })?;
-        Ok(outcomes)
+        let until = step_end();
+        match timeout_at(until, association.release()).await {
+            Ok(Ok(())) => Ok(outcomes),
+            Ok(Err(source)) => Err(unfinished(
+                outcomes,
+                PacsError::Release {
+                    peer,
+                    source: Box::new(source),
+                },
+            )),
+            Err(_) => Err(unfinished(outcomes, late(until))),
+        }
     }
 }
 
 /// Sends one instance on an open association and reads its C-STORE-RSP.
-fn store_one(
-    association: &mut dicom_ul::ClientAssociation<std::net::TcpStream>,
+async fn store_one(
+    association: &mut dicom_ul::association::client::AsyncClientAssociation<tokio::net::TcpStream>,
     context: u8,
     instance: &Instance,
     message_id: u16,
 ) -> Result<Outcome, StoreError> {
+    use tokio::io::AsyncWriteExt;
     let mut command = Vec::with_capacity(160);
     store_request(instance, message_id)
         .write_dataset_with_ts(&mut command, &IMPLICIT_VR_LITTLE_ENDIAN.erased())
@@ -206,18 +274,19 @@ fn store_one(
                 data: command,
             }],
         })
+        .await
         .map_err(|e| StoreError::Command(Box::new(e)))?;
     {
+        let dataset = wire_dataset(instance)?;
         let mut writer = association.send_pdata(context);
-        writer
-            .write_all(&wire_dataset(instance)?)
-            .map_err(StoreError::Data)?;
-        writer.finish().map_err(StoreError::Data)?;
+        writer.write_all(&dataset).await.map_err(StoreError::Data)?;
+        writer.finish().await.map_err(StoreError::Data)?;
     }
     let mut response = Vec::new();
     loop {
         match association
             .receive()
+            .await
             .map_err(|e| StoreError::Receive(Box::new(e)))?
         {
             Pdu::PData { data } => {
@@ -250,13 +319,14 @@ fn store_one(
         .element(tags::ERROR_COMMENT)
         .ok()
         .and_then(|e| e.to_str().ok())
-        .map(|c| c.trim().to_string());
+        .map(|c| crate::logging::escape(c.trim()));
     Ok(outcome(status, comment.as_deref()))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write;
 
     #[test]
     fn statuses_map_to_stored_or_rejected_with_reason() {

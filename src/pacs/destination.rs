@@ -25,7 +25,10 @@ pub enum Target {
 pub struct Destination {
     pub name: String,
     pub target: Target,
+    /// Longest wait for a connection or the next bytes.
     pub timeout: Duration,
+    /// Longest one instance may take, however slowly the bytes come (`deadline_s`).
+    pub deadline: Duration,
     pub backoff: [Duration; 2],
 }
 
@@ -35,16 +38,7 @@ impl Destination {
         let target = match (&config.url, &config.host) {
             (Some(url), _) => {
                 let secret = match &config.secret_file {
-                    Some(path) => Some(
-                        std::fs::read_to_string(path)
-                            .map_err(|source| PacsError::Secret {
-                                name: config.name.clone(),
-                                path: path.clone(),
-                                source,
-                            })?
-                            .trim_end_matches(['\r', '\n'])
-                            .to_string(),
-                    ),
+                    Some(path) => Some(read_secret(&config.name, path)?),
                     None => None,
                 };
                 let authorization = match (config.auth, secret) {
@@ -74,6 +68,7 @@ impl Destination {
             name: config.name.clone(),
             target,
             timeout: Duration::from_secs(config.timeout_s),
+            deadline: Duration::from_secs(config.deadline_s),
             backoff: config.retry_backoff_ms.map(Duration::from_millis),
         })
     }
@@ -83,9 +78,11 @@ impl Destination {
         if let Some(config) = configured.iter().find(|d| d.name == to) {
             return Destination::from_config(config);
         }
-        let bad = || PacsError::BadTarget(to.to_string());
+        // What the command line gave is shown (and logged) only without its credentials.
+        let shown = without_credentials(to);
+        let bad = || PacsError::BadTarget(crate::logging::escape(&shown));
         let mut config = PacsDestination {
-            name: log_name(to),
+            name: log_name(&shown),
             url: None,
             auth: None,
             user: None,
@@ -95,10 +92,34 @@ impl Destination {
             called_ae: None,
             calling_ae: "LAYERWISE".into(),
             timeout_s: 30,
+            deadline_s: 60,
             retry_backoff_ms: [500, 30_000],
         };
+        let mut basic = None;
         if to.starts_with("http://") || to.starts_with("https://") {
-            config.url = Some(to.to_string());
+            // `http://user:secret@host/…`: Basic authorization from the URL, kept in memory
+            // only (the log's name, the messages and the log hold the URL without it).
+            if let Ok(mut url) = url::Url::parse(to) {
+                if !url.username().is_empty() || url.password().is_some() {
+                    let decode = |s: &str| {
+                        url::form_urlencoded::parse(format!("x={s}").as_bytes())
+                            .next()
+                            .map(|(_, v)| v.into_owned())
+                            .unwrap_or_default()
+                    };
+                    let user = decode(url.username());
+                    let password = decode(url.password().unwrap_or(""));
+                    basic = Some(format!(
+                        "Basic {}",
+                        base64(format!("{user}:{password}").as_bytes())
+                    ));
+                    let _ = url.set_username("");
+                    let _ = url.set_password(None);
+                }
+                config.url = Some(url.as_str().to_string());
+            } else {
+                config.url = Some(to.to_string());
+            }
         } else if let Some(rest) = to.strip_prefix("dicom://") {
             let (ae, address) = rest.split_once('@').ok_or_else(bad)?;
             let (host, port) = address.rsplit_once(':').ok_or_else(bad)?;
@@ -110,11 +131,53 @@ impl Destination {
         }
         if let Err(invalid) = config.validate() {
             return Err(PacsError::Invalid {
-                destination: to.to_string(),
+                destination: crate::logging::escape(&shown),
                 message: invalid.message,
             });
         }
-        Destination::from_config(&config)
+        let mut destination = Destination::from_config(&config)?;
+        if let (Some(basic), Target::Stow { authorization, .. }) = (basic, &mut destination.target)
+        {
+            *authorization = Some(basic);
+        }
+        Ok(destination)
+    }
+}
+
+/// The largest secret file: a password or a token (a JWT is a few KB).
+const MAX_SECRET_BYTES: u64 = 64 << 10;
+
+/// A destination's password or token from its `secret_file`: a regular file (a FIFO or a
+/// device is refused, never waited on or read without end) of at most [`MAX_SECRET_BYTES`], one
+/// line of printable text (the trailing newline ignored): it goes into an HTTP header.
+fn read_secret(name: &str, path: &std::path::Path) -> Result<String, PacsError> {
+    let err = |source| PacsError::Secret {
+        name: name.to_string(),
+        path: path.to_path_buf(),
+        source,
+    };
+    let text = crate::fsutil::read_text_bounded(path, MAX_SECRET_BYTES).map_err(err)?;
+    let secret = text.trim_end_matches(['\r', '\n']);
+    if secret.chars().any(|c| c.is_control()) {
+        return Err(err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "holds a control character or more than one line: the secret alone on one line",
+        )));
+    }
+    Ok(secret.to_string())
+}
+
+/// A URL given on the command line without the `user:password@` of its authority.
+fn without_credentials(to: &str) -> String {
+    match to.split_once("://") {
+        Some((scheme, rest)) if scheme.starts_with("http") => {
+            let end = rest.find(['/', '?', '#']).unwrap_or(rest.len());
+            match rest[..end].rfind('@') {
+                Some(at) => format!("{scheme}://{}", &rest[at + 1..]),
+                None => to.to_string(),
+            }
+        }
+        _ => to.to_string(),
     }
 }
 

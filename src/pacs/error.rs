@@ -36,6 +36,23 @@ pub enum PacsError {
         #[source]
         source: Box<PacsError>,
     },
+    /// The archive took longer than the deadline (`deadline_s` per instance of the batch, or
+    /// what was left of the push's own): the batch is sent again later.
+    #[error(
+        "{peer}: no complete answer within the deadline of {seconds:.0} s (deadline_s per \
+         instance); the archive is too slow, the rest is sent again later"
+    )]
+    Deadline { peer: String, seconds: f64 },
+    /// The push's own deadline passed with instances still to push.
+    #[error(
+        "{destination}: the push's deadline of {seconds:.0} s passed with {pending} instances \
+         still to push (they stay pending: push again to complete it)"
+    )]
+    RunDeadline {
+        destination: String,
+        seconds: f64,
+        pending: usize,
+    },
     #[error("{destination}: cannot start the push thread")]
     Thread {
         destination: String,
@@ -169,13 +186,15 @@ impl std::error::Error for TransportError {
     }
 }
 
-/// An instance the STOW-RS answer does not mention: the batch's fate is unknown (an error: the
-/// batch is sent again later).
+/// Instances the STOW-RS answer does not mention: their fate is unknown (they are sent again
+/// later; the ones it mentions are logged).
 #[derive(Debug, thiserror::Error)]
-#[error("the answer does not mention instance {uid} ({file})")]
+#[error("the answer does not mention {missing} of the {total} instances, the first {uid} ({file})")]
 pub struct Unmentioned {
     pub uid: String,
     pub file: String,
+    pub missing: usize,
+    pub total: usize,
 }
 
 /// What went wrong sending one instance on an open association ([`PacsError::Store`] names the

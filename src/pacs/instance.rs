@@ -3,6 +3,11 @@
 
 use super::error::PacsError;
 use std::path::Path;
+use std::time::Duration;
+
+/// The largest instance pushed: a slice of a build is a few MB, a resampled CT slice tens; a
+/// larger file (a sparse 3 GB `.dcm`) is refused by its size, never read whole.
+pub const MAX_INSTANCE_BYTES: u64 = 512 << 20;
 
 /// One DICOM file read for sending: its identity from the file meta group and its bytes.
 pub struct Instance {
@@ -21,9 +26,11 @@ impl Instance {
     /// Reads `root/file`; a file that is not Part 10 DICOM is an error naming it.
     pub fn read(root: &Path, file: &str) -> Result<Instance, PacsError> {
         let path = root.join(file);
-        let bytes = std::fs::read(&path).map_err(|source| PacsError::Read {
-            file: file.to_string(),
-            source,
+        let bytes = crate::fsutil::read_bounded(&path, MAX_INSTANCE_BYTES).map_err(|source| {
+            PacsError::Read {
+                file: file.to_string(),
+                source,
+            }
         })?;
         if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
             return Err(PacsError::NotPart10 {
@@ -65,11 +72,30 @@ pub enum Outcome {
     Rejected(String),
 }
 
-/// A connection to one archive that stores batches of instances. An `Err` means the archive
-/// was not reached or did not answer for the batch (retry later); per-instance refusals are
-/// [`Outcome::Rejected`].
+/// A connection to one archive that stores batches of instances. `Ok` has an outcome per
+/// instance of the batch; per-instance refusals are [`Outcome::Rejected`]. An `Err` means the
+/// archive was not reached, did not answer for every instance, or not within `deadline` (the
+/// whole batch's time, however slowly the bytes come): what it did answer for is in
+/// [`Unfinished::answered`], the rest is sent again later.
 pub trait Sender: Send {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError>;
+    fn send(&mut self, batch: &[Instance], deadline: Duration) -> Result<Vec<Outcome>, Unfinished>;
+}
+
+/// A batch the archive did not answer for in full: the outcomes it gave (by index in the
+/// batch) and what stopped the rest.
+#[derive(Debug)]
+pub struct Unfinished {
+    pub answered: Vec<(usize, Outcome)>,
+    pub error: PacsError,
+}
+
+impl From<PacsError> for Unfinished {
+    fn from(error: PacsError) -> Unfinished {
+        Unfinished {
+            answered: Vec::new(),
+            error,
+        }
+    }
 }
 
 /// Text for a DICOM storage failure status (PS3.4 B.2.3, PS3.7 C.4.2; STOW-RS FailureReason).

@@ -119,7 +119,8 @@ fn push_loop(
     let name = queue.destination.name.clone();
     loop {
         let mut backing_off = true;
-        let wait = match queue.push_pending(sender.as_mut(), false, clock.as_ref()) {
+        // Stopping, the grace bounds the push itself, not only the waits between its passes.
+        let wait = match queue.push_pending(sender.as_mut(), false, clock.as_ref(), deadline) {
             Ok(_) => {
                 backing_off = false;
                 backoff.reset();
@@ -129,7 +130,7 @@ fn push_loop(
                 }
                 plan.poll
             }
-            Err(PacsError::Transport { .. }) => backoff.advance(),
+            Err(PacsError::Transport { .. } | PacsError::RunDeadline { .. }) => backoff.advance(),
             Err(e) => {
                 error!(destination = %name, error = %Chain(&e), "pacs: cannot record the push");
                 backoff.advance()
@@ -184,7 +185,11 @@ mod tests {
     struct Recording(crossbeam_channel::Sender<String>);
 
     impl PacsSender for Recording {
-        fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
+        fn send(
+            &mut self,
+            batch: &[Instance],
+            _: Duration,
+        ) -> Result<Vec<Outcome>, crate::pacs::Unfinished> {
             for instance in batch {
                 let _ = self.0.send(instance.file.clone());
             }
@@ -244,6 +249,7 @@ mod tests {
                 authorization: None,
             },
             timeout: Duration::from_secs(1),
+            deadline: Duration::from_secs(1),
             backoff: [Duration::from_secs(1), Duration::from_secs(60)],
         };
         // A manual clock that is never advanced: the poll (an hour) never comes.

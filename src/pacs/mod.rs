@@ -14,7 +14,7 @@ pub mod stow;
 
 pub use destination::{Destination, Target};
 pub use error::{PacsError, StoreError, TransportError, Unmentioned};
-pub use instance::{status_text, Instance, Outcome, Sender};
+pub use instance::{status_text, Instance, Outcome, Sender, Unfinished, MAX_INSTANCE_BYTES};
 pub use queue::{PushCount, Queue};
 
 #[cfg(test)]

@@ -3,10 +3,11 @@
 
 use super::destination::Destination;
 use super::error::PacsError;
-use super::instance::{Instance, Outcome, Sender};
+use super::instance::{Instance, Outcome, Sender, Unfinished};
 use crate::build_dir::pushlog::{self, PushLog, PushRecord, PushState};
 use crate::clock::Clock;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 use tracing::{info, warn};
 
 /// Batches stay below this many bytes (and [`BATCH_FILES`] files).
@@ -54,16 +55,31 @@ impl Queue {
 
     /// Pushes every pending instance through `sender`, logging each outcome as it comes;
     /// stops at the first transport error (logged once per distinct message) and returns it.
+    /// Each batch has `deadline_s` per instance; with `until` (on `clock`'s elapsed time) the
+    /// push stops there too, what is left pending.
     pub fn push_pending(
         &mut self,
         sender: &mut dyn Sender,
         retry_rejected: bool,
         clock: &dyn Clock,
+        until: Option<Duration>,
     ) -> Result<PushCount, PacsError> {
         let mut count = PushCount::default();
         let pending = self.pending(retry_rejected);
+        let started = clock.elapsed();
         let mut next = 0;
         while next < pending.len() {
+            let left = until.map(|end| end.saturating_sub(clock.elapsed()));
+            if left == Some(Duration::ZERO) {
+                return Err(PacsError::RunDeadline {
+                    destination: self.destination.name.clone(),
+                    seconds: until
+                        .unwrap_or_default()
+                        .saturating_sub(started)
+                        .as_secs_f64(),
+                    pending: pending.len() - next,
+                });
+            }
             let mut batch = Vec::new();
             let mut bytes = 0;
             while next < pending.len() && batch.len() < BATCH_FILES && bytes < BATCH_BYTES {
@@ -91,10 +107,24 @@ impl Queue {
             if batch.is_empty() {
                 continue;
             }
-            let outcomes = match sender.send(&batch) {
+            let per_instance = self.destination.deadline.saturating_mul(batch.len() as u32);
+            let deadline = left.map_or(per_instance, |left| left.min(per_instance));
+            let outcomes = match sender.send(&batch, deadline) {
                 Ok(outcomes) => outcomes,
-                // Whatever the sender met, the batch's fate is unknown: a transport error, retried.
-                Err(source) => {
+                // What the archive answered for is logged (not sent again); the rest's fate is
+                // unknown: a transport error, retried.
+                Err(Unfinished {
+                    answered,
+                    error: source,
+                }) => {
+                    if !answered.is_empty() {
+                        warn!(destination = %self.destination.name, answered = answered.len(), batch = batch.len(), "pacs: the archive answered for part of the batch; that part is logged, the rest sent again");
+                    }
+                    for (i, outcome) in answered {
+                        if let Some(instance) = batch.get(i) {
+                            self.log_outcome(instance, outcome, &mut count, clock)?;
+                        }
+                    }
                     let message = crate::logging::chain(&source);
                     if self.last_logged_error.as_deref() != Some(&message) {
                         warn!(destination = %self.destination.name, error = %message, "pacs: push failed; will retry");
@@ -112,42 +142,54 @@ impl Queue {
             };
             self.last_logged_error = None;
             for (instance, outcome) in batch.iter().zip(outcomes) {
-                let (record, rejected) = match outcome {
-                    Outcome::Stored => {
-                        count.stored += 1;
-                        count.bytes += instance.bytes.len() as u64;
-                        (
-                            PushRecord::Stored {
-                                file: instance.file.clone(),
-                                sop_instance_uid: instance.sop_instance_uid.clone(),
-                                at: clock.now(),
-                            },
-                            None,
-                        )
-                    }
-                    Outcome::Rejected(reason) => {
-                        warn!(destination = %self.destination.name, file = %instance.file, %reason, "pacs: instance rejected");
-                        (
-                            PushRecord::Rejected {
-                                file: instance.file.clone(),
-                                sop_instance_uid: instance.sop_instance_uid.clone(),
-                                reason: reason.clone(),
-                                at: clock.now(),
-                            },
-                            Some(reason),
-                        )
-                    }
-                };
-                self.record(&record)?;
-                if let Some(reason) = rejected {
-                    count.rejected.push((instance.file.clone(), reason));
-                }
+                self.log_outcome(instance, outcome, &mut count, clock)?;
             }
         }
         if count.stored > 0 {
             info!(destination = %self.destination.name, instances = count.stored, "pacs: pushed");
         }
         Ok(count)
+    }
+
+    /// Logs what the archive said of one instance, and counts it.
+    fn log_outcome(
+        &mut self,
+        instance: &Instance,
+        outcome: Outcome,
+        count: &mut PushCount,
+        clock: &dyn Clock,
+    ) -> Result<(), PacsError> {
+        let (record, rejected) = match outcome {
+            Outcome::Stored => {
+                count.stored += 1;
+                count.bytes += instance.bytes.len() as u64;
+                (
+                    PushRecord::Stored {
+                        file: instance.file.clone(),
+                        sop_instance_uid: instance.sop_instance_uid.clone(),
+                        at: clock.now(),
+                    },
+                    None,
+                )
+            }
+            Outcome::Rejected(reason) => {
+                warn!(destination = %self.destination.name, file = %instance.file, %reason, "pacs: instance rejected");
+                (
+                    PushRecord::Rejected {
+                        file: instance.file.clone(),
+                        sop_instance_uid: instance.sop_instance_uid.clone(),
+                        reason: reason.clone(),
+                        at: clock.now(),
+                    },
+                    Some(reason),
+                )
+            }
+        };
+        self.record(&record)?;
+        if let Some(reason) = rejected {
+            count.rejected.push((instance.file.clone(), reason));
+        }
+        Ok(())
     }
 
     fn record(&mut self, record: &PushRecord) -> Result<(), PacsError> {

@@ -5,9 +5,10 @@
 
 use super::destination::{Destination, Target};
 use super::error::{PacsError, TransportError, Unmentioned};
-use super::instance::{status_text, Instance, Outcome, Sender};
+use super::instance::{status_text, Instance, Outcome, Sender, Unfinished};
 use serde_json::Value;
 use std::collections::HashMap;
+use std::time::Duration;
 
 pub struct StowClient {
     agent: ureq::Agent,
@@ -57,11 +58,16 @@ pub fn multipart(batch: &[Instance]) -> (Vec<u8>, String) {
 }
 
 impl Sender for StowClient {
-    fn send(&mut self, batch: &[Instance]) -> Result<Vec<Outcome>, PacsError> {
+    fn send(&mut self, batch: &[Instance], deadline: Duration) -> Result<Vec<Outcome>, Unfinished> {
         let (body, boundary) = multipart(batch);
+        let started = std::time::Instant::now();
+        // The whole exchange, connection to the answer's last byte, within the deadline: an
+        // archive that trickles its answer cannot hold the push (ureq's read timeout restarts
+        // with every byte).
         let mut request = self
             .agent
             .post(&self.url)
+            .timeout(deadline)
             .set(
                 "Content-Type",
                 &format!("multipart/related; type=\"application/dicom\"; boundary={boundary}"),
@@ -74,28 +80,45 @@ impl Sender for StowClient {
         let (status, text) = match request.send_bytes(&body) {
             Ok(response) => {
                 let status = response.status();
-                (status, response.into_string().unwrap_or_default())
+                let text = response.into_string();
+                if text.is_err() && started.elapsed() >= deadline {
+                    return Err(PacsError::Deadline {
+                        peer: format!("POST {}", url()),
+                        seconds: deadline.as_secs_f64(),
+                    }
+                    .into());
+                }
+                (status, text.unwrap_or_default())
             }
             // 409 (all failed) and other statuses may still carry the per-instance answer.
             Err(ureq::Error::Status(status, response)) => {
                 let text = response.into_string().unwrap_or_default();
                 match status {
-                    401 | 403 => return Err(PacsError::Unauthorized { url: url(), status }),
+                    401 | 403 => return Err(PacsError::Unauthorized { url: url(), status }.into()),
                     400 | 409 | 415 if parse_json(&text).is_ok() => (status, text),
                     _ => {
                         return Err(PacsError::Http {
                             url: url(),
                             status,
                             body: short(&text),
-                        })
+                        }
+                        .into())
                     }
                 }
+            }
+            Err(ureq::Error::Transport(_)) if started.elapsed() >= deadline => {
+                return Err(PacsError::Deadline {
+                    peer: format!("POST {}", url()),
+                    seconds: deadline.as_secs_f64(),
+                }
+                .into());
             }
             Err(ureq::Error::Transport(e)) => {
                 return Err(PacsError::Connect {
                     url: url(),
                     source: TransportError(Box::new(e)),
-                });
+                }
+                .into());
             }
         };
         let answer = parse_json(&text).map_err(|source| PacsError::NotStow {
@@ -104,7 +127,30 @@ impl Sender for StowClient {
             body: short(&text),
             source,
         })?;
-        outcomes(batch, &answer).map_err(|source| PacsError::Answer { url: url(), source })
+        let outcomes = outcomes(batch, &answer);
+        let missing: Vec<usize> = (0..batch.len())
+            .filter(|&i| outcomes[i].is_none())
+            .collect();
+        let Some(&first) = missing.first() else {
+            return Ok(outcomes.into_iter().flatten().collect());
+        };
+        // What the archive answered for is logged; the rest is sent again.
+        Err(Unfinished {
+            answered: outcomes
+                .into_iter()
+                .enumerate()
+                .filter_map(|(i, o)| Some((i, o?)))
+                .collect(),
+            error: PacsError::Answer {
+                url: url(),
+                source: Unmentioned {
+                    uid: batch[first].sop_instance_uid.clone(),
+                    file: batch[first].file.clone(),
+                    missing: missing.len(),
+                    total: batch.len(),
+                },
+            },
+        })
     }
 }
 
@@ -117,10 +163,13 @@ fn parse_json(text: &str) -> Result<Value, Option<serde_json::Error>> {
     }
 }
 
-/// The first line of a body, shortened, for an error message.
+/// The first line of a body, shortened and escaped (an archive's text never acts on the
+/// operator's terminal), for an error message.
 fn short(text: &str) -> Option<String> {
     let line = text.lines().map(str::trim).find(|l| !l.is_empty())?;
-    Some(line.chars().take(200).collect())
+    Some(crate::logging::escape(
+        &line.chars().take(200).collect::<String>(),
+    ))
 }
 
 /// The items of a sequence attribute in DICOM JSON.
@@ -137,9 +186,9 @@ fn first_value<'a>(item: &'a Value, tag: &str) -> Option<&'a Value> {
     item.get(tag)?.get("Value")?.as_array()?.first()
 }
 
-/// Each instance's outcome from the STOW-RS answer; an instance the answer does not mention
-/// means the batch's fate is unknown (an error: the batch is sent again later).
-pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, Unmentioned> {
+/// Each instance's outcome from the STOW-RS answer, `None` for an instance the answer does not
+/// mention (its fate is unknown: it is sent again later).
+pub fn outcomes(batch: &[Instance], answer: &Value) -> Vec<Option<Outcome>> {
     let mut by_uid: HashMap<String, Outcome> = HashMap::new();
     for item in items(answer, "00081199") {
         if let Some(uid) = first_value(item, "00081155").and_then(Value::as_str) {
@@ -161,15 +210,7 @@ pub fn outcomes(batch: &[Instance], answer: &Value) -> Result<Vec<Outcome>, Unme
     }
     batch
         .iter()
-        .map(|instance| {
-            by_uid
-                .get(&instance.sop_instance_uid)
-                .cloned()
-                .ok_or_else(|| Unmentioned {
-                    uid: instance.sop_instance_uid.clone(),
-                    file: instance.file.clone(),
-                })
-        })
+        .map(|instance| by_uid.get(&instance.sop_instance_uid).cloned())
         .collect()
 }
 
@@ -197,16 +238,15 @@ mod tests {
         )
         .unwrap();
         let batch = [instance("1.1"), instance("1.2")];
-        let got = outcomes(&batch, &answer).unwrap();
-        assert_eq!(got[0], Outcome::Stored);
+        let got = outcomes(&batch, &answer);
+        assert_eq!(got[0], Some(Outcome::Stored));
         assert_eq!(
             got[1],
-            Outcome::Rejected("STOW-RS FailureReason 0110H (processing failure)".into())
+            Some(Outcome::Rejected(
+                "STOW-RS FailureReason 0110H (processing failure)".into()
+            ))
         );
-        let err = outcomes(&[instance("1.3")], &answer)
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("1.3"), "{err}");
+        assert_eq!(outcomes(&[instance("1.3")], &answer), [None]);
     }
 
     #[test]

@@ -169,10 +169,12 @@ pub(crate) fn open_file(path: &Path) -> Result<(BufReader<File>, u64, String), V
 /// Reads a whole CLI file (ASCII or binary, detected from the header).
 pub fn read(path: &Path) -> Result<VectorFile, VectorError> {
     let name = display_name(path);
-    let bytes = crate::fsutil::read_regular(path).map_err(|source| VectorError::Io {
-        file: name.clone(),
-        source,
-    })?;
+    // Read whole only when asked to (large files are streamed): any size a file system holds.
+    let bytes =
+        crate::fsutil::read_bounded(path, u64::MAX - 1).map_err(|source| VectorError::Io {
+            file: name.clone(),
+            source,
+        })?;
     read_bytes(&bytes, &name)
 }
 

@@ -248,3 +248,92 @@ fn registration_through_an_oblique_dicom_series() {
         d * 1e3
     );
 }
+
+/// Two slices of 64 x 64 in the axial frame: `spacing`, `iop`, and `pixels` values each.
+fn write_pair(dir: &Path, spacing: f64, iop: [f64; 6], pixels: usize) {
+    std::fs::create_dir_all(dir).expect("dir");
+    let px = vec![0i16; pixels];
+    for k in 0..2 {
+        let name = format!("s{k}.dcm");
+        write_slice(
+            dir,
+            &name,
+            k,
+            64,
+            64,
+            &px,
+            iop,
+            [0.0, 0.0, k as f64],
+            spacing,
+        );
+    }
+}
+
+/// Issue 30: `dicom info` names what makes a series untrustworthy (zero or NaN spacing, a
+/// non-orthogonal orientation, short pixel data) and exits 1; a sound series passes; a negative
+/// PixelSpacing is refused by the CT reader (it would register the mirror image).
+#[test]
+fn dicom_info_names_unsound_series_and_register_ct_refuses_negative_spacing() {
+    use crate::common::{self, Run};
+    let tmp = tempfile::tempdir().expect("tmp");
+    let axial = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let info = |dir: &Path| {
+        let out = common::bounded(common::layerwise().args(["dicom", "info"]).arg(dir));
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            common::report(&out),
+        )
+    };
+    let sound = tmp.path().join("sound");
+    write_pair(&sound, 0.1, axial, 64 * 64);
+    common::layerwise()
+        .args(["dicom", "info"])
+        .arg(&sound)
+        .succeeds();
+    for (name, spacing, iop, pixels, words) in [
+        ("zero", 0.0, axial, 64 * 64, "PixelSpacing"),
+        ("nan", f64::NAN, axial, 64 * 64, "PixelSpacing"),
+        (
+            "skew",
+            0.1,
+            [1.0, 0.0, 0.0, 0.5, 0.5, 0.0],
+            64 * 64,
+            "not two orthonormal vectors",
+        ),
+        ("short", 0.1, axial, 16, "pixel data is short"),
+    ] {
+        let dir = tmp.path().join(name);
+        write_pair(&dir, spacing, iop, pixels);
+        let (code, stdout, report) = info(&dir);
+        assert_eq!(code, Some(1), "{name}: {report}");
+        assert!(
+            stdout.contains("PROBLEM") && stdout.contains(words),
+            "{name}: {report}"
+        );
+        assert!(
+            report.contains("1 of 1 series have problems"),
+            "{name}: {report}"
+        );
+    }
+    let mirrored = tmp.path().join("mirrored");
+    write_pair(&mirrored, -0.1, axial, 64 * 64);
+    let mut register = common::layerwise();
+    register
+        .current_dir(tmp.path())
+        .args([
+            "register",
+            "ct",
+            "--vectors",
+            "v.cli",
+            "--out",
+            "ct.toml",
+            "--ct",
+        ])
+        .arg(&mirrored);
+    common::refused(
+        &mut register,
+        &["s0.dcm", "PixelSpacing", "must be positive"],
+    );
+    assert!(!tmp.path().join("ct.toml").exists());
+}

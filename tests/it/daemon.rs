@@ -509,13 +509,17 @@ fn series_take_last_shows_the_retake_with_its_own_uid_and_first_keeps_the_old_ui
     assert_eq!(again.comments, slice.comments);
     assert_eq!(again.pixels, slice.pixels);
     // The export follows the key too; a later take on disk (here made dark) replaces the slice.
+    // Its sidecar describes it (name, size, SHA-256) as the daemon's would: an original is only
+    // used with a sidecar it matches.
     let dark = image::RgbImage::new(320, 214);
-    dark.save(raw.join("L00001_post_front.r3.jpg")).unwrap();
-    std::fs::copy(
-        raw.join("L00001_post_front.r2.json"),
-        raw.join("L00001_post_front.r3.json"),
-    )
-    .unwrap();
+    let r3 = raw.join("L00001_post_front.r3.jpg");
+    dark.save(&r3).unwrap();
+    let bytes = std::fs::read(&r3).unwrap();
+    let mut sidecar = crate::common::read_json(&raw.join("L00001_post_front.r2.json"));
+    sidecar["file"] = "raw/L00001_post_front.r3.jpg".into();
+    sidecar["bytes"] = bytes.len().into();
+    sidecar["sha256"] = layerwise::fsutil::sha256_hex(&bytes).into();
+    std::fs::write(raw.join("L00001_post_front.r3.json"), sidecar.to_string()).unwrap();
     let out = last.path().join("export");
     layerwise()
         .args(["export", "--build"])

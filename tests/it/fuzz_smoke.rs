@@ -10,6 +10,9 @@
 
 use crate::common;
 use crate::common::Rng;
+
+#[path = "../../fuzz/fuzz_targets/build_dir_readers.rs"]
+mod build_dir_readers;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 
@@ -101,7 +104,7 @@ fn fuzz_target_of(name: &str) -> (&'static str, Option<u8>) {
         "config" => ("config", None),
         "calibration" | "points" => ("calibration", None),
         "frames" => ("frames", None),
-        "journal" | "ct-toml" => ("journal", None),
+        "journal" | "ct-toml" | "build-dir" => ("journal", None),
         "scan.pcr" => ("ct_volume", Some(0)),
         "scan.vgi" => ("ct_volume", Some(1)),
         "tiff" => ("ct_volume", Some(2)),
@@ -234,6 +237,41 @@ fn camera_frames_jpeg_and_nef() {
     assert_no_panics(fuzz("frames", &[jpeg, nef], |b| {
         let _ = layerwise::rectify::decode_frame_luma(b);
         let _ = layerwise::rectify::decode_frame(b);
+    }));
+}
+
+/// The build directory's own files (issue 30), each reader given every mutant as its file: the
+/// seeds are the files a small calibrated build wrote (journal, status.json, build.json,
+/// inspection.jsonl), an alarm line and a current-build.toml. As the `journal` fuzz target.
+#[test]
+fn build_dir_readers() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let config = common::calibrated_config(&build, 2, layerwise::dicom::Compression::None);
+    let mut options = layerwise::acquisition::RunOptions::new();
+    options.drain_at_end = true;
+    common::run_daemon(&config, options).expect("the build runs");
+    let mut seeds: Vec<Vec<u8>> = [
+        "journal.jsonl",
+        "status.json",
+        "build.json",
+        "inspection.jsonl",
+    ]
+    .iter()
+    .map(|name| std::fs::read(build.join(name)).expect(name))
+    .collect();
+    seeds.push(
+        br#"{"at":"2026-01-01T00:00:00Z","event":"raised","layer":3,"kind":"streak","note":"x"}"#
+            .to_vec(),
+    );
+    seeds.push(
+        b"folder = \"b-20260101\"\nname = \"b\"\nstarted_at = 2026-01-01T00:00:00Z\n".to_vec(),
+    );
+    let scratch = dir.path().join("mutant");
+    std::fs::create_dir_all(&scratch).unwrap();
+    // Fewer mutants: each runs every reader, `status`'s report among them.
+    assert_no_panics(fuzz_n("build-dir", &seeds, 100, |b| {
+        build_dir_readers::read_all(&scratch, b)
     }));
 }
 

@@ -13,6 +13,7 @@
 mod common;
 
 mod architecture;
+mod argument_values;
 mod bounded_inputs;
 mod cli;
 #[cfg(feature = "testkit")]
@@ -30,15 +31,18 @@ mod inspect_frames;
 mod inspection;
 mod lifecycle;
 mod pacs;
+mod pacs_push;
 mod raster;
 #[cfg(feature = "nef")]
 mod raw_frames;
 mod register_ct_cli;
 mod registration;
 mod renderer2;
+mod restart;
 mod serial_trigger;
 mod soak;
 mod systemd;
+mod trusted_files;
 mod tsdf;
 mod tutorial;
 mod vectors;

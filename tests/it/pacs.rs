@@ -232,6 +232,7 @@ fn destination(name: &str, url: Option<String>, dimse: Option<(u16, &str)>) -> P
         called_ae: dimse.map(|(_, ae)| ae.into()),
         calling_ae: "PROX320_TEST".into(),
         timeout_s: 10,
+        deadline_s: 60,
         retry_backoff_ms: [100, 400],
     }
 }

@@ -152,6 +152,17 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
             6,
         )?;
         let spacing = dicom_numbers(&obj, &path, tags::PIXEL_SPACING, "PixelSpacing", 2)?;
+        // A negative or zero spacing mirrors or collapses the volume: a registration would
+        // fit the mirror image.
+        if spacing[..2].iter().any(|s| !(*s > 0.0 && *s <= 1000.0)) {
+            return Err(dicom_err(
+                &path,
+                format!(
+                    "PixelSpacing {:?} mm: each must be positive, at most 1000 mm",
+                    &spacing[..2]
+                ),
+            ));
+        }
         slices.push(DicomSlice {
             rows: dicom_uint(&obj, &path, tags::ROWS, "Rows")?,
             columns: dicom_uint(&obj, &path, tags::COLUMNS, "Columns")?,

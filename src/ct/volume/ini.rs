@@ -15,7 +15,8 @@ pub(super) struct Ini {
 
 impl Ini {
     pub(super) fn read(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(io_err(path))?;
+        // A header of a few KB: a regular file of at most 1 MiB.
+        let bytes = crate::fsutil::read_bounded(path, 1 << 20).map_err(io_err(path))?;
         // Headers written on Windows may be Latin-1: accept any bytes.
         let text = String::from_utf8_lossy(&bytes);
         let mut section = String::new();

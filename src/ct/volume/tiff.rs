@@ -26,10 +26,12 @@ pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3], max_voxels: usize) -> Res
             message: "no .tif/.tiff files in the folder".into(),
         });
     }
-    let (w, h) = image::ImageReader::open(&files[0])
-        .map_err(io_err(&files[0]))?
-        .with_guessed_format()
-        .map_err(io_err(&files[0]))?
+    // Every slice a regular file before any is decoded: a FIFO named `*.tif` would hang the
+    // read, a device never end.
+    for f in &files {
+        drop(crate::fsutil::open_regular(f).map_err(io_err(f))?);
+    }
+    let (w, h) = open_slice(&files[0], None)?
         .into_dimensions()
         .map_err(|e| CtError::Decode {
             path: files[0].clone(),
@@ -39,11 +41,13 @@ pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3], max_voxels: usize) -> Res
     check_voxels(dir, [w as usize, h as usize, files.len()], max_voxels)?;
     let mut data: Option<VoxelData> = None;
     let mut wh = (0u32, 0u32);
+    // A slice decodes into at most the first slice's size in 32-bit floats (4 channels of f32
+    // for a colour slice), whatever its own header claims.
+    let slice_bytes = (w as u64 * h as u64)
+        .saturating_mul(16)
+        .saturating_add(1 << 20);
     for (k, f) in files.iter().enumerate() {
-        let img = image::ImageReader::open(f)
-            .map_err(io_err(f))?
-            .with_guessed_format()
-            .map_err(io_err(f))?
+        let img = open_slice(f, Some(slice_bytes))?
             .decode()
             .map_err(|e| CtError::Decode {
                 path: f.clone(),
@@ -77,6 +81,22 @@ pub fn read_tiff_stack(dir: &Path, voxel_mm: [f64; 3], max_voxels: usize) -> Res
     }
     let data = data.unwrap_or(VoxelData::U8(Vec::new()));
     Volume::new_scaled([wh.0 as usize, wh.1 as usize, files.len()], voxel_mm, data)
+}
+
+/// A slice opened for decoding: a regular file (never waited on), its format guessed, its
+/// allocations capped at `max_alloc` bytes when given.
+fn open_slice(
+    path: &Path,
+    max_alloc: Option<u64>,
+) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+    let file = crate::fsutil::open_regular(path).map_err(io_err(path))?;
+    let mut reader = image::ImageReader::new(std::io::BufReader::new(file))
+        .with_guessed_format()
+        .map_err(io_err(path))?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = max_alloc.or(limits.max_alloc);
+    reader.limits(limits);
+    Ok(reader)
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests, one file per topic. Every helper is used by some
 //! test module of this one binary (an unused one is a compiler warning, and is deleted).
 
+mod bounded;
 mod build_dir;
 mod cli;
 mod daemon;
@@ -10,6 +11,7 @@ pub mod pty;
 pub mod render2;
 mod rng;
 
+pub use bounded::*;
 pub use build_dir::*;
 pub use cli::*;
 pub use daemon::*;
