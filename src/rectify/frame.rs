@@ -22,6 +22,14 @@ impl FrameLuma {
         }
     }
 
+    /// The samples a DICOM slice stores, as they are (8-bit luma is stored in 16 bits).
+    pub fn samples(&self) -> crate::dicom::Samples<'_> {
+        match self {
+            FrameLuma::Gamma8(g) => crate::dicom::Samples::Gray8(g.as_raw()),
+            FrameLuma::Linear16(g) => crate::dicom::Samples::Gray16(g.as_raw()),
+        }
+    }
+
     /// The values a DICOM slice stores (16 bits allocated).
     pub fn into_u16(self) -> Vec<u16> {
         match self {
