@@ -111,7 +111,7 @@ fn write_build(dir: &Path, layers: u32, compression: Compression) -> Vec<PathBuf
                     columns: n,
                     thickness_mm: 0.03,
                 },
-                pixels: &pixels,
+                pixels: (&pixels).into(),
                 acquired: None,
                 window: (2000.0, 4000.0),
                 derivation: "bench",

@@ -445,7 +445,7 @@ fn export_vectors(
                         columns: cols,
                         thickness_mm: if thickness > 0.0 { thickness } else { 0.03 },
                     },
-                    pixels: &pixels,
+                    pixels: (&pixels).into(),
                     acquired: None,
                     window: (1500.0, 3000.0),
                     derivation: "laser scan vectors rasterized: 3000 contour, 2000 hatch, 1000 fused area, 0 powder",

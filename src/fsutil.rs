@@ -163,21 +163,41 @@ fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
 /// Writes files of one directory atomically, renaming them in the order given, with a single
 /// fsync of the directory for all the renames (it is the slowest part of the capture path).
 pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), WriteError> {
+    let writes = files
+        .iter()
+        .map(|(path, data)| (*path, move |file: &mut File| file.write_all(data)));
+    write_atomic_each(writes, fsync)
+}
+
+/// [`write_atomic`] of what `write` writes to the file (in parts, as it makes them), so that
+/// large output need not be one buffer first.
+pub fn write_atomic_with(
+    path: &Path,
+    fsync: bool,
+    write: impl FnOnce(&mut File) -> std::io::Result<()>,
+) -> Result<(), WriteError> {
+    write_atomic_each(std::iter::once((path, write)), fsync)
+}
+
+/// [`write_atomic_all`] with each file's content written by its function.
+fn write_atomic_each<'p, W: FnOnce(&mut File) -> std::io::Result<()>>(
+    files: impl ExactSizeIterator<Item = (&'p Path, W)>,
+    fsync: bool,
+) -> Result<(), WriteError> {
     let mut renames = Vec::with_capacity(files.len());
     let cleanup = |renames: &[(PathBuf, &Path)]| {
         for (tmp, _) in renames {
             let _ = std::fs::remove_file(tmp);
         }
     };
-    for (path, data) in files {
+    for (path, write) in files {
         let err = |source| WriteError {
             path: path.to_path_buf(),
             source,
         };
         let written = create_temporary(path).and_then(|(tmp, mut file)| {
             let result =
-                file.write_all(data)
-                    .and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
+                write(&mut file).and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
             match result {
                 Ok(()) => Ok(tmp),
                 Err(e) => {
@@ -187,7 +207,7 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
             }
         });
         match written {
-            Ok(tmp) => renames.push((tmp, *path)),
+            Ok(tmp) => renames.push((tmp, path)),
             Err(e) => {
                 cleanup(&renames);
                 return Err(err(e));

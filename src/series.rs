@@ -326,7 +326,6 @@ impl LiveSeries {
             .get(&shot.view())
             .ok_or(SeriesError::UnknownView(shot.view()))?;
         let (window, derivation) = (rectified.window(), rectified.derivation());
-        let pixels = rectified.into_u16();
         let grid = self.rectifier.grid();
         let plane = Plane {
             origin: [
@@ -342,7 +341,7 @@ impl LiveSeries {
         let slice = Slice {
             layer: shot.layer,
             plane,
-            pixels: &pixels,
+            pixels: rectified.samples(),
             acquired,
             window,
             derivation,

@@ -133,7 +133,7 @@ pub fn resample_to_dicom(
                 columns: grid.columns(),
                 thickness_mm: s.thickness_mm,
             },
-            pixels: &s.pixels,
+            pixels: (&s.pixels).into(),
             acquired: None,
             window: (32767.0, 65535.0),
             derivation: "CT resampled (trilinear) into the build frame through the CT-to-vector registration",

@@ -9,10 +9,13 @@ use dicom_object::FileMetaTableBuilder;
 use dicom_pixeldata::Transcode;
 use dicom_transfer_syntax_registry::TransferSyntaxIndex;
 
+use super::deflate::{deflate_samples, Samples};
 use super::error::{DicomError, EncodeError};
-use super::iod::{instance_uid_of_take, put, slice_object, Series, Slice, SliceSource, Study};
+use super::iod::{
+    instance_uid_of_take, put, put_pixel_data, slice_object, Series, Slice, SliceSource, Study,
+};
 use super::{CT_IMAGE_STORAGE, IMPLEMENTATION_CLASS_UID};
-use crate::fsutil::write_atomic;
+use crate::fsutil::write_atomic_with;
 
 const EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1";
 const JPEG_LS_LOSSLESS: &str = "1.2.840.10008.1.2.4.80";
@@ -47,130 +50,228 @@ pub fn encode_slice_from(
     compression: Compression,
     source: Option<SliceSource>,
 ) -> Result<Vec<u8>, EncodeError> {
-    let p = slice.plane;
-    if p.rows == 0 || p.columns == 0 || p.rows > u16::MAX as usize || p.columns > u16::MAX as usize
-    {
-        return Err(EncodeError::Size {
-            rows: p.rows,
-            columns: p.columns,
-        });
-    }
-    if slice.pixels.len() != p.rows * p.columns {
-        return Err(EncodeError::PixelCount {
-            len: slice.pixels.len(),
-            rows: p.rows,
-            columns: p.columns,
-        });
-    }
-    let take = source.map_or(1, |s| s.take);
-    let sop_instance_uid = instance_uid_of_take(series, slice.layer, take);
-    let mut object = slice_object(study, series, slice, &sop_instance_uid);
-    if let Some(source) = source {
-        put(
-            &mut object,
-            tags::IMAGE_COMMENTS,
-            VR::LT,
-            source.comments().as_str(),
-        );
-    }
-    let meta = FileMetaTableBuilder::new()
-        .media_storage_sop_class_uid(CT_IMAGE_STORAGE)
-        .media_storage_sop_instance_uid(sop_instance_uid.as_str())
-        .transfer_syntax(EXPLICIT_VR_LE)
-        .implementation_class_uid(IMPLEMENTATION_CLASS_UID)
-        .implementation_version_name(concat!("LAYERWISE_", env!("CARGO_PKG_VERSION")));
-    let mut file = object
-        .with_meta(meta)
-        .map_err(|e| EncodeError::encoder("cannot build the file meta group")(Box::new(e)))?;
-    match compression {
-        Compression::None => {}
-        Compression::Deflate => {
-            // dicom-rs streams the data set through its deflater in tiny writes (seconds for a
-            // 4400 x 4400 slice); encode it plainly, then deflate it in parallel blocks.
-            file.meta_mut().set_transfer_syntax(
-                &dicom_transfer_syntax_registry::entries::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN,
-            );
-            let mut out = vec![0u8; 128];
-            out.extend_from_slice(b"DICM");
-            file.meta().write(&mut out).map_err(|e| {
-                EncodeError::encoder("cannot write the file meta group")(Box::new(e))
-            })?;
-            let mut plain = Vec::with_capacity(2 * slice.pixels.len() + 4096);
-            file.write_dataset_with_ts(
-                &mut plain,
-                &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
-            )
-            .map_err(|e| EncodeError::encoder("cannot write the data set")(Box::new(e)))?;
-            out.extend_from_slice(&deflate_parallel(&plain));
-            // PS3.5 A.5: an odd-length deflated bitstream gets one trailing NUL (archives such
-            // as Orthanc refuse the odd one over C-STORE). The preamble and meta group are even.
-            if out.len() % 2 == 1 {
-                out.push(0);
-            }
-            return Ok(out);
-        }
-        Compression::JpegLs => {
-            if cfg!(not(feature = "jpegls")) {
-                return Err(EncodeError::NoJpegLs);
-            }
-            let ts = dicom_transfer_syntax_registry::TransferSyntaxRegistry
-                .get(JPEG_LS_LOSSLESS)
-                .ok_or(EncodeError::NoJpegLs)?;
-            file.transcode(ts)
-                .map_err(|e| EncodeError::encoder("JPEG-LS encoding failed")(Box::new(e)))?;
-            // The encoder adds attributes the (single-frame) CT Image IOD does not have.
-            file.remove_element(tags::NUMBER_OF_FRAMES);
-            file.remove_element(Tag(0x7FE0, 0x0003));
-        }
-    }
-    let mut bytes = Vec::new();
-    file.write_all(&mut bytes)
+    let encoded = EncodedSlice::new(study, series, slice, compression, source)?;
+    let mut out = Vec::with_capacity(encoded.len());
+    // Writing to a vector cannot fail.
+    encoded
+        .write_to(&mut out)
         .map_err(|e| EncodeError::encoder("cannot write the data set")(Box::new(e)))?;
-    Ok(bytes)
+    Ok(out)
 }
 
-/// Raw deflate (RFC 1951, as DICOM's deflated transfer syntax wants) of `data`, compressed in
-/// independent blocks on all cores: each block ends on a byte boundary with a sync flush, so
-/// their concatenation is one valid stream (as pigz does); the last block finishes it.
-pub fn deflate_parallel(data: &[u8]) -> Vec<u8> {
-    use flate2::{Compress, Compression as Level, FlushCompress};
-    use rayon::prelude::*;
-    const BLOCK: usize = 1 << 21;
-    let blocks: Vec<&[u8]> = if data.is_empty() {
-        vec![data]
-    } else {
-        data.chunks(BLOCK).collect()
-    };
-    let last = blocks.len() - 1;
-    let parts: Vec<Vec<u8>> = blocks
-        .par_iter()
-        .enumerate()
-        .map(|(i, block)| {
-            let mut compress = Compress::new(Level::fast(), false);
-            let mut out = Vec::with_capacity(block.len() / 2 + 1024);
-            let flush = if i == last {
-                FlushCompress::Finish
-            } else {
-                FlushCompress::Sync
-            };
-            loop {
-                let consumed = compress.total_in() as usize;
-                if out.capacity() - out.len() < 1024 {
-                    out.reserve(block.len() / 4 + 1024);
+/// A slice file in the parts it is written from, so that the samples are never copied into
+/// one big buffer first: the file's opening (preamble, meta group and the data set up to the
+/// pixel data's element header, deflated for [`Compression::Deflate`]), then the samples (as
+/// they are, little endian, or deflated in parallel segments), then any padding.
+struct EncodedSlice<'a> {
+    head: Vec<u8>,
+    body: Body<'a>,
+    /// One NUL after an odd-length deflated stream (PS3.5 A.5).
+    pad: bool,
+}
+
+enum Body<'a> {
+    /// The samples as 16-bit little-endian values.
+    Plain(Samples<'a>),
+    /// The deflated samples: the rest of the stream.
+    Deflated(Vec<Vec<u8>>),
+    /// Already part of the head (JPEG-LS encapsulates its pixel data in the data set).
+    None,
+}
+
+/// The file meta group of a slice (explicit VR little endian until a compression says otherwise).
+fn file_meta(sop_instance_uid: &str) -> FileMetaTableBuilder {
+    FileMetaTableBuilder::new()
+        .media_storage_sop_class_uid(CT_IMAGE_STORAGE)
+        .media_storage_sop_instance_uid(sop_instance_uid)
+        .transfer_syntax(EXPLICIT_VR_LE)
+        .implementation_class_uid(IMPLEMENTATION_CLASS_UID)
+        .implementation_version_name(concat!("LAYERWISE_", env!("CARGO_PKG_VERSION")))
+}
+
+/// The PixelData element's header (explicit VR little endian, OW, defined length).
+fn pixel_data_header(samples: usize) -> Result<[u8; 12], EncodeError> {
+    let bytes = u32::try_from(2 * samples).map_err(|_| EncodeError::PixelCount {
+        len: samples,
+        rows: 0,
+        columns: 0,
+    })?;
+    let mut h = [0u8; 12];
+    h[..4].copy_from_slice(&[0xE0, 0x7F, 0x10, 0x00]);
+    h[4..6].copy_from_slice(b"OW");
+    h[8..].copy_from_slice(&bytes.to_le_bytes());
+    Ok(h)
+}
+
+impl<'a> EncodedSlice<'a> {
+    fn new(
+        study: &Study,
+        series: &Series,
+        slice: &Slice<'a>,
+        compression: Compression,
+        source: Option<SliceSource>,
+    ) -> Result<EncodedSlice<'a>, EncodeError> {
+        let p = slice.plane;
+        if p.rows == 0
+            || p.columns == 0
+            || p.rows > u16::MAX as usize
+            || p.columns > u16::MAX as usize
+        {
+            return Err(EncodeError::Size {
+                rows: p.rows,
+                columns: p.columns,
+            });
+        }
+        if slice.pixels.len() != p.rows * p.columns {
+            return Err(EncodeError::PixelCount {
+                len: slice.pixels.len(),
+                rows: p.rows,
+                columns: p.columns,
+            });
+        }
+        let take = source.map_or(1, |s| s.take);
+        let sop_instance_uid = instance_uid_of_take(series, slice.layer, take);
+        let mut object = slice_object(study, series, slice, &sop_instance_uid);
+        if let Some(source) = source {
+            put(
+                &mut object,
+                tags::IMAGE_COMMENTS,
+                VR::LT,
+                source.comments().as_str(),
+            );
+        }
+        if compression == Compression::JpegLs {
+            put_pixel_data(&mut object, slice);
+        }
+        let mut file = object
+            .with_meta(file_meta(&sop_instance_uid))
+            .map_err(|e| EncodeError::encoder("cannot build the file meta group")(Box::new(e)))?;
+        let write_error = |e| EncodeError::encoder("cannot write the data set")(Box::new(e));
+        let mut head = vec![0u8; 128];
+        head.extend_from_slice(b"DICM");
+        match compression {
+            Compression::None => {
+                file.meta().write(&mut head).map_err(|e| {
+                    EncodeError::encoder("cannot write the file meta group")(Box::new(e))
+                })?;
+                file.write_dataset_with_ts(
+                    &mut head,
+                    &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
+                )
+                .map_err(write_error)?;
+                head.extend_from_slice(&pixel_data_header(slice.pixels.len())?);
+                Ok(EncodedSlice {
+                    head,
+                    body: Body::Plain(slice.pixels),
+                    pad: false,
+                })
+            }
+            Compression::Deflate => {
+                // The data set up to the samples, deflated and flushed to a byte boundary; the
+                // samples follow as the rest of the one deflate stream (`deflate.rs`).
+                file.meta_mut().set_transfer_syntax(
+                    &dicom_transfer_syntax_registry::entries::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN,
+                );
+                file.meta().write(&mut head).map_err(|e| {
+                    EncodeError::encoder("cannot write the file meta group")(Box::new(e))
+                })?;
+                let mut plain = Vec::with_capacity(4096);
+                file.write_dataset_with_ts(
+                    &mut plain,
+                    &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
+                )
+                .map_err(write_error)?;
+                plain.extend_from_slice(&pixel_data_header(slice.pixels.len())?);
+                head.extend_from_slice(&deflate_flushed(&plain));
+                let segments = deflate_samples(slice.pixels);
+                let len = head.len() + segments.iter().map(Vec::len).sum::<usize>();
+                Ok(EncodedSlice {
+                    head,
+                    body: Body::Deflated(segments),
+                    pad: len % 2 == 1,
+                })
+            }
+            Compression::JpegLs => {
+                if cfg!(not(feature = "jpegls")) {
+                    return Err(EncodeError::NoJpegLs);
                 }
-                let status = compress.compress_vec(&block[consumed..], &mut out, flush);
-                let done = compress.total_in() as usize == block.len();
-                match status {
-                    Ok(flate2::Status::StreamEnd) => break,
-                    Ok(_) if done && i != last && out.capacity() > out.len() => break,
-                    Ok(_) => {}
-                    Err(_) => break,
+                let ts = dicom_transfer_syntax_registry::TransferSyntaxRegistry
+                    .get(JPEG_LS_LOSSLESS)
+                    .ok_or(EncodeError::NoJpegLs)?;
+                file.transcode(ts)
+                    .map_err(|e| EncodeError::encoder("JPEG-LS encoding failed")(Box::new(e)))?;
+                // The encoder adds attributes the (single-frame) CT Image IOD does not have.
+                file.remove_element(tags::NUMBER_OF_FRAMES);
+                file.remove_element(Tag(0x7FE0, 0x0003));
+                let mut bytes = Vec::new();
+                file.write_all(&mut bytes).map_err(write_error)?;
+                Ok(EncodedSlice {
+                    head: bytes,
+                    body: Body::None,
+                    pad: false,
+                })
+            }
+        }
+    }
+
+    /// The file's length in bytes.
+    fn len(&self) -> usize {
+        let body = match &self.body {
+            Body::Plain(s) => 2 * s.len(),
+            Body::Deflated(parts) => parts.iter().map(Vec::len).sum(),
+            Body::None => 0,
+        };
+        self.head.len() + body + usize::from(self.pad)
+    }
+
+    /// Writes the file's bytes in order; plain samples go out a block at a time.
+    fn write_to(&self, w: &mut impl std::io::Write) -> std::io::Result<()> {
+        w.write_all(&self.head)?;
+        match &self.body {
+            Body::Plain(samples) => {
+                const BLOCK: usize = 1 << 16;
+                let mut buf = Vec::with_capacity(2 * BLOCK);
+                for start in (0..samples.len()).step_by(BLOCK) {
+                    buf.clear();
+                    samples.extend_le(start..(start + BLOCK).min(samples.len()), &mut buf);
+                    w.write_all(&buf)?;
                 }
             }
-            out
-        })
-        .collect();
-    parts.concat()
+            Body::Deflated(parts) => {
+                for part in parts {
+                    w.write_all(part)?;
+                }
+            }
+            Body::None => {}
+        }
+        if self.pad {
+            w.write_all(&[0])?;
+        }
+        Ok(())
+    }
+}
+
+/// Raw deflate of `data`, ended with a sync flush (byte-aligned, not final), so that more of
+/// the stream can follow.
+fn deflate_flushed(data: &[u8]) -> Vec<u8> {
+    use flate2::{Compress, Compression as Level, FlushCompress};
+    let mut compress = Compress::new(Level::fast(), false);
+    let mut out = Vec::with_capacity(data.len() / 2 + 1024);
+    loop {
+        let consumed = compress.total_in() as usize;
+        if out.capacity() - out.len() < 1024 {
+            out.reserve(data.len() / 4 + 1024);
+        }
+        let status = compress.compress_vec(&data[consumed..], &mut out, FlushCompress::Sync);
+        let done = compress.total_in() as usize == data.len();
+        match status {
+            // The flush is complete once all input is taken and the output did not fill up.
+            Ok(_) if done && out.capacity() > out.len() => break,
+            Ok(_) => {}
+            Err(_) => break,
+        }
+    }
+    out
 }
 
 /// Writes one slice atomically to `path`.
@@ -185,7 +286,8 @@ pub fn write_slice(
 }
 
 /// [`write_slice`] of a slice made from a stored original ([`SliceSource`]); replaces the file
-/// atomically.
+/// atomically. The samples go to the file as they are encoded, never as one more copy of the
+/// slice in memory.
 pub fn write_slice_from(
     path: &Path,
     study: &Study,
@@ -194,19 +296,22 @@ pub fn write_slice_from(
     compression: Compression,
     source: Option<SliceSource>,
 ) -> Result<(), DicomError> {
-    let bytes = encode_slice_from(study, series, slice, compression, source).map_err(|source| {
-        DicomError::Encode {
-            path: path.to_path_buf(),
-            source,
-        }
-    })?;
+    let encoded =
+        EncodedSlice::new(study, series, slice, compression, source).map_err(|source| {
+            DicomError::Encode {
+                path: path.to_path_buf(),
+                source,
+            }
+        })?;
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| crate::fsutil::WriteError {
             path: dir.to_path_buf(),
             source,
         })?;
     }
-    Ok(write_atomic(path, &bytes, true)?)
+    Ok(write_atomic_with(path, true, |file| {
+        encoded.write_to(&mut std::io::BufWriter::with_capacity(1 << 20, file))
+    })?)
 }
 
 #[cfg(test)]
@@ -214,26 +319,8 @@ mod tests {
     use super::*;
     use crate::dicom::Plane;
 
-    #[test]
-    fn parallel_deflate_is_one_valid_raw_stream() {
-        use std::io::Read;
-        let data: Vec<u8> = (0..5_000_000u32)
-            .map(|i| ((i * 31) % 251) as u8 ^ (i >> 13) as u8)
-            .collect();
-        for input in [&data[..], &data[..10], &[][..]] {
-            let packed = deflate_parallel(input);
-            let mut unpacked = Vec::new();
-            flate2::read::DeflateDecoder::new(&packed[..])
-                .read_to_end(&mut unpacked)
-                .unwrap();
-            assert_eq!(unpacked, input);
-        }
-    }
-
-    /// Deflated files are whole even-length streams (one NUL pads an odd bitstream) and read back.
-    #[test]
-    fn deflated_files_have_even_length_and_read_back() {
-        let study = Study {
+    fn study() -> Study {
+        Study {
             study_instance_uid: "2.25.1".into(),
             frame_of_reference_uid: "2.25.2".into(),
             date: "20261201".into(),
@@ -242,7 +329,89 @@ mod tests {
             patient_id: "t".into(),
             study_id: "1".into(),
             description: "t".into(),
-        };
+        }
+    }
+
+    /// The file as dicom-rs writes the whole object, pixel data inside (how every slice was
+    /// written before the samples were streamed): the streamed files must be the same bytes
+    /// (explicit VR) or inflate to the same data set (deflate).
+    #[test]
+    fn streamed_slices_are_the_bytes_dicom_rs_writes() {
+        use std::io::Read;
+        let study = study();
+        let series = Series::named(&study, 3, "post_side");
+        let (rows, columns) = (301, 257);
+        let gray8: Vec<u8> = (0..rows * columns)
+            .map(|i| {
+                if i % 97 < 20 {
+                    0
+                } else {
+                    ((i * 7) % 251) as u8
+                }
+            })
+            .collect();
+        let gray16: Vec<u16> = (0..rows * columns)
+            .map(|i| (i as u16).wrapping_mul(2654))
+            .collect();
+        for samples in [Samples::Gray8(&gray8), Samples::Gray16(&gray16)] {
+            let slice = Slice {
+                layer: 12,
+                plane: Plane {
+                    origin: [-1.5, 2.25, 0.36],
+                    pixel_mm: 0.5,
+                    rows,
+                    columns,
+                    thickness_mm: 0.03,
+                },
+                pixels: samples,
+                acquired: None,
+                window: (128.0, 256.0),
+                derivation: "test",
+            };
+            let source = SliceSource {
+                take: 2,
+                file: "raw/L00012_post_side.jpg",
+            };
+            let uid = instance_uid_of_take(&series, 12, 2);
+            let mut object = slice_object(&study, &series, &slice, &uid);
+            put(
+                &mut object,
+                tags::IMAGE_COMMENTS,
+                VR::LT,
+                source.comments().as_str(),
+            );
+            put_pixel_data(&mut object, &slice);
+            let file = object.with_meta(file_meta(&uid)).unwrap();
+            let mut reference = Vec::new();
+            file.write_all(&mut reference).unwrap();
+            let plain = encode_slice_from(&study, &series, &slice, Compression::None, Some(source))
+                .unwrap();
+            assert!(plain == reference, "explicit VR file differs");
+            // Deflated: the same data set after the meta group.
+            let deflated =
+                encode_slice_from(&study, &series, &slice, Compression::Deflate, Some(source))
+                    .unwrap();
+            let mut dataset_reference = Vec::new();
+            file.write_dataset_with_ts(
+                &mut dataset_reference,
+                &dicom_transfer_syntax_registry::entries::EXPLICIT_VR_LITTLE_ENDIAN.erased(),
+            )
+            .unwrap();
+            // Preamble, DICM, then the meta group: (0002,0000) UL (12 bytes) and its length.
+            let group = u32::from_le_bytes(deflated[140..144].try_into().unwrap()) as usize;
+            let meta_len = 144 + group;
+            let mut inflated = Vec::new();
+            flate2::read::DeflateDecoder::new(&deflated[meta_len..])
+                .read_to_end(&mut inflated)
+                .unwrap();
+            assert!(inflated == dataset_reference, "deflated data set differs");
+        }
+    }
+
+    /// Deflated files are whole even-length streams (one NUL pads an odd bitstream) and read back.
+    #[test]
+    fn deflated_files_have_even_length_and_read_back() {
+        let study = study();
         let series = Series::named(&study, 1, "post_top");
         let mut odd_before_pad = 0;
         for k in 0..12u16 {
@@ -258,7 +427,7 @@ mod tests {
                     columns: 37,
                     thickness_mm: 0.03,
                 },
-                pixels: &pixels,
+                pixels: (&pixels).into(),
                 acquired: None,
                 window: (500.0, 1000.0),
                 derivation: "test",

@@ -6,6 +6,7 @@ use dicom_core::{DataElement, Tag, VR};
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
 
+use super::deflate::Samples;
 use super::uid::derived_uid;
 use super::CT_IMAGE_STORAGE;
 
@@ -75,7 +76,7 @@ pub struct Plane {
 pub struct Slice<'a> {
     pub layer: u32,
     pub plane: Plane,
-    pub pixels: &'a [u16],
+    pub pixels: Samples<'a>,
     /// When the frame was taken (AcquisitionDate/Time, ContentDate/Time).
     pub acquired: Option<chrono::DateTime<chrono::Utc>>,
     /// Window for viewers: center and width.
@@ -117,7 +118,7 @@ fn format_ds(v: f64) -> String {
     format!("{v:.6e}")
 }
 
-/// Builds the CT Image data set of one slice.
+/// Builds the CT Image data set of one slice, all but its pixel data (the last element).
 pub(super) fn slice_object(
     study: &Study,
     series: &Series,
@@ -291,12 +292,22 @@ pub(super) fn slice_object(
     put_empty(&mut o, tags::KVP, VR::DS);
     put(&mut o, tags::WINDOW_CENTER, VR::DS, ds(&[slice.window.0]));
     put(&mut o, tags::WINDOW_WIDTH, VR::DS, ds(&[slice.window.1]));
+    o
+}
+
+/// The slice's PixelData element (OW), for the encoders that want it inside the data set
+/// (JPEG-LS); the others write the samples straight after the data set (`encode.rs`).
+pub(super) fn put_pixel_data(o: &mut InMemDicomObject, slice: &Slice) {
+    let mut pixels = Vec::with_capacity(slice.pixels.len());
+    match slice.pixels {
+        Samples::Gray8(s) => pixels.extend(s.iter().map(|&v| u16::from(v))),
+        Samples::Gray16(s) => pixels.extend_from_slice(s),
+    }
     o.put(DataElement::new(
         tags::PIXEL_DATA,
         VR::OW,
-        PrimitiveValue::U16(C::from_vec(slice.pixels.to_vec())),
+        PrimitiveValue::U16(C::from_vec(pixels)),
     ));
-    o
 }
 
 /// The SOP instance UID of a layer of a series: stable, so rewriting a layer replaces it.

@@ -6,6 +6,7 @@
 //! `info`: reading written files back (`layerwise dicom info`); `lengths`: element lengths
 //! checked before a parser trusts them; `uid`: UIDs.
 
+mod deflate;
 mod encode;
 mod error;
 mod info;
@@ -14,9 +15,8 @@ mod iod;
 mod lengths;
 pub mod uid;
 
-pub use encode::{
-    deflate_parallel, encode_slice, encode_slice_from, write_slice, write_slice_from, Compression,
-};
+pub use deflate::Samples;
+pub use encode::{encode_slice, encode_slice_from, write_slice, write_slice_from, Compression};
 pub use error::{DicomError, EncodeError};
 pub use info::{file_instance_uid, series_info, slice_take, SeriesSummary};
 pub use iod::{

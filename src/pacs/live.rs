@@ -219,7 +219,7 @@ mod tests {
                 columns: 2,
                 thickness_mm: 1.0,
             },
-            pixels: &pixels,
+            pixels: (&pixels).into(),
             acquired: None,
             window: (0.0, 1.0),
             derivation: "test",

@@ -9,21 +9,28 @@ use zune_jpeg::JpegDecoder;
 
 use super::RectifyError;
 
-/// Decodes a JPEG to RGB8 (colour input) or L8 (greyscale input).
-///
-/// Uses zune-jpeg directly: the fastest pure-Rust decoder measured in the
-/// decode bench (libjpeg-turbo was compared too; see the bench). Errors,
-/// never panics, on malformed input.
-pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
+/// A JPEG decoded by zune-jpeg: its size, samples, and whether they are one channel.
+pub(crate) struct Decoded {
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) pixels: Vec<u8>,
+    pub(crate) grey: bool,
+}
+
+/// Decodes a JPEG with zune-jpeg, strict, to luma only (`luma_only`) or to its own colour
+/// (RGB, or luma for a grey JPEG). The frame size is checked before the decoder allocates;
+/// progressive and baseline frames alike (see `jpeg_scan.rs`).
+pub(crate) fn zune_decode(bytes: &[u8], luma_only: bool) -> Result<Decoded, RectifyError> {
     // JPEG dimensions are 16-bit; lift zune's default 16384 cap to that.
     let options = DecoderOptions::default()
         .set_max_width(usize::from(u16::MAX))
         .set_max_height(usize::from(u16::MAX))
         // Truncated or corrupt entropy data is an error, not grey rows.
         .set_strict_mode(true);
-    let mut dec = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
+    let input = super::jpeg_scan::decoder_input(bytes)?;
+    let mut dec = JpegDecoder::new_with_options(ZCursor::new(input), options);
     dec.decode_headers().map_err(RectifyError::JpegData)?;
-    let grey = matches!(dec.input_colorspace(), Some(ColorSpace::Luma));
+    let grey = luma_only || matches!(dec.input_colorspace(), Some(ColorSpace::Luma));
     let out_cs = if grey {
         ColorSpace::Luma
     } else {
@@ -33,15 +40,40 @@ pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     let (w, h) = dec
         .dimensions()
         .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
-    super::check_frame_size(w, h)?;
+    super::check_frame_size(w as u64, h as u64)?;
     let pixels = dec.decode().map_err(RectifyError::JpegData)?;
-    let (w, h) = (w as u32, h as u32);
-    let bad_size =
-        || RectifyError::Jpeg(format!("decoder returned a wrong-sized buffer for {w}x{h}"));
+    let channels = if grey { 1 } else { 3 };
+    if pixels.len() != w * h * channels {
+        return Err(RectifyError::Jpeg(format!(
+            "decoder returned a wrong-sized buffer for {w}x{h}"
+        )));
+    }
+    Ok(Decoded {
+        width: w as u32,
+        height: h as u32,
+        pixels,
+        grey,
+    })
+}
+
+/// Decodes a JPEG to RGB8 (colour input) or L8 (greyscale input).
+///
+/// Uses zune-jpeg directly: the fastest pure-Rust decoder measured in the
+/// decode bench (libjpeg-turbo was compared too; see the bench). Errors,
+/// never panics, on malformed input.
+pub fn decode_jpeg(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
+    let Decoded {
+        width,
+        height,
+        pixels,
+        grey,
+    } = zune_decode(bytes, false)?;
+    // The sizes were checked by zune_decode.
+    let wrong = || RectifyError::Jpeg("decoder returned a wrong-sized buffer".into());
     Ok(if grey {
-        DynamicImage::ImageLuma8(GrayImage::from_raw(w, h, pixels).ok_or_else(bad_size)?)
+        DynamicImage::ImageLuma8(GrayImage::from_raw(width, height, pixels).ok_or_else(wrong)?)
     } else {
-        DynamicImage::ImageRgb8(RgbImage::from_raw(w, h, pixels).ok_or_else(bad_size)?)
+        DynamicImage::ImageRgb8(RgbImage::from_raw(width, height, pixels).ok_or_else(wrong)?)
     })
 }
 

@@ -83,7 +83,6 @@ pub fn rectify_file(
                 .map_err(bad_image)?
                 .rectified(&rectifier);
             let (window, derivation) = (rectified.window(), rectified.derivation());
-            let pixels = rectified.into_u16();
             let now = chrono::Utc::now();
             let study_uid = crate::dicom::new_uid();
             let study = Study {
@@ -111,7 +110,7 @@ pub fn rectify_file(
             let slice = Slice {
                 layer,
                 plane,
-                pixels: &pixels,
+                pixels: rectified.samples(),
                 acquired: None,
                 window,
                 derivation,

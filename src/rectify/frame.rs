@@ -22,6 +22,14 @@ impl FrameLuma {
         }
     }
 
+    /// The samples a DICOM slice stores, as they are (8-bit luma is stored in 16 bits).
+    pub fn samples(&self) -> crate::dicom::Samples<'_> {
+        match self {
+            FrameLuma::Gamma8(g) => crate::dicom::Samples::Gray8(g.as_raw()),
+            FrameLuma::Linear16(g) => crate::dicom::Samples::Gray16(g.as_raw()),
+        }
+    }
+
     /// The values a DICOM slice stores (16 bits allocated).
     pub fn into_u16(self) -> Vec<u16> {
         match self {
@@ -79,8 +87,7 @@ pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.luminance().map(FrameLuma::Linear16);
     }
-    let picture = image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))?;
-    Ok(FrameLuma::Gamma8(picture.to_luma8()))
+    Ok(FrameLuma::Gamma8(decode_picture(bytes)?.to_luma8()))
 }
 
 /// The frame in colour, for pictures and for registration (raw frames: sRGB-encoded, 16 bits).
@@ -91,11 +98,36 @@ pub fn decode_frame(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     if let Some(raw) = camera_raw(bytes)? {
         return raw.display().map(DynamicImage::ImageRgb16);
     }
-    image::load_from_memory(bytes).map_err(|e| RectifyError::Image(Box::new(e)))
+    decode_picture(bytes)
 }
 
+/// Most the image crate may reserve for one picture: a camera-size frame at 16-bit RGBA
+/// ([`super::MAX_FRAME_PIXELS`] x 8 bytes).
+const PICTURE_MAX_ALLOC: u64 = (super::MAX_FRAME_PIXELS as u64) * 8;
+
+/// A PNG or TIFF picture through the image crate, its size checked against a camera frame's
+/// before the decoder reserves its pixels, and every reservation bounded.
+fn decode_picture(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
+    let image_error = |e| RectifyError::Image(Box::new(e));
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| image_error(image::ImageError::IoError(e)))?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(u32::from(u16::MAX));
+    limits.max_image_height = Some(u32::from(u16::MAX));
+    limits.max_alloc = Some(PICTURE_MAX_ALLOC);
+    reader.limits(limits);
+    let decoder = reader.into_decoder().map_err(image_error)?;
+    let (w, h) = image::ImageDecoder::dimensions(&decoder);
+    super::check_frame_size(u64::from(w), u64::from(h))?;
+    DynamicImage::from_decoder(decoder).map_err(image_error)
+}
+
+/// A camera raw frame (a TIFF-based file rawler knows), its structure walked first
+/// (`tiff_bounds.rs`) so that no decoder meets a loop or an unbounded reservation.
 #[cfg(feature = "nef")]
 fn camera_raw(bytes: &[u8]) -> Result<Option<super::raw::RawFrame>, RectifyError> {
+    super::tiff_bounds::check(bytes)?;
     if super::raw::is_camera_raw(bytes) {
         super::raw::decode(bytes).map(Some)
     } else {
@@ -107,8 +139,9 @@ fn camera_raw(bytes: &[u8]) -> Result<Option<super::raw::RawFrame>, RectifyError
 /// opens it.
 #[cfg(not(feature = "nef"))]
 fn camera_raw(bytes: &[u8]) -> Result<Option<NoRawDeveloper>, RectifyError> {
+    super::tiff_bounds::check(bytes)?;
     let big_endian = bytes.starts_with(b"MM\0\x2A");
-    let tiff = big_endian || bytes.starts_with(b"II\x2A\0");
+    let tiff = super::tiff_bounds::is_tiff(bytes);
     let head = &bytes[..bytes.len().min(65536)];
     // A directory entry PhotometricInterpretation (0x0106), SHORT, count 1, = CFA (32803): the
     // raw mosaic's. A Nikon TIFF (RGB) frame has none.

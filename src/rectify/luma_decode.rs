@@ -1,31 +1,20 @@
 //! JPEG straight to luma: a JFIF JPEG stores Y (BT.601 luma, full range) as its first component,
 //! so the views' luma needs neither chroma upsampling nor colour conversion.
 
+use super::decode::{zune_decode, Decoded};
 use super::RectifyError;
 use image::GrayImage;
-use zune_jpeg::zune_core::bytestream::ZCursor;
-use zune_jpeg::zune_core::colorspace::ColorSpace;
-use zune_jpeg::zune_core::options::DecoderOptions;
-use zune_jpeg::JpegDecoder;
 
 /// Decodes only the luma of a JPEG (grey JPEGs as they are).
 pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
-    let options = DecoderOptions::default()
-        .set_max_width(usize::from(u16::MAX))
-        .set_max_height(usize::from(u16::MAX))
-        // Truncated or corrupt entropy data is an error, not grey rows.
-        .set_strict_mode(true)
-        .jpeg_set_out_colorspace(ColorSpace::Luma);
-    let mut decoder = JpegDecoder::new_with_options(ZCursor::new(super::scan_end(bytes)), options);
-    decoder.decode_headers().map_err(RectifyError::JpegData)?;
-    let (w, h) = decoder
-        .dimensions()
-        .ok_or_else(|| RectifyError::Jpeg("no frame header".into()))?;
-    super::check_frame_size(w, h)?;
-    let pixels = decoder.decode().map_err(RectifyError::JpegData)?;
-    GrayImage::from_raw(w as u32, h as u32, pixels).ok_or_else(|| {
-        RectifyError::Jpeg(format!("decoder returned a wrong-sized buffer for {w}x{h}"))
-    })
+    let Decoded {
+        width,
+        height,
+        pixels,
+        ..
+    } = zune_decode(bytes, true)?;
+    GrayImage::from_raw(width, height, pixels)
+        .ok_or_else(|| RectifyError::Jpeg("decoder returned a wrong-sized buffer".into()))
 }
 
 #[cfg(test)]

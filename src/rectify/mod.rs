@@ -36,6 +36,7 @@ pub mod calibration;
 mod decode;
 mod file;
 mod frame;
+mod jpeg_scan;
 mod kernel;
 mod luma_decode;
 mod os;
@@ -48,6 +49,7 @@ mod simd;
 mod srgb;
 #[cfg(test)]
 mod tests;
+mod tiff_bounds;
 mod warp;
 
 use image::{ImageBuffer, Luma, Rgb};
@@ -103,28 +105,28 @@ pub enum RectifyError {
     /// A JPEG the decoder refused.
     #[error("JPEG decoding failed")]
     JpegData(#[source] zune_jpeg::errors::DecodeErrors),
+    /// A TIFF-based frame (NEF, TIFF) whose structure no decoder may be given, for the reason
+    /// given (see `tiff_bounds.rs`).
+    #[error("TIFF structure: {0}")]
+    Tiff(String),
+    /// A header that claims a picture larger than any camera frame, refused before anything is
+    /// allocated for it.
+    #[error(
+        "the header claims {width} x {height} pixels, more than the {} Mpx a camera frame may \
+         have (a D810 frame is 36 Mpx): not a frame of this camera, or a damaged file",
+        MAX_FRAME_PIXELS >> 20
+    )]
+    TooLarge { width: u64, height: u64 },
 }
 
 /// Largest frame decoded, in pixels: 128 Mpx, 3.5 times a D810 frame (36 Mpx). A header that
 /// claims more is refused before anything is allocated.
 pub const MAX_FRAME_PIXELS: usize = 1 << 27;
 
-/// The JPEG without its final end-of-image marker, for the decoder: zune-jpeg, even strict,
-/// fills a scan that meets an EOI early with zero bits (a frame cut short and closed by a proper
-/// EOI would decode to grey rows); where the data simply ends, strict mode reports the
-/// premature end instead. A complete scan needs no EOI to decode.
-pub(crate) fn scan_end(bytes: &[u8]) -> &[u8] {
-    bytes.strip_suffix(&[0xFF, 0xD9]).unwrap_or(bytes)
-}
-
 /// Refuses a frame header whose size no camera frame has.
-pub(crate) fn check_frame_size(width: usize, height: usize) -> Result<(), RectifyError> {
+pub(crate) fn check_frame_size(width: u64, height: u64) -> Result<(), RectifyError> {
     match width.checked_mul(height) {
-        Some(n) if n <= MAX_FRAME_PIXELS => Ok(()),
-        _ => Err(RectifyError::Jpeg(format!(
-            "the header claims {width} x {height} pixels, more than the {} Mpx a camera frame \
-             may have (a D810 frame is 36 Mpx): not a frame of this camera, or a damaged file",
-            MAX_FRAME_PIXELS >> 20
-        ))),
+        Some(n) if n <= MAX_FRAME_PIXELS as u64 => Ok(()),
+        _ => Err(RectifyError::TooLarge { width, height }),
     }
 }

@@ -25,9 +25,10 @@ use rawler::rawsource::RawSource;
 use rayon::prelude::*;
 
 /// Whether `bytes` are a camera raw file rawler knows (a TIFF-based raw names its body in the
-/// first directory; a plain TIFF does not).
+/// first directory; a plain TIFF does not). A TIFF whose structure fails the bounds of
+/// `tiff_bounds.rs` is never given to rawler (and is not taken for one).
 pub fn is_camera_raw(bytes: &[u8]) -> bool {
-    let tiff = bytes.starts_with(b"MM\0\x2A") || bytes.starts_with(b"II\x2A\0");
+    let tiff = super::tiff_bounds::is_tiff(bytes) && super::tiff_bounds::check(bytes).is_ok();
     tiff && std::panic::catch_unwind(|| {
         rawler::get_decoder(&RawSource::new_from_slice(bytes)).is_ok()
     })
@@ -48,6 +49,7 @@ pub struct RawFrame {
 
 /// Decodes a raw frame. Errors (never panics) on anything rawler cannot take.
 pub fn decode(bytes: &[u8]) -> Result<RawFrame, RectifyError> {
+    super::tiff_bounds::check(bytes)?;
     let source = RawSource::new_from_slice(bytes);
     let raw = std::panic::catch_unwind(|| rawler::decode(&source, &RawDecodeParams::default()))
         .map_err(|_| failed("the raw decoder gave up on this file (a panic inside rawler)"))?

@@ -216,7 +216,7 @@ fn write_dicom(dir: &Path, scan: &Scan) {
                 columns: nx,
                 thickness_mm: scan.voxel,
             },
-            pixels: &scan.data[k * nx * ny..(k + 1) * nx * ny],
+            pixels: (&scan.data[k * nx * ny..(k + 1) * nx * ny]).into(),
             acquired: None,
             window: (10000.0, 20000.0),
             derivation: "synthetic",

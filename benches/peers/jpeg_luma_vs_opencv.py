@@ -1,0 +1,104 @@
+#!/usr/bin/env python3
+"""Side-by-side: layerwise's JPEG decode to luma vs libjpeg-turbo through OpenCV and PIL.
+
+Runs inside benches/peers/.venv (opencv-python-headless, numpy; shared with rectify_vs_opencv.py;
+PIL is used when that venv has it). examples/peer_steps.rs renders a D810-size mock frame
+(7360 x 4912, quality 95, as the camera serves); each side decodes the same file to 8-bit luma:
+
+- ours: `decode_jpeg_luma` (what the views use), on all cores;
+- OpenCV: `cv2.imdecode(buf, IMREAD_GRAYSCALE)` (libjpeg-turbo, decoding the Y channel only);
+- OpenCV colour: `cv2.imdecode(buf, IMREAD_COLOR)` for reference;
+- PIL: `Image.open(...).convert("L")` when available.
+
+Each timing is the median of 5 runs; the comparison is repeated (--rounds, default 3). The two
+lumas are compared pixel by pixel.
+
+Usage: python3 benches/peers/jpeg_luma_vs_opencv.py [--rounds N]
+(from the crate root; honours CARGO_TARGET_DIR)
+"""
+import os
+import subprocess
+import sys
+
+from benchenv import ensure_venv
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CRATE = os.path.dirname(os.path.dirname(HERE))
+VENV = os.path.join(HERE, ".venv")
+
+ensure_venv(VENV, ["opencv-python-headless", "numpy"])
+
+import io  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+try:
+    from PIL import Image
+except ImportError:
+    Image = None
+
+
+def median_ms(f):
+    times, out = [], None
+    for _ in range(5):
+        t = time.perf_counter()
+        out = f()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times), out
+
+
+def ours(exe, jpg, out):
+    res = subprocess.run([exe, "luma", jpg, out], check=True, capture_output=True, text=True)
+    kv = dict(ln.split("=", 1) for ln in res.stdout.splitlines() if "=" in ln)
+    w, h = (int(x) for x in kv["size"].split("x"))
+    return float(kv["decode_ms_median"]), (h, w)
+
+
+def main():
+    rounds = int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3
+    work = os.path.join(HERE, "out")
+    os.makedirs(work, exist_ok=True)
+    target = os.environ.get("CARGO_TARGET_DIR", os.path.join(CRATE, "target"))
+    print("building examples/peer_steps (release) ...", flush=True)
+    subprocess.check_call(["cargo", "build", "--release", "--quiet", "--example", "peer_steps"],
+                          cwd=CRATE)
+    exe = os.path.join(target, "release", "examples", "peer_steps")
+    subprocess.check_call([exe, "frames", work])
+    jpg = os.path.join(work, "frame.jpg")
+    out = os.path.join(work, "ours_luma.raw")
+    buf = np.fromfile(jpg, dtype=np.uint8)
+
+    _, shape = ours(exe, jpg, out)
+    mine = np.fromfile(out, dtype=np.uint8).reshape(shape)
+    theirs = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+    d = np.abs(mine.astype(np.int16) - theirs.astype(np.int16))
+    print(f"opencv {cv2.__version__}, cv2 threads {cv2.getNumThreads()}, cores {os.cpu_count()}; "
+          f"{shape[1]}x{shape[0]} JPEG ({buf.size / 1e6:.1f} MB); luma vs cv2 grey: max abs diff "
+          f"{d.max()}, {100.0 * np.mean(d <= 1):.4f}% within +-1")
+    peers = [
+        ("cv2.imdecode GRAYSCALE", lambda: cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)),
+        ("cv2.imdecode COLOR", lambda: cv2.imdecode(buf, cv2.IMREAD_COLOR)),
+    ]
+    if Image is not None:
+        data = buf.tobytes()
+        peers.append(("PIL convert L", lambda: Image.open(io.BytesIO(data)).convert("L")))
+    results = {name: [] for name, _ in peers}
+    ours_times = []
+    for _ in range(rounds):
+        ours_times.append(ours(exe, jpg, out)[0])
+        for name, f in peers:
+            results[name].append(median_ms(f)[0])
+    o_med = statistics.median(ours_times)
+    for name, ts in results.items():
+        p_med = statistics.median(ts)
+        print(f"[luma vs {name}] median rounds: ours {o_med:.1f} ms, peer {p_med:.1f} ms, "
+              f"ratio {o_med / p_med:.2f}")
+    for p in (jpg, out, os.path.join(work, "rectified.raw")):
+        os.remove(p)
+
+
+if __name__ == "__main__":
+    main()

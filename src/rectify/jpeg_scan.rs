@@ -1,0 +1,221 @@
+//! What the JPEG decoder is given: the file's markers walked (never its entropy-coded data
+//! decoded) to tell a baseline frame from a progressive one and to find where it was cut.
+//!
+//! zune-jpeg, even strict, fills a scan that meets an end-of-image marker early with zero bits:
+//! a frame cut short and closed by a proper EOI would decode to grey rows. A baseline frame is
+//! therefore given without its final EOI (a complete scan needs none, and where the data simply
+//! ends, strict mode reports it). A progressive frame needs its EOI (the decoder looks for a
+//! marker after every scan), so it keeps it and is checked here instead: it must end with the EOI
+//! after its last scan (a cut file does not), and its scans must bring every coefficient of every
+//! component to its last bit (a file cut between scans and closed would not).
+
+use super::RectifyError;
+
+/// The bytes to decode: a baseline JPEG without its final EOI, a progressive one whole once its
+/// scans are found complete. Bytes whose markers cannot be walked go to the decoder as a baseline
+/// frame would (its errors then say what is wrong).
+pub(crate) fn decoder_input(bytes: &[u8]) -> Result<&[u8], RectifyError> {
+    let baseline = bytes.strip_suffix(&[0xFF, 0xD9]).unwrap_or(bytes);
+    let Some(walk) = walk(bytes) else {
+        return Ok(baseline);
+    };
+    if !walk.progressive {
+        return Ok(baseline);
+    }
+    if !walk.ends_with_eoi {
+        return Err(RectifyError::Jpeg(
+            "the progressive file ends before its end-of-image marker: cut short (an interrupted \
+             transfer or a full disk); take the frame again"
+                .into(),
+        ));
+    }
+    if let Some((component, k, bit)) = walk.first_incomplete() {
+        return Err(RectifyError::Jpeg(format!(
+            "the progressive file's scans stop before coefficient {k} of component {} is \
+             complete (bits below {bit} never come): a file cut short and closed; take the \
+             frame again",
+            component + 1
+        )));
+    }
+    Ok(bytes)
+}
+
+/// What the marker walk found.
+struct Walk {
+    progressive: bool,
+    /// The file ends with the EOI, right after the last scan's data.
+    ends_with_eoi: bool,
+    /// Component ids of the frame header.
+    components: Vec<u8>,
+    /// Per component and coefficient: the lowest bit its scans have reached (`Al`), or −1 if no
+    /// scan carried it yet.
+    bits: Vec<[i8; 64]>,
+}
+
+impl Walk {
+    fn first_incomplete(&self) -> Option<(usize, usize, i8)> {
+        self.bits.iter().enumerate().find_map(|(c, bits)| {
+            bits.iter()
+                .position(|&b| b != 0)
+                .map(|k| (c, k, bits[k].max(0)))
+        })
+    }
+
+    /// A progressive scan over `ids`, coefficients `ss..=se`, successive approximation `ah`/`al`.
+    fn scan(&mut self, ids: &[u8], ss: usize, se: usize, ah: i8, al: i8) {
+        if ss > se || se > 63 {
+            return;
+        }
+        for id in ids {
+            let Some(c) = self.components.iter().position(|x| x == id) else {
+                continue;
+            };
+            for bit in self.bits[c][ss..=se].iter_mut() {
+                // A first scan (ah = 0) starts a coefficient; a refinement takes it one bit on.
+                if (ah == 0 && *bit < 0) || (ah > 0 && *bit == ah) {
+                    *bit = al;
+                }
+            }
+        }
+    }
+}
+
+/// Walks the markers of a JPEG; `None` where they do not parse up to a frame header. A file
+/// whose data runs out after its frame header is walked as far as it goes (`ends_with_eoi`
+/// false).
+fn walk(bytes: &[u8]) -> Option<Walk> {
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return None;
+    }
+    let mut w = Walk {
+        progressive: false,
+        ends_with_eoi: false,
+        components: Vec::new(),
+        bits: Vec::new(),
+    };
+    match walk_markers(bytes, &mut w) {
+        Some(()) => Some(w),
+        None => (!w.components.is_empty()).then_some(w),
+    }
+}
+
+/// The markers from the one after SOI to the EOI; `None` where the data ends or stops parsing.
+fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
+    let mut pos = 2;
+    loop {
+        // A marker: 0xFF, any fill 0xFFs, its code.
+        if *bytes.get(pos)? != 0xFF {
+            return None;
+        }
+        while bytes.get(pos) == Some(&0xFF) {
+            pos += 1;
+        }
+        let code = *bytes.get(pos)?;
+        pos += 1;
+        match code {
+            0xD9 => {
+                w.ends_with_eoi = pos == bytes.len();
+                return Some(());
+            }
+            0x01 | 0xD0..=0xD7 => continue,
+            _ => {}
+        }
+        let len = usize::from(u16::from_be_bytes([*bytes.get(pos)?, *bytes.get(pos + 1)?]));
+        let segment = bytes.get(pos + 2..pos + len)?;
+        pos += len;
+        match code {
+            // Frame headers (not DHT 0xC4, JPG 0xC8, DAC 0xCC).
+            0xC0..=0xCF if !matches!(code, 0xC4 | 0xC8 | 0xCC) => {
+                w.progressive = matches!(code, 0xC2 | 0xC6 | 0xCA | 0xCE);
+                let n = usize::from(*segment.get(5)?);
+                w.components = (0..n)
+                    .map(|i| segment.get(6 + 3 * i).copied())
+                    .collect::<Option<_>>()?;
+                w.bits = vec![[-1; 64]; n];
+                if !w.progressive {
+                    // Nothing more to learn: a baseline frame is decoded without its EOI.
+                    return Some(());
+                }
+            }
+            0xDA => {
+                let n = usize::from(*segment.first()?);
+                let ids: Vec<u8> = (0..n)
+                    .map(|i| segment.get(1 + 2 * i).copied())
+                    .collect::<Option<_>>()?;
+                let tail = segment.get(1 + 2 * n..1 + 2 * n + 3)?;
+                let (ah, al) = ((tail[2] >> 4) as i8, (tail[2] & 15) as i8);
+                w.scan(&ids, usize::from(tail[0]), usize::from(tail[1]), ah, al);
+                // The entropy-coded data runs to the next marker that is not a restart marker
+                // (0xFF 0x00 is a stuffed 0xFF byte).
+                loop {
+                    let at = pos + bytes.get(pos..)?.iter().position(|&b| b == 0xFF)?;
+                    match *bytes.get(at + 1)? {
+                        0x00 | 0xD0..=0xD7 | 0xFF => pos = at + 1,
+                        _ => {
+                            pos = at;
+                            break;
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn jpeg(progressive: bool) -> Vec<u8> {
+        let picture = image::RgbImage::from_fn(48, 40, |x, y| {
+            image::Rgb([(x * 5) as u8, (y * 6) as u8, ((x + y) * 3) as u8])
+        });
+        let mut out = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90)
+            .encode_image(&picture)
+            .unwrap();
+        if progressive {
+            // A hand-made progressive header is not needed: flipping SOF0 to SOF2 makes the walk
+            // treat the one interleaved scan as a DC-and-AC first scan (ah = al = 0).
+            let sof = out.windows(2).position(|w| w == [0xFF, 0xC0]).unwrap();
+            out[sof + 1] = 0xC2;
+        }
+        out
+    }
+
+    #[test]
+    fn baseline_loses_its_eoi_and_progressive_keeps_it_when_complete() {
+        let base = jpeg(false);
+        assert_eq!(decoder_input(&base).unwrap(), &base[..base.len() - 2]);
+        let prog = jpeg(true);
+        assert_eq!(decoder_input(&prog).unwrap(), &prog[..]);
+        // Cut: no EOI.
+        let cut = &prog[..prog.len() - 40];
+        let e = decoder_input(cut).unwrap_err().to_string();
+        assert!(e.contains("cut short"), "{e}");
+    }
+
+    #[test]
+    fn a_scan_script_that_stops_early_is_incomplete() {
+        let mut w = Walk {
+            progressive: true,
+            ends_with_eoi: true,
+            components: vec![1, 2, 3],
+            bits: vec![[-1; 64]; 3],
+        };
+        // libjpeg's default script, without its last scan (luma AC refinement to bit 0).
+        w.scan(&[1, 2, 3], 0, 0, 0, 1);
+        w.scan(&[1], 1, 5, 0, 2);
+        w.scan(&[3], 1, 63, 0, 1);
+        w.scan(&[2], 1, 63, 0, 1);
+        w.scan(&[1], 6, 63, 0, 2);
+        w.scan(&[1], 1, 63, 2, 1);
+        w.scan(&[1, 2, 3], 0, 0, 1, 0);
+        w.scan(&[3], 1, 63, 1, 0);
+        w.scan(&[2], 1, 63, 1, 0);
+        assert_eq!(w.first_incomplete(), Some((0, 1, 1)));
+        w.scan(&[1], 1, 63, 1, 0);
+        assert_eq!(w.first_incomplete(), None);
+    }
+}
