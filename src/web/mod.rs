@@ -11,6 +11,7 @@
 //! events. Only layer numbers and view names from a request reach the file system.
 
 pub mod calibration;
+pub mod files;
 pub mod listener;
 pub mod preview;
 mod priority;

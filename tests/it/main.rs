@@ -44,3 +44,4 @@ mod vectors;
 #[cfg(feature = "gphoto")]
 mod virtual_camera;
 mod web;
+mod web_files;
