@@ -11,16 +11,19 @@
 //! events. Only layer numbers and view names from a request reach the file system.
 
 pub mod calibration;
+pub mod clients;
 pub mod files;
 pub mod listener;
 pub mod preview;
 mod priority;
+pub mod process;
 mod routes;
 mod state;
 pub mod timeline;
 
 use crate::config::WebConfig;
 use crate::shutdown::Shutdown;
+use clients::{Clients, Limits};
 use preview::Pictures;
 use priority::lower_priority;
 pub(crate) use state::PageState;
@@ -76,12 +79,29 @@ impl WebServer {
         addr: SocketAddr,
         shutdown: &Shutdown,
     ) -> Result<WebServer, WebError> {
+        let std_listener = std::net::TcpListener::bind(addr)
+            .map_err(|source| WebError::Listen { addr, source })?;
+        WebServer::start_listening(dir, config, std_listener, shutdown)
+    }
+
+    /// Serves `dir` on a listening socket already bound (the daemon's, handed to its page
+    /// process), until `shutdown` is requested.
+    pub fn start_listening(
+        dir: &Path,
+        config: &WebConfig,
+        std_listener: std::net::TcpListener,
+        shutdown: &Shutdown,
+    ) -> Result<WebServer, WebError> {
         let token = match &config.token_file {
             Some(path) => Some(read_token(path)?),
             None => None,
         };
-        let listen_error = |source| WebError::Listen { addr, source };
-        let std_listener = std::net::TcpListener::bind(addr).map_err(listen_error)?;
+        let listen_error = |source| WebError::Listen {
+            addr: std_listener
+                .local_addr()
+                .unwrap_or_else(|_| SocketAddr::from(([0, 0, 0, 0], 0))),
+            source,
+        };
         std_listener.set_nonblocking(true).map_err(listen_error)?;
         let addr = std_listener.local_addr().map_err(listen_error)?;
         let runtime = tokio::runtime::Builder::new_current_thread()
@@ -91,6 +111,9 @@ impl WebServer {
             .on_thread_start(lower_priority)
             .build()
             .map_err(WebError::Runtime)?;
+        let mut limits = Limits::of(config);
+        limits.max_connections = process::connection_room(limits.max_connections);
+        limits.per_client = limits.per_client.min(limits.max_connections);
         let stop = shutdown.child();
         // What is on disk already is read before the first request is answered.
         let mut timeline = Timeline::new(dir);
@@ -106,6 +129,7 @@ impl WebServer {
             info: Mutex::new(None),
             pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
             encode: Semaphore::new(1),
+            clients: Arc::new(Clients::new(limits)),
             updates: watch::channel(0).0,
             streams: AtomicUsize::new(0),
             stop: stop.clone(),
@@ -120,22 +144,9 @@ impl WebServer {
                         Ok(l) => l,
                         Err(e) => return warn!(error = %e, "page server: cannot listen"),
                     };
-                    let listener = listener::Limited::new(
-                        listener,
-                        shared.config.max_connections,
-                        Duration::from_secs(shared.config.idle_timeout_s),
-                    );
                     tokio::spawn(watch_build(shared.clone()));
-                    let app = routes::router(shared.clone())
-                        .into_make_service_with_connect_info::<listener::Busy>();
-                    let served = axum::serve(listener, app)
-                        .with_graceful_shutdown(async move {
-                            server_stop.requested().await;
-                        })
-                        .await;
-                    if let Err(e) = served {
-                        warn!(error = %e, "page server stopped");
-                    }
+                    let app = routes::router(shared.clone());
+                    listener::serve(listener, app, shared.clients.clone(), server_stop).await;
                 });
                 // Pictures being encoded are not waited for.
                 runtime.shutdown_timeout(Duration::from_millis(100));
@@ -180,7 +191,8 @@ impl Drop for WebServer {
     }
 }
 
-fn read_token(path: &Path) -> Result<String, WebError> {
+/// The bearer token of `web.token_file`, checked.
+pub fn read_token(path: &Path) -> Result<String, WebError> {
     let text =
         crate::fsutil::read_text_bounded(path, 4096).map_err(|source| WebError::TokenRead {
             path: path.to_path_buf(),

@@ -1,6 +1,7 @@
 //! The page's routes: static files, JSON, pictures, originals, vectors and the event stream.
 //! Requests name layers and views only; both are checked before anything reaches the disk.
 
+use super::clients::{self, Client};
 use super::files::{BuildFile, FileError, FileKind};
 use super::preview::{self, Kind, PreviewError, Region};
 use super::state::PageState;
@@ -15,7 +16,7 @@ use axum::middleware::{self, Next};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use serde::Deserialize;
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -28,10 +29,8 @@ const APP_JS: &str = include_str!("page/app.js");
 const STYLE_CSS: &str = include_str!("page/style.css");
 const CALIBRATE_HTML: &str = include_str!("page/calibrate.html");
 
-/// Request bodies the page accepts (only the calibration page sends one).
-pub const MAX_BODY_BYTES: usize = 64 * 1024;
-
 pub(crate) fn router(shared: Arc<PageState>) -> Router {
+    let limits = shared.clients.limits();
     Router::new()
         .route(
             "/",
@@ -58,9 +57,11 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
         .route("/api/layers/{layer}/{view}/picture.jpg", get(picture))
         .route("/api/layers/{layer}/{view}/original", get(original))
         .route("/api/events", get(events))
+        // Bodies are received (bounded in bytes and time) only once the token was shown.
+        .layer(middleware::from_fn_with_state(limits, clients::receive))
         .layer(middleware::from_fn_with_state(shared.clone(), authorize))
-        .layer(middleware::from_fn(answering))
-        .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
+        .layer(middleware::from_fn(clients::track))
+        .layer(DefaultBodyLimit::max(clients::MAX_BODY_BYTES))
         .with_state(shared)
 }
 
@@ -112,18 +113,6 @@ pub fn parse_view(text: &str) -> Result<View, ApiError> {
             text.escape_debug()
         ))),
     }
-}
-
-/// Counts the request as being answered on its connection until its response is ready, so the
-/// listener's idle timeout never closes a connection waiting for a slow picture.
-async fn answering(request: Request, next: Next) -> Response {
-    let busy = request
-        .extensions()
-        .get::<axum::extract::ConnectInfo<super::listener::Busy>>()
-        .map(|info| info.0.during());
-    let response = next.run(request).await;
-    drop(busy);
-    response
 }
 
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
@@ -547,10 +536,15 @@ pub fn layer_svg(layer: &crate::vectors::Layer, grid: &crate::geometry::Grid) ->
     )
 }
 
-async fn events(State(shared): State<Arc<PageState>>) -> Result<Response, ApiError> {
+async fn events(
+    State(shared): State<Arc<PageState>>,
+    client: Option<Extension<Arc<Client>>>,
+) -> Result<Response, ApiError> {
     let open = shared.streams.fetch_add(1, Ordering::SeqCst);
-    let guard = StreamGuard(shared.clone());
-    if open >= shared.config.max_event_streams {
+    let guard = StreamGuard(shared.clone(), client.map(|c| c.streaming()));
+    // At the limit, the oldest stream of the address holding the most makes room (its page
+    // opens it again); refused only when no other stream is open.
+    if open >= shared.config.max_event_streams && !shared.clients.close_a_stream() {
         return Err(ApiError(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("{open} pages are open already (web.max_event_streams); close one"),
@@ -585,8 +579,11 @@ async fn events(State(shared): State<Arc<PageState>>) -> Result<Response, ApiErr
         .into_response())
 }
 
-/// Counts an open event stream until it ends.
-struct StreamGuard(Arc<PageState>);
+/// Counts an open event stream (and marks its connection) until it ends.
+struct StreamGuard(
+    Arc<PageState>,
+    #[allow(dead_code)] Option<clients::StreamMark>,
+);
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {

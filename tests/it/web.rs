@@ -347,17 +347,17 @@ fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_s
 }
 
 /// Idle clients cannot hold the page: with every connection of `max_connections` (64) taken by
-/// clients that send nothing or half a request, a page's request waits, then is answered once
-/// `--idle-timeout-s 1` closed them; an open event stream outlives the timeout (its keep-alive).
+/// clients that send nothing or half a request, a page's request is answered at once (the idle
+/// connection waiting longest makes room), and `--idle-timeout-s 1` closes the others; an open
+/// event stream outlives the timeout (its keep-alive).
 #[test]
-fn idle_connections_are_closed_after_the_idle_timeout_and_a_waiting_client_is_served() {
+fn idle_connections_give_way_to_a_request_and_are_closed_after_the_idle_timeout() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = finished_build(tmp.path(), 1);
     let (child, addr) = serve(&dir, &["--idle-timeout-s", "1"]);
     let mut events = open_events(addr);
     let mut buf = [0u8; 4096];
     assert!(events.read(&mut buf).unwrap() > 0, "the stream answers");
-    let started = Instant::now();
     let mut idle: Vec<TcpStream> = (0..63)
         .map(|k| {
             let mut s = TcpStream::connect(addr).unwrap();
@@ -367,14 +367,12 @@ fn idle_connections_are_closed_after_the_idle_timeout_and_a_waiting_client_is_se
             s
         })
         .collect();
-    // Every place is taken: this request waits for the idle ones to be closed.
+    // Every place is taken: an idle connection makes room for this request.
+    let started = Instant::now();
     let (status, body) = http(addr, "GET", "/api/layers", b"");
     let waited = started.elapsed();
     assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
-    assert!(
-        waited >= Duration::from_millis(900),
-        "answered after {waited:?}: the idle connections did not hold their places"
-    );
+    assert!(waited < Duration::from_secs(2), "answered after {waited:?}");
     // The idle ones were closed by the server.
     for s in &mut idle {
         s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
