@@ -31,6 +31,21 @@ const MAX_HEADERS: usize = 64;
 /// How long connections may take to finish when the server stops.
 const STOP_GRACE: Duration = Duration::from_secs(1);
 
+/// Connections the kernel completes for the page before it accepts them (nginx: 511; std's
+/// bind gives 128, which a burst of connections fills while the page accepts).
+const BACKLOG: i32 = 1024;
+
+/// A socket listening on `addr` with a backlog of [`BACKLOG`].
+pub fn bind(addr: std::net::SocketAddr) -> std::io::Result<std::net::TcpListener> {
+    use std::os::fd::AsRawFd;
+    let listener = std::net::TcpListener::bind(addr)?;
+    // SAFETY: listen again on a socket this function owns: Linux takes the new backlog.
+    if unsafe { libc::listen(listener.as_raw_fd(), BACKLOG) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(listener)
+}
+
 /// What a newcomer is told when every connection is being answered.
 const BUSY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\n\
 Content-Type: application/json\r\nContent-Length: 70\r\nConnection: close\r\n\r\n\

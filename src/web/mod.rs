@@ -19,6 +19,7 @@ mod priority;
 pub mod process;
 mod routes;
 mod state;
+pub mod supervisor;
 pub mod timeline;
 
 use crate::config::WebConfig;
@@ -79,8 +80,8 @@ impl WebServer {
         addr: SocketAddr,
         shutdown: &Shutdown,
     ) -> Result<WebServer, WebError> {
-        let std_listener = std::net::TcpListener::bind(addr)
-            .map_err(|source| WebError::Listen { addr, source })?;
+        let std_listener =
+            listener::bind(addr).map_err(|source| WebError::Listen { addr, source })?;
         WebServer::start_listening(dir, config, std_listener, shutdown)
     }
 

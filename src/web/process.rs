@@ -58,6 +58,21 @@ fn raise_descriptor_limit() {
     }
 }
 
+/// Names the process's main thread `layerwise-page` (`top`, `ps -o comm`).
+pub fn name_page_process() {
+    // SAFETY: PR_SET_NAME with a NUL-terminated name of at most 16 bytes.
+    unsafe {
+        libc::prctl(libc::PR_SET_NAME, c"layerwise-page".as_ptr());
+    }
+}
+
+/// Makes this process the kernel's first choice when the machine runs out of memory
+/// (`oom_score_adj` 500, as systemd's `OOMScoreAdjust=`; raising it needs no privilege): the
+/// page goes before the daemon that captures. Best effort.
+pub fn prefer_for_oom_kill() {
+    let _ = std::fs::write("/proc/self/oom_score_adj", "500");
+}
+
 /// `wanted` connections, or fewer when the process's open-file limit leaves room for fewer
 /// (then said once in the log).
 pub fn connection_room(wanted: usize) -> usize {
