@@ -28,6 +28,10 @@ pub struct ServeArgs {
     /// before it is closed, as `[web] idle_timeout_s`.
     #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
     idle_timeout_s: u64,
+    /// Connections open at once, as `[web] max_connections` (beyond it, one waiting for a request
+    /// makes room).
+    #[arg(long, default_value_t = WebConfig::default().max_connections)]
+    max_connections: usize,
     /// Bound this process's address space to this many MiB, as `[web] memory_mb` bounds the
     /// daemon's page process (by default: unbounded).
     #[arg(long)]
@@ -56,6 +60,7 @@ impl ServeArgs {
             token_file: self.token_file.clone(),
             calibration_page: self.calibration_page,
             idle_timeout_s: self.idle_timeout_s,
+            max_connections: self.max_connections,
             ..WebConfig::default()
         };
         if let Some(mb) = self.memory_mb {

@@ -59,8 +59,8 @@ impl Default for WebConfig {
         WebConfig {
             listen: "127.0.0.1:8040".into(),
             token_file: None,
-            max_connections: 64,
-            max_connections_per_client: 32,
+            max_connections: 512,
+            max_connections_per_client: 256,
             max_event_streams: 16,
             idle_timeout_s: 30,
             header_timeout_s: 10,

@@ -5,8 +5,10 @@
 //! A connection is accepted at once. At `web.max_connections` open, or
 //! `web.max_connections_per_client` from one address, the new connection closes one that is
 //! waiting for a request (or still sending a request's body): first one that never had a
-//! request answered (with a token: never showed it), then one of the address holding the most,
-//! the one waiting longest. Connections being answered (a picture being made, a download, an
+//! request answered (with a token: never showed it), among those first one that never sent a
+//! byte, then one of the address holding the most, the one waiting longest. So a client that
+//! sends its request with its connection is not closed by the idle connections opened after
+//! it, however fast they come. Connections being answered (a picture being made, a download, an
 //! open page's event stream) are never closed to make room; only when every connection is being
 //! answered is the newcomer refused (503). So idle or stalled clients, however many, and
 //! clients that connect before they authenticate cannot keep the operator out: nginx's
@@ -20,7 +22,7 @@ use axum::response::{IntoResponse, Response};
 use std::collections::{BTreeMap, HashMap};
 use std::net::IpAddr;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
@@ -93,6 +95,10 @@ pub struct Client {
     proven: AtomicBool,
     /// It serves an event stream.
     stream: AtomicBool,
+    /// It sent a byte.
+    heard: AtomicBool,
+    /// Its socket, to look for bytes it sent that were not read yet (-1: none).
+    fd: AtomicI32,
     /// When its phase last changed, in ms from the table's start.
     since_ms: AtomicU64,
     epoch: Instant,
@@ -109,6 +115,43 @@ impl Client {
         self.phase.store(phase as u8, Ordering::SeqCst);
         let ms = self.epoch.elapsed().as_millis() as u64;
         self.since_ms.store(ms, Ordering::SeqCst);
+    }
+
+    /// Marks the connection as one that sent something.
+    pub fn heard(&self) {
+        self.heard.store(true, Ordering::Relaxed);
+    }
+
+    /// Its socket `fd`, open while the connection is in the table.
+    pub fn watch(&self, fd: std::os::fd::RawFd) {
+        self.fd.store(fd, Ordering::Relaxed);
+    }
+
+    /// Whether it sent something: read already, or waiting in its socket (a request sent with
+    /// the connection that its task has not read yet).
+    fn spoke(&self) -> bool {
+        if self.heard.load(Ordering::Relaxed) {
+            return true;
+        }
+        let fd = self.fd.load(Ordering::Relaxed);
+        if fd < 0 {
+            return false;
+        }
+        let mut byte = 0u8;
+        // SAFETY: a one-byte peek into a local on the connection's socket, open while it is in
+        // the table (its task removes it before closing it); it never blocks.
+        let n = unsafe {
+            libc::recv(
+                fd,
+                (&mut byte as *mut u8).cast(),
+                1,
+                libc::MSG_PEEK | libc::MSG_DONTWAIT,
+            )
+        };
+        if n > 0 {
+            self.heard();
+        }
+        n > 0
     }
 
     /// Marks the connection as serving an event stream until the guard is dropped.
@@ -194,19 +237,28 @@ impl Table {
         }
     }
 
-    /// The connection to close for room (see the module doc), among those `pick` accepts.
+    /// The connection to close for room (see the module doc), among those `pick` accepts. One
+    /// that seems silent is looked at first: if it sent something, the next is chosen.
     fn victim(&self, pick: impl Fn(&Client) -> bool) -> Option<Arc<Client>> {
-        self.open
-            .values()
-            .filter(|c| pick(c) && !c.closed.load(Ordering::SeqCst))
-            .min_by_key(|c| {
-                (
-                    c.proven.load(Ordering::SeqCst),
-                    usize::MAX - self.per_address.get(&c.addr).copied().unwrap_or(0),
-                    c.since_ms.load(Ordering::SeqCst),
-                )
-            })
-            .cloned()
+        loop {
+            let victim = self
+                .open
+                .values()
+                .filter(|c| pick(c) && !c.closed.load(Ordering::SeqCst))
+                .min_by_key(|c| {
+                    (
+                        c.proven.load(Ordering::SeqCst),
+                        c.heard.load(Ordering::Relaxed),
+                        usize::MAX - self.per_address.get(&c.addr).copied().unwrap_or(0),
+                        c.since_ms.load(Ordering::SeqCst),
+                    )
+                })
+                .cloned()?;
+            // Each turn marks one more connection heard: at most as many turns as are open.
+            if victim.heard.load(Ordering::Relaxed) || !victim.spoke() {
+                return Some(victim);
+            }
+        }
     }
 
     fn evict(&mut self, victim: &Client) {
@@ -251,6 +303,8 @@ impl Clients {
             phase: AtomicU8::new(Phase::Waiting as u8),
             proven: AtomicBool::new(false),
             stream: AtomicBool::new(false),
+            heard: AtomicBool::new(false),
+            fd: AtomicI32::new(-1),
             since_ms: AtomicU64::new(self.epoch.elapsed().as_millis() as u64),
             epoch: self.epoch,
             closed: AtomicBool::new(false),
@@ -472,6 +526,21 @@ mod tests {
         let _receiving = phase(&fifth, Phase::Receiving, Phase::Answering);
         assert!(clients.admit(a).is_some());
         assert!(fifth.closed.load(Ordering::SeqCst));
+    }
+
+    #[test]
+    fn a_connection_that_sent_its_request_outlasts_silent_ones_opened_after_it() {
+        let clients = Clients::new(limits(3, 3));
+        let a: IpAddr = "10.0.0.1".parse().unwrap();
+        // Its request waits in its socket, not read yet.
+        let (mut near, far) = std::os::unix::net::UnixStream::pair().unwrap();
+        std::io::Write::write_all(&mut near, b"GET / HTTP/1.1\r\n\r\n").unwrap();
+        let operator = clients.admit(a).unwrap();
+        operator.watch(std::os::fd::AsRawFd::as_raw_fd(&far));
+        let silent: Vec<_> = (0..20).map(|_| clients.admit(a).unwrap()).collect();
+        assert!(!operator.closed.load(Ordering::SeqCst));
+        let closed = silent.iter().filter(|c| c.closed.load(Ordering::SeqCst));
+        assert_eq!(closed.count(), 18);
     }
 
     #[test]

@@ -21,7 +21,7 @@ use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio::time::{Instant, Sleep};
 
 /// The most bytes of a request's line and headers.
@@ -67,6 +67,8 @@ pub(crate) async fn serve(
         match accepted {
             Ok((stream, peer)) => match clients.admit(peer.ip()) {
                 Some(client) => {
+                    let _ = stream.set_nodelay(true);
+                    client.watch(std::os::fd::AsRawFd::as_raw_fd(&stream));
                     let (app, clients, stop) = (app.clone(), clients.clone(), stop.clone());
                     connections.spawn(connection(stream, client, app, clients, stop));
                 }
@@ -93,15 +95,16 @@ pub(crate) async fn serve(
 }
 
 /// One connection, until it ends, is closed to make room, or the server stops.
-async fn connection(
-    stream: TcpStream,
+pub(crate) async fn connection<S>(
+    stream: S,
     client: Arc<Client>,
     app: Router,
     clients: Arc<Clients>,
     stop: crate::shutdown::Shutdown,
-) {
+) where
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
     let limits = clients.limits();
-    let _ = stream.set_nodelay(true);
     let io = hyper_util::rt::TokioIo::new(Connection {
         stream,
         client: client.clone(),
@@ -119,6 +122,8 @@ async fn connection(
         .max_buf_size(MAX_HEAD_BYTES)
         .max_headers(MAX_HEADERS)
         .writev(false)
+        // A client that closes its side after its request still gets the answer.
+        .half_close(true)
         .keep_alive(true);
     let served = http.serve_connection(io, service);
     tokio::pin!(served);
@@ -134,14 +139,14 @@ async fn connection(
 }
 
 /// A connection's stream with the idle timer (see the module doc).
-struct Connection {
-    stream: TcpStream,
+struct Connection<S> {
+    stream: S,
     client: Arc<Client>,
     idle: Duration,
     deadline: Pin<Box<Sleep>>,
 }
 
-impl Connection {
+impl<S> Connection<S> {
     fn touch(&mut self) {
         let at = Instant::now() + self.idle;
         self.deadline.as_mut().reset(at);
@@ -164,7 +169,7 @@ impl Connection {
     }
 }
 
-impl AsyncRead for Connection {
+impl<S: AsyncRead + Unpin> AsyncRead for Connection<S> {
     fn poll_read(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -174,6 +179,7 @@ impl AsyncRead for Connection {
         match Pin::new(&mut self.stream).poll_read(cx, buf) {
             Poll::Ready(Ok(())) => {
                 if buf.filled().len() > before {
+                    self.client.heard();
                     self.touch();
                 }
                 Poll::Ready(Ok(()))
@@ -184,7 +190,7 @@ impl AsyncRead for Connection {
     }
 }
 
-impl AsyncWrite for Connection {
+impl<S: AsyncWrite + Unpin> AsyncWrite for Connection<S> {
     fn poll_write(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,

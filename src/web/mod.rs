@@ -13,6 +13,7 @@
 pub mod calibration;
 pub mod clients;
 pub mod files;
+pub mod harness;
 pub mod listener;
 pub mod preview;
 mod priority;
@@ -93,10 +94,6 @@ impl WebServer {
         std_listener: std::net::TcpListener,
         shutdown: &Shutdown,
     ) -> Result<WebServer, WebError> {
-        let token = match &config.token_file {
-            Some(path) => Some(read_token(path)?),
-            None => None,
-        };
         let listen_error = |source| WebError::Listen {
             addr: std_listener
                 .local_addr()
@@ -112,29 +109,8 @@ impl WebServer {
             .on_thread_start(lower_priority)
             .build()
             .map_err(WebError::Runtime)?;
-        let mut limits = Limits::of(config);
-        limits.max_connections = process::connection_room(limits.max_connections);
-        limits.per_client = limits.per_client.min(limits.max_connections);
         let stop = shutdown.child();
-        // What is on disk already is read before the first request is answered.
-        let mut timeline = Timeline::new(dir);
-        if let Err(e) = timeline.refresh() {
-            warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
-        }
-        let shared = Arc::new(PageState {
-            dir: dir.to_path_buf(),
-            config: config.clone(),
-            token,
-            timeline: RwLock::new(timeline),
-            status: RwLock::new(None),
-            info: Mutex::new(None),
-            pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
-            encode: Semaphore::new(1),
-            clients: Arc::new(Clients::new(limits)),
-            updates: watch::channel(0).0,
-            streams: AtomicUsize::new(0),
-            stop: stop.clone(),
-        });
+        let shared = page_state(dir, config, stop.clone())?;
         let server_stop = stop.clone();
         let thread = std::thread::Builder::new()
             .name("layerwise-web".into())
@@ -190,6 +166,36 @@ impl Drop for WebServer {
         }
         self.wait();
     }
+}
+
+/// What the handlers of a page of `dir` share, the timeline read (see [`PageState`]).
+fn page_state(dir: &Path, config: &WebConfig, stop: Shutdown) -> Result<Arc<PageState>, WebError> {
+    let token = match &config.token_file {
+        Some(path) => Some(read_token(path)?),
+        None => None,
+    };
+    let mut limits = Limits::of(config);
+    limits.max_connections = process::connection_room(limits.max_connections);
+    limits.per_client = limits.per_client.min(limits.max_connections);
+    // What is on disk already is read before the first request is answered.
+    let mut timeline = Timeline::new(dir);
+    if let Err(e) = timeline.refresh() {
+        warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
+    }
+    Ok(Arc::new(PageState {
+        dir: dir.to_path_buf(),
+        config: config.clone(),
+        token,
+        timeline: RwLock::new(timeline),
+        status: RwLock::new(None),
+        info: Mutex::new(None),
+        pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
+        encode: Semaphore::new(1),
+        clients: Arc::new(Clients::new(limits)),
+        updates: watch::channel(0).0,
+        streams: AtomicUsize::new(0),
+        stop,
+    }))
 }
 
 /// The bearer token of `web.token_file`, checked.

@@ -45,3 +45,4 @@ mod vectors;
 mod virtual_camera;
 mod web;
 mod web_files;
+mod web_load;
