@@ -45,7 +45,7 @@ fn inspect(paths: &[PathBuf]) -> Vec<InspectionRecord> {
         light: Light::Top,
     };
     let frames = offline::as_layers(paths, view);
-    let (w, h) = offline::frame_size(&frames).expect("first frame");
+    let (w, h) = offline::frame_size(&frames.paths).expect("first frame");
     let (calibration, grid) = offline::top_down(w, h, None).expect("top-down");
     let rectifier =
         Rectifier::new(&calibration.camera(), grid, Default::default(), 0).expect("rectifier");

@@ -17,7 +17,7 @@ for arg in "$@"; do
   prev=$arg
 done
 case "$crate" in
-  layerwise | layerwise_fuzz | vectors | config | calibration | frames | journal | ct_volume)
+  layerwise | layerwise_fuzz | vectors | config | calibration | frames | journal | ct_volume | web_request)
     read -ra sancov <<<"${LAYERWISE_SANCOV_FLAGS:?set by fuzz/run.sh}"
     exec "$rustc" "$@" "${sancov[@]}"
     ;;

@@ -75,7 +75,7 @@ fuzz_one() {
     "$(grep -E "stat::number_of_executed_units|stat::peak_rss_mb" "artifacts/$t.log" | tr -s ' \n' ' ')"
 }
 
-targets=(vectors config calibration frames journal ct_volume)
+targets=(vectors config calibration frames journal ct_volume web_request)
 mkdir -p artifacts
 jobs=$(nproc)
 failed=()

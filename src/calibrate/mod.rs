@@ -44,7 +44,7 @@ use crate::vectors::{Layer, LayerNumbering, VectorError};
 pub use exemplar::F32Image;
 pub use lm::{align, Alignment, LevelReport, LmOptions, Pair, PairFit, Termination};
 pub use overlay::draw_overlay;
-pub use pipeline::{register_frames, register_images};
+pub use pipeline::{register_frames, register_images, register_images_with};
 pub use points::{
     calibrate_from_points, dlt_build_from_image, parse_points, read_points, Correspondence,
     PointsFit,

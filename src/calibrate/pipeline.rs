@@ -9,8 +9,8 @@ use super::report::fit_table;
 use super::{
     align, dlt_build_from_image, draw_overlay, exemplar, filter_frame, load_image, luma_f32,
     read_points, render_exemplar, Correspondence, DistortionChoice, Frame, ImageFit,
-    ImageRegistration, ImageRegistrationReport, Pair, RegistrationError, RegistrationOptions,
-    DEFAULT_FOCAL_WIDTHS, MAX_EXEMPLAR_SIDE, PLATE_HALF_MM,
+    ImageRegistration, ImageRegistrationReport, Pair, RegistrationError, RegistrationImage,
+    RegistrationOptions, DEFAULT_FOCAL_WIDTHS, MAX_EXEMPLAR_SIDE, PLATE_HALF_MM,
 };
 use crate::geometry::{CameraModel, Grid, Homography, RadialDistortion};
 use crate::rectify::calibration::Calibration;
@@ -19,6 +19,15 @@ use crate::vectors;
 /// the calibration (and the overlay) and returns the report.
 pub fn register_images(
     request: &ImageRegistration,
+) -> Result<ImageRegistrationReport, RegistrationError> {
+    register_images_with(request, |image| load_image(&image.path))
+}
+
+/// [`register_images`] with each frame read and decoded by `load` (the operator page reads its
+/// frames only from inside the build directory); the frames' paths still name them.
+pub fn register_images_with(
+    request: &ImageRegistration,
+    mut load: impl FnMut(&RegistrationImage) -> Result<image::DynamicImage, RegistrationError>,
 ) -> Result<ImageRegistrationReport, RegistrationError> {
     let points = read_points(&request.init_points)?;
     if request.images.is_empty() {
@@ -41,7 +50,7 @@ pub fn register_images(
     let decoded = request
         .images
         .iter()
-        .map(|i| load_image(&i.path))
+        .map(&mut load)
         .collect::<Result<Vec<_>, _>>()?;
     let names: Vec<String> = request
         .images

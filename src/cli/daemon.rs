@@ -118,7 +118,7 @@ fn open_machine(config: &Config, clock: SharedClock) -> Result<Machine> {
 fn run_daemon(config: &Config, mut options: RunOptions) -> Result<RunSummary> {
     let machine = open_machine(config, options.clock.clone())?;
     let after_run = Shutdown::new();
-    let page = super::serve::start_for_daemon(config, &after_run);
+    let page = super::serve::start_for_daemon(config, options.clock.clone(), &after_run);
     let pusher = start_pusher(config, &options, &after_run)?;
     if let Some(pusher) = &pusher {
         // Each instance written is pushed at once (the poll stays as the fallback).

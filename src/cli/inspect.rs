@@ -96,7 +96,7 @@ impl InspectArgs {
                         (calibration, grid)
                     }
                     None => {
-                        let (w, h) = offline::frame_size(&frames)?;
+                        let (w, h) = offline::frame_size(&frames.paths)?;
                         let (calibration, grid) = offline::top_down(w, h, self.pixel_mm)?;
                         eprintln!(
                                 "no --calibration: the frames are taken as top-down views of {w} x {h} pixels, {:.3} mm a pixel{}",
@@ -115,6 +115,7 @@ impl InspectArgs {
                     None => (InspectionConfig::default(), Default::default(), 0),
                 };
                 let views: Vec<layerwise::shot::View> = frames
+                    .paths
                     .keys()
                     .map(|s| s.view())
                     .collect::<std::collections::BTreeSet<_>>()

@@ -1,10 +1,13 @@
-//! `layerwise serve`: the operator page for any build directory.
+//! `layerwise serve`: the operator page for any build directory; also the daemon's page process
+//! (started and supervised by `run` and `demo`, see `layerwise::web::supervisor`).
 
 use anyhow::{Context, Result};
 use clap::Args;
+use layerwise::clock::SharedClock;
 use layerwise::config::WebConfig;
 use layerwise::shutdown::{self, Shutdown};
-use layerwise::web::WebServer;
+use layerwise::web::supervisor::{PageCommand, PageProcess, LISTEN_FD};
+use layerwise::web::{process, WebServer};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -25,23 +28,44 @@ pub struct ServeArgs {
     /// before it is closed, as `[web] idle_timeout_s`.
     #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
     idle_timeout_s: u64,
+    /// Connections open at once, as `[web] max_connections` (beyond it, one waiting for a request
+    /// makes room).
+    #[arg(long, default_value_t = WebConfig::default().max_connections)]
+    max_connections: usize,
+    /// Bound this process's address space to this many MiB, as `[web] memory_mb` bounds the
+    /// daemon's page process (by default: unbounded).
+    #[arg(long)]
+    memory_mb: Option<u64>,
+    /// The daemon's page process: serve on the listening socket at this descriptor.
+    #[arg(long, hide = true, requires = "web_config")]
+    listen_fd: Option<i32>,
+    /// The daemon's page process: the daemon's `[web]` section, as TOML.
+    #[arg(long, hide = true, requires = "listen_fd")]
+    web_config: Option<String>,
 }
 
 impl ServeArgs {
     pub fn run(self) -> Result<()> {
+        if let (Some(fd), Some(web)) = (self.listen_fd, &self.web_config) {
+            return serve_for_daemon(&self.build, fd, web);
+        }
         anyhow::ensure!(
             self.build.join(layerwise::build_dir::JOURNAL).is_file(),
             "{}: not a layerwise build directory (no {}); pass the daemon's build.output_dir",
             self.build.display(),
             layerwise::build_dir::JOURNAL
         );
-        let config = WebConfig {
+        let mut config = WebConfig {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
             calibration_page: self.calibration_page,
             idle_timeout_s: self.idle_timeout_s,
+            max_connections: self.max_connections,
             ..WebConfig::default()
         };
+        if let Some(mb) = self.memory_mb {
+            config.memory_mb = mb;
+        }
         config.validate().map_err(|invalid| {
             let flag = invalid.key["web.".len()..].replace('_', "-");
             anyhow::anyhow!("--{flag}: {}", invalid.message)
@@ -50,6 +74,10 @@ impl ServeArgs {
             .address()
             .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
             .context("--listen must name an address")?;
+        process::prepare_page_process();
+        if self.memory_mb.is_some() {
+            limit_memory(config.memory_mb);
+        }
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
@@ -66,22 +94,97 @@ impl ServeArgs {
     }
 }
 
-/// Starts the page of the daemon's build when `[web] listen` is set, until `shutdown` is
+/// The daemon's page process: its `[web]` section, on the socket the daemon bound, bounded in
+/// memory, the kernel's first choice when memory runs out; until SIGTERM.
+fn serve_for_daemon(build: &std::path::Path, fd: i32, web: &str) -> Result<()> {
+    let config: WebConfig = toml::from_str(web).context("--web-config")?;
+    config
+        .validate()
+        .map_err(|invalid| anyhow::anyhow!("--web-config: {}", invalid.message))?;
+    process::prepare_page_process();
+    limit_memory(config.memory_mb);
+    process::prefer_for_oom_kill();
+    process::name_page_process();
+    anyhow::ensure!(
+        fd == LISTEN_FD,
+        "--listen-fd {fd}: the daemon hands down {LISTEN_FD}"
+    );
+    // SAFETY: the daemon hands its listening socket down as this descriptor (supervisor::spawn);
+    // nothing else in this process owns it.
+    let listener = unsafe { <std::net::TcpListener as std::os::fd::FromRawFd>::from_raw_fd(fd) };
+    listener
+        .local_addr()
+        .with_context(|| format!("--listen-fd {fd} is not a listening socket"))?;
+    let process = Shutdown::new();
+    let _signals = shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
+    let server = WebServer::start_listening(build, &config, listener, &process)?;
+    let _ = process.receiver().recv();
+    server.join();
+    Ok(())
+}
+
+fn limit_memory(mb: u64) {
+    if let Err(errno) = process::limit_memory(mb) {
+        tracing::warn!(
+            errno,
+            memory_mb = mb,
+            "the page's memory is not bounded (prlimit refused)"
+        );
+    }
+}
+
+/// Starts the page of the daemon's build when `[web] listen` is set, in a process of its own
+/// (`layerwise serve` on the daemon's socket, restarted if it ends), until `shutdown` is
 /// requested. A page that cannot start (port taken, token unreadable) is logged, never a reason
 /// not to capture.
 pub fn start_for_daemon(
     config: &layerwise::config::Config,
+    clock: SharedClock,
     shutdown: &Shutdown,
-) -> Option<WebServer> {
+) -> Option<PageProcess> {
     let addr = config.web.address().ok()??;
-    match WebServer::start(&config.build.output_dir, &config.web, addr, shutdown) {
-        Ok(server) => {
-            tracing::info!(url = %format!("http://{}/", server.addr), "operator page");
-            Some(server)
+    let started = page_command(config).and_then(|command| {
+        Ok(PageProcess::start(
+            &config.web,
+            addr,
+            command,
+            clock,
+            shutdown,
+        )?)
+    });
+    match started {
+        Ok(page) => {
+            tracing::info!(url = %format!("http://{}/", page.addr), "operator page");
+            Some(page)
         }
         Err(e) => {
-            tracing::warn!(error = %layerwise::logging::Chain(&e), "no operator page; capture goes on");
+            tracing::warn!(error = %format!("{e:#}"), "no operator page; capture goes on");
             None
         }
     }
+}
+
+/// This very program (`/proc/self/exe`: the binary running, even if replaced on disk since) as
+/// `serve` of the configuration's build on the daemon's socket.
+fn page_command(config: &layerwise::config::Config) -> Result<PageCommand> {
+    let own = PathBuf::from("/proc/self/exe");
+    let program = if own.exists() {
+        own
+    } else {
+        std::env::current_exe().context("cannot find this program to start the page with")?
+    };
+    let web = toml::to_string(&config.web).context("cannot write the [web] section")?;
+    Ok(PageCommand {
+        program,
+        name: "layerwise".into(),
+        args: vec![
+            "serve".into(),
+            "--build".into(),
+            config.build.output_dir.clone().into(),
+            "--listen-fd".into(),
+            LISTEN_FD.to_string().into(),
+            "--web-config".into(),
+            web.into(),
+        ],
+    })
 }

@@ -8,6 +8,10 @@ use std::path::PathBuf;
 /// Most connections a page server keeps open at once.
 pub const MAX_CONNECTIONS: usize = 4096;
 
+/// The least address space the page's process is given (it maps its program, libraries,
+/// thread stacks and picture cache).
+pub const MIN_MEMORY_MB: u64 = 256;
+
 /// How the operator page is served.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -17,8 +21,14 @@ pub struct WebConfig {
     /// A file holding the bearer token every request must carry; required when `listen` is not
     /// a loopback address.
     pub token_file: Option<PathBuf>,
-    /// Connections open at once; more wait until one closes.
+    /// Connections open at once. A new connection beyond it closes one that is waiting for a
+    /// request (one that never had a request answered first, then one of the address holding
+    /// the most, the one waiting longest); it is refused (503) only when every connection is
+    /// being answered.
     pub max_connections: usize,
+    /// Connections from one client address at once (at most `max_connections`); beyond it that
+    /// address's own waiting connections make room.
+    pub max_connections_per_client: usize,
     /// Live-update streams (one per open page) at once; more are refused with 503.
     pub max_event_streams: usize,
     /// Seconds a connection may sit with nothing read or written (an idle keep-alive, a client
@@ -26,6 +36,15 @@ pub struct WebConfig {
     /// is closed and its place goes to the next client. Open pages stay: their event stream
     /// sends a keep-alive well within it.
     pub idle_timeout_s: u64,
+    /// Seconds a client has to send a request's headers, from its connection's start or the
+    /// previous answer's end; then the connection is closed.
+    pub header_timeout_s: u64,
+    /// Seconds a client has to send a request's body (at most 64 KiB), from its headers; then
+    /// it is answered 408 and the connection closed.
+    pub body_timeout_s: u64,
+    /// The daemon's page runs as a process of its own, restarted if it ends: its address space
+    /// in MiB. A request that would need more ends that process, never the capture.
+    pub memory_mb: u64,
     /// Longest side of a preview and of a zoomed crop, in pixels.
     pub preview_px: u32,
     /// Memory for encoded previews, in MB.
@@ -40,9 +59,13 @@ impl Default for WebConfig {
         WebConfig {
             listen: "127.0.0.1:8040".into(),
             token_file: None,
-            max_connections: 64,
+            max_connections: 512,
+            max_connections_per_client: 256,
             max_event_streams: 16,
             idle_timeout_s: 30,
+            header_timeout_s: 10,
+            body_timeout_s: 10,
+            memory_mb: 2048,
             preview_px: 1024,
             cache_mb: 64,
             calibration_page: false,
@@ -91,6 +114,14 @@ impl WebConfig {
                 format!("must be 1 to {MAX_CONNECTIONS}"),
             ));
         }
+        // Beyond max_connections it is max_connections: a configuration that lowered that
+        // alone keeps loading.
+        if !(1..=MAX_CONNECTIONS).contains(&self.max_connections_per_client) {
+            return Err(Invalid::new(
+                "web.max_connections_per_client",
+                format!("must be 1 to {MAX_CONNECTIONS}"),
+            ));
+        }
         if !(1..=self.max_connections).contains(&self.max_event_streams) {
             return Err(Invalid::new(
                 "web.max_event_streams",
@@ -101,6 +132,20 @@ impl WebConfig {
             return Err(Invalid::new(
                 "web.idle_timeout_s",
                 "must be 1 to 3600 seconds",
+            ));
+        }
+        for (key, value) in [
+            ("web.header_timeout_s", self.header_timeout_s),
+            ("web.body_timeout_s", self.body_timeout_s),
+        ] {
+            if !(1..=3600).contains(&value) {
+                return Err(Invalid::new(key, "must be 1 to 3600 seconds"));
+            }
+        }
+        if !(MIN_MEMORY_MB..=1 << 20).contains(&self.memory_mb) {
+            return Err(Invalid::new(
+                "web.memory_mb",
+                format!("must be {MIN_MEMORY_MB} to 1048576 MiB"),
             ));
         }
         if !(64..=4096).contains(&self.preview_px) {

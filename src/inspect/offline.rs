@@ -50,10 +50,7 @@ const PICTURES: [&str; 6] = ["jpg", "jpeg", "png", "tif", "tiff", "nef"];
 
 /// Any folder of frames: named as docs/frames.md says when some are, else every picture in name
 /// order as layers 1, 2, … of `view`.
-pub fn any_frames(
-    dir: &Path,
-    view: crate::shot::View,
-) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+pub fn any_frames(dir: &Path, view: crate::shot::View) -> Result<Frames, OfflineError> {
     match folder_frames(dir) {
         Err(OfflineError::NoFrames { .. }) => plain_frames(dir, view),
         other => other,
@@ -61,10 +58,7 @@ pub fn any_frames(
 }
 
 /// Every picture of a folder in name order, as consecutive layers of `view` from 1.
-pub fn plain_frames(
-    dir: &Path,
-    view: crate::shot::View,
-) -> Result<BTreeMap<Shot, PathBuf>, OfflineError> {
+pub fn plain_frames(dir: &Path, view: crate::shot::View) -> Result<Frames, OfflineError> {
     let entries = std::fs::read_dir(dir).map_err(|source| OfflineError::Read {
         path: dir.to_path_buf(),
         source,
@@ -95,9 +89,10 @@ pub fn plain_frames(
     Ok(as_layers(&pictures, view))
 }
 
-/// `pictures` as consecutive layers of `view` from 1, in the order given.
-pub fn as_layers(pictures: &[PathBuf], view: crate::shot::View) -> BTreeMap<Shot, PathBuf> {
-    pictures
+/// `pictures` as consecutive layers of `view` from 1, in the order given (a folder's frames,
+/// taken as they are).
+pub fn as_layers(pictures: &[PathBuf], view: crate::shot::View) -> Frames {
+    let paths = pictures
         .iter()
         .enumerate()
         .map(|(i, p)| {
@@ -108,7 +103,11 @@ pub fn as_layers(pictures: &[PathBuf], view: crate::shot::View) -> BTreeMap<Shot
             };
             (shot, p.clone())
         })
-        .collect()
+        .collect();
+    Frames {
+        paths,
+        of_build: false,
+    }
 }
 
 /// Plate millimetres across the wider side of a frame taken as top-down without a pixel size:

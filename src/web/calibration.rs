@@ -4,8 +4,10 @@
 //! calibration and overlay beside it. Nothing is ever overwritten; off unless
 //! `web.calibration_page` is set.
 
+use super::files::{self, BuildFile, FileError, FileKind};
 use crate::calibrate::{
-    register_images, DistortionChoice, ImageRegistration, RegistrationImage, RegistrationOptions,
+    register_images_with, DistortionChoice, ImageRegistration, RegistrationImage,
+    RegistrationOptions,
 };
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -48,12 +50,10 @@ pub struct CalibrationResult {
 pub enum CalibrationPageError {
     #[error("{0}")]
     Invalid(String),
-    #[error("{}: cannot read the frame", path.display())]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error("cannot read the frame")]
+    Read(#[source] FileError),
+    #[error("{}: not a folder of the build (a link or a file is in its place)", path.display())]
+    NotAFolder { path: PathBuf },
     #[error("{}: cannot decode the frame", path.display())]
     Decode {
         path: PathBuf,
@@ -90,7 +90,7 @@ pub fn is_stamp(text: &str) -> bool {
 pub fn save_and_register(
     build_dir: &Path,
     (vectors, numbering): (&Path, crate::vectors::LayerNumbering),
-    original: &Path,
+    original: &BuildFile,
     layer: u32,
     view: &str,
     pairs: &[ClickedPair],
@@ -114,33 +114,32 @@ pub fn save_and_register(
             "a point is outside the frame or not a number".into(),
         ));
     }
-    let (width, height) = match image::image_dimensions(original) {
-        Ok(size) => size,
-        Err(_) => {
-            let bytes = std::fs::read(original).map_err(|source| CalibrationPageError::Read {
-                path: original.to_path_buf(),
-                source,
-            })?;
-            crate::rectify::decode_frame(&bytes)
-                .map(|i| (i.width(), i.height()))
-                .map_err(|source| CalibrationPageError::Decode {
-                    path: original.to_path_buf(),
-                    source,
-                })?
-        }
-    };
+    let bytes = original
+        .read(FileKind::Frame)
+        .map_err(CalibrationPageError::Read)?;
+    let frame =
+        crate::rectify::decode_frame(&bytes).map_err(|source| CalibrationPageError::Decode {
+            path: original.path(),
+            source,
+        })?;
+    drop(bytes);
+    let (width, height) = (frame.width(), frame.height());
     let dir = build_dir.join(CALIBRATION_DIR);
     let write_error = |path: &Path| {
         let path = path.to_path_buf();
         move |source| CalibrationPageError::Write { path, source }
     };
     std::fs::create_dir_all(&dir).map_err(write_error(&dir))?;
+    // Written only into a folder of the build, never through a link planted in its place.
+    if !files::is_real_folder(build_dir, CALIBRATION_DIR) {
+        return Err(CalibrationPageError::NotAFolder { path: dir });
+    }
     let stamp = stamp(now);
     let name = format!("points-L{layer:05}-{view}-{stamp}.txt");
     let points_path = dir.join(&name);
     let mut text = format!(
         "# layerwise calibration page, {now}: layer {layer} {view}, {}\n# u v x y (image pixel column, row; build mm)\n",
-        original.display()
+        original.name()
     );
     for p in pairs {
         text.push_str(&format!(
@@ -160,16 +159,17 @@ pub fn save_and_register(
         .map_err(write_error(&points_path))?;
     let calibration_name = format!("calibration-{stamp}.toml");
     let overlay_name = format!("overlay-{stamp}.png");
+    // Taken also by a link (dangling or not): nothing is written through one.
     let taken = [&calibration_name, &overlay_name]
         .iter()
-        .any(|n| dir.join(n).exists());
+        .any(|n| std::fs::symlink_metadata(dir.join(n)).is_ok());
     let relative = |n: &str| format!("{CALIBRATION_DIR}/{n}");
     let started = std::time::Instant::now();
     let request = ImageRegistration {
         vectors: vectors.to_path_buf(),
         numbering,
         images: vec![RegistrationImage {
-            path: original.to_path_buf(),
+            path: original.path(),
             layer,
         }],
         init_points: points_path.clone(),
@@ -191,7 +191,13 @@ pub fn save_and_register(
         result.error = Some(format!("{calibration_name} exists already: save again"));
         return Ok(result);
     }
-    match register_images(&request) {
+    let mut frame = Some(frame);
+    let registered = register_images_with(&request, |_| {
+        frame.take().ok_or_else(|| {
+            crate::calibrate::RegistrationError::Invalid("the page registers one frame".into())
+        })
+    });
+    match registered {
         Ok(report) => {
             result.calibration_file = Some(relative(&calibration_name));
             result.overlay = Some(format!("/api/calibration/{stamp}/overlay.png"));
@@ -238,10 +244,11 @@ mod tests {
         };
         let now = chrono::Utc::now();
         let missing = dir.path().join("none.jpg");
+        let frame = BuildFile::new(dir.path(), &["none.jpg"]);
         let err = save_and_register(
             dir.path(),
             (&missing, Default::default()),
-            &missing,
+            &frame,
             1,
             "post_top",
             &[p; 3],
@@ -252,7 +259,7 @@ mod tests {
         let err = save_and_register(
             dir.path(),
             (&missing, Default::default()),
-            &missing,
+            &frame,
             1,
             "post_top",
             &[p, p, p, wild],

@@ -1,80 +1,161 @@
-//! A TCP listener that keeps at most N connections open: the next accept waits for a permit,
-//! so further clients wait in the kernel's backlog instead of costing memory or threads. A
-//! connection with nothing read or written for the idle timeout while none of its requests is
-//! being answered is closed, so idle or stalled clients cannot hold the permits for ever.
+//! The page's listener: accepts every connection at once (who gives way when they run out is
+//! [`super::clients`]'s business), serves each with HTTP/1.1 under deadlines, and stops with the
+//! server.
+//!
+//! - A request's headers must arrive within `web.header_timeout_s` of the connection's start or
+//!   of the previous answer's end (nginx's `client_header_timeout`), in at most
+//!   [`MAX_HEAD_BYTES`] (431 beyond); its body within `web.body_timeout_s`
+//!   ([`super::clients::receive`]).
+//! - Nothing read or written for `web.idle_timeout_s` while no request is being answered closes
+//!   the connection: an idle keep-alive, a client that reads nothing of its answer (nginx's
+//!   `send_timeout`). A response being made (a slow picture) is waited for.
+//! - Each connection accepted reads what it was sent before the next is accepted, so a client
+//!   that sends its request with its connection is answered however many connect around it.
 
+use super::clients::{Client, Clients, Phase};
+use axum::body::Body;
+use axum::Router;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio::net::TcpListener;
 use tokio::time::{Instant, Sleep};
 
-pub struct Limited {
-    inner: TcpListener,
-    permits: Arc<Semaphore>,
-    idle: Duration,
+/// The most bytes of a request's line and headers.
+pub const MAX_HEAD_BYTES: usize = 16 * 1024;
+/// Headers of one request at most.
+const MAX_HEADERS: usize = 64;
+/// How long connections may take to finish when the server stops.
+const STOP_GRACE: Duration = Duration::from_secs(1);
+
+/// Connections the kernel completes for the page before it accepts them (nginx: 511; std's
+/// bind gives 128, which a burst of connections fills while the page accepts).
+const BACKLOG: i32 = 1024;
+
+/// A socket listening on `addr` with a backlog of [`BACKLOG`].
+pub fn bind(addr: std::net::SocketAddr) -> std::io::Result<std::net::TcpListener> {
+    use std::os::fd::AsRawFd;
+    let listener = std::net::TcpListener::bind(addr)?;
+    // SAFETY: listen again on a socket this function owns: Linux takes the new backlog.
+    if unsafe { libc::listen(listener.as_raw_fd(), BACKLOG) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(listener)
 }
 
-impl Limited {
-    pub fn new(inner: TcpListener, max_connections: usize, idle: Duration) -> Limited {
-        Limited {
-            inner,
-            permits: Arc::new(Semaphore::new(max_connections)),
-            idle,
+/// What a newcomer is told when every connection is being answered.
+const BUSY: &[u8] = b"HTTP/1.1 503 Service Unavailable\r\nRetry-After: 1\r\n\
+Content-Type: application/json\r\nContent-Length: 70\r\nConnection: close\r\n\r\n\
+{\"error\":\"every connection of the page is being answered: retry soon\"}";
+
+/// Serves `app` on `listener` until `stop` is requested.
+pub(crate) async fn serve(
+    listener: TcpListener,
+    app: Router,
+    clients: Arc<Clients>,
+    stop: crate::shutdown::Shutdown,
+) {
+    let mut connections = tokio::task::JoinSet::new();
+    loop {
+        let accepted = tokio::select! {
+            accepted = listener.accept() => accepted,
+            _ = stop.requested() => break,
+        };
+        match accepted {
+            Ok((stream, peer)) => match clients.admit(peer.ip()) {
+                Some(client) => {
+                    let _ = stream.set_nodelay(true);
+                    client.watch(std::os::fd::AsRawFd::as_raw_fd(&stream));
+                    let (app, clients, stop) = (app.clone(), clients.clone(), stop.clone());
+                    connections.spawn(connection(stream, client, app, clients, stop));
+                }
+                None => {
+                    let _ = stream.try_write(BUSY);
+                }
+            },
+            // Out of file descriptors: an idle connection makes room, else wait a little.
+            Err(e) if matches!(e.raw_os_error(), Some(libc::EMFILE | libc::ENFILE)) => {
+                if !clients.make_room() {
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                }
+            }
+            Err(_) => {}
+        }
+        while connections.try_join_next().is_some() {}
+        // The connection just accepted reads its request before the next one is accepted.
+        tokio::task::yield_now().await;
+    }
+    let _ = tokio::time::timeout(STOP_GRACE, async {
+        while connections.join_next().await.is_some() {}
+    })
+    .await;
+}
+
+/// One connection, until it ends, is closed to make room, or the server stops.
+pub(crate) async fn connection<S>(
+    stream: S,
+    client: Arc<Client>,
+    app: Router,
+    clients: Arc<Clients>,
+    stop: crate::shutdown::Shutdown,
+) where
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
+    let limits = clients.limits();
+    let io = hyper_util::rt::TokioIo::new(Connection {
+        stream,
+        client: client.clone(),
+        idle: limits.idle_timeout,
+        deadline: Box::pin(tokio::time::sleep(limits.idle_timeout)),
+    });
+    let for_requests = client.clone();
+    let service = hyper::service::service_fn(move |mut request: hyper::Request<_>| {
+        request.extensions_mut().insert(for_requests.clone());
+        tower::ServiceExt::oneshot(app.clone(), request.map(Body::new))
+    });
+    let mut http = hyper::server::conn::http1::Builder::new();
+    http.timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(limits.header_timeout)
+        .max_buf_size(MAX_HEAD_BYTES)
+        .max_headers(MAX_HEADERS)
+        .writev(false)
+        // A client that closes its side after its request still gets the answer.
+        .half_close(true)
+        .keep_alive(true);
+    let served = http.serve_connection(io, service);
+    tokio::pin!(served);
+    tokio::select! {
+        _ = served.as_mut() => {}
+        _ = client.closed() => {}
+        _ = stop.requested() => {
+            served.as_mut().graceful_shutdown();
+            let _ = served.as_mut().await;
         }
     }
+    clients.remove(&client);
 }
 
-/// Requests of one connection being answered; the router counts them (see [`Busy::during`]).
-#[derive(Clone, Debug, Default)]
-pub struct Busy(Arc<AtomicUsize>);
-
-impl Busy {
-    /// Counts the request as being answered until the returned guard is dropped.
-    pub fn during(&self) -> BusyGuard {
-        self.0.fetch_add(1, Ordering::SeqCst);
-        BusyGuard(self.0.clone())
-    }
-}
-
-pub struct BusyGuard(Arc<AtomicUsize>);
-
-impl Drop for BusyGuard {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
-    }
-}
-
-impl axum::extract::connect_info::Connected<axum::serve::IncomingStream<'_, Limited>> for Busy {
-    fn connect_info(stream: axum::serve::IncomingStream<'_, Limited>) -> Busy {
-        stream.io().busy.clone()
-    }
-}
-
-/// A connection holding its permit until it closes.
-pub struct Connection {
-    stream: TcpStream,
-    busy: Busy,
+/// A connection's stream with the idle timer (see the module doc).
+struct Connection<S> {
+    stream: S,
+    client: Arc<Client>,
     idle: Duration,
     deadline: Pin<Box<Sleep>>,
-    _permit: OwnedSemaphorePermit,
 }
 
-impl Connection {
+impl<S> Connection<S> {
     fn touch(&mut self) {
         let at = Instant::now() + self.idle;
         self.deadline.as_mut().reset(at);
     }
 
     /// When the stream has nothing: an error once the connection has been idle too long with no
-    /// request being answered (the server then closes it), else wait (woken at the deadline).
+    /// response being made (the server then closes it), else wait (woken at the deadline).
     fn idle_check(&mut self, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
-        if self.busy.0.load(Ordering::SeqCst) > 0 {
+        if self.client.phase() == Phase::Answering {
             self.touch();
             return Poll::Pending;
         }
@@ -88,45 +169,7 @@ impl Connection {
     }
 }
 
-impl axum::serve::Listener for Limited {
-    type Io = Connection;
-    type Addr = std::net::SocketAddr;
-
-    async fn accept(&mut self) -> (Connection, std::net::SocketAddr) {
-        let permit = self
-            .permits
-            .clone()
-            .acquire_owned()
-            .await
-            .expect("the semaphore is never closed");
-        loop {
-            match self.inner.accept().await {
-                Ok((stream, addr)) => {
-                    let _ = stream.set_nodelay(true);
-                    let deadline = Box::pin(tokio::time::sleep(self.idle));
-                    return (
-                        Connection {
-                            stream,
-                            busy: Busy::default(),
-                            idle: self.idle,
-                            deadline,
-                            _permit: permit,
-                        },
-                        addr,
-                    );
-                }
-                // Out of file descriptors and the like: wait, then accept again.
-                Err(_) => tokio::time::sleep(std::time::Duration::from_millis(50)).await,
-            }
-        }
-    }
-
-    fn local_addr(&self) -> std::io::Result<std::net::SocketAddr> {
-        self.inner.local_addr()
-    }
-}
-
-impl AsyncRead for Connection {
+impl<S: AsyncRead + Unpin> AsyncRead for Connection<S> {
     fn poll_read(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -136,6 +179,7 @@ impl AsyncRead for Connection {
         match Pin::new(&mut self.stream).poll_read(cx, buf) {
             Poll::Ready(Ok(())) => {
                 if buf.filled().len() > before {
+                    self.client.heard();
                     self.touch();
                 }
                 Poll::Ready(Ok(()))
@@ -146,7 +190,7 @@ impl AsyncRead for Connection {
     }
 }
 
-impl AsyncWrite for Connection {
+impl<S: AsyncWrite + Unpin> AsyncWrite for Connection<S> {
     fn poll_write(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,

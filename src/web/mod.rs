@@ -11,15 +11,21 @@
 //! events. Only layer numbers and view names from a request reach the file system.
 
 pub mod calibration;
+pub mod clients;
+pub mod files;
+pub mod harness;
 pub mod listener;
 pub mod preview;
 mod priority;
+pub mod process;
 mod routes;
 mod state;
+pub mod supervisor;
 pub mod timeline;
 
 use crate::config::WebConfig;
 use crate::shutdown::Shutdown;
+use clients::{Clients, Limits};
 use preview::Pictures;
 use priority::lower_priority;
 pub(crate) use state::PageState;
@@ -75,12 +81,25 @@ impl WebServer {
         addr: SocketAddr,
         shutdown: &Shutdown,
     ) -> Result<WebServer, WebError> {
-        let token = match &config.token_file {
-            Some(path) => Some(read_token(path)?),
-            None => None,
+        let std_listener =
+            listener::bind(addr).map_err(|source| WebError::Listen { addr, source })?;
+        WebServer::start_listening(dir, config, std_listener, shutdown)
+    }
+
+    /// Serves `dir` on a listening socket already bound (the daemon's, handed to its page
+    /// process), until `shutdown` is requested.
+    pub fn start_listening(
+        dir: &Path,
+        config: &WebConfig,
+        std_listener: std::net::TcpListener,
+        shutdown: &Shutdown,
+    ) -> Result<WebServer, WebError> {
+        let listen_error = |source| WebError::Listen {
+            addr: std_listener
+                .local_addr()
+                .unwrap_or_else(|_| SocketAddr::from(([0, 0, 0, 0], 0))),
+            source,
         };
-        let listen_error = |source| WebError::Listen { addr, source };
-        let std_listener = std::net::TcpListener::bind(addr).map_err(listen_error)?;
         std_listener.set_nonblocking(true).map_err(listen_error)?;
         let addr = std_listener.local_addr().map_err(listen_error)?;
         let runtime = tokio::runtime::Builder::new_current_thread()
@@ -91,24 +110,7 @@ impl WebServer {
             .build()
             .map_err(WebError::Runtime)?;
         let stop = shutdown.child();
-        // What is on disk already is read before the first request is answered.
-        let mut timeline = Timeline::new(dir);
-        if let Err(e) = timeline.refresh() {
-            warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
-        }
-        let shared = Arc::new(PageState {
-            dir: dir.to_path_buf(),
-            config: config.clone(),
-            token,
-            timeline: RwLock::new(timeline),
-            status: RwLock::new(None),
-            info: Mutex::new(None),
-            pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
-            encode: Semaphore::new(1),
-            updates: watch::channel(0).0,
-            streams: AtomicUsize::new(0),
-            stop: stop.clone(),
-        });
+        let shared = page_state(dir, config, stop.clone())?;
         let server_stop = stop.clone();
         let thread = std::thread::Builder::new()
             .name("layerwise-web".into())
@@ -119,22 +121,9 @@ impl WebServer {
                         Ok(l) => l,
                         Err(e) => return warn!(error = %e, "page server: cannot listen"),
                     };
-                    let listener = listener::Limited::new(
-                        listener,
-                        shared.config.max_connections,
-                        Duration::from_secs(shared.config.idle_timeout_s),
-                    );
                     tokio::spawn(watch_build(shared.clone()));
-                    let app = routes::router(shared.clone())
-                        .into_make_service_with_connect_info::<listener::Busy>();
-                    let served = axum::serve(listener, app)
-                        .with_graceful_shutdown(async move {
-                            server_stop.requested().await;
-                        })
-                        .await;
-                    if let Err(e) = served {
-                        warn!(error = %e, "page server stopped");
-                    }
+                    let app = routes::router(shared.clone());
+                    listener::serve(listener, app, shared.clients.clone(), server_stop).await;
                 });
                 // Pictures being encoded are not waited for.
                 runtime.shutdown_timeout(Duration::from_millis(100));
@@ -179,7 +168,38 @@ impl Drop for WebServer {
     }
 }
 
-fn read_token(path: &Path) -> Result<String, WebError> {
+/// What the handlers of a page of `dir` share, the timeline read (see [`PageState`]).
+fn page_state(dir: &Path, config: &WebConfig, stop: Shutdown) -> Result<Arc<PageState>, WebError> {
+    let token = match &config.token_file {
+        Some(path) => Some(read_token(path)?),
+        None => None,
+    };
+    let mut limits = Limits::of(config);
+    limits.max_connections = process::connection_room(limits.max_connections);
+    limits.per_client = limits.per_client.min(limits.max_connections);
+    // What is on disk already is read before the first request is answered.
+    let mut timeline = Timeline::new(dir);
+    if let Err(e) = timeline.refresh() {
+        warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
+    }
+    Ok(Arc::new(PageState {
+        dir: dir.to_path_buf(),
+        config: config.clone(),
+        token,
+        timeline: RwLock::new(timeline),
+        status: RwLock::new(None),
+        info: Mutex::new(None),
+        pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
+        encode: Semaphore::new(1),
+        clients: Arc::new(Clients::new(limits)),
+        updates: watch::channel(0).0,
+        streams: AtomicUsize::new(0),
+        stop,
+    }))
+}
+
+/// The bearer token of `web.token_file`, checked.
+pub fn read_token(path: &Path) -> Result<String, WebError> {
     let text =
         crate::fsutil::read_text_bounded(path, 4096).map_err(|source| WebError::TokenRead {
             path: path.to_path_buf(),

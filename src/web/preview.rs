@@ -3,12 +3,14 @@
 //! resolution, encoded as JPEG. Encoded pictures are kept in a memory cache bounded in bytes;
 //! the two most recently decoded originals are kept for zooming.
 
+use super::files::{BuildFile, FileError, FileKind};
 use crate::geometry::Grid;
 use crate::rectify::{self, Calibration, Interpolation, Rectifier, RectifyError};
 use axum::body::Bytes;
 use image::DynamicImage;
 use std::collections::{BTreeMap, VecDeque};
-use std::path::{Path, PathBuf};
+#[cfg(test)]
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 /// Which picture of a frame.
@@ -83,14 +85,12 @@ pub enum PreviewError {
         "this build has no calibration (calibration.toml): only the original frames can be shown"
     )]
     NoCalibration,
-    #[error("{path}")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    File(#[from] FileError),
     #[error(transparent)]
     Decode(#[from] RectifyError),
+    #[error("the crop is smaller than a pixel of the picture: zoom out")]
+    TooSmall,
     #[error("cannot encode the picture")]
     Encode(#[source] image::ImageError),
 }
@@ -117,7 +117,7 @@ pub fn region_grid(grid: &Grid, region: Region, max_px: u32) -> Grid {
     }
 }
 
-type CacheKey = (PathBuf, Kind, [u64; 4]);
+type CacheKey = (BuildFile, Kind, [u64; 4]);
 
 /// Encoded pictures, bounded in bytes; the least recently used go first.
 struct Cache {
@@ -167,7 +167,7 @@ enum Decoded {
 }
 
 /// A decoded original and what it was decoded for.
-type DecodedEntry = ((PathBuf, Kind), Arc<Decoded>);
+type DecodedEntry = ((BuildFile, Kind), Arc<Decoded>);
 
 /// Makes and keeps the page's pictures.
 pub struct Pictures {
@@ -191,8 +191,8 @@ impl Pictures {
     }
 
     /// Whether the picture is cached already.
-    pub fn cached(&self, original: &Path, kind: Kind, region: Region) -> Option<Bytes> {
-        let key = (original.to_path_buf(), kind, region.key());
+    pub fn cached(&self, original: &BuildFile, kind: Kind, region: Region) -> Option<Bytes> {
+        let key = (original.clone(), kind, region.key());
         lock(&self.cache).get(&key)
     }
 
@@ -200,7 +200,7 @@ impl Pictures {
     /// rectifies on the page's own thread pool; call it off the async runtime).
     pub fn picture(
         &self,
-        original: &Path,
+        original: &BuildFile,
         kind: Kind,
         region: Region,
         rectification: Option<&Rectification>,
@@ -213,7 +213,7 @@ impl Pictures {
 
     fn make(
         &self,
-        original: &Path,
+        original: &BuildFile,
         kind: Kind,
         region: Region,
         rectification: Option<&Rectification>,
@@ -222,12 +222,22 @@ impl Pictures {
         let picture = match (&*decoded, kind) {
             (Decoded::Luma(luma), Kind::Rectified) => {
                 let r = rectification.ok_or(PreviewError::NoCalibration)?;
+                let (columns, rows) = (r.grid.columns() as f64, r.grid.rows() as f64);
+                if !covers_a_pixel(region, columns, rows) {
+                    return Err(PreviewError::TooSmall);
+                }
                 let grid = region_grid(&r.grid, region, self.max_px);
                 let rectifier =
                     Rectifier::new(&r.calibration.camera(), grid, Interpolation::Bilinear, 0)?;
                 DynamicImage::ImageLuma8(luma.rectified(&rectifier).to_display8())
             }
-            (Decoded::Colour(image), _) => crop(image, region, self.max_px),
+            (Decoded::Colour(image), _) => {
+                let (width, height) = (f64::from(image.width()), f64::from(image.height()));
+                if !covers_a_pixel(region, width, height) {
+                    return Err(PreviewError::TooSmall);
+                }
+                crop(image, region, self.max_px)
+            }
             (Decoded::Luma(_), Kind::Raw) => unreachable!("raw pictures are decoded in colour"),
         };
         let mut jpeg = Vec::new();
@@ -239,20 +249,17 @@ impl Pictures {
             .encode_image(&rgb_or_gray)
             .map_err(PreviewError::Encode)?;
         let bytes = Bytes::from(jpeg);
-        let key = (original.to_path_buf(), kind, region.key());
+        let key = (original.clone(), kind, region.key());
         lock(&self.cache).put(key, bytes.clone());
         Ok(bytes)
     }
 
-    fn decoded(&self, original: &Path, kind: Kind) -> Result<Arc<Decoded>, PreviewError> {
-        let key = (original.to_path_buf(), kind);
+    fn decoded(&self, original: &BuildFile, kind: Kind) -> Result<Arc<Decoded>, PreviewError> {
+        let key = (original.clone(), kind);
         if let Some((_, hit)) = lock(&self.decoded).iter().find(|(k, _)| *k == key) {
             return Ok(hit.clone());
         }
-        let bytes = std::fs::read(original).map_err(|source| PreviewError::Read {
-            path: original.to_path_buf(),
-            source,
-        })?;
+        let bytes = original.read(FileKind::Frame)?;
         let decoded = Arc::new(match kind {
             Kind::Rectified => Decoded::Luma(rectify::decode_frame_luma(&bytes)?),
             Kind::Raw => Decoded::Colour(rectify::decode_frame(&bytes)?),
@@ -262,6 +269,11 @@ impl Pictures {
         kept.truncate(2);
         Ok(decoded)
     }
+}
+
+/// Whether `region` of a picture of `width` x `height` pixels is a pixel or more each way.
+fn covers_a_pixel(region: Region, width: f64, height: f64) -> bool {
+    region.w * width >= 1.0 - 1e-6 && region.h * height >= 1.0 - 1e-6
 }
 
 /// `region` of `image`, scaled down to at most `max_px` a side.
@@ -331,7 +343,7 @@ mod tests {
         let mut cache = lock(&pictures.cache);
         let key = |n: u8| {
             (
-                PathBuf::from(format!("{n}")),
+                BuildFile::new(Path::new("build"), &[&format!("{n}")]),
                 Kind::Raw,
                 Region::WHOLE.key(),
             )

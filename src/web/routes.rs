@@ -1,6 +1,8 @@
 //! The page's routes: static files, JSON, pictures, originals, vectors and the event stream.
 //! Requests name layers and views only; both are checked before anything reaches the disk.
 
+use super::clients::{self, Client};
+use super::files::{BuildFile, FileError, FileKind};
 use super::preview::{self, Kind, PreviewError, Region};
 use super::state::PageState;
 use super::timeline::LayerState;
@@ -14,7 +16,7 @@ use axum::middleware::{self, Next};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::{Json, Router};
+use axum::{Extension, Json, Router};
 use serde::Deserialize;
 use serde_json::json;
 use std::collections::BTreeMap;
@@ -27,10 +29,8 @@ const APP_JS: &str = include_str!("page/app.js");
 const STYLE_CSS: &str = include_str!("page/style.css");
 const CALIBRATE_HTML: &str = include_str!("page/calibrate.html");
 
-/// Request bodies the page accepts (only the calibration page sends one).
-pub const MAX_BODY_BYTES: usize = 64 * 1024;
-
 pub(crate) fn router(shared: Arc<PageState>) -> Router {
+    let limits = shared.clients.limits();
     Router::new()
         .route(
             "/",
@@ -57,9 +57,11 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
         .route("/api/layers/{layer}/{view}/picture.jpg", get(picture))
         .route("/api/layers/{layer}/{view}/original", get(original))
         .route("/api/events", get(events))
+        // Bodies are received (bounded in bytes and time) only once the token was shown.
+        .layer(middleware::from_fn_with_state(limits, clients::receive))
         .layer(middleware::from_fn_with_state(shared.clone(), authorize))
-        .layer(middleware::from_fn(answering))
-        .layer(DefaultBodyLimit::max(MAX_BODY_BYTES))
+        .layer(middleware::from_fn(clients::track))
+        .layer(DefaultBodyLimit::max(clients::MAX_BODY_BYTES))
         .with_state(shared)
 }
 
@@ -111,18 +113,6 @@ pub fn parse_view(text: &str) -> Result<View, ApiError> {
             text.escape_debug()
         ))),
     }
-}
-
-/// Counts the request as being answered on its connection until its response is ready, so the
-/// listener's idle timeout never closes a connection waiting for a slow picture.
-async fn answering(request: Request, next: Next) -> Response {
-    let busy = request
-        .extensions()
-        .get::<axum::extract::ConnectInfo<super::listener::Busy>>()
-        .map(|info| info.0.during());
-    let response = next.run(request).await;
-    drop(busy);
-    response
 }
 
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
@@ -330,8 +320,8 @@ fn layer_state(shared: &PageState, n: u32) -> Result<LayerState, ApiError> {
 }
 
 /// The stored original of a view of a layer, from the journal, checked to be
-/// `raw/L{layer}_{view}.{ext}` in the build directory.
-fn original_path(shared: &PageState, n: u32, view: View) -> Result<std::path::PathBuf, ApiError> {
+/// `raw/L{layer}_{view}.{ext}` in the build directory (opened only through [`super::files`]).
+fn original_path(shared: &PageState, n: u32, view: View) -> Result<BuildFile, ApiError> {
     let state = layer_state(shared, n)?;
     let file = state
         .view(view)
@@ -351,7 +341,23 @@ fn original_path(shared: &PageState, n: u32, view: View) -> Result<std::path::Pa
                 "the journal names an unexpected file for layer {n} {view}"
             ))
         })?;
-    Ok(shared.dir.join(RAW_DIR).join(format!("{stem}.{ext}")))
+    Ok(BuildFile::new(
+        &shared.dir,
+        &[RAW_DIR, &format!("{stem}.{ext}")],
+    ))
+}
+
+/// The answer to a file the page will not read: 404 when it is not there, 403 when it is there
+/// and refused (a link, a FIFO, a device, too large), 500 when it cannot be read.
+fn file_error(e: &FileError) -> ApiError {
+    let status = match e {
+        FileError::NotFound { .. } | FileError::BadName { .. } => StatusCode::NOT_FOUND,
+        FileError::Link { .. } | FileError::NotRegular { .. } | FileError::TooLarge { .. } => {
+            StatusCode::FORBIDDEN
+        }
+        FileError::Read { .. } => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    ApiError(status, chain(e))
 }
 
 #[derive(Deserialize)]
@@ -397,7 +403,7 @@ async fn picture(
 /// The picture from the cache, else made on the blocking pool, one at a time.
 async fn make_picture(
     shared: &Arc<PageState>,
-    path: std::path::PathBuf,
+    path: BuildFile,
     kind: Kind,
     region: Region,
 ) -> Result<Bytes, ApiError> {
@@ -418,6 +424,8 @@ async fn make_picture(
     .await?
     .map_err(|e| match e {
         PreviewError::NoCalibration => not_found(e.to_string()),
+        PreviewError::TooSmall => bad(e.to_string()),
+        PreviewError::File(e) => file_error(&e),
         other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, chain(&other)),
     })
 }
@@ -447,31 +455,25 @@ async fn original(
     Path((layer, view)): Path<(String, String)>,
 ) -> Result<Response, ApiError> {
     let (n, view) = (parse_layer(&layer)?, parse_view(&view)?);
-    let path = original_path(&shared, n, view)?;
-    let kind = match path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase)
-    {
+    let file = original_path(&shared, n, view)?;
+    let name = file.file_name().to_string();
+    let kind = match name.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase()) {
         Some(e) if e == "jpg" || e == "jpeg" => "image/jpeg",
         Some(e) if e == "png" => "image/png",
         Some(e) if e == "tif" || e == "tiff" => "image/tiff",
         _ => "application/octet-stream",
     };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let bytes = blocking(move || std::fs::read(&path))
+    let opened = blocking(move || file.open(FileKind::Frame))
         .await?
-        .map_err(|e| not_found(format!("{name}: {e}")))?;
+        .map_err(|e| file_error(&e))?;
     let disposition = format!("inline; filename=\"{name}\"");
     let mut headers = HeaderMap::new();
     headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(kind));
+    headers.insert(header::CONTENT_LENGTH, HeaderValue::from(opened.size));
     if let Ok(v) = HeaderValue::from_str(&disposition) {
         headers.insert(header::CONTENT_DISPOSITION, v);
     }
-    Ok((headers, bytes).into_response())
+    Ok((headers, super::files::stream(opened)).into_response())
 }
 
 /// Most vector segments drawn over a picture; beyond it hatches are thinned out evenly.
@@ -534,10 +536,15 @@ pub fn layer_svg(layer: &crate::vectors::Layer, grid: &crate::geometry::Grid) ->
     )
 }
 
-async fn events(State(shared): State<Arc<PageState>>) -> Result<Response, ApiError> {
+async fn events(
+    State(shared): State<Arc<PageState>>,
+    client: Option<Extension<Arc<Client>>>,
+) -> Result<Response, ApiError> {
     let open = shared.streams.fetch_add(1, Ordering::SeqCst);
-    let guard = StreamGuard(shared.clone());
-    if open >= shared.config.max_event_streams {
+    let guard = StreamGuard(shared.clone(), client.map(|c| c.streaming()));
+    // At the limit, the oldest stream of the address holding the most makes room (its page
+    // opens it again); refused only when no other stream is open.
+    if open >= shared.config.max_event_streams && !shared.clients.close_a_stream() {
         return Err(ApiError(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("{open} pages are open already (web.max_event_streams); close one"),
@@ -572,8 +579,11 @@ async fn events(State(shared): State<Arc<PageState>>) -> Result<Response, ApiErr
         .into_response())
 }
 
-/// Counts an open event stream until it ends.
-struct StreamGuard(Arc<PageState>);
+/// Counts an open event stream (and marks its connection) until it ends.
+struct StreamGuard(
+    Arc<PageState>,
+    #[allow(dead_code)] Option<clients::StreamMark>,
+);
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {
@@ -662,12 +672,15 @@ async fn overlay(
     if !super::calibration::is_stamp(&stamp) {
         return Err(bad("not a calibration of this page"));
     }
-    let path = shared
-        .dir
-        .join(super::calibration::CALIBRATION_DIR)
-        .join(format!("overlay-{stamp}.png"));
-    let png = blocking(move || std::fs::read(path))
+    let file = BuildFile::new(
+        &shared.dir,
+        &[
+            super::calibration::CALIBRATION_DIR,
+            &format!("overlay-{stamp}.png"),
+        ],
+    );
+    let png = blocking(move || file.read(FileKind::Overlay))
         .await?
-        .map_err(|_| not_found("no such overlay"))?;
+        .map_err(|e| file_error(&e))?;
     Ok(([(header::CONTENT_TYPE, "image/png")], png).into_response())
 }

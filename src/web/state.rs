@@ -68,6 +68,8 @@ pub(crate) struct PageState {
     pub pictures: Pictures,
     /// Pictures are made one at a time: the page never takes more than one core.
     pub encode: Semaphore,
+    /// The open connections (who gives way when they run out).
+    pub clients: Arc<super::clients::Clients>,
     pub updates: watch::Sender<u64>,
     pub streams: AtomicUsize,
     /// The server's stop: open event streams end on it.

@@ -109,6 +109,7 @@ fn fuzz_target_of(name: &str) -> (&'static str, Option<u8>) {
         "scan.vgi" => ("ct_volume", Some(1)),
         "tiff" => ("ct_volume", Some(2)),
         "dicom" | "dicom-ct" => ("ct_volume", Some(3)),
+        "web-request" => ("web_request", None),
         _ => ("vectors", None),
     }
 }
@@ -459,4 +460,78 @@ fn nef_with_damaged_compressed_data_is_an_error() {
         luma.map(|r| r.err().map(|e| e.to_string())),
         colour.map(|r| r.err().map(|e| e.to_string()))
     );
+}
+
+/// Requests as a browser and a script send them, each on one connection: the page, its JSON,
+/// pictures and crops, an original, the vectors, the event stream, a calibration body (plain
+/// and chunked), the token in each place it is looked for, two requests pipelined.
+fn page_request_seeds() -> Vec<Vec<u8>> {
+    let get = |path: &str, headers: &str| {
+        format!("GET {path} HTTP/1.1\r\nHost: localhost\r\n{headers}\r\n").into_bytes()
+    };
+    let body = r#"{"layer":1,"view":"post_top","points":[{"fx":0.2,"fy":0.2,"x":-60,"y":-50},{"fx":0.8,"fy":0.2,"x":60,"y":-50},{"fx":0.8,"fy":0.8,"x":60,"y":50},{"fx":0.2,"fy":0.8,"x":-60,"y":50}]}"#;
+    let mut seeds = vec![
+        get("/", ""),
+        get("/app.js", "Accept-Encoding: gzip\r\n"),
+        get("/api/status", "Authorization: Bearer 0123456789abcdef0123\r\n"),
+        get("/api/layers?from=1", "Cookie: a=b; layerwise_token=0123456789abcdef\r\n"),
+        get("/api/layers/2", ""),
+        get("/api/layers/2/vectors.svg", ""),
+        get("/api/layers/2/post_top/picture.jpg", ""),
+        get(
+            "/api/layers/1/post_top/picture.jpg?kind=raw&x=0.25&y=0.25&w=0.5&h=0.5",
+            "",
+        ),
+        get("/api/layers/2/post_side/picture.jpg?kind=raw", ""),
+        get("/api/layers/1/pre_top/original", ""),
+        get("/api/events?token=0123456789abcdef0123", ""),
+        get("/api/calibration/20260101T000000000/overlay.png", ""),
+        format!(
+            "POST /api/calibration HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        )
+        .into_bytes(),
+        format!(
+            "POST /api/calibration HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n{:x}\r\n{body}\r\n0\r\n\r\n",
+            body.len()
+        )
+        .into_bytes(),
+    ];
+    let mut pipelined = get("/api/layers/1", "");
+    pipelined.extend(get(
+        "/api/layers/1/post_top/picture.jpg?kind=raw",
+        "Connection: close\r\n",
+    ));
+    seeds.push(pipelined);
+    seeds
+}
+
+/// The page's request path (`web::harness`: hyper's parser, the limits, the routes, the files)
+/// on a build with a link to /etc/passwd and a FIFO planted among its frames.
+#[test]
+fn page_requests() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = common::finished_build(tmp.path(), 2);
+    let raw = dir.join("raw");
+    std::fs::remove_file(raw.join("L00002_post_side.jpg")).unwrap();
+    std::os::unix::fs::symlink("/etc/passwd", raw.join("L00002_post_side.jpg")).unwrap();
+    std::fs::remove_file(raw.join("L00002_pre_top.jpg")).unwrap();
+    let fifo = std::ffi::CString::new(raw.join("L00002_pre_top.jpg").to_str().unwrap()).unwrap();
+    // SAFETY: a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(fifo.as_ptr(), 0o600) }, 0);
+    let config = layerwise::config::WebConfig::default();
+    let page = layerwise::web::harness::Harness::new(&dir, &config).unwrap();
+    let seeds = page_request_seeds();
+    let answer = String::from_utf8_lossy(&page.answer(&seeds[4])).into_owned();
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer:.300}");
+    let answer = String::from_utf8_lossy(&page.answer(&seeds[8])).into_owned();
+    assert!(answer.starts_with("HTTP/1.1 403"), "{answer:.300}");
+    let answer = page.answer(seeds.last().unwrap());
+    let answers = String::from_utf8_lossy(&answer)
+        .matches("HTTP/1.1 200")
+        .count();
+    assert_eq!(answers, 2, "both pipelined requests answered");
+    assert_no_panics(fuzz_n("web-request", &seeds, 30, |b| {
+        let _ = page.answer(b);
+    }));
 }

@@ -49,3 +49,5 @@ mod vectors;
 #[cfg(feature = "gphoto")]
 mod virtual_camera;
 mod web;
+mod web_files;
+mod web_load;

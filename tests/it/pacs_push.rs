@@ -40,7 +40,7 @@ fn instances(dir: &Path, n: u32) -> (PathBuf, Vec<String>) {
                 columns: 4,
                 thickness_mm: 1.0,
             },
-            pixels: &pixels,
+            pixels: layerwise::dicom::Samples::Gray16(&pixels),
             acquired: None,
             window: (0.0, 1.0),
             derivation: "test",

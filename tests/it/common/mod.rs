@@ -10,6 +10,7 @@ mod fixtures;
 pub mod pty;
 pub mod render2;
 mod rng;
+mod web;
 
 pub use bounded::*;
 pub use build_dir::*;
@@ -18,3 +19,4 @@ pub use daemon::*;
 pub use data::*;
 pub use fixtures::*;
 pub use rng::*;
+pub use web::*;

@@ -1,0 +1,160 @@
+//! The page stays inside its build (issue 30, "The page leaves its build"): links planted in
+//! `raw/` (to /etc/passwd, ../../etc/hostname, another build's frame) are not followed, a FIFO
+//! blocks no request, `/dev/zero` is not read; a crop smaller than a pixel is a bad request.
+
+use crate::common::*;
+use std::os::unix::fs::symlink;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// A FIFO at `path`.
+fn mkfifo(path: &Path) {
+    let name = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    // SAFETY: a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(name.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// `/dev/zero`'s own device node at `path` when this test may make one (root), else a link.
+fn dev_zero(path: &Path) -> &'static str {
+    let name = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    // SAFETY: a NUL-terminated path; makedev(1, 5) is /dev/zero.
+    let made = unsafe { libc::mknod(name.as_ptr(), libc::S_IFCHR | 0o600, libc::makedev(1, 5)) };
+    if made == 0 {
+        "device"
+    } else {
+        symlink("/dev/zero", path).unwrap();
+        "link"
+    }
+}
+
+/// The peak resident memory of a process, in MB.
+fn peak_rss_mb(pid: u32) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let kb: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    kb / 1024.0
+}
+
+#[test]
+fn planted_links_fifos_and_devices_in_raw_are_refused_and_block_nobody() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 2);
+    let other_tmp = tmp.path().join("other");
+    std::fs::create_dir(&other_tmp).unwrap();
+    let other = finished_build(&other_tmp, 1);
+    let raw = dir.join("raw");
+    let replace = |name: &str| {
+        std::fs::remove_file(raw.join(name)).unwrap();
+        raw.join(name)
+    };
+    symlink("/etc/passwd", replace("L00001_post_top.jpg")).unwrap();
+    symlink("../../etc/hostname", replace("L00001_post_front.jpg")).unwrap();
+    let others = other.join("raw/L00001_post_side.jpg");
+    symlink(&others, replace("L00001_post_side.jpg")).unwrap();
+    mkfifo(&replace("L00002_post_top.jpg"));
+    let zero = dev_zero(&replace("L00002_post_front.jpg"));
+    symlink("/dev/zero", replace("L00002_post_side.jpg")).unwrap();
+    let secrets = [
+        std::fs::read("/etc/passwd").unwrap_or_default(),
+        std::fs::read(&others).unwrap(),
+    ];
+
+    let (served, addr) = serve(&dir, &[]);
+    for layer in [1, 2] {
+        for view in ["post_top", "post_front", "post_side"] {
+            for what in [
+                "original",
+                "picture.jpg?kind=raw",
+                "picture.jpg?kind=rectified",
+            ] {
+                let path = format!("/api/layers/{layer}/{view}/{what}");
+                let started = Instant::now();
+                let (status, body) = http(addr, "GET", &path, b"");
+                let text = String::from_utf8_lossy(&body);
+                assert_eq!(status, 403, "{path} ({zero}): {text:.300}");
+                assert!(
+                    started.elapsed() < Duration::from_secs(10),
+                    "{path}: {:?}",
+                    started.elapsed()
+                );
+                assert!(
+                    text.contains("symbolic link") || text.contains("not a regular file"),
+                    "{path}: {text}"
+                );
+                for secret in &secrets {
+                    assert!(
+                        secret.is_empty() || !body.windows(secret.len()).any(|w| w == secret),
+                        "{path} served another file"
+                    );
+                }
+            }
+        }
+    }
+    // raw/ itself a link to another build's frames: nothing of it is served.
+    std::fs::rename(&raw, dir.join("raw-moved")).unwrap();
+    symlink(other.join("raw"), &raw).unwrap();
+    let (status, body) = http(addr, "GET", "/api/layers/1/pre_top/original", b"");
+    assert_eq!(status, 403, "{}", String::from_utf8_lossy(&body));
+    std::fs::remove_file(&raw).unwrap();
+    std::fs::rename(dir.join("raw-moved"), &raw).unwrap();
+    // The frames that are what they should be are served as before, to everyone.
+    let (status, body) = http(addr, "GET", "/api/layers/1/pre_top/original", b"");
+    assert_eq!(status, 200);
+    assert_eq!(body, std::fs::read(raw.join("L00001_pre_top.jpg")).unwrap());
+    let (status, _) = http(addr, "GET", "/api/layers/2/pre_top/picture.jpg", b"");
+    assert_eq!(status, 200);
+    // /dev/zero was never read: the server is as small as a page server is.
+    let peak = peak_rss_mb(served.pid());
+    assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
+    drop(served);
+}
+
+#[test]
+fn a_crop_smaller_than_a_pixel_is_a_bad_request_not_a_server_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 1);
+    let (served, addr) = serve(&dir, &[]);
+    for kind in ["rectified", "raw"] {
+        let path =
+            format!("/api/layers/1/post_top/picture.jpg?kind={kind}&x=0.5&y=0.5&w=0.0001&h=0.0001");
+        let (status, body) = http(addr, "GET", &path, b"");
+        let text = String::from_utf8_lossy(&body);
+        assert_eq!(status, 400, "{path}: {text}");
+        assert!(text.contains("smaller than a pixel"), "{text}");
+        // One pixel is a crop.
+        let path =
+            format!("/api/layers/1/post_top/picture.jpg?kind={kind}&x=0.5&y=0.5&w=0.01&h=0.01");
+        assert_eq!(http(addr, "GET", &path, b"").0, 200, "{path}");
+    }
+    drop(served);
+}
+
+#[test]
+fn the_calibration_page_writes_nothing_through_a_link_planted_as_its_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 1);
+    let elsewhere = tmp.path().join("elsewhere");
+    std::fs::create_dir(&elsewhere).unwrap();
+    symlink(&elsewhere, dir.join("calibration")).unwrap();
+    let (served, addr) = serve(&dir, &["--calibration-page"]);
+    let points: Vec<_> = [(0.2, 0.2), (0.8, 0.2), (0.8, 0.8), (0.2, 0.8)]
+        .iter()
+        .map(|&(fx, fy)| serde_json::json!({"fx": fx, "fy": fy, "x": 0.0, "y": 0.0}))
+        .collect();
+    let body = serde_json::json!({"layer": 1, "view": "post_top", "points": points});
+    let (status, answer) = http(
+        addr,
+        "POST",
+        "/api/calibration",
+        body.to_string().as_bytes(),
+    );
+    let text = String::from_utf8_lossy(&answer);
+    assert_eq!(status, 400, "{text}");
+    assert!(text.contains("not a folder of the build"), "{text}");
+    assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0);
+    drop(served);
+}
