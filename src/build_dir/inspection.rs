@@ -145,12 +145,11 @@ pub struct InspectionRecord {
 /// The inspection log of a build, open for appending.
 pub type InspectionLog = LinesLog<InspectionRecord>;
 
-/// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`.
-pub fn open_flags(dir: &Path) -> Vec<String> {
-    let Ok(records) = InspectionLog::read(&dir.join(super::INSPECTION)) else {
-        return Vec::new();
-    };
-    records
+/// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`; a log that
+/// cannot be read is an error, never "no flags".
+pub fn open_flags(dir: &Path) -> Result<Vec<String>, super::lines::JournalError> {
+    let records = InspectionLog::read(&dir.join(super::INSPECTION))?;
+    Ok(records
         .iter()
         .flat_map(|r| {
             r.flags
@@ -158,7 +157,7 @@ pub fn open_flags(dir: &Path) -> Vec<String> {
                 .filter(|f| f.severity >= Severity::Warning)
                 .map(move |f| format!("L{:05} {} ({}): {}", r.layer, f.kind, f.severity, f.message))
         })
-        .collect()
+        .collect())
 }
 
 #[cfg(test)]
@@ -217,7 +216,7 @@ pub(crate) mod tests {
         let (_, back) = InspectionLog::open(&path, false).unwrap();
         assert_eq!(back, vec![record(1), record(2)]);
         assert!(std::fs::read_to_string(&path).unwrap().ends_with("}\n"));
-        let flags = open_flags(dir.path());
+        let flags = open_flags(dir.path()).unwrap();
         assert_eq!(flags.len(), 2);
         assert!(flags[1].starts_with("L00002 streak (warning)"), "{flags:?}");
     }

@@ -280,6 +280,18 @@ impl StatusArgs {
         } else {
             print!("{report}");
         }
+        if !report.damaged.is_empty() {
+            anyhow::bail!(
+                "{} of the build's files cannot be read ({}): what they hold may be missing \
+                 above; keep a copy, then repair or remove the damaged line",
+                report.damaged.len(),
+                if self.json {
+                    "\"damaged\""
+                } else {
+                    "DAMAGED above"
+                }
+            );
+        }
         Ok(())
     }
 }

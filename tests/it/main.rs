@@ -15,6 +15,7 @@ mod common;
 mod architecture;
 mod bounded_inputs;
 mod cli;
+mod console;
 #[cfg(feature = "testkit")]
 mod ct_accuracy;
 #[cfg(feature = "testkit")]

@@ -3,57 +3,10 @@
 //! serving its page while it captures, with many connections open.
 
 use crate::common::*;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::Path;
 use std::time::{Duration, Instant};
-
-/// One HTTP/1.1 request on its own connection: (status, body).
-fn http(addr: SocketAddr, method: &str, path: &str, body: &[u8]) -> (u16, Vec<u8>) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    write!(
-        s,
-        "{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n",
-        body.len()
-    )
-    .unwrap();
-    // The server may answer (413, 405) before reading a large body and close.
-    let _ = s.write_all(body);
-    let mut response = Vec::new();
-    let _ = s.read_to_end(&mut response);
-    let split = response
-        .windows(4)
-        .position(|w| w == b"\r\n\r\n")
-        .unwrap_or_else(|| {
-            panic!(
-                "{path}: no HTTP head in {:?}",
-                String::from_utf8_lossy(&response)
-            )
-        });
-    let head = String::from_utf8_lossy(&response[..split]).to_ascii_lowercase();
-    let status = head[9..12].parse().unwrap();
-    let mut body = response[split + 4..].to_vec();
-    if head.contains("transfer-encoding: chunked") {
-        body = dechunk(&body);
-    }
-    (status, body)
-}
-
-fn dechunk(mut data: &[u8]) -> Vec<u8> {
-    let mut out = Vec::new();
-    loop {
-        let line_end = data.windows(2).position(|w| w == b"\r\n").unwrap();
-        let size =
-            usize::from_str_radix(std::str::from_utf8(&data[..line_end]).unwrap().trim(), 16)
-                .unwrap();
-        if size == 0 {
-            return out;
-        }
-        out.extend_from_slice(&data[line_end + 2..line_end + 2 + size]);
-        data = &data[line_end + 4 + size..];
-    }
-}
 
 /// A connection that asked for the event stream (read timeout 10 s).
 fn open_events(addr: SocketAddr) -> TcpStream {
@@ -67,12 +20,6 @@ fn open_events(addr: SocketAddr) -> TcpStream {
     )
     .unwrap();
     events
-}
-
-fn get_json(addr: SocketAddr, path: &str) -> serde_json::Value {
-    let (status, body) = http(addr, "GET", path, b"");
-    assert_eq!(status, 200, "{path}: {}", String::from_utf8_lossy(&body));
-    serde_json::from_slice(&body).unwrap()
 }
 
 fn get_jpeg(addr: SocketAddr, path: &str) -> image::DynamicImage {
@@ -124,32 +71,6 @@ fn picture_fractions(grid: &serde_json::Value, mm: [f64; 4]) -> [f64; 4] {
     ]
 }
 
-/// Reads a child's stream on a thread (so the child never blocks on a full pipe) and returns
-/// the first `http://…/` address it prints, and the whole text once the stream ends.
-fn watch_output(
-    stream: impl Read + Send + 'static,
-) -> (SocketAddr, std::thread::JoinHandle<String>) {
-    let (tx, rx) = std::sync::mpsc::channel();
-    let reader = std::thread::spawn(move || {
-        let mut all = String::new();
-        for line in BufReader::new(stream).lines().map_while(Result::ok) {
-            if let Some(at) = line.find("http://") {
-                let rest = &line[at + 7..];
-                let _ = tx.send(rest[..rest.find('/').unwrap()].to_string());
-            }
-            all.push_str(&line);
-            all.push('\n');
-        }
-        all
-    });
-    let addr = rx
-        .recv_timeout(Duration::from_secs(60))
-        .expect("the page's address is printed")
-        .parse()
-        .unwrap();
-    (addr, reader)
-}
-
 /// A finished mock build of `layers` layers in `tmp/build` (see [`web_config`]).
 fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
     let dir = tmp.join("build");
@@ -157,29 +78,6 @@ fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
     write_config(&web_config(&dir, layers), &config_path);
     run_build(&config_path);
     dir
-}
-
-/// A `layerwise serve` that is stopped when dropped, also when a test fails half-way.
-struct Served(std::process::Child);
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// `layerwise serve` of `dir` on a free port, with `extra` arguments.
-fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
-    let mut child = layerwise()
-        .args(["serve", "--listen", "127.0.0.1:0", "--build"])
-        .arg(dir)
-        .args(extra)
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let (addr, _) = watch_output(child.stdout.take().unwrap());
-    (Served(child), addr)
 }
 
 #[test]

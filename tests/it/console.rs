@@ -1,0 +1,293 @@
+//! The operator's console through the binary: every state a person reads (`status`, `alarm`,
+//! the page's `/api/status`) is derived from the build's files and the clock when it is shown;
+//! a folder that is not a build is an error; a damaged file never hides the alarm.
+
+use crate::common::*;
+use layerwise::build_dir::alarm::{AlarmEvent, AlarmLog};
+use layerwise::build_dir::inspection::{FlagKind, Severity};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// A finished two-layer mock build in `tmp/build`.
+fn finished(tmp: &Path) -> PathBuf {
+    let dir = tmp.join("build");
+    let config_path = tmp.join("layerwise.toml");
+    write_config(
+        &calibrated_config(&dir, 2, layerwise::dicom::Compression::None),
+        &config_path,
+    );
+    run_build(&config_path);
+    dir
+}
+
+/// The alarm raised at layer 2, as the daemon's alarm thread appends it.
+fn raise_alarm(build: &Path) {
+    let path = build.join(layerwise::build_dir::ALARM);
+    AlarmLog::append_only(&path)
+        .unwrap()
+        .append(&AlarmEvent::Raised {
+            at: chrono::Utc::now(),
+            layer: 2,
+            kind: FlagKind::UnderFusion,
+            severity: Severity::Critical,
+            message: "part 3: 91% of its core unfused".into(),
+        })
+        .unwrap();
+}
+
+/// Rewrites status.json through `change`, as a daemon would have left it.
+fn edit_status(build: &Path, change: impl FnOnce(&mut serde_json::Value)) {
+    let path = build.join(layerwise::build_dir::STATUS);
+    let mut status = read_json(&path);
+    change(&mut status);
+    std::fs::write(&path, serde_json::to_vec_pretty(&status).unwrap()).unwrap();
+}
+
+fn status_text(build: &Path) -> String {
+    layerwise()
+        .args(["status", "--build"])
+        .arg(build)
+        .stdout_ok()
+}
+
+fn status_json(build: &Path) -> serde_json::Value {
+    layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(build)
+        .json_ok()
+}
+
+/// A process id that belonged to a process that has ended.
+fn dead_pid() -> u32 {
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    child.wait().unwrap();
+    pid
+}
+
+#[test]
+fn alarm_show_and_ack_refuse_a_folder_that_is_not_a_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let missing = tmp.path().join("no-such-build");
+    let err = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&missing)
+        .fails();
+    assert!(err.contains("not a layerwise build directory"), "{err}");
+    let err = layerwise()
+        .args(["alarm", "ack", "--build"])
+        .arg(tmp.path())
+        .fails();
+    assert!(err.contains("not a layerwise build directory"), "{err}");
+    assert!(!err.contains("not raised"), "{err}");
+    // A build without an alarm: nothing to acknowledge, and show says off.
+    let build = finished(tmp.path());
+    let err = layerwise()
+        .args(["alarm", "ack", "--build"])
+        .arg(&build)
+        .fails();
+    assert!(err.contains("the alarm is not raised (it is off)"), "{err}");
+    let shown = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert_eq!(shown.trim(), "alarm off");
+    // Control characters in a note are refused (one line of text, nothing for a terminal).
+    raise_alarm(&build);
+    let err = layerwise()
+        .args(["alarm", "ack", "--note", "ok\u{1b}]0;pwned\u{7}", "--build"])
+        .arg(&build)
+        .fails();
+    assert!(err.contains("control characters"), "{err}");
+}
+
+#[test]
+fn status_with_a_damaged_alarm_log_still_shows_the_alarm() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    raise_alarm(&build);
+    let path = build.join(layerwise::build_dir::ALARM);
+    let mut text = std::fs::read_to_string(&path).unwrap();
+    text.push_str("{\"event\":\"acknowl\u{0}\n");
+    text.push_str(&std::fs::read_to_string(&path).unwrap());
+    std::fs::write(&path, text).unwrap();
+
+    let out = layerwise()
+        .args(["status", "--build"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    let err = assert_exit_1(&out);
+    let shown = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        shown.contains("alarm      UNKNOWN, treat it as RAISED")
+            && shown.contains("alarm.jsonl line 2 is damaged"),
+        "{shown}"
+    );
+    assert!(shown.contains("DAMAGED    "), "{shown}");
+    assert!(
+        shown.contains("frames     12 stored"),
+        "the rest is shown: {shown}"
+    );
+    assert!(err.contains("cannot be read"), "{err}");
+    let out = layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(&build)
+        .output()
+        .unwrap();
+    assert_exit_1(&out);
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["alarm"]["state"], "unreadable", "{report:#}");
+    assert!(report["warning"]
+        .as_str()
+        .unwrap()
+        .contains("the inspection alarm needs an operator"));
+    // alarm show refuses the file as before; the page shows the alarm's state unknown.
+    let err = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&build)
+        .fails();
+    assert!(err.contains("damaged"), "{err}");
+    let (_served, addr) = serve(&build, &[]);
+    let page = get_json(addr, "/api/status");
+    assert_eq!(page["alarm"]["state"], "unreadable", "{page:#}");
+}
+
+#[test]
+fn status_of_a_stopped_daemon_is_never_green_and_its_ages_count_to_now() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    let before = chrono::Utc::now() - chrono::Duration::seconds(250);
+    edit_status(&build, |s| {
+        s["updated_at"] = serde_json::json!(before);
+        s["trigger"]["last_signal_at"] = serde_json::json!(before);
+        s["camera"]["last_capture_at"] = serde_json::json!(before);
+    });
+    let report = status_json(&build);
+    assert!(
+        report["state"]
+            .as_str()
+            .unwrap()
+            .starts_with("stopped (last update "),
+        "{report:#}"
+    );
+    for part in ["trigger", "camera", "lights", "processing"] {
+        let h = &report["health"][part];
+        assert_eq!(h["state"], "stopped", "{part}: {h}");
+        assert!(
+            h["summary"].as_str().unwrap().ends_with(", daemon stopped"),
+            "{part}: {h}"
+        );
+    }
+    let camera = report["health"]["camera"]["summary"].as_str().unwrap();
+    assert!(camera.starts_with("last capture 4 min ago"), "{camera}");
+    let trigger = report["health"]["trigger"]["summary"].as_str().unwrap();
+    assert!(trigger.contains("last signal 4 min ago"), "{trigger}");
+    assert!(report["health"]["disk"]["summary"]
+        .as_str()
+        .unwrap()
+        .ends_with(" free now"));
+    let text = status_text(&build);
+    assert!(text.contains("4 min ago)"), "{text}");
+    assert!(
+        text.contains("  camera     stopped last capture 4 min ago"),
+        "{text}"
+    );
+    assert!(!text.contains(" ok      "), "{text}");
+}
+
+#[test]
+fn status_of_a_killed_daemon_says_it_is_not_running() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = tmp.path().join("build");
+    let mut config = calibrated_config(&build, 500, layerwise::dicom::Compression::None);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 200;
+    }
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let mut child = spawn_build(&config_path, std::process::Stdio::null());
+    let running = status_until(&build, "a few frames", |s| {
+        s["frames"].as_u64().unwrap_or(0) >= 6 && s["health"]["camera"]["state"] == "ok"
+    });
+    assert_eq!(running["state"], "running");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let report = status_json(&build);
+    assert!(
+        report["state"]
+            .as_str()
+            .unwrap()
+            .starts_with("not running (it stopped without a clean shutdown; last update "),
+        "{report:#}"
+    );
+    assert!(
+        report["warning"]
+            .as_str()
+            .unwrap()
+            .contains("the daemon is not running"),
+        "{report:#}"
+    );
+    for part in ["trigger", "camera", "lights", "processing"] {
+        assert_ne!(report["health"][part]["state"], "ok", "{part}: {report:#}");
+    }
+}
+
+#[test]
+fn status_after_a_full_disk_freed_shows_the_space_measured_now() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    // The daemon died while it waited for space (1.2 MB free); the disk was freed since.
+    let pid = dead_pid();
+    edit_status(&build, |s| {
+        s["state"] = "running".into();
+        s["pid"] = pid.into();
+        s["disk"] = serde_json::json!({
+            "state": "full", "free_bytes": 1_200_000u64, "min_free_bytes": 0,
+            "need_bytes": 400_000_000u64, "since": chrono::Utc::now(), "frames_missed": 3,
+            "derived_paused": true, "journal_held": 0
+        });
+        s["health"]["disk"] = serde_json::json!({
+            "state": "error", "summary": "full, 3 frames missed",
+            "warning": "waiting for disk space: 1.2 MB free, need 400.0 MB; 3 frames missed so far; free space on the build disk now"
+        });
+    });
+    let text = status_text(&build);
+    assert!(!text.contains("waiting for disk space"), "{text}");
+    assert!(!text.contains("1.2 MB"), "{text}");
+    let disk = text
+        .lines()
+        .find(|l| l.starts_with("  disk "))
+        .unwrap_or_else(|| panic!("no disk health line: {text}"));
+    assert!(
+        disk.contains(" free now") && !disk.contains("ERROR"),
+        "{disk}\n{text}"
+    );
+    assert!(text.contains("daemon     not running"), "{text}");
+}
+
+#[test]
+fn serve_clears_the_alarm_banner_after_alarm_ack_without_a_restart() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    raise_alarm(&build);
+    let (_served, addr) = serve(&build, &[]);
+    assert_eq!(get_json(addr, "/api/status")["alarm"]["state"], "raised");
+    layerwise()
+        .args(["alarm", "ack", "--by", "ana", "--build"])
+        .arg(&build)
+        .succeeds();
+    let acked = Instant::now();
+    loop {
+        let alarm = get_json(addr, "/api/status")["alarm"].clone();
+        if alarm["state"] == "acknowledged" {
+            assert_eq!(alarm["by"], "ana");
+            break;
+        }
+        assert!(
+            acked.elapsed() < Duration::from_secs(2),
+            "the page still shows {alarm} 2 s after the acknowledgement"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
