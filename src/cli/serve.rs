@@ -4,7 +4,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use layerwise::config::WebConfig;
 use layerwise::shutdown::{self, Shutdown};
-use layerwise::web::WebServer;
+use layerwise::web::{WebError, WebServer};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -29,12 +29,7 @@ pub struct ServeArgs {
 
 impl ServeArgs {
     pub fn run(self) -> Result<()> {
-        anyhow::ensure!(
-            self.build.join(layerwise::build_dir::JOURNAL).is_file(),
-            "{}: not a layerwise build directory (no {}); pass the daemon's build.output_dir",
-            self.build.display(),
-            layerwise::build_dir::JOURNAL
-        );
+        layerwise::build_dir::require_build(&self.build)?;
         let config = WebConfig {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
@@ -42,18 +37,10 @@ impl ServeArgs {
             idle_timeout_s: self.idle_timeout_s,
             ..WebConfig::default()
         };
-        config.validate().map_err(|invalid| {
-            let flag = invalid.key["web.".len()..].replace('_', "-");
-            anyhow::anyhow!("--{flag}: {}", invalid.message)
-        })?;
-        let addr = config
-            .address()
-            .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
-            .context("--listen must name an address")?;
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
-        let server = WebServer::start(&self.build, &config, addr, &process)?;
+        let server = start_page(&self.build, &config, &process)?;
         println!(
             "serving {} at http://{}/ (Ctrl-C stops)",
             self.build.display(),
@@ -64,6 +51,29 @@ impl ServeArgs {
         server.join();
         Ok(())
     }
+}
+
+/// Starts the page of `build` as `serve` and `demo --listen` do, until `shutdown` is requested:
+/// an address that is taken (or not one) is an error naming `--listen`.
+pub fn start_page(
+    build: &std::path::Path,
+    config: &WebConfig,
+    shutdown: &Shutdown,
+) -> Result<WebServer> {
+    config.validate().map_err(|invalid| {
+        let flag = invalid.key["web.".len()..].replace('_', "-");
+        anyhow::anyhow!("--{flag}: {}", invalid.message)
+    })?;
+    let addr = config
+        .address()
+        .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
+        .context("--listen must name an address")?;
+    WebServer::start(build, config, addr, shutdown).map_err(|e| match e {
+        WebError::Listen { addr, source } => anyhow::Error::new(source).context(format!(
+            "cannot listen on {addr}: give --listen a free address (port 0: any free port)"
+        )),
+        other => other.into(),
+    })
 }
 
 /// Starts the page of the daemon's build when `[web] listen` is set, until `shutdown` is

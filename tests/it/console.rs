@@ -291,3 +291,163 @@ fn serve_clears_the_alarm_banner_after_alarm_ack_without_a_restart() {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+#[test]
+fn push_forget_drops_a_mistaken_destination_from_status() {
+    use layerwise::build_dir::pushlog::{log_path, PushLog, PushRecord};
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    // Two mistaken destinations, as a push to them left them: nothing confirmed, an error.
+    let url = "http://10.0.0.99:8042/dicom-web";
+    let url_name = layerwise::pacs::Destination::resolve(url, &[])
+        .unwrap()
+        .name;
+    for name in ["orthanc-typo", url_name.as_str()] {
+        let (mut log, _) = PushLog::open(&log_path(&build, name)).unwrap();
+        log.append(&PushRecord::Error {
+            message: "connection refused".into(),
+            at: chrono::Utc::now(),
+        })
+        .unwrap();
+    }
+    let before = status_text(&build);
+    assert!(
+        before.contains("pacs       orthanc-typo: 0 pushed, 12 pending"),
+        "{before}"
+    );
+    let err = layerwise()
+        .args(["push", "forget", "--to", "orthanc", "--build"])
+        .arg(&build)
+        .fails();
+    assert!(
+        err.contains("no push log for orthanc") && err.contains("orthanc-typo"),
+        "{err}"
+    );
+    let said = layerwise()
+        .args(["push", "forget", "--to", "orthanc-typo", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(
+        said.starts_with("forgot orthanc-typo (0 pushed, 12 pending)"),
+        "{said}"
+    );
+    layerwise()
+        .args(["push", "forget", "--to", url, "--build"])
+        .arg(&build)
+        .succeeds();
+    let after = status_text(&build);
+    assert!(!after.contains("pacs "), "{after}");
+    let kept = std::fs::read_dir(build.join("pacs/forgotten"))
+        .unwrap()
+        .count();
+    assert_eq!(kept, 2, "the logs are kept aside");
+    // `push` itself still takes its flags.
+    let err = layerwise().args(["push"]).output().unwrap();
+    assert!(String::from_utf8_lossy(&err.stderr).contains("--build"));
+}
+
+/// A listening socket on a free loopback port, held for the test.
+fn taken_port() -> (std::net::TcpListener, String) {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    (listener, addr)
+}
+
+#[test]
+fn demo_and_serve_refuse_a_busy_port_naming_listen() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (_held, addr) = taken_port();
+    let out = tmp.path().join("demo");
+    let err = layerwise()
+        .args(["demo", "--layers", "2", "--listen", &addr, "--out"])
+        .arg(&out)
+        .fails();
+    assert!(
+        err.contains(&format!(
+            "cannot listen on {addr}: give --listen a free address"
+        )),
+        "{err}"
+    );
+    assert!(
+        !out.join(layerwise::build_dir::JOURNAL).exists(),
+        "no build without its page"
+    );
+    let build = finished(tmp.path());
+    let err = layerwise()
+        .args(["serve", "--listen", &addr, "--build"])
+        .arg(&build)
+        .fails();
+    assert!(err.contains("give --listen a free address"), "{err}");
+    assert!(!err.contains("web.listen"), "{err}");
+}
+
+#[test]
+fn demo_keeps_its_page_open_after_the_last_layer_until_sigterm() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("demo");
+    let mut child = layerwise()
+        .args(["demo", "--layers", "2", "--listen", "127.0.0.1:0", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    // The demo's own words up to its last line, "the page stays at …", while the page is up.
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let mut lines = Vec::new();
+    while !lines
+        .last()
+        .is_some_and(|l: &String| l.starts_with("the page stays at"))
+    {
+        let line = rx
+            .recv_timeout(Duration::from_secs(120))
+            .unwrap_or_else(|_| panic!("the demo said only {lines:?}"));
+        lines.push(line);
+    }
+    let addr: std::net::SocketAddr = lines
+        .iter()
+        .find_map(|l| l.strip_prefix("operator page: http://"))
+        .and_then(|a| a.strip_suffix('/'))
+        .expect("the page's address")
+        .parse()
+        .unwrap();
+    assert!(
+        lines.iter().any(|l| l.contains("12 frames stored")),
+        "{lines:?}"
+    );
+    let status = lines
+        .iter()
+        .find(|l| l.starts_with("status: "))
+        .expect("the closing hint");
+    // The hint names a command that runs from here (the test's binary is not on the PATH).
+    assert!(
+        status.starts_with(&format!(
+            "status: {} status --build",
+            env!("CARGO_BIN_EXE_layerwise")
+        )),
+        "{status}"
+    );
+    // The page follows the files within its watch (a quarter second, the status at most once a
+    // second).
+    let ended = Instant::now();
+    loop {
+        let report = get_json(addr, "/api/status");
+        if report["frames"] == 12 && report["state"].as_str().unwrap().starts_with("stopped") {
+            break;
+        }
+        assert!(ended.elapsed() < Duration::from_secs(3), "{report:#}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let out = terminate(child);
+    assert_success(&out);
+}
