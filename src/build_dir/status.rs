@@ -79,6 +79,11 @@ pub struct StatusReport {
     pub build_dir: PathBuf,
     pub name: Option<String>,
     pub state: String,
+    /// Whether the daemon that writes this build is running now (its pid alive, its state
+    /// `running`).
+    pub running: bool,
+    /// When status.json was last written, as shown: `last update 14:02:11 UTC (4 min ago)`.
+    pub last_update: Option<String>,
     pub pid: Option<u32>,
     pub updated_at: Option<DateTime<Utc>>,
     pub layer: Option<u32>,
@@ -308,18 +313,10 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         .updated_at
         .map(|at| format!("last update {}", super::health::when(now, at)));
     let state = match live.state.as_str() {
-        "running" if !alive => format!(
-            "not running (it stopped without a clean shutdown{})",
-            last_update
-                .as_ref()
-                .map(|u| format!("; {u}"))
-                .unwrap_or_default()
-        ),
-        "" => "unknown (no status.json: the daemon never reported on this build)".to_string(),
-        s if !running => match &last_update {
-            Some(u) => format!("{s} ({u})"),
-            None => s.to_string(),
-        },
+        "running" if !alive => {
+            "not running (the daemon stopped without a clean shutdown)".to_string()
+        }
+        "" => "unknown".to_string(),
         s => s.to_string(),
     };
     let alarm = super::alarm::state(dir);
@@ -358,6 +355,8 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         build_dir: dir.to_path_buf(),
         name: manifest.map(|m| m.name),
         state,
+        running,
+        last_update,
         pid: (live.pid != 0).then_some(live.pid),
         updated_at: live.updated_at,
         layer: current_layer,
@@ -423,9 +422,13 @@ impl fmt::Display for StatusReport {
         )?;
         writeln!(
             f,
-            "daemon     {}{}",
+            "daemon     {}{}{}",
             self.state,
-            self.pid.map(|p| format!(", pid {p}")).unwrap_or_default()
+            self.pid.map(|p| format!(", pid {p}")).unwrap_or_default(),
+            match (&self.last_update, self.running) {
+                (Some(update), false) => format!(", {update}"),
+                _ => String::new(),
+            }
         )?;
         if let Some(alarm) = &self.alarm {
             writeln!(f, "alarm      {alarm}")?;

@@ -231,11 +231,14 @@ impl CheckConfigArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.file)?;
         config.check_backends(&self.file)?;
+        let output = match &config.build.builds_dir {
+            Some(builds) => format!("builds in {}", builds.display()),
+            None => format!("output in {}", config.build.output_dir.display()),
+        };
         println!(
-            "{}: valid ({} views per layer, output in {})",
+            "{}: valid ({} views per layer, {output})",
             self.file.display(),
             config.views.all().len(),
-            config.build.output_dir.display()
         );
         Ok(())
     }

@@ -164,11 +164,13 @@ fn status_of_a_stopped_daemon_is_never_green_and_its_ages_count_to_now() {
         s["camera"]["last_capture_at"] = serde_json::json!(before);
     });
     let report = status_json(&build);
+    assert_eq!(report["state"], "stopped", "{report:#}");
+    assert_eq!(report["running"], false, "{report:#}");
     assert!(
-        report["state"]
+        report["last_update"]
             .as_str()
             .unwrap()
-            .starts_with("stopped (last update "),
+            .starts_with("last update "),
         "{report:#}"
     );
     for part in ["trigger", "camera", "lights", "processing"] {
@@ -218,7 +220,7 @@ fn status_of_a_killed_daemon_says_it_is_not_running() {
         report["state"]
             .as_str()
             .unwrap()
-            .starts_with("not running (it stopped without a clean shutdown; last update "),
+            .starts_with("not running (the daemon stopped without a clean shutdown)"),
         "{report:#}"
     );
     assert!(
@@ -442,7 +444,7 @@ fn demo_keeps_its_page_open_after_the_last_layer_until_sigterm() {
     let ended = Instant::now();
     loop {
         let report = get_json(addr, "/api/status");
-        if report["frames"] == 12 && report["state"].as_str().unwrap().starts_with("stopped") {
+        if report["frames"] == 12 && report["state"] == "stopped" {
             break;
         }
         assert!(ended.elapsed() < Duration::from_secs(3), "{report:#}");
@@ -450,4 +452,46 @@ fn demo_keeps_its_page_open_after_the_last_layer_until_sigterm() {
     }
     let out = terminate(child);
     assert_success(&out);
+}
+
+#[test]
+fn config_errors_point_at_the_bad_keys_own_line_and_builds_dir_needs_no_output_dir() {
+    let tmp = tempfile::tempdir().unwrap();
+    let demo = layerwise::config::DEMO_CONFIG;
+    let check = |text: &str| {
+        let path = tmp.path().join("layerwise.toml");
+        std::fs::write(&path, text).unwrap();
+        let mut command = layerwise();
+        command.arg("check-config").arg(&path);
+        command
+    };
+    // The error names the bad key's own line: (changed text, the line's start, what it says).
+    let cases = [
+        // An unknown key in a section chosen by its kind (the parser names only the section).
+        (
+            demo.replacen("seed = 7\n", "seed = 7\nisoo = 100\n", 1),
+            "isoo",
+            "key `camera`: unknown field `isoo`",
+        ),
+        // A value a section's check refuses.
+        (
+            demo.replacen("queue_capacity = 16", "queue_capacity = 0", 1),
+            "queue_capacity",
+            "key `storage.queue_capacity`",
+        ),
+    ];
+    for (text, start, says) in cases {
+        let line = 1 + text
+            .lines()
+            .position(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("no {start}"));
+        let err = check(&text).fails();
+        assert!(err.contains(&format!("line {line}: {says}")), "{err}");
+    }
+    // builds_dir alone: no output_dir wanted.
+    let builds = demo
+        .replacen("output_dir = \"demo-build\"\n", "", 1)
+        .replacen("[build]\n", "[build]\nbuilds_dir = \"/srv/builds\"\n", 1);
+    let said = check(&builds).stdout_ok();
+    assert!(said.contains("builds in /srv/builds"), "{said}");
 }

@@ -29,7 +29,7 @@ function dd(dl, key, value, cls) {
 function showStatus(s) {
   if (!s) return;
   $("build-name").textContent = s.name || "layerwise";
-  $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "");
+  $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "") + (!s.running && s.last_update ? ", " + s.last_update : "");
   const w = $("warning");
   const alarm = s.alarm && s.alarm.state === "raised"
     ? "ALARM since layer " + s.alarm.layer + ": " + s.alarm.message + " (acknowledge: layerwise alarm ack)"
