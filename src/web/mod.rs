@@ -10,6 +10,7 @@
 //! every 250 ms, then only the appended bytes) and pushes updates to open pages as server-sent
 //! events. Only layer numbers and view names from a request reach the file system.
 
+mod alarm;
 pub mod calibration;
 pub mod listener;
 pub mod preview;

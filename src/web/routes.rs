@@ -51,6 +51,11 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
         .route("/api/calibration", axum::routing::post(calibrate))
         .route("/api/calibration/{stamp}/overlay.png", get(overlay))
         .route("/api/status", get(status))
+        .route("/api/alarm", get(super::alarm::history))
+        .route(
+            "/api/alarm/ack",
+            axum::routing::post(super::alarm::acknowledge),
+        )
         .route("/api/layers", get(layers))
         .route("/api/layers/{layer}", get(layer))
         .route("/api/layers/{layer}/vectors.svg", get(vectors))
@@ -68,7 +73,7 @@ fn page(text: &'static str, kind: &'static str) -> Response {
 }
 
 /// An error answer: its status and what to do, as JSON.
-pub(crate) struct ApiError(StatusCode, String);
+pub(crate) struct ApiError(pub(crate) StatusCode, pub(crate) String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
@@ -597,7 +602,7 @@ fn update_event(shared: &PageState, version: u64) -> Event {
     Event::default().event("update").data(data.to_string())
 }
 
-async fn blocking<T: Send + 'static>(
+pub(super) async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> T + Send + 'static,
 ) -> Result<T, ApiError> {
     tokio::task::spawn_blocking(f).await.map_err(|e| {

@@ -495,3 +495,52 @@ fn config_errors_point_at_the_bad_keys_own_line_and_builds_dir_needs_no_output_d
     let said = check(&builds).stdout_ok();
     assert!(said.contains("builds in /srv/builds"), "{said}");
 }
+
+/// Headless Chromium, two windows on `serve` behind a token (tests/console_browser.py): a link
+/// `#layer=N` opens layer N, next/previous flag step between the flagged layers, the alarm
+/// acknowledged on one page clears the banner of the other within 2 s and shows in the history;
+/// the acknowledgement is the one `alarm show` reads. Screenshots are kept in
+/// target/test-artifacts: console-alarm.png and console-acknowledged.png.
+#[test]
+fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
+    let chromedriver = chromedriver();
+    let tmp = tempfile::tempdir().unwrap();
+    let build = tmp.path().join("build");
+    let (first, second) = (3, 6);
+    let inject = [first, second].map(|l| format!("no-fusion@{l}/part=3"));
+    let config = crate::web::injected_config(&build, 8, &[&inject[0], &inject[1]]);
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    run_build(&config_path);
+    let shown = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(shown.contains("RAISED"), "{shown}");
+    let token = tmp.path().join("token");
+    std::fs::write(&token, "console-token-0123456789\n").unwrap();
+    let (_served, addr) = serve(&build, &["--token-file", token.to_str().unwrap()]);
+    // Without the token the page refuses an acknowledgement.
+    let (code, _) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"mallory"}"#);
+    assert_eq!(code, 401);
+    let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-artifacts");
+    std::fs::create_dir_all(&artifacts).unwrap();
+    let out = std::process::Command::new("python3")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/console_browser.py"))
+        .arg(format!("http://{addr}/?token=console-token-0123456789"))
+        .arg(chromedriver)
+        .arg(&artifacts)
+        .args([first, second].map(|l| l.to_string()))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", report(&out));
+    println!("{}", String::from_utf8_lossy(&out.stdout));
+    let shown = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(
+        shown.contains("acknowledged by ana") && shown.contains("checking part 3"),
+        "{shown}"
+    );
+}

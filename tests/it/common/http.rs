@@ -108,3 +108,11 @@ pub fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
     let (addr, _) = watch_output(child.stdout.take().unwrap());
     (Served(child), addr)
 }
+
+/// Where Debian's chromium-driver put chromedriver (tests/run.sh installs it).
+pub fn chromedriver() -> &'static str {
+    ["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"]
+        .into_iter()
+        .find(|p| Path::new(p).exists())
+        .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)")
+}
