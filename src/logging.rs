@@ -54,6 +54,26 @@ pub fn chain(error: &(dyn std::error::Error + 'static)) -> String {
     Chain(error).to_string()
 }
 
+/// Text from a log or a remote answer as a terminal may print it: control characters (escape
+/// sequences that retitle or clear a terminal) shown escaped; with `lines`, line breaks kept.
+pub fn printable_text(text: &str, lines: bool) -> String {
+    text.chars()
+        .flat_map(|c| {
+            let escaped: Vec<char> = if c.is_control() && !(lines && c == '\n') {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            escaped
+        })
+        .collect()
+}
+
+/// One line of text from a log, as a terminal may print it ([`printable_text`]).
+pub fn printable(text: &str) -> String {
+    printable_text(text, false)
+}
+
 #[cfg(test)]
 mod tests {
     #[derive(Debug, thiserror::Error)]

@@ -109,21 +109,6 @@ impl AlarmState {
     }
 }
 
-/// Text from a log as a terminal may print it: control characters (escape sequences that
-/// retitle or clear a terminal) shown escaped.
-fn printable(text: &str) -> String {
-    text.chars()
-        .flat_map(|c| {
-            let escaped: Vec<char> = if c.is_control() {
-                c.escape_default().collect()
-            } else {
-                vec![c]
-            };
-            escaped
-        })
-        .collect()
-}
-
 impl fmt::Display for AlarmState {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
@@ -137,7 +122,7 @@ impl fmt::Display for AlarmState {
                 f,
                 "RAISED since layer {layer} at {} ({kind}: {}); acknowledge with `layerwise alarm ack --build DIR` or on the page",
                 at.format("%Y-%m-%d %H:%M:%S UTC"),
-                printable(message)
+                crate::logging::printable(message)
             ),
             AlarmState::Acknowledged {
                 layer,
@@ -148,11 +133,11 @@ impl fmt::Display for AlarmState {
                 write!(
                     f,
                     "acknowledged by {} at {} (raised at layer {layer})",
-                    printable(by),
+                    crate::logging::printable(by),
                     at.format("%Y-%m-%d %H:%M:%S UTC")
                 )?;
                 match note {
-                    Some(note) => write!(f, ": {}", printable(note)),
+                    Some(note) => write!(f, ": {}", crate::logging::printable(note)),
                     None => Ok(()),
                 }
             }
@@ -160,7 +145,7 @@ impl fmt::Display for AlarmState {
                 f,
                 "UNKNOWN, treat it as RAISED: {}; look at the newest flags (`layerwise status`, \
                  the page), then keep a copy of {} and repair or remove the damaged line",
-                printable(reason),
+                crate::logging::printable(reason),
                 super::ALARM
             ),
         }

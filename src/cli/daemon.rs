@@ -281,7 +281,11 @@ impl StatusArgs {
         if self.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
-            print!("{report}");
+            // PACS answers, alarm notes and reasons reach the terminal escaped.
+            print!(
+                "{}",
+                layerwise::logging::printable_text(&report.to_string(), true)
+            );
         }
         if !report.damaged.is_empty() {
             anyhow::bail!(

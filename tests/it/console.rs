@@ -307,12 +307,21 @@ fn push_forget_drops_a_mistaken_destination_from_status() {
     for name in ["orthanc-typo", url_name.as_str()] {
         let (mut log, _) = PushLog::open(&log_path(&build, name)).unwrap();
         log.append(&PushRecord::Error {
-            message: "connection refused".into(),
+            // An archive's answer that would retitle and clear the operator's terminal.
+            message: "connection refused\u{1b}]0;pwned\u{7}\u{1b}[2J".into(),
             at: chrono::Utc::now(),
         })
         .unwrap();
     }
     let before = status_text(&build);
+    assert!(
+        !before.contains('\u{1b}') && !before.contains('\u{7}'),
+        "{before:?}"
+    );
+    assert!(
+        before.contains("connection refused\\u{1b}]0;pwned"),
+        "{before}"
+    );
     assert!(
         before.contains("pacs       orthanc-typo: 0 pushed, 12 pending"),
         "{before}"
