@@ -73,7 +73,7 @@ fn page(text: &'static str, kind: &'static str) -> Response {
 }
 
 /// An error answer: its status and what to do, as JSON.
-pub(crate) struct ApiError(pub(crate) StatusCode, pub(crate) String);
+pub(crate) struct ApiError(StatusCode, String);
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
@@ -602,7 +602,7 @@ fn update_event(shared: &PageState, version: u64) -> Event {
     Event::default().event("update").data(data.to_string())
 }
 
-pub(super) async fn blocking<T: Send + 'static>(
+async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> T + Send + 'static,
 ) -> Result<T, ApiError> {
     tokio::task::spawn_blocking(f).await.map_err(|e| {
