@@ -376,21 +376,42 @@ pub fn read_text_bounded(path: &Path, max_bytes: u64) -> std::io::Result<String>
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, NotUtf8(e)))
 }
 
-/// Parses TOML text into `T`; the error names the file, the line and column, and the key.
+/// Parses TOML text into `T`; the error names the file, the line and column, and the key. The
+/// place is the bad key's own line where the document says where it is (an unknown key, a value
+/// of the wrong type inside a table the parser reports as a whole), else the parser's.
 pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, file: &Path) -> Result<T, TomlError> {
     let deserializer = toml::Deserializer::new(text);
     serde_path_to_error::deserialize(deserializer).map_err(|err| {
         let key = err.path().to_string();
         let inner = err.into_inner();
         let message = inner.message().trim().to_string();
-        let place = match inner.span() {
-            Some(span) => {
+        let key = if key == "." || key.is_empty() {
+            String::new()
+        } else {
+            key
+        };
+        // "unknown field `isoo`, expected …": the key is one level below the path.
+        let unknown = message
+            .strip_prefix("unknown field `")
+            .and_then(|rest| rest.split_once('`'))
+            .map(|(field, _)| field);
+        let own_line = match unknown {
+            Some(field) if key.is_empty() => key_line(text, field),
+            Some(field) => key_line(text, &format!("{key}.{field}")),
+            None if key.is_empty() => None,
+            // A table read whole (a section chosen by its `kind`) names only the table: the value
+            // the parser quotes is on the line looked for.
+            None => key_line(text, &key).or_else(|| quoted_value_line(text, &key, &message)),
+        };
+        let place = match (own_line, inner.span()) {
+            (Some(line), _) => format!("line {line}: "),
+            (None, Some(span)) => {
                 let (line, column) = line_column(text, span.start);
                 format!("line {line}, column {column}: ")
             }
-            None => String::new(),
+            (None, None) => String::new(),
         };
-        let key = if key == "." || key.is_empty() {
+        let key = if key.is_empty() {
             String::new()
         } else {
             format!("key `{key}`: ")
@@ -400,6 +421,133 @@ pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, file: &Path) -> Re
             message: format!("{place}{key}{message}"),
         }
     })
+}
+
+/// A TOML document as a tree of where its values are (byte spans), to find a key's line.
+enum SpanNode {
+    Table(std::collections::BTreeMap<String, toml::Spanned<SpanNode>>),
+    Array(Vec<toml::Spanned<SpanNode>>),
+    Leaf,
+}
+
+impl<'de> serde::Deserialize<'de> for SpanNode {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visit;
+        impl<'de> serde::de::Visitor<'de> for Visit {
+            type Value = SpanNode;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a TOML value")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<SpanNode, A::Error> {
+                let mut table = std::collections::BTreeMap::new();
+                while let Some((key, value)) =
+                    map.next_entry::<String, toml::Spanned<SpanNode>>()?
+                {
+                    table.insert(key, value);
+                }
+                Ok(SpanNode::Table(table))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<SpanNode, A::Error> {
+                let mut items = Vec::new();
+                while let Some(item) = seq.next_element::<toml::Spanned<SpanNode>>()? {
+                    items.push(item);
+                }
+                Ok(SpanNode::Array(items))
+            }
+            fn visit_bool<E>(self, _: bool) -> Result<SpanNode, E> {
+                Ok(SpanNode::Leaf)
+            }
+            fn visit_i64<E>(self, _: i64) -> Result<SpanNode, E> {
+                Ok(SpanNode::Leaf)
+            }
+            fn visit_u64<E>(self, _: u64) -> Result<SpanNode, E> {
+                Ok(SpanNode::Leaf)
+            }
+            fn visit_f64<E>(self, _: f64) -> Result<SpanNode, E> {
+                Ok(SpanNode::Leaf)
+            }
+            fn visit_str<E>(self, _: &str) -> Result<SpanNode, E> {
+                Ok(SpanNode::Leaf)
+            }
+        }
+        deserializer.deserialize_any(Visit)
+    }
+}
+
+/// The line, in the table `table` of `text`, of the value a type error quotes (`invalid type:
+/// string "seven", expected u64`, `invalid value: integer `-3``), when exactly one key of the
+/// table holds it.
+fn quoted_value_line(text: &str, table: &str, message: &str) -> Option<usize> {
+    let rest = message
+        .strip_prefix("invalid type: ")
+        .or_else(|| message.strip_prefix("invalid value: "))?;
+    let (_, quoted) = rest.split_once(' ')?;
+    let literal = match quoted.chars().next()? {
+        '"' => &quoted[..quoted[1..].find('"')? + 2],
+        '`' => &quoted[1..quoted[1..].find('`')? + 1],
+        _ => return None,
+    };
+    let root = toml::from_str::<SpanNode>(text).ok()?;
+    let mut node = &root;
+    for name in table.split('.') {
+        let SpanNode::Table(t) = node else {
+            return None;
+        };
+        node = t.get(name)?.get_ref();
+    }
+    let SpanNode::Table(t) = node else {
+        return None;
+    };
+    let mut lines = t.values().filter_map(|v| {
+        let span = v.span();
+        (matches!(v.get_ref(), SpanNode::Leaf) && text.get(span.clone())?.trim() == literal)
+            .then(|| line_column(text, span.start).0)
+    });
+    match (lines.next(), lines.next()) {
+        (Some(line), None) => Some(line),
+        _ => None,
+    }
+}
+
+/// The 1-based line of the value of `key` in TOML `text` (`section.field`, `pacs[1].url`, as
+/// configuration errors name keys); `None` when the text does not hold it, or for a whole table
+/// (its header is not its own line).
+pub fn key_line(text: &str, key: &str) -> Option<usize> {
+    let SpanNode::Table(root) = toml::from_str::<SpanNode>(text).ok()? else {
+        return None;
+    };
+    let mut table = Some(&root);
+    let mut found: Option<&toml::Spanned<SpanNode>> = None;
+    for segment in key.split('.') {
+        let (name, indices) = match segment.find('[') {
+            Some(i) => (&segment[..i], &segment[i..]),
+            None => (segment, ""),
+        };
+        let mut node = table?.get(name)?;
+        for index in indices.split('[').filter(|i| !i.is_empty()) {
+            let i: usize = index.strip_suffix(']')?.parse().ok()?;
+            let SpanNode::Array(items) = node.get_ref() else {
+                return None;
+            };
+            node = items.get(i)?;
+        }
+        found = Some(node);
+        table = match node.get_ref() {
+            SpanNode::Table(inner) => Some(inner),
+            _ => None,
+        };
+    }
+    let node = found?;
+    if matches!(node.get_ref(), SpanNode::Table(_)) {
+        return None;
+    }
+    Some(line_column(text, node.span().start).0)
 }
 
 /// 1-based line and column of byte `offset` in `text`.
@@ -446,6 +594,73 @@ pub fn is_disk_full(error: &std::io::Error) -> bool {
         error.raw_os_error(),
         Some(libc::ENOSPC) | Some(libc::EDQUOT)
     )
+}
+
+#[cfg(test)]
+mod toml_place_tests {
+    use super::*;
+
+    #[derive(Debug, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Camera {
+        iso: u32,
+        seed: u64,
+    }
+
+    #[derive(Debug, serde::Deserialize)]
+    #[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+    #[allow(dead_code)]
+    enum Kind {
+        Mock { seed: u64 },
+    }
+
+    #[derive(Debug, serde::Deserialize)]
+    #[allow(dead_code)]
+    struct Doc {
+        camera: Camera,
+        trigger: Kind,
+        pacs: Vec<Camera>,
+    }
+
+    const TEXT: &str = "# a comment\n[camera]\niso = 100\nseed = 7\n\n[trigger]\nkind = \"mock\"\n\
+                        seed = 3\n\n[[pacs]]\niso = 1\nseed = 2\n\n[[pacs]]\niso = 5\nseed = 6\n";
+
+    fn error(text: &str) -> String {
+        parse_toml::<Doc>(text, Path::new("t.toml"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn errors_point_at_the_bad_keys_own_line() {
+        assert_eq!(key_line(TEXT, "camera.seed"), Some(4));
+        assert_eq!(key_line(TEXT, "pacs[1].seed"), Some(16));
+        assert_eq!(
+            key_line(TEXT, "camera"),
+            None,
+            "a table has no line of its own"
+        );
+        assert_eq!(key_line(TEXT, "camera.seed.deeper"), None);
+        assert_eq!(key_line(TEXT, "nowhere"), None);
+        let unknown = error(&TEXT.replace("seed = 7\n", "seed = 7\nisoo = 1\n"));
+        assert!(
+            unknown.starts_with("t.toml: line 5") && unknown.contains("unknown field `isoo`"),
+            "{unknown}"
+        );
+        let unknown_in_tagged = error(&TEXT.replace("seed = 3\n", "seed = 3\nsede = 4\n"));
+        assert!(
+            unknown_in_tagged.starts_with("t.toml: line 9: key `trigger`: unknown field `sede`"),
+            "{unknown_in_tagged}"
+        );
+        let tagged = error(&TEXT.replace("seed = 3", "seed = \"three\""));
+        assert!(
+            tagged.starts_with("t.toml: line 8: key `trigger`: invalid type"),
+            "{tagged}"
+        );
+        let typed = error(&TEXT.replace("seed = 6", "seed = \"six\""));
+        assert!(typed.starts_with("t.toml: line 16"), "{typed}");
+    }
 }
 
 #[cfg(test)]

@@ -99,6 +99,15 @@ pub fn escape(text: &str) -> String {
     Escaped(text).to_string()
 }
 
+/// Text from a log or a remote answer as a terminal may print it: every [`is_hidden_char`]
+/// written out as [`Escaped`] does; with `lines`, line breaks kept.
+pub fn printable_text(text: &str, lines: bool) -> String {
+    if !lines {
+        return escape(text);
+    }
+    text.split('\n').map(escape).collect::<Vec<_>>().join("\n")
+}
+
 #[cfg(test)]
 mod tests {
     #[derive(Debug, thiserror::Error)]

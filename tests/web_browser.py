@@ -12,12 +12,14 @@ screenshot of the flagged layer is kept in FLAG_PNG.
 """
 import base64
 import json
+import os
 import re
-import socket
-import subprocess
 import sys
 import time
-import urllib.request
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import webdriver  # noqa: E402
+from webdriver import start  # noqa: E402
 
 page, chromedriver, screenshot = sys.argv[1:4]
 flagged = None
@@ -28,36 +30,11 @@ if len(sys.argv) > 4:
     flagged = True
 
 
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-port = free_port()
-driver = subprocess.Popen([chromedriver, f"--port={port}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-base = f"http://127.0.0.1:{port}"
-
-
-def call(method, path, body=None):
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(base + path, data=data, method=method, headers={"Content-Type": "application/json"})
-    try:
-        with urllib.request.urlopen(request, timeout=60) as r:
-            return json.loads(r.read())["value"]
-    except urllib.error.HTTPError as e:
-        raise RuntimeError(f"{method} {path}: {e.code} {e.read()[:500]!r}") from None
+driver, call = start(chromedriver)
 
 
 def wait_for(what, check, timeout=30.0):
-    deadline = time.time() + timeout
-    while True:
-        value = check()
-        if value:
-            return value
-        if time.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}{diagnosis()}")
-        time.sleep(0.1)
+    return webdriver.wait_for(what, check, timeout, diagnosis)
 
 
 def diagnosis():
@@ -72,12 +49,6 @@ def diagnosis():
         return f" ({e})"
 
 
-for _ in range(100):
-    try:
-        urllib.request.urlopen(base + "/status", timeout=1)
-        break
-    except OSError:
-        time.sleep(0.1)
 
 session = None
 try:

@@ -2,7 +2,7 @@
 //! status` and systemd's STATUS= show it: a state, one line on what it does, and the warning an
 //! operator must act on.
 
-use crate::build_dir::status::{DiskHealth, Health, HealthState, TriggerHealth};
+use crate::build_dir::status::{CameraReport, DiskHealth, Health, HealthState, TriggerHealth};
 use crate::shot::Shot;
 use chrono::{DateTime, Utc};
 use std::collections::BTreeMap;
@@ -27,15 +27,6 @@ pub(super) struct Processing {
     pub(super) paused: bool,
 }
 
-fn age(now: DateTime<Utc>, at: DateTime<Utc>) -> String {
-    let seconds = (now - at).num_seconds().max(0);
-    match seconds {
-        0..=119 => format!("{seconds} s ago"),
-        120..=7199 => format!("{} min ago", seconds / 60),
-        _ => format!("{} h ago", seconds / 3600),
-    }
-}
-
 impl Parts {
     pub(super) fn captured(&mut self, at: DateTime<Utc>, attempts: u32) {
         self.last_capture = Some(at);
@@ -57,14 +48,18 @@ impl Parts {
         self.lights_error = Some(crate::logging::chain(error));
     }
 
+    /// What the camera did this run, for status.json (readers make its summary when they show
+    /// it).
+    pub(super) fn camera_report(&self) -> CameraReport {
+        CameraReport {
+            last_capture_at: self.last_capture,
+            retries: self.retries,
+            failed: self.failed,
+        }
+    }
+
     fn camera(&self, now: DateTime<Utc>) -> Health {
-        let summary = format!(
-            "last capture {}, {} retries, {} failed this run",
-            self.last_capture
-                .map_or_else(|| "none yet".into(), |at| age(now, at)),
-            self.retries,
-            self.failed
-        );
+        let summary = self.camera_report().summary(now);
         match &self.camera_error {
             Some((shot, error)) => Health::raise(
                 HealthState::Error,
@@ -99,36 +94,12 @@ impl Parts {
         disk: &DiskHealth,
     ) -> BTreeMap<String, Health> {
         BTreeMap::from([
-            ("trigger".to_string(), trigger_health(trigger, now)),
+            ("trigger".to_string(), trigger.health(now)),
             ("camera".to_string(), self.camera(now)),
             ("lights".to_string(), self.lights()),
             ("processing".to_string(), processing_health(processing)),
             ("disk".to_string(), disk.health()),
         ])
-    }
-}
-
-fn trigger_health(trigger: &TriggerHealth, now: DateTime<Utc>) -> Health {
-    let summary = format!(
-        "{} {}, last signal {}{}",
-        trigger.source,
-        if trigger.connected {
-            "connected"
-        } else {
-            "NOT CONNECTED"
-        },
-        trigger
-            .last_signal_at
-            .map_or_else(|| "none yet".into(), |at| age(now, at)),
-        if trigger.reopen_attempts > 0 {
-            format!(", {} reopen attempts", trigger.reopen_attempts)
-        } else {
-            String::new()
-        }
-    );
-    match trigger.warning() {
-        Some(warning) => Health::raise(HealthState::Error, summary, warning),
-        None => Health::ok(summary),
     }
 }
 

@@ -327,6 +327,7 @@ impl Recorder {
         };
         let trigger = self.live.trigger.clone().unwrap_or_default();
         self.live.health = parts.health(clock.now(), &trigger, &processing, &disk);
+        self.live.camera = Some(parts.camera_report());
         self.live.disk = Some(disk);
         if let Err(e) = self.live.write(self.storage.root()) {
             warn!(error = %Chain(&e), "status: cannot write status.json");

@@ -4,12 +4,12 @@
 //! `layerwise status` shows the state the history ends in.
 
 use super::inspection::{FlagKind, Severity};
-use super::lines::LinesLog;
+use super::lines::{JournalError, LinesLog};
 use crate::logging::Escaped;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// One change of the alarm.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -55,6 +55,9 @@ pub enum AlarmState {
         at: DateTime<Utc>,
         note: Option<String>,
     },
+    /// alarm.jsonl cannot be read (a damaged line): the alarm may be raised, and is shown as if
+    /// it were.
+    Unreadable { reason: String },
 }
 
 impl AlarmState {
@@ -97,6 +100,14 @@ impl AlarmState {
     pub fn is_raised(&self) -> bool {
         matches!(self, AlarmState::Raised { .. })
     }
+
+    /// Whether an operator must look: raised, or its history cannot be read.
+    pub fn needs_attention(&self) -> bool {
+        matches!(
+            self,
+            AlarmState::Raised { .. } | AlarmState::Unreadable { .. }
+        )
+    }
 }
 
 impl fmt::Display for AlarmState {
@@ -110,7 +121,7 @@ impl fmt::Display for AlarmState {
                 message,
             } => write!(
                 f,
-                "RAISED since layer {layer} at {} ({kind}: {}); acknowledge with `layerwise alarm ack --build DIR`",
+                "RAISED since layer {layer} at {} ({kind}: {}); acknowledge with `layerwise alarm ack --build DIR` or on the page",
                 at.format("%Y-%m-%d %H:%M:%S UTC"),
                 Escaped(message)
             ),
@@ -133,6 +144,13 @@ impl fmt::Display for AlarmState {
                     None => Ok(()),
                 }
             }
+            AlarmState::Unreadable { reason } => write!(
+                f,
+                "UNKNOWN, treat it as RAISED: {}; look at the newest flags (`layerwise status`, \
+                 the page), then keep a copy of {} and repair or remove the damaged line",
+                Escaped(reason),
+                super::ALARM
+            ),
         }
     }
 }
@@ -140,10 +158,106 @@ impl fmt::Display for AlarmState {
 /// The alarm history of a build, open for appending.
 pub type AlarmLog = LinesLog<AlarmEvent>;
 
-/// The alarm state of a build (`None` when it never had an alarm history).
+/// The alarm state of a build (`None` when it never had an alarm history); a history that
+/// cannot be read is [`AlarmState::Unreadable`], never "no alarm".
 pub fn state(dir: &Path) -> Option<AlarmState> {
-    let events = AlarmLog::read(&dir.join(super::ALARM)).ok()?;
-    (!events.is_empty()).then(|| AlarmState::replay(&events))
+    match history(dir) {
+        Ok(events) => (!events.is_empty()).then(|| AlarmState::replay(&events)),
+        Err(e) => Some(AlarmState::Unreadable {
+            reason: unreadable_reason(&e),
+        }),
+    }
+}
+
+/// The alarm history of a build, oldest first (empty when it never had one).
+pub fn history(dir: &Path) -> Result<Vec<AlarmEvent>, JournalError> {
+    AlarmLog::read(&dir.join(super::ALARM))
+}
+
+/// Why the history cannot be read, in a few words (the journal's repair advice does not fit).
+fn unreadable_reason(error: &JournalError) -> String {
+    match error {
+        JournalError::Corrupt {
+            path, line, source, ..
+        } => format!("{} line {line} is damaged ({source})", path.display()),
+        other => crate::logging::chain(other),
+    }
+}
+
+/// Longest name of who acknowledges, and note, in characters.
+pub const MAX_BY_CHARS: usize = 64;
+pub const MAX_NOTE_CHARS: usize = 1000;
+
+/// Why an acknowledgement was not recorded.
+#[derive(Debug, thiserror::Error)]
+pub enum AckError {
+    #[error(transparent)]
+    NotABuild(#[from] super::NotABuild),
+    #[error("{}: the alarm is not raised (it is {state}); nothing to acknowledge", dir.display())]
+    NotRaised { dir: PathBuf, state: AlarmState },
+    #[error("{field} {problem}")]
+    Invalid {
+        field: &'static str,
+        problem: &'static str,
+    },
+    #[error("cannot record the acknowledgement")]
+    Log(#[source] JournalError),
+}
+
+/// Records that `by` acknowledged the raised alarm of the build `dir` at `at` (with what was
+/// checked or decided, `note`): the running daemon switches the stack light off; the next flag
+/// at the alarm's severity raises it again. Refused when `dir` is not a build, when the alarm is
+/// not raised (or its history cannot be read), and for a name or note with control characters
+/// or beyond [`MAX_BY_CHARS`] / [`MAX_NOTE_CHARS`]. Returns the state after it.
+pub fn acknowledge(
+    dir: &Path,
+    by: &str,
+    note: Option<&str>,
+    at: DateTime<Utc>,
+) -> Result<AlarmState, AckError> {
+    super::require_build(dir)?;
+    let by = by.trim();
+    let note = note.map(str::trim).filter(|n| !n.is_empty());
+    let invalid = |field, problem| Err(AckError::Invalid { field, problem });
+    if by.is_empty() {
+        return invalid("by", "is empty: say who acknowledges");
+    }
+    if by.chars().count() > MAX_BY_CHARS {
+        return invalid("by", "is longer than 64 characters");
+    }
+    if note.is_some_and(|n| n.chars().count() > MAX_NOTE_CHARS) {
+        return invalid("note", "is longer than 1000 characters");
+    }
+    if by
+        .chars()
+        .chain(note.unwrap_or_default().chars())
+        .any(crate::logging::is_hidden_char)
+    {
+        return invalid(
+            "by or note",
+            "holds control or bidirectional characters (one line of plain text)",
+        );
+    }
+    let path = dir.join(super::ALARM);
+    let events = AlarmLog::read(&path).map_err(AckError::Log)?;
+    let state = AlarmState::replay(&events);
+    if !state.is_raised() {
+        return Err(AckError::NotRaised {
+            dir: dir.to_path_buf(),
+            state,
+        });
+    }
+    let ack = AlarmEvent::Acknowledged {
+        at,
+        by: by.to_string(),
+        note: note.map(str::to_string),
+    };
+    AlarmLog::append_only(&path)
+        .and_then(|mut log| log.append(&ack))
+        .map_err(AckError::Log)?;
+    let mut events = events;
+    events.push(ack);
+    Ok(AlarmState::replay(&events))
 }
 
 #[cfg(test)]
@@ -202,5 +316,55 @@ mod tests {
             layer: 10,
         });
         assert_eq!(AlarmState::replay(&cleared), AlarmState::Off);
+    }
+
+    #[test]
+    fn acknowledge_checks_the_build_the_state_and_the_text_and_a_damaged_log_is_unknown() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = acknowledge(dir.path(), "ana", None, at(1)).unwrap_err();
+        assert!(matches!(err, AckError::NotABuild(_)), "{err}");
+        std::fs::write(dir.path().join(crate::build_dir::JOURNAL), "").unwrap();
+        let err = acknowledge(dir.path(), "ana", None, at(1)).unwrap_err();
+        assert!(err.to_string().contains("not raised (it is off)"), "{err}");
+        let path = dir.path().join(crate::build_dir::ALARM);
+        AlarmLog::append_only(&path)
+            .unwrap()
+            .append(&raised(4))
+            .unwrap();
+        for (by, note) in [("", None), ("a\u{1b}[2J", None), ("ana", Some("x\u{7}"))] {
+            let err = acknowledge(dir.path(), by, note, at(2)).unwrap_err();
+            assert!(matches!(err, AckError::Invalid { .. }), "{err}");
+        }
+        let now = acknowledge(dir.path(), " ana ", Some("  checked  "), at(3)).unwrap();
+        assert_eq!(
+            now,
+            AlarmState::Acknowledged {
+                layer: 4,
+                by: "ana".into(),
+                at: at(3),
+                note: Some("checked".into())
+            }
+        );
+        // Damage before the last line: the state is unknown, shown as raised.
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(&path, format!("{{oops\n{text}")).unwrap();
+        let state = state(dir.path()).unwrap();
+        assert!(state.needs_attention() && !state.is_raised(), "{state}");
+        assert!(
+            state
+                .to_string()
+                .starts_with("UNKNOWN, treat it as RAISED: ")
+                && state.to_string().contains("line 1 is damaged"),
+            "{state}"
+        );
+        // Text from the log is printed with its control characters escaped.
+        let shown = AlarmState::Acknowledged {
+            layer: 1,
+            by: "x\u{1b}]0;t\u{7}".into(),
+            at: at(0),
+            note: None,
+        }
+        .to_string();
+        assert!(shown.contains("x\\u{1b}]0;t\\u{7}"), "{shown}");
     }
 }

@@ -202,10 +202,9 @@ pub type InspectionLog = LinesLog<InspectionRecord>;
 
 /// Flags at warning or above of a build, oldest first: `L00142 streak (warning): …`; a flag that
 /// persists over layers is listed once, on its first layer, with the last layer it was seen on.
-pub fn open_flags(dir: &Path) -> Vec<String> {
-    let Ok(records) = InspectionLog::read(&dir.join(super::INSPECTION)) else {
-        return Vec::new();
-    };
+/// A log that cannot be read is an error, never "no flags".
+pub fn open_flags(dir: &Path) -> Result<Vec<String>, super::lines::JournalError> {
+    let records = InspectionLog::read(&dir.join(super::INSPECTION))?;
     // (first layer, kind, view, message) → the last layer it was seen on.
     let mut flags: Vec<(u32, &Flag, u32)> = Vec::new();
     for r in &records {
@@ -222,7 +221,7 @@ pub fn open_flags(dir: &Path) -> Vec<String> {
             }
         }
     }
-    flags
+    Ok(flags
         .into_iter()
         .map(|(layer, f, last)| {
             let span = if last > layer {
@@ -235,7 +234,7 @@ pub fn open_flags(dir: &Path) -> Vec<String> {
                 f.kind, f.severity, f.message
             )
         })
-        .collect()
+        .collect())
 }
 
 #[cfg(test)]
@@ -299,7 +298,7 @@ pub(crate) mod tests {
         let (_, back) = InspectionLog::open(&path, false).unwrap();
         assert_eq!(back, vec![record(1), record(2)]);
         assert!(std::fs::read_to_string(&path).unwrap().ends_with("}\n"));
-        let flags = open_flags(dir.path());
+        let flags = open_flags(dir.path()).unwrap();
         assert_eq!(flags.len(), 2);
         assert!(flags[1].starts_with("L00002 streak (warning)"), "{flags:?}");
     }

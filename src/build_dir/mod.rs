@@ -3,6 +3,7 @@
 //! export, locate and registration read it.
 
 pub mod alarm;
+pub mod health;
 pub mod inspection;
 pub mod journal;
 pub mod lifecycle;
@@ -56,6 +57,26 @@ pub fn read_record_file(path: &Path) -> std::io::Result<Vec<u8>> {
         crate::fsutil::open_regular_nofollow(path)?,
         MAX_RECORD_BYTES,
     )
+}
+
+/// A folder that is not a build directory where one is expected.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "{}: not a layerwise build directory (no {JOURNAL}); pass the build's folder (the daemon's \
+     build.output_dir, or a folder under [build] builds_dir)",
+    .0.display()
+)]
+pub struct NotABuild(pub PathBuf);
+
+/// Whether `dir` is a build directory (it holds the journal): every command that reads or
+/// writes a build's own files asks first, so a mistyped folder is an error, never "nothing
+/// there".
+pub fn require_build(dir: &Path) -> Result<(), NotABuild> {
+    if dir.join(JOURNAL).is_file() {
+        Ok(())
+    } else {
+        Err(NotABuild(dir.to_path_buf()))
+    }
 }
 
 /// The series folder of a view: `dicom/<phase>_<light>/` (docs/frames.md).

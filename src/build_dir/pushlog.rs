@@ -239,19 +239,10 @@ pub struct PushSummary {
 
 /// The summary of every push log under `root` (one per destination ever pushed to).
 pub fn summaries(root: &Path) -> Vec<PushSummary> {
-    let Ok(entries) = std::fs::read_dir(root.join(PACS_DIR)) else {
+    let names = log_names(root);
+    if names.is_empty() {
         return Vec::new();
-    };
-    let mut names: Vec<String> = entries
-        .flatten()
-        .filter_map(|e| {
-            e.file_name()
-                .to_str()
-                .and_then(|n| n.strip_suffix(".jsonl"))
-                .map(str::to_string)
-        })
-        .collect();
-    names.sort();
+    }
     let files = instances(root);
     names
         .into_iter()
@@ -301,6 +292,41 @@ impl std::fmt::Display for PushSummary {
         }
         Ok(())
     }
+}
+
+/// The destinations `root` has push logs for (`pacs/<name>.jsonl`), sorted.
+pub fn log_names(root: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(root.join(PACS_DIR)) else {
+        return Vec::new();
+    };
+    let mut names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .filter_map(|e| {
+            e.file_name()
+                .to_str()
+                .and_then(|n| n.strip_suffix(".jsonl"))
+                .map(str::to_string)
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+/// Where forgotten push logs are kept: `pacs/forgotten/`, out of `status` and of the queue.
+pub const FORGOTTEN_DIR: &str = "forgotten";
+
+/// Forgets the destination `name` of `root` (a mistaken archive, one retired): its push log
+/// moves to `pacs/forgotten/<name>-<time>.jsonl`, so `status` no longer counts its pending
+/// instances and nothing in it is lost. Returns where the log went.
+pub fn forget(root: &Path, name: &str, at: DateTime<Utc>) -> Result<PathBuf, PushLogError> {
+    let from = log_path(root, name);
+    let dir = root.join(PACS_DIR).join(FORGOTTEN_DIR);
+    let to = dir.join(format!("{name}-{}.jsonl", at.format("%Y%m%dT%H%M%SZ")));
+    std::fs::create_dir_all(&dir)
+        .and_then(|()| std::fs::rename(&from, &to))
+        .map_err(|source| PushLogError { path: from, source })?;
+    Ok(to)
 }
 
 #[cfg(test)]
@@ -357,6 +383,12 @@ mod tests {
         assert_eq!(all.len(), 1);
         assert_eq!((all[0].pushed, all[0].pending, all[0].failed), (2, 0, 1));
         assert_eq!(instances(root).len(), 3, "{:?}", instances(root));
+        // A forgotten destination leaves status, its log kept aside.
+        let kept = forget(root, "orthanc", Utc::now()).unwrap();
+        assert!(kept.is_file() && summaries(root).is_empty());
+        assert_eq!(instances(root).len(), 3);
+        assert!(forget(root, "orthanc", Utc::now()).is_err(), "nothing left");
+        let path = kept;
         // The torn line was cut, so every line of the log parses.
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text

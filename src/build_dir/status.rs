@@ -1,6 +1,7 @@
 //! What the daemon tells operators: `status.json`, rewritten after every frame, and the report
 //! `layerwise status` makes of a build directory.
 
+use super::health::{mb, Seen, Written as WrittenHealth};
 use super::journal::Journal;
 use super::manifest::BuildManifest;
 use super::{JOURNAL, MANIFEST, STATUS};
@@ -12,192 +13,16 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+pub use super::health::{
+    age, health_line, when, CameraReport, DiskHealth, DiskState, Health, HealthState,
+    TriggerHealth, HEALTH_PARTS,
+};
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LastFrame {
     pub layer: u32,
     pub file: String,
     pub at: DateTime<Utc>,
-}
-
-/// How the printer's layer signal reaches the daemon, as status.json reports it.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct TriggerHealth {
-    /// What the signal comes from, e.g. `serial /dev/ttyUSB0`.
-    pub source: String,
-    pub connected: bool,
-    /// When `connected` last changed.
-    pub since: Option<DateTime<Utc>>,
-    /// Failed attempts to open the source since it was last connected.
-    pub reopen_attempts: u64,
-    /// The last failure, with what to check.
-    pub last_error: Option<String>,
-    /// When the last layer signal arrived.
-    pub last_signal_at: Option<DateTime<Utc>>,
-}
-
-impl TriggerHealth {
-    /// What an operator must act on, if anything.
-    pub fn warning(&self) -> Option<String> {
-        (!self.connected).then(|| {
-            format!(
-                "trigger {} not connected{}{}: {}",
-                self.source,
-                self.since
-                    .map(|t| format!(" since {}", t.format("%Y-%m-%d %H:%M:%S UTC")))
-                    .unwrap_or_default(),
-                if self.reopen_attempts > 0 {
-                    format!(" ({} attempts to reopen)", self.reopen_attempts)
-                } else {
-                    String::new()
-                },
-                self.last_error.as_deref().unwrap_or("no signal can arrive")
-            )
-        })
-    }
-}
-
-/// How a part of the machine is doing, as status.json, `layerwise status` and systemd show it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum HealthState {
-    #[default]
-    Ok,
-    Warning,
-    Error,
-}
-
-impl fmt::Display for HealthState {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            HealthState::Ok => "ok",
-            HealthState::Warning => "WARNING",
-            HealthState::Error => "ERROR",
-        })
-    }
-}
-
-/// One part's health: its state, one line on what it does, and what an operator must act on.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Health {
-    pub state: HealthState,
-    pub summary: String,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub warning: Option<String>,
-}
-
-impl Health {
-    pub fn ok(summary: String) -> Health {
-        Health {
-            state: HealthState::Ok,
-            summary,
-            warning: None,
-        }
-    }
-
-    /// A state other than ok, with the warning that goes with it.
-    pub fn raise(state: HealthState, summary: String, warning: String) -> Health {
-        Health {
-            state,
-            summary,
-            warning: Some(warning),
-        }
-    }
-}
-
-/// The parts in the order an operator reads them.
-pub const HEALTH_PARTS: [&str; 5] = ["trigger", "camera", "lights", "processing", "disk"];
-
-/// One line for systemd's STATUS= and the log: the parts not ok with their warnings, or that all
-/// are ok.
-pub fn health_line(health: &BTreeMap<String, Health>) -> String {
-    let raised: Vec<String> = HEALTH_PARTS
-        .iter()
-        .filter_map(|part| health.get(*part).map(|h| (part, h)))
-        .filter(|(_, h)| h.state != HealthState::Ok)
-        .map(|(part, h)| {
-            format!(
-                "{part} {}: {}",
-                h.state,
-                h.warning.as_deref().unwrap_or(&h.summary)
-            )
-        })
-        .collect();
-    if raised.is_empty() {
-        "all parts ok".to_string()
-    } else {
-        raised.join("; ")
-    }
-}
-
-/// Where the build directory's disk stands for the daemon.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum DiskState {
-    /// Above `storage.min_free_gb`: everything is written.
-    #[default]
-    Ok,
-    /// Below `storage.min_free_gb`: originals are captured, derived data (DICOM series,
-    /// inspection) waits and is caught up once space returns.
-    Low,
-    /// An original could not be written: frames are recorded as missing until space returns.
-    Full,
-}
-
-/// The disk as the daemon sees it (status.json `disk`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct DiskHealth {
-    pub state: DiskState,
-    pub free_bytes: Option<u64>,
-    /// `storage.min_free_gb` in bytes.
-    pub min_free_bytes: u64,
-    /// Free space the daemon waits for after the disk filled.
-    pub need_bytes: u64,
-    /// When the state last changed.
-    pub since: Option<DateTime<Utc>>,
-    /// Frames not captured because the disk was full (this run).
-    pub frames_missed: u64,
-    /// Whether the derived data (DICOM series, inspection) waits for space.
-    pub derived_paused: bool,
-    /// Journal records held in memory until space returns.
-    pub journal_held: usize,
-}
-
-/// A size as an operator reads it: MB below 10 GB, GB above.
-fn mb(bytes: u64) -> String {
-    if bytes >= 10_000_000_000 {
-        format!("{:.1} GB", bytes as f64 / 1e9)
-    } else {
-        format!("{:.1} MB", bytes as f64 / 1e6)
-    }
-}
-
-impl DiskHealth {
-    pub fn health(&self) -> Health {
-        let free = self.free_bytes.map_or_else(|| "? MB".into(), mb);
-        match self.state {
-            DiskState::Ok => Health::ok(format!("{free} free")),
-            DiskState::Low => Health::raise(
-                HealthState::Warning,
-                format!("{free} free, below storage.min_free_gb"),
-                format!(
-                    "disk low: {free} free, below storage.min_free_gb ({}): DICOM series and \
-                     inspection paused (caught up once space returns), originals still \
-                     captured; free space on the build disk",
-                    mb(self.min_free_bytes)
-                ),
-            ),
-            DiskState::Full => Health::raise(
-                HealthState::Error,
-                format!("full, {} frames missed", self.frames_missed),
-                format!(
-                    "waiting for disk space: {free} free, need {}; {} frames missed so far; \
-                     free space on the build disk now",
-                    mb(self.need_bytes),
-                    self.frames_missed
-                ),
-            ),
-        }
-    }
 }
 
 /// The daemon's live state, rewritten atomically after every frame.
@@ -219,6 +44,9 @@ pub struct LiveStatus {
     /// Each part's health: trigger, camera, lights, processing, disk.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub health: BTreeMap<String, Health>,
+    /// What the camera did this run (absent in status files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraReport>,
 }
 
 impl LiveStatus {
@@ -234,8 +62,8 @@ impl LiveStatus {
 
 #[derive(Debug, thiserror::Error)]
 pub enum StatusError {
-    #[error("{0}: not a layerwise build directory (no {JOURNAL}); pass the build's output_dir")]
-    NotABuild(PathBuf),
+    #[error(transparent)]
+    NotABuild(#[from] super::NotABuild),
     #[error(transparent)]
     Journal(#[from] super::journal::JournalError),
     #[error("{path}: not a status file of a layerwise build")]
@@ -251,6 +79,11 @@ pub struct StatusReport {
     pub build_dir: PathBuf,
     pub name: Option<String>,
     pub state: String,
+    /// Whether the daemon that writes this build is running now (its pid alive, its state
+    /// `running`).
+    pub running: bool,
+    /// When status.json was last written, as shown: `last update 14:02:11 UTC (4 min ago)`.
+    pub last_update: Option<String>,
     pub pid: Option<u32>,
     pub updated_at: Option<DateTime<Utc>>,
     pub layer: Option<u32>,
@@ -293,6 +126,9 @@ pub struct StatusReport {
     /// The inspection alarm: raised since layer N, or acknowledged by whom and when
     /// (`alarm.jsonl`; none when it was never raised).
     pub alarm: Option<super::alarm::AlarmState>,
+    /// Files of the build that could not be read (status.json, inspection.jsonl, alarm.jsonl),
+    /// each with where and why: the report shows what it could; `layerwise status` exits 1.
+    pub damaged: Vec<String>,
     pub warning: Option<String>,
 }
 
@@ -396,23 +232,24 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         min_free_bytes,
         take,
     } = settings;
+    super::require_build(dir)?;
     let journal_path = dir.join(JOURNAL);
-    if !journal_path.exists() {
-        return Err(StatusError::NotABuild(dir.to_path_buf()));
-    }
     let replay = Journal::read(&journal_path)?;
     let manifest: Option<BuildManifest> = std::fs::read(dir.join(MANIFEST))
         .ok()
         .and_then(|b| serde_json::from_slice(&b).ok());
+    // A damaged secondary file is shown as damaged, never a reason to show nothing (the alarm
+    // and the frames must stay in view).
+    let mut damaged = Vec::new();
     let live: Option<LiveStatus> = match std::fs::read(dir.join(STATUS)) {
-        Ok(bytes) => {
-            Some(
-                serde_json::from_slice(&bytes).map_err(|source| StatusError::Unreadable {
+        Ok(bytes) => serde_json::from_slice(&bytes)
+            .map_err(|source| {
+                damaged.push(crate::logging::chain(&StatusError::Unreadable {
                     path: dir.join(STATUS),
                     source,
-                })?,
-            )
-        }
+                }))
+            })
+            .ok(),
         Err(_) => None,
     };
     let live = live.unwrap_or_default();
@@ -453,21 +290,28 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         (Some(free), _) if free < min_free_bytes => Some(format!("only {:.1} GB free", free as f64 / 1e9)),
         _ => None,
     };
-    // What the daemon reports first (the parts an operator must act on), then the forecast.
-    let mut warnings: Vec<String> = if live.health.is_empty() {
-        live.trigger
-            .iter()
-            .filter_map(TriggerHealth::warning)
-            .collect()
-    } else {
-        HEALTH_PARTS
-            .iter()
-            .filter_map(|p| live.health.get(*p).and_then(|h| h.warning.clone()))
-            .collect()
-    };
-    warnings.extend(forecast_warning);
-    let warning = (!warnings.is_empty()).then(|| warnings.join("; "));
+    let now = Utc::now();
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
+    let running = live.state == "running" && alive;
+    let waiting_for_processing = replay.unprocessed_takes(take).len();
+    let health = super::health::shown(
+        WrittenHealth {
+            health: &live.health,
+            trigger: live.trigger.as_ref(),
+            camera: live.camera.as_ref(),
+            disk: live.disk.as_ref(),
+        },
+        &Seen {
+            now,
+            running,
+            free_bytes: free,
+            min_free_bytes,
+            waiting_for_processing,
+        },
+    );
+    let last_update = live
+        .updated_at
+        .map(|at| format!("last update {}", super::health::when(now, at)));
     let state = match live.state.as_str() {
         "running" if !alive => {
             "not running (the daemon stopped without a clean shutdown)".to_string()
@@ -475,10 +319,44 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         "" => "unknown".to_string(),
         s => s.to_string(),
     };
+    let alarm = super::alarm::state(dir);
+    let (inspection_flags, inspection_damage) = match super::inspection::open_flags(dir) {
+        Ok(flags) => (flags, None),
+        Err(e) => (Vec::new(), Some(crate::logging::chain(&e))),
+    };
+    damaged.extend(inspection_damage);
+    if let Some(super::alarm::AlarmState::Unreadable { reason }) = &alarm {
+        damaged.push(reason.clone());
+    }
+    // What must be acted on first: the alarm, a daemon that died, the parts, then the forecast.
+    let mut warnings: Vec<String> = Vec::new();
+    if alarm.as_ref().is_some_and(|a| a.needs_attention()) {
+        warnings.push("the inspection alarm needs an operator (see alarm)".into());
+    }
+    if live.state == "running" && !alive {
+        warnings.push(format!(
+            "the daemon is not running ({}): nothing is captured; start it again \
+             (systemctl start layerwise)",
+            last_update.as_deref().unwrap_or("it never reported")
+        ));
+    }
+    if health.is_empty() {
+        warnings.extend(live.trigger.iter().filter_map(TriggerHealth::warning));
+    } else {
+        warnings.extend(
+            HEALTH_PARTS
+                .iter()
+                .filter_map(|p| health.get(*p).and_then(|h| h.warning.clone())),
+        );
+    }
+    warnings.extend(forecast_warning);
+    let warning = (!warnings.is_empty()).then(|| warnings.join("; "));
     Ok(StatusReport {
         build_dir: dir.to_path_buf(),
         name: manifest.map(|m| m.name),
         state,
+        running,
+        last_update,
         pid: (live.pid != 0).then_some(live.pid),
         updated_at: live.updated_at,
         layer: current_layer,
@@ -496,7 +374,7 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
             .iter()
             .map(|i| format!("L{:05} {}: {}: {}", i.layer, i.phase, i.signal, i.detail))
             .collect(),
-        waiting_for_processing: replay.unprocessed_takes(take).len(),
+        waiting_for_processing,
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
         bytes_stored,
@@ -508,11 +386,12 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         free_bytes: free,
         bytes_needed,
         trigger: live.trigger.clone(),
-        health: live.health.clone(),
+        health,
         disk: live.disk.clone(),
         pacs: super::pushlog::summaries(dir),
-        inspection_flags: super::inspection::open_flags(dir),
-        alarm: super::alarm::state(dir),
+        inspection_flags,
+        alarm,
+        damaged,
         warning,
     })
 }
@@ -543,10 +422,17 @@ impl fmt::Display for StatusReport {
         )?;
         writeln!(
             f,
-            "daemon     {}{}",
+            "daemon     {}{}{}",
             self.state,
-            self.pid.map(|p| format!(", pid {p}")).unwrap_or_default()
+            self.pid.map(|p| format!(", pid {p}")).unwrap_or_default(),
+            match (&self.last_update, self.running) {
+                (Some(update), false) => format!(", {update}"),
+                _ => String::new(),
+            }
         )?;
+        if let Some(alarm) = &self.alarm {
+            writeln!(f, "alarm      {alarm}")?;
+        }
         match (self.layer, self.phase) {
             (Some(l), Some(p)) => writeln!(
                 f,
@@ -641,8 +527,8 @@ impl fmt::Display for StatusReport {
             writeln!(f, "inspection {} flags", self.inspection_flags.len())?;
             last_ten(f, &self.inspection_flags)?;
         }
-        if let Some(alarm) = &self.alarm {
-            writeln!(f, "alarm      {alarm}")?;
+        for d in &self.damaged {
+            writeln!(f, "DAMAGED    {d}")?;
         }
         if let Some(w) = &self.warning {
             writeln!(f, "WARNING    {w}")?;

@@ -233,11 +233,14 @@ impl CheckConfigArgs {
         let config = Config::load(&self.file)?;
         // Every check `run` makes before touching the hardware, every file it names read.
         acquisition::preflight(&config, &self.file)?;
+        let output = match &config.build.builds_dir {
+            Some(builds) => format!("builds in {}", builds.display()),
+            None => format!("output in {}", config.build.output_dir.display()),
+        };
         println!(
-            "{}: valid ({} views per layer, output in {})",
+            "{}: valid ({} views per layer, {output})",
             self.file.display(),
             config.views.all().len(),
-            config.build.output_dir.display()
         );
         Ok(())
     }
@@ -280,7 +283,23 @@ impl StatusArgs {
         if self.json {
             println!("{}", serde_json::to_string_pretty(&report)?);
         } else {
-            print!("{report}");
+            // PACS answers, alarm notes and reasons reach the terminal escaped.
+            print!(
+                "{}",
+                layerwise::logging::printable_text(&report.to_string(), true)
+            );
+        }
+        if !report.damaged.is_empty() {
+            anyhow::bail!(
+                "{} of the build's files cannot be read ({}): what they hold may be missing \
+                 above; keep a copy, then repair or remove the damaged line",
+                report.damaged.len(),
+                if self.json {
+                    "\"damaged\""
+                } else {
+                    "DAMAGED above"
+                }
+            );
         }
         Ok(())
     }
@@ -374,17 +393,23 @@ impl DemoArgs {
         if let TriggerConfig::Mock(mock) = &mut config.trigger {
             mock.interval_ms = self.interval_ms;
         }
-        if let Some(listen) = self.listen {
-            config.web.listen = listen;
-            config
-                .web
-                .validate()
-                .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?;
-        }
-        let started = std::time::Instant::now();
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
+        // With --listen the demo serves its page itself: a busy port is an error before the
+        // build starts (as `serve`), and the page stays after the last layer until Ctrl-C.
+        let page = match self.listen {
+            Some(listen) => {
+                let mut web = config.web.clone();
+                web.listen = listen;
+                let page = super::serve::start_page(out, &web, &process)?;
+                println!("operator page: http://{}/", page.addr);
+                Some(page)
+            }
+            None => None,
+        };
+        config.web.listen = String::new();
+        let started = std::time::Instant::now();
         let mut options = RunOptions::new();
         options.clock = SystemClock::shared();
         options.drain_at_end = true;
@@ -398,9 +423,52 @@ impl DemoArgs {
             summary.skipped,
             out.display()
         );
-        println!("status: layerwise status --build {}", out.display());
+        println!(
+            "status: {} --build {}",
+            own_command("status"),
+            out.display()
+        );
+        if let Some(page) = page {
+            if !process.is_requested() {
+                println!(
+                    "the page stays at http://{}/ until Ctrl-C (or SIGTERM)",
+                    page.addr
+                );
+                let _ = process.receiver().recv();
+            }
+            page.join();
+        }
         Ok(())
     }
+}
+
+/// How to run this program's `command` from where it was started: `layerwise status` when this
+/// executable is the one on the PATH, `cargo run [--release] -- status` under `cargo run`, else
+/// the executable's full path (a copy in target/ run by hand).
+fn own_command(command: &str) -> String {
+    let Ok(exe) = std::env::current_exe() else {
+        return format!("layerwise {command}");
+    };
+    let on_path = std::env::var_os("PATH").is_some_and(|path| {
+        std::env::split_paths(&path)
+            .any(|dir| std::fs::canonicalize(dir.join("layerwise")).is_ok_and(|found| found == exe))
+    });
+    if on_path {
+        return format!("layerwise {command}");
+    }
+    // Under `cargo run` cargo itself is the parent.
+    let parent = std::fs::read_to_string(format!(
+        "/proc/{}/comm",
+        std::os::unix::process::parent_id()
+    ));
+    if parent.is_ok_and(|name| name.trim() == "cargo") {
+        let release = exe.components().any(|c| c.as_os_str() == "release");
+        return format!(
+            "cargo run {}-- {command}",
+            if release { "--release " } else { "" }
+        );
+    }
+    format!("{} {command}", exe.display())
 }
 
 /// The embedded demo configuration for `layers` layers in `out`, with the simulated camera's

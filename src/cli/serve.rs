@@ -7,7 +7,7 @@ use layerwise::clock::SharedClock;
 use layerwise::config::WebConfig;
 use layerwise::shutdown::{self, Shutdown};
 use layerwise::web::supervisor::{PageCommand, PageProcess, LISTEN_FD};
-use layerwise::web::{process, WebServer};
+use layerwise::web::{process, WebError, WebServer};
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -49,12 +49,7 @@ impl ServeArgs {
         if let (Some(fd), Some(web)) = (self.listen_fd, &self.web_config) {
             return serve_for_daemon(&self.build, fd, web);
         }
-        anyhow::ensure!(
-            self.build.join(layerwise::build_dir::JOURNAL).is_file(),
-            "{}: not a layerwise build directory (no {}); pass the daemon's build.output_dir",
-            self.build.display(),
-            layerwise::build_dir::JOURNAL
-        );
+        layerwise::build_dir::require_build(&self.build)?;
         let mut config = WebConfig {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
@@ -66,14 +61,6 @@ impl ServeArgs {
         if let Some(mb) = self.memory_mb {
             config.memory_mb = mb;
         }
-        config.validate().map_err(|invalid| {
-            let flag = invalid.key["web.".len()..].replace('_', "-");
-            anyhow::anyhow!("--{flag}: {}", invalid.message)
-        })?;
-        let addr = config
-            .address()
-            .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
-            .context("--listen must name an address")?;
         process::prepare_page_process();
         if self.memory_mb.is_some() {
             limit_memory(config.memory_mb);
@@ -81,7 +68,7 @@ impl ServeArgs {
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
-        let server = WebServer::start(&self.build, &config, addr, &process)?;
+        let server = start_page(&self.build, &config, &process)?;
         println!(
             "serving {} at http://{}/ (Ctrl-C stops)",
             self.build.display(),
@@ -131,6 +118,29 @@ fn limit_memory(mb: u64) {
             "the page's memory is not bounded (prlimit refused)"
         );
     }
+}
+
+/// Starts the page of `build` as `serve` and `demo --listen` do, until `shutdown` is requested:
+/// an address that is taken (or not one) is an error naming `--listen`.
+pub fn start_page(
+    build: &std::path::Path,
+    config: &WebConfig,
+    shutdown: &Shutdown,
+) -> Result<WebServer> {
+    config.validate().map_err(|invalid| {
+        let flag = invalid.key["web.".len()..].replace('_', "-");
+        anyhow::anyhow!("--{flag}: {}", invalid.message)
+    })?;
+    let addr = config
+        .address()
+        .map_err(|invalid| anyhow::anyhow!("--listen: {}", invalid.message))?
+        .context("--listen must name an address")?;
+    WebServer::start(build, config, addr, shutdown).map_err(|e| match e {
+        WebError::Listen { addr, source } => anyhow::Error::new(source).context(format!(
+            "cannot listen on {addr}: give --listen a free address (port 0: any free port)"
+        )),
+        other => other.into(),
+    })
 }
 
 /// Starts the page of the daemon's build when `[web] listen` is set, in a process of its own

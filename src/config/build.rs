@@ -14,7 +14,9 @@ pub struct BuildConfig {
     /// Short id of the build; becomes the DICOM PatientID. Defaults to the name.
     #[serde(default)]
     pub id: Option<String>,
-    /// Where originals, the journal and the DICOM series go.
+    /// Where originals, the journal and the DICOM series go; not needed (and not used) with
+    /// `builds_dir`, where each build gets a folder of its own.
+    #[serde(default)]
     pub output_dir: PathBuf,
     /// Layers the build will have, if known: the status command forecasts disk use from it.
     #[serde(default)]
@@ -128,8 +130,12 @@ impl BuildConfig {
                 "must be a positive number of mm, at most 10 (a powder layer is about 0.03)",
             ));
         }
-        if self.output_dir.as_os_str().is_empty() {
-            return Err(Invalid::new("build.output_dir", "must name a directory"));
+        if self.output_dir.as_os_str().is_empty() && self.builds_dir.is_none() {
+            return Err(Invalid::new(
+                "build.output_dir",
+                "must name a directory (or set build.builds_dir and start builds with \
+                 `layerwise build start`)",
+            ));
         }
         if self
             .builds_dir

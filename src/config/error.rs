@@ -38,10 +38,21 @@ impl Invalid {
     pub fn in_file(self, file: &Path) -> ConfigError {
         ConfigError::Invalid {
             file: file.to_path_buf(),
+            line: None,
             key: self.key,
             message: self.message,
             source: self.source,
         }
+    }
+
+    /// The refusal of a value of `file`, whose text is `text`: at the key's own line.
+    pub fn in_text(self, file: &Path, text: &str) -> ConfigError {
+        let line = crate::fsutil::key_line(text, &self.key).and_then(|l| u32::try_from(l).ok());
+        let mut error = self.in_file(file);
+        if let ConfigError::Invalid { line: at, .. } = &mut error {
+            *at = line;
+        }
+        error
     }
 }
 
@@ -53,9 +64,15 @@ pub enum ConfigError {
     #[error(transparent)]
     File(#[from] TomlFileError),
     /// A value that fails its section's check ([`Invalid`], in a file).
-    #[error("{file}: key `{key}`: {message}")]
+    #[error(
+        "{file}: {}key `{key}`: {message}",
+        .line.map(|l| format!("line {l}: ")).unwrap_or_default()
+    )]
     Invalid {
         file: PathBuf,
+        /// The key's own line, when the file holds it.
+        /// (`u32`: the error stays small enough to return by value.)
+        line: Option<u32>,
         key: String,
         message: String,
         #[source]

@@ -97,7 +97,9 @@ impl Config {
     /// Parses and validates configuration text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Config, ConfigError> {
         let config: Config = parse_toml(text, file).map_err(TomlFileError::from)?;
-        config.validate().map_err(|invalid| invalid.in_file(file))?;
+        config
+            .validate()
+            .map_err(|invalid| invalid.in_text(file, text))?;
         Ok(config)
     }
 

@@ -213,7 +213,9 @@ fn a_pattern_that_does_not_compile_keeps_the_regex_error_as_its_source() {
     // What the binary prints: the same words as when the cause was part of the message.
     assert_eq!(
         crate::logging::chain(&err),
-        format!("test.toml: key `trigger.pattern`: is not a valid regular expression: {regex}")
+        format!(
+            "test.toml: line 15: key `trigger.pattern`: is not a valid regular expression: {regex}"
+        )
     );
 }
 
@@ -234,8 +236,8 @@ fn every_refusal_is_an_invalid_key_of_the_file() {
     assert_eq!(
         err.to_string(),
         format!(
-            "test.toml: key `storage.queue_capacity`: must be 1 to {MAX_QUEUE} (frames wait on \
-             disk when the queue is full)"
+            "test.toml: line 48: key `storage.queue_capacity`: must be 1 to {MAX_QUEUE} (frames \
+             wait on disk when the queue is full)"
         )
     );
     let err = demo_with("layer_thickness_mm = 0.03", "layer_thickness_mm = \"thin\"").unwrap_err();
@@ -299,4 +301,23 @@ fn sections_left_out_or_empty_take_the_same_defaults() {
         inspection.alarm.severity,
         inspection::AlarmSeverity::Critical
     );
+}
+
+#[test]
+fn builds_dir_needs_no_output_dir_and_without_it_output_dir_is_required() {
+    let line = DEMO_CONFIG
+        .lines()
+        .find(|l| l.starts_with("output_dir"))
+        .expect("the demo names its output_dir");
+    let without = DEMO_CONFIG.replacen(&format!("{line}\n"), "", 1);
+    let err = parse(&without).unwrap_err().to_string();
+    assert!(
+        err.contains("key `build.output_dir`") && err.contains("builds_dir"),
+        "{err}"
+    );
+    let with_builds = without.replacen("[build]\n", "[build]\nbuilds_dir = \"/srv/builds\"\n", 1);
+    let config = parse(&with_builds).expect("builds_dir alone is enough");
+    assert_eq!(config.build.output_dir.as_os_str(), "");
+    // A configuration written back (as the daemon's snapshot) loads again.
+    parse(&toml::to_string(&config).unwrap()).expect("round trip");
 }

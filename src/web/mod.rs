@@ -10,6 +10,7 @@
 //! every 250 ms, then only the appended bytes) and pushes updates to open pages as server-sent
 //! events. Only layer numbers and view names from a request reach the file system.
 
+mod alarm;
 pub mod calibration;
 pub mod clients;
 pub mod files;
@@ -42,6 +43,9 @@ use tracing::warn;
 pub const WATCH_PERIOD: Duration = Duration::from_millis(250);
 /// The status report (it sums the sizes of the series) is made at most this often.
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// The status report is made again at least this often when nothing changed, so the ages it
+/// shows count on and a daemon that died is shown stopped.
+const STATUS_STALE: Duration = Duration::from_secs(5);
 
 #[derive(Debug, thiserror::Error)]
 pub enum WebError {
@@ -214,8 +218,9 @@ pub fn read_token(path: &Path) -> Result<String, WebError> {
     Ok(token)
 }
 
-/// Looks at the journal, the inspection log and status.json every [`WATCH_PERIOD`]; when they changed, reads what
-/// is new, remakes the status (at most every [`STATUS_PERIOD`]), tells the open pages, and
+/// Looks at the journal, the inspection and alarm logs and status.json every [`WATCH_PERIOD`]; when they changed, reads what
+/// is new, remakes the status (at most every [`STATUS_PERIOD`], at least every
+/// [`STATUS_STALE`]), tells the open pages, and
 /// makes the newest layer's previews ahead of their request.
 async fn watch_build(shared: Arc<PageState>) {
     let mut tick = tokio::time::interval(WATCH_PERIOD);
@@ -234,8 +239,11 @@ async fn watch_build(shared: Arc<PageState>) {
         let s = shared.clone();
         let looked = tokio::task::spawn_blocking(move || {
             let stamp = |name: &str| std::fs::metadata(s.dir.join(name)).ok();
+            // The alarm's history too: an acknowledgement (on any page, or `alarm ack`) clears
+            // the banner of every open page.
             let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len())
-                + stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len());
+                + stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len())
+                + stamp(crate::build_dir::ALARM).map_or(0, |m| m.len());
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
             let changed = s
                 .timeline
@@ -255,7 +263,9 @@ async fn watch_build(shared: Arc<PageState>) {
             }
             _ => {}
         }
-        if seen != Some((journal, status_time)) {
+        if seen != Some((journal, status_time))
+            || status_at.is_some_and(|t| t.elapsed() >= STATUS_STALE)
+        {
             seen = Some((journal, status_time));
             pending = true;
         }

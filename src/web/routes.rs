@@ -51,6 +51,11 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
         .route("/api/calibration", axum::routing::post(calibrate))
         .route("/api/calibration/{stamp}/overlay.png", get(overlay))
         .route("/api/status", get(status))
+        .route("/api/alarm", get(super::alarm::history))
+        .route(
+            "/api/alarm/ack",
+            axum::routing::post(super::alarm::acknowledge),
+        )
         .route("/api/layers", get(layers))
         .route("/api/layers/{layer}", get(layer))
         .route("/api/layers/{layer}/vectors.svg", get(vectors))

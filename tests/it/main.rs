@@ -16,6 +16,7 @@ mod architecture;
 mod argument_values;
 mod bounded_inputs;
 mod cli;
+mod console;
 #[cfg(feature = "testkit")]
 mod ct_accuracy;
 #[cfg(feature = "testkit")]

@@ -19,7 +19,11 @@ const PART3_MM: [f64; 4] = [40.0, 44.0, 60.0, 56.0];
 
 /// [`web_config`] with the mock camera at 640 x 427 (the inspection's smallest tested frames)
 /// rendering `inject` (`demo --inject` syntax).
-fn injected_config(dir: &Path, layers: u32, inject: &[&str]) -> layerwise::config::Config {
+pub(crate) fn injected_config(
+    dir: &Path,
+    layers: u32,
+    inject: &[&str],
+) -> layerwise::config::Config {
     let mut config = web_config(dir, layers);
     let (w, h) = (640, 427);
     if let layerwise::config::CameraConfig::Mock(mock) = &mut config.camera {
@@ -405,10 +409,7 @@ fn idle_connections_give_way_to_a_request_and_are_closed_after_the_idle_timeout(
 /// flagged-layer.png and flagged-layer-zoom.png.
 #[test]
 fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
-    let chromedriver = ["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"]
-        .into_iter()
-        .find(|p| Path::new(p).exists())
-        .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)");
+    let chromedriver = chromedriver();
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("build");
     let (flagged, clean) = (5, 3);

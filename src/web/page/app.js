@@ -29,13 +29,18 @@ function dd(dl, key, value, cls) {
 function showStatus(s) {
   if (!s) return;
   $("build-name").textContent = s.name || "layerwise";
-  $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "");
+  $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "") + (!s.running && s.last_update ? ", " + s.last_update : "");
   const w = $("warning");
-  const alarm = s.alarm && s.alarm.state === "raised"
-    ? "ALARM since layer " + s.alarm.layer + ": " + s.alarm.message + " (acknowledge: layerwise alarm ack)"
-    : "";
+  const raised = s.alarm && (s.alarm.state === "raised" || s.alarm.state === "unreadable");
+  const alarm = !raised ? "" : s.alarm.state === "raised"
+    ? "ALARM since layer " + s.alarm.layer + ": " + s.alarm.message
+    : "ALARM UNKNOWN (treat it as raised): " + s.alarm.reason;
   const banner = [alarm, s.warning].filter(Boolean).join(" \u2014 ");
-  w.hidden = !banner; w.textContent = banner;
+  w.hidden = !banner; $("warning-text").textContent = banner;
+  $("ack-form").hidden = !(s.alarm && s.alarm.state === "raised");
+  $("ack-cli").textContent = raised ? "or: layerwise alarm ack --build " + s.build_dir : "";
+  const alarmKey = JSON.stringify(s.alarm || null);
+  if (alarmKey !== state.alarmKey) { state.alarmKey = alarmKey; loadAlarmHistory(); }
   const h = $("health"); h.replaceChildren();
   if (s.health && Object.keys(s.health).length) {
     // The daemon's own health report: the same words as `layerwise status` and STATUS=.
@@ -67,6 +72,55 @@ function showStatus(s) {
   $("layer-of").textContent = s.layers_expected ? "of " + s.layers_expected : "";
 }
 
+// The alarm's history, newest first: raised, acknowledged (who, note), cleared.
+async function loadAlarmHistory() {
+  let h;
+  try { h = await getJson("/api/alarm"); } catch (e) { $("alarm-history").textContent = "cannot read the alarm history: " + e.message; return; }
+  const time = (t) => new Date(t).toLocaleString();
+  const items = h.events.slice().reverse().map((e) => {
+    const li = document.createElement("li"); li.className = "alarm-" + e.event;
+    if (e.event === "raised") li.textContent = time(e.at) + " raised at layer " + e.layer + " (" + e.kind + ", " + e.severity + "): " + e.message;
+    else if (e.event === "acknowledged") li.textContent = time(e.at) + " acknowledged by " + e.by + (e.note ? ": " + e.note : "");
+    else li.textContent = time(e.at) + " cleared at layer " + e.layer;
+    if (e.layer) { li.dataset.layer = e.layer; li.addEventListener("click", () => { setFollow(false); showLayer(e.layer); }); }
+    return li;
+  });
+  if (!items.length) { const li = document.createElement("li"); li.textContent = "never raised"; items.push(li); }
+  $("alarm-history").replaceChildren(...items);
+}
+
+$("ack-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const by = $("ack-by").value.trim();
+  if (!by) { $("ack-result").textContent = "say who acknowledges"; $("ack-by").focus(); return; }
+  localStorage.setItem("layerwise-operator", by);
+  const r = await fetch("/api/alarm/ack", {
+    method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify({ by, note: $("ack-note").value }),
+  });
+  const answer = await r.json().catch(() => ({}));
+  $("ack-result").textContent = r.ok ? "alarm " + answer.shown : "not acknowledged: " + (answer.error || r.status);
+  if (r.ok) { $("ack-note").value = ""; getJson("/api/status").then(showStatus).catch(() => {}); }
+});
+$("ack-by").value = localStorage.getItem("layerwise-operator") || "";
+
+// Next / previous layer with an inspection flag.
+function flagged(direction) {
+  const from = state.current || 0;
+  const list = state.layers.filter((l) => l.flags && (direction > 0 ? l.layer > from : l.layer < from));
+  const l = direction > 0 ? list[0] : list[list.length - 1];
+  if (l) { setFollow(false); showLayer(l.layer); }
+}
+$("next-flag").addEventListener("click", () => flagged(1));
+$("prev-flag").addEventListener("click", () => flagged(-1));
+
+// Deep links: #layer=N (the layer shown is always in the address, to copy and send).
+function layerFromHash() {
+  const m = /(?:^#|&)layer=(\d{1,5})(?:&|$)/.exec(location.hash);
+  return m ? Number(m[1]) : null;
+}
+window.addEventListener("hashchange", () => { const n = layerFromHash(); if (n && n !== state.current) { setFollow(false); showLayer(n); } });
+
 async function loadLayers() {
   const j = await getJson("/api/layers");
   // Following the build shows the newest layer with all its views; the one being captured is
@@ -81,7 +135,8 @@ async function loadLayers() {
   const max = Math.max(1, j.newest || 1, ...j.layers.map((l) => l.layer));
   slider.max = max;
   drawTimeline();
-  if (state.follow && state.newest && state.newest !== state.current) showLayer(state.newest);
+  if (state.linked) { const n = state.linked; state.linked = null; showLayer(n); }
+  else if (state.follow && state.newest && state.newest !== state.current) showLayer(state.newest);
   else if (state.current == null && state.newest) showLayer(state.newest);
   else if (changed) showLayer(state.current);
   $("newest-note").textContent = state.follow || state.current === state.newest ? "" : "(newest: " + state.newest + ")";
@@ -155,6 +210,7 @@ function kind() { return $("raw").checked || !state.rectified ? "raw" : "rectifi
 async function showLayer(n) {
   n = Math.max(1, Math.min(Number($("slider").max), n));
   state.current = n;
+  if (layerFromHash() !== n) history.replaceState(null, "", "#layer=" + n);
   $("layer-number").textContent = n;
   $("slider").value = n;
   document.querySelectorAll("#timeline .cell.current").forEach((c) => c.classList.remove("current"));
@@ -243,6 +299,8 @@ document.addEventListener("keydown", (e) => {
   else if (e.key === "v") $("overlay").click();
   else if (e.key === "f") $("flags").click();
   else if (e.key === "r") $("raw").click();
+  else if (e.key === "n") flagged(1);
+  else if (e.key === "p") flagged(-1);
 });
 
 let refreshing = false, again = false;
@@ -258,5 +316,7 @@ async function refresh(status) {
 const events = new EventSource("/api/events");
 events.addEventListener("update", (e) => refresh(JSON.parse(e.data).status));
 events.onerror = () => { $("state").textContent = "connection to the daemon lost; retrying"; };
+const linked = layerFromHash();
+if (linked) { setFollow(false); state.linked = linked; }
 refresh(null);
 getJson("/api/status").then(showStatus).catch(() => {});

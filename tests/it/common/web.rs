@@ -120,7 +120,7 @@ pub fn finished_build(tmp: &Path, layers: u32) -> std::path::PathBuf {
 }
 
 /// A `layerwise serve` that is stopped when dropped, also when a test fails half-way.
-pub struct Served(std::process::Child);
+pub struct Served(pub std::process::Child);
 
 impl Served {
     pub fn pid(&self) -> u32 {
@@ -146,4 +146,12 @@ pub fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
         .unwrap();
     let (addr, _) = watch_output(child.stdout.take().unwrap());
     (Served(child), addr)
+}
+
+/// Where Debian's chromium-driver put chromedriver (tests/run.sh installs it).
+pub fn chromedriver() -> &'static str {
+    ["/usr/bin/chromedriver", "/usr/lib/chromium/chromedriver"]
+        .into_iter()
+        .find(|p| Path::new(p).exists())
+        .expect("chromedriver is installed (tests/run.sh installs chromium and chromium-driver)")
 }
