@@ -231,6 +231,18 @@ impl CheckConfigArgs {
     pub fn run(self) -> Result<()> {
         let config = Config::load(&self.file)?;
         config.check_backends(&self.file)?;
+        if let Some(model) = &config.inspection.model {
+            let live = layerwise::learn::live::LiveModel::open(model, &config.rectify)
+                .context("[inspection.model] file")?;
+            let h = &live.model.header;
+            println!(
+                "{}: model {:?} (validation accuracy {:.3}, macro recall {:.3}) runs on every layer",
+                model.file.display(),
+                h.classes,
+                h.validation.accuracy,
+                h.validation.macro_recall
+            );
+        }
         println!(
             "{}: valid ({} views per layer, output in {})",
             self.file.display(),

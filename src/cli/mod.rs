@@ -8,6 +8,7 @@ mod daemon;
 mod files;
 mod flaws;
 mod inspect;
+mod learn;
 mod lifecycle;
 mod numbering;
 mod register;
@@ -85,6 +86,12 @@ pub enum Command {
     Inspect(inspect::InspectArgs),
     /// The inspection alarm: acknowledge it (`alarm ack --build DIR`) or show it.
     Alarm(alarm::AlarmArgs),
+    /// A defect model: train it on labelled pictures, CT flaws or operator verdicts, evaluate
+    /// it, run it on pictures (docs/learning.md).
+    Learn {
+        #[command(subcommand)]
+        command: learn::LearnCommand,
+    },
 }
 
 impl Command {
@@ -108,6 +115,7 @@ impl Command {
             Command::Push(args) => args.run(),
             Command::Inspect(args) => args.run(),
             Command::Alarm(args) => args.run(),
+            Command::Learn { command } => command.run(),
         }
     }
 }

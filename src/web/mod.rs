@@ -17,6 +17,7 @@ mod priority;
 mod routes;
 mod state;
 pub mod timeline;
+mod verdicts;
 
 use crate::config::WebConfig;
 use crate::shutdown::Shutdown;
