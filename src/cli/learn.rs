@@ -16,6 +16,9 @@ pub enum LearnCommand {
     Predict(PredictArgs),
     /// What a model file holds: classes, input, training data, validation metrics.
     Info(InfoArgs),
+    /// The model side by side with the classical inspection on the same labelled frames: per
+    /// class, frames found (false alarms for the normal class) by each.
+    Compare(super::learn_compare::CompareArgs),
 }
 
 impl LearnCommand {
@@ -25,6 +28,7 @@ impl LearnCommand {
             LearnCommand::Eval(a) => a.run(),
             LearnCommand::Predict(a) => a.run(),
             LearnCommand::Info(a) => a.run(),
+            LearnCommand::Compare(a) => a.run(),
         }
     }
 }

@@ -9,6 +9,7 @@ mod files;
 mod flaws;
 mod inspect;
 mod learn;
+mod learn_compare;
 mod lifecycle;
 mod numbering;
 mod register;

@@ -479,7 +479,7 @@ mod tests {
         let count = |r: std::ops::Range<usize>, p: Part| r.filter(|&i| parts[i] == p).count();
         assert_eq!(count(0..100, Part::Val), 20);
         assert_eq!(count(0..100, Part::Dropped), 2);
-        assert!(parts[79] == Part::Train && parts[80] == Part::Dropped && parts[82] == Part::Val);
+        assert!(parts[77] == Part::Train && parts[78] == Part::Dropped && parts[80] == Part::Val);
         assert_eq!(
             (count(100..112, Part::Val), count(100..112, Part::Dropped)),
             (3, 1)
