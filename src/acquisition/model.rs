@@ -62,7 +62,18 @@ impl ModelStage {
         if !self.wanted.contains(&view) {
             return;
         }
-        match self.live.scan(view, luma, &self.grid) {
+        let scanned = self.live.install(|| {
+            let cells =
+                crate::inspect::cells::Cells::from_luma(luma, &self.grid, self.live.cell_px());
+            self.live.scan_cells(
+                view,
+                (cells.rows, cells.cols),
+                &cells.mean,
+                &cells.texture,
+                &self.grid,
+            )
+        });
+        match scanned {
             Ok(scan) => {
                 if let Some(png) = heatmap_png(&scan) {
                     let path = heatmap_path(&self.build_dir, &view.to_string(), layer);

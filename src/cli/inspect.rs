@@ -145,6 +145,10 @@ impl InspectArgs {
                 &grid,
                 &frames,
                 &mut records,
+                &move |luma, bin| {
+                    let c = layerwise::inspect::cells::Cells::from_luma(luma, &grid, bin);
+                    (c.rows, c.cols, c.mean, c.texture)
+                },
             );
             for u in &unread {
                 eprintln!(

@@ -7,7 +7,7 @@
 
 use super::error::ModelError;
 use super::file::{Model, Use};
-use super::input::{self, Gray};
+use super::input;
 use super::net;
 use crate::build_dir::inspection::{Flag, FlagKind, Severity};
 use crate::config::model::ModelConfig;
@@ -86,16 +86,30 @@ impl LiveModel {
         self.views.is_empty() || self.views.iter().any(|v| *v == view.to_string())
     }
 
-    /// Classifies every tile of a rectified view on `grid`.
-    pub fn scan(&self, view: View, luma: &FrameLuma, grid: &Grid) -> Result<ViewScan, ModelError> {
-        self.scan_gray(view, &Gray::from_luma(luma), grid)
+    /// Pixels of the views per model cell (the views are reduced to cells of this many pixels,
+    /// as the inspection reduces them: `inspect::cells::Cells::from_luma`).
+    pub fn cell_px(&self) -> usize {
+        self.cell_px
     }
 
-    /// [`LiveModel::scan`] of a grey picture.
-    pub fn scan_gray(&self, view: View, img: &Gray, grid: &Grid) -> Result<ViewScan, ModelError> {
+    /// Runs `f` in the model's own threads.
+    pub fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        self.pool.install(f)
+    }
+
+    /// Classifies every tile of a view reduced to `rows` x `cols` cells of [`LiveModel::cell_px`]
+    /// pixels (cell means and textures, row-major) on `grid`.
+    pub fn scan_cells(
+        &self,
+        view: View,
+        (rows, cols): (usize, usize),
+        mean: &[f32],
+        texture: &[f32],
+        grid: &Grid,
+    ) -> Result<ViewScan, ModelError> {
         let started = std::time::Instant::now();
         self.pool.install(|| {
-            let input = input::cells(img, self.cell_px);
+            let input = input::normalise(rows, cols, mean, texture);
             let x = net::tensor(&input, input::CHANNELS.len())?;
             let cam = self.model.net.cam(&x)?;
             let tiles = net::tile_probabilities(&cam)?;
@@ -250,6 +264,9 @@ pub struct Unread {
     pub error: super::LearnError,
 }
 
+/// Reduces a rectified view to cells of the given pixels: (rows, cols, means, textures).
+pub type Reduce = dyn Fn(&FrameLuma, usize) -> (usize, usize, Vec<f32>, Vec<f32>) + Sync;
+
 /// The model over stored frames (`layerwise inspect`): every view it looks at of each record's
 /// layer is decoded, rectified as the daemon does, classified, and its flags added to the record
 /// after the classical ones.
@@ -259,6 +276,7 @@ pub fn apply_offline(
     grid: &Grid,
     frames: &std::collections::BTreeMap<crate::shot::Shot, std::path::PathBuf>,
     records: &mut [crate::build_dir::inspection::InspectionRecord],
+    reduce: &Reduce,
 ) -> Vec<Unread> {
     let mut unread = Vec::new();
     for record in records.iter_mut() {
@@ -280,7 +298,11 @@ pub fn apply_offline(
                         }
                     })
                 })
-                .and_then(|luma| Ok(live.scan(shot.view(), &luma.rectified(rectifier), grid)?));
+                .and_then(|luma| {
+                    let (rows, cols, mean, texture) =
+                        live.install(|| reduce(&luma.rectified(rectifier), live.cell_px()));
+                    Ok(live.scan_cells(shot.view(), (rows, cols), &mean, &texture, grid)?)
+                });
             match scan {
                 Ok(scan) => {
                     ms += scan.ms;

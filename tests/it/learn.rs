@@ -7,63 +7,24 @@
 use crate::common::*;
 use std::path::{Path, PathBuf};
 
-/// Class folders of 64 x 64 grey frames, 10 a class named `frame_0000…`: `No_Defect` (grain),
-/// `Streaks` (two to four dark vertical bands), `Spots` (bright spots). Brightness and grain
-/// level vary inside every class, so only the structure tells them apart.
-fn class_folders(root: &Path, per_class: usize) {
-    let mut rng = Rng(0x5EED);
-    for class in ["No_Defect", "Streaks", "Spots"] {
-        let dir = root.join(class);
-        std::fs::create_dir_all(&dir).unwrap();
-        for k in 0..per_class {
-            let base = 80.0 + rng.below(60) as f64;
-            let grain = 2.0 + rng.below(6) as f64;
-            let mut px = vec![0f64; 64 * 64];
-            for v in px.iter_mut() {
-                *v = base + grain * (rng.below(1000) as f64 / 500.0 - 1.0);
-            }
-            match class {
-                "Streaks" => {
-                    for _ in 0..2 + rng.below(3) {
-                        let x = 4 + rng.below(56);
-                        for y in 0..64 {
-                            for dx in 0..2 {
-                                px[y * 64 + (x + dx).min(63)] -= 35.0;
-                            }
-                        }
-                    }
-                }
-                "Spots" => {
-                    for _ in 0..3 + rng.below(3) {
-                        let (cx, cy) = (4 + rng.below(56), 4 + rng.below(56));
-                        for y in cy.saturating_sub(2)..(cy + 3).min(64) {
-                            for x in cx.saturating_sub(2)..(cx + 3).min(64) {
-                                px[y * 64 + x] += 60.0;
-                            }
-                        }
-                    }
-                }
-                _ => {}
-            }
-            let img = image::GrayImage::from_fn(64, 64, |x, y| {
-                image::Luma([px[(y * 64 + x) as usize].clamp(0.0, 255.0) as u8])
-            });
-            img.save(dir.join(format!("frame_{k:04}.png"))).unwrap();
-        }
-    }
-}
-
 /// `learn train` on the class folders with a small network: 64 px frames, 16 x 16 cells.
 fn train(data: &Path, out: &Path, seed: u64, threads: &str) -> std::process::Output {
-    layerwise()
-        .args(["learn", "train", "--data"])
-        .arg(data)
-        .arg("--out")
-        .arg(out)
-        .args(["--frame-px", "64", "--cell-px", "4", "--channels", "6,12", "--epochs", "14"])
-        .args(["--seed", &seed.to_string(), "--batch", "8", "--patience", "14"])
-        .env("RAYON_NUM_THREADS", threads)
-        .succeeds()
+    train_small(
+        data,
+        out,
+        &[
+            "--seed",
+            &seed.to_string(),
+            "--channels",
+            "6,12",
+            "--epochs",
+            "14",
+            "--patience",
+            "14",
+        ],
+    )
+    .env("RAYON_NUM_THREADS", threads)
+    .succeeds()
 }
 
 /// The model file's JSON header (safetensors metadata `layerwise.model`).
@@ -108,16 +69,31 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("validation (sequence-tail)"), "{text}");
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("epoch 1/14") && stderr.contains("val acc"), "{stderr}");
-    assert!(stderr.contains("24 for training, 6 for validation, 3 left out"), "{stderr}");
+    assert!(
+        stderr.contains("epoch 1/14") && stderr.contains("val acc"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("24 for training, 6 for validation, 3 left out"),
+        "{stderr}"
+    );
 
     // The same seed on one thread: the same file, byte for byte.
     let again = tmp.path().join("again.safetensors");
     train(&data, &again, 3, "1");
-    let (a, b) = (std::fs::read(&model).unwrap(), std::fs::read(&again).unwrap());
-    assert_eq!(header_of(&a)["weights_sha256"], header_of(&b)["weights_sha256"]);
+    let (a, b) = (
+        std::fs::read(&model).unwrap(),
+        std::fs::read(&again).unwrap(),
+    );
+    assert_eq!(
+        header_of(&a)["weights_sha256"],
+        header_of(&b)["weights_sha256"]
+    );
     let h = header_of(&a);
-    assert_eq!(h["classes"], serde_json::json!(["No_Defect", "Spots", "Streaks"]));
+    assert_eq!(
+        h["classes"],
+        serde_json::json!(["No_Defect", "Spots", "Streaks"])
+    );
     assert_eq!(h["normal_class"], "No_Defect");
     assert_eq!(h["training"]["data"]["counts"]["Spots"], 10);
     assert_eq!(h["training"]["split"]["val"]["Spots"], 2);
@@ -164,8 +140,14 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
     assert!(said.contains(": Streaks ("), "{said}");
     let picture = image::open(&heat).unwrap();
     assert_eq!((picture.width(), picture.height()), (64, 64));
-    let info = layerwise().args(["learn", "info", "--model"]).arg(&model).stdout_ok();
-    assert!(info.contains("trained on") && info.contains("confusion"), "{info}");
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&model)
+        .stdout_ok();
+    assert!(
+        info.contains("trained on") && info.contains("confusion"),
+        "{info}"
+    );
 }
 
 #[test]
@@ -174,13 +156,7 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
     let data = tmp.path().join("data");
     class_folders(&data, 5);
     let model = tmp.path().join("m.safetensors");
-    layerwise()
-        .args(["learn", "train", "--data"])
-        .arg(&data)
-        .arg("--out")
-        .arg(&model)
-        .args(["--frame-px", "64", "--cell-px", "4", "--channels", "4,8", "--epochs", "1"])
-        .succeeds();
+    train_small(&data, &model, &["--channels", "4,8", "--epochs", "1"]).succeeds();
     let bytes = std::fs::read(&model).unwrap();
     let image = data.join("Spots/frame_0000.png");
     let bad = |name: &str, content: &[u8]| -> PathBuf {
@@ -248,7 +224,10 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
         .arg("check-config")
         .arg(config_for(&cases[2].0, ""))
         .fails();
-    assert!(said.contains("[inspection.model] file") && said.contains("checksum"), "{said}");
+    assert!(
+        said.contains("[inspection.model] file") && said.contains("checksum"),
+        "{said}"
+    );
     let said = layerwise()
         .arg("check-config")
         .arg(config_for(&model, ""))
@@ -259,7 +238,49 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
         .arg(config_for(&model, "cell_mm = 2.0"))
         .stdout_ok();
     assert!(fine.contains("runs on every layer"), "{fine}");
-    let said = run_build(&config_for(&cases[2].0, "cell_mm = 2.0"));
-    let stderr = assert_exit_1(&said);
+    let stderr = run_command(&config_for(&cases[2].0, "cell_mm = 2.0")).fails();
     assert!(stderr.contains("checksum"), "{stderr}");
+}
+
+#[test]
+fn the_daemon_runs_the_model_on_every_layer_after_the_classical_checks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, stderr) = model_build(tmp.path());
+    let records = layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .unwrap();
+    assert_eq!(records.len(), 3, "{records:?}");
+    let classes = ["Spots", "Streaks"];
+    let mut model_flags = 0;
+    for r in &records {
+        assert!(r.plate.contains_key("model_ms"), "{r:?}");
+        for view in layerwise::config::ViewsConfig::default().all() {
+            let heat = layerwise::learn::live::heatmap_path(&dir, &view.to_string(), r.layer);
+            let png = image::open(&heat).unwrap_or_else(|e| panic!("{}: {e}", heat.display()));
+            // 550 px views of 0.5 mm, cells of 1 mm, tiles of 2 cells (one pool): 137 a side.
+            assert_eq!((png.width(), png.height()), (137, 137));
+        }
+        // The classical flags first, then the model's.
+        let first_model = r.flags.iter().position(|f| f.class.is_some());
+        if let Some(k) = first_model {
+            assert!(r.flags[k..].iter().all(|f| f.class.is_some()), "{r:?}");
+        }
+        for f in r.flags.iter().filter(|f| f.class.is_some()) {
+            model_flags += 1;
+            assert_eq!(f.kind.name(), "model");
+            assert!(classes.contains(&f.class.as_deref().unwrap()), "{f:?}");
+            assert!(
+                f.bbox_mm[0] < f.bbox_mm[2] && f.bbox_mm[1] < f.bbox_mm[3],
+                "{f:?}"
+            );
+            assert!(f.message.starts_with("model: "), "{f:?}");
+        }
+    }
+    assert!(model_flags > 0, "no model flag: {records:?}");
+    assert!(stderr.contains("the model runs on every layer"), "{stderr}");
+    assert!(
+        stderr.contains("WARN") && stderr.contains("model: "),
+        "{stderr}"
+    );
 }

@@ -27,6 +27,7 @@ mod flaws;
 mod fuzz_smoke;
 mod health;
 mod inspection;
+mod learn;
 mod lifecycle;
 mod pacs;
 mod raster;
