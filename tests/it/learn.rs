@@ -1,8 +1,9 @@
 //! `layerwise learn` through the binary on generated pictures: training is deterministic for a
 //! seed (on 1 thread or 2), eval's JSON has its contract, predict names the class and draws the
-//! heat map; a flaws output (labels.json) trains a patch model; damaged, foreign, newer and
-//! mismatched model files are refused with their own message, by predict and by check-config.
-//! The real-data training (../shared/data/real/pblm) is `examples/learn_pblm.sh`, not a test.
+//! heat map; a flaws output (labels.json) trains a patch model on held-out layers; compare
+//! tabulates the model beside the classical inspection; damaged, foreign, newer and mismatched
+//! model files are refused with their own message, by predict and by check-config. The
+//! real-data training (../shared/data/real/pblm) is measured in docs/learning.md, not a test.
 
 use crate::common::*;
 use std::path::{Path, PathBuf};
@@ -42,13 +43,24 @@ fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u
     edit(&mut header);
     st["__metadata__"]["layerwise.model"] = serde_json::Value::String(header.to_string());
     let mut text = st.to_string().into_bytes();
-    while text.len() % 8 != 0 {
+    while !text.len().is_multiple_of(8) {
         text.push(b' ');
     }
     let mut out = (text.len() as u64).to_le_bytes().to_vec();
     out.extend(text);
     out.extend_from_slice(&bytes[8 + n..]);
     out
+}
+
+/// `layerwise ARGS --model MODEL --data DATA` (eval, compare).
+fn learn_on(args: &[&str], model: &Path, data: &Path) -> std::process::Command {
+    let mut c = layerwise();
+    c.args(args)
+        .arg("--model")
+        .arg(model)
+        .arg("--data")
+        .arg(data);
+    c
 }
 
 fn predict_fails(model: &Path, image: &Path) -> String {
@@ -99,12 +111,7 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
     assert_eq!(h["training"]["split"]["val"]["Spots"], 2);
     assert_eq!(h["training"]["data"]["sha256"].as_str().unwrap().len(), 64);
 
-    let eval = layerwise()
-        .args(["learn", "eval", "--json", "--model"])
-        .arg(&model)
-        .arg("--data")
-        .arg(&data)
-        .json_ok();
+    let eval = learn_on(&["learn", "eval", "--json"], &model, &data).json_ok();
     for c in ["No_Defect", "Spots", "Streaks"] {
         let m = &eval["per_class"][c];
         assert_eq!(m["support"], 10, "{eval}");
@@ -120,12 +127,7 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
         .map(|v| v.as_u64().unwrap())
         .sum();
     assert_eq!(total, 30);
-    let val = layerwise()
-        .args(["learn", "eval", "--part", "val", "--model"])
-        .arg(&model)
-        .arg("--data")
-        .arg(&data)
-        .stdout_ok();
+    let val = learn_on(&["learn", "eval", "--part", "val"], &model, &data).stdout_ok();
     assert!(val.starts_with("6 images: accuracy"), "{val}");
 
     let streak = data.join("Streaks/frame_0009.png");
@@ -283,4 +285,81 @@ fn the_daemon_runs_the_model_on_every_layer_after_the_classical_checks() {
         stderr.contains("WARN") && stderr.contains("model: "),
         "{stderr}"
     );
+}
+
+#[test]
+fn a_flaws_output_trains_a_patch_model_on_held_out_layers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("flaws");
+    flaws_output(&data, 10);
+    let model = tmp.path().join("patches.safetensors");
+    let out = train(&data, &model, 1, "2");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // Layers 9-10 are validation, layer 8 the guard band: 42 patches train, 12 validate.
+    assert!(
+        stderr.contains(
+            "(flaws): 60 pictures in 2 classes; 42 for training, 12 for validation, 6 left out"
+        ),
+        "{stderr}"
+    );
+    let h = header_of(&std::fs::read(&model).unwrap());
+    assert_eq!(h["classes"], serde_json::json!(["control", "flaw"]));
+    assert_eq!(h["normal_class"], "control");
+    assert_eq!(h["training"]["split"]["rule"], "layer-tail");
+    // Patches carry their scale: the grid's pixel, cells of one pixel.
+    assert_eq!(h["input"]["cell_mm"], 0.0625);
+    assert_eq!(h["input"]["cell_px"], 1);
+    assert!(h["input"]["frame_px"].is_null(), "{h}");
+
+    let eval = learn_on(&["learn", "eval", "--json", "--part", "val"], &model, &data).json_ok();
+    assert_eq!(eval["per_class"]["flaw"]["support"], 6, "{eval}");
+    for c in ["control", "flaw"] {
+        assert!(
+            eval["per_class"][c]["recall"].as_f64().unwrap() >= 0.8,
+            "{c}: {eval}"
+        );
+    }
+    let said = layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(&model)
+        .arg(data.join("patches/F0005_L00010_pre_top.png"))
+        .stdout_ok();
+    assert!(said.contains(": flaw ("), "{said}");
+    // A patch model is not for whole frames: compare says so.
+    let frames = tmp.path().join("frames");
+    class_folders(&frames, 5);
+    let err = learn_on(&["learn", "compare"], &model, &frames).fails();
+    assert!(err.contains("not whole frames"), "{err}");
+}
+
+#[test]
+fn compare_tabulates_the_model_beside_the_classical_inspection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 10);
+    let model = tmp.path().join("m.safetensors");
+    train(&data, &model, 3, "2");
+    let table = learn_on(&["learn", "compare"], &model, &data).stdout_ok();
+    let lines: Vec<&str> = table.lines().collect();
+    assert!(
+        lines[0].starts_with(
+            "| class | frames | model: flagged | model: right class | classical: flagged"
+        ),
+        "{table}"
+    );
+    // One row per class, the validation part (the last 2 of each sequence of 10).
+    for class in ["No_Defect", "Spots", "Streaks"] {
+        let row = lines
+            .iter()
+            .find(|l| l.starts_with(&format!("| {class} | 2 |")))
+            .unwrap_or_else(|| panic!("no row of 2 {class} frames: {table}"));
+        let what = if class == "No_Defect" {
+            "false alarms"
+        } else {
+            "found"
+        };
+        assert_eq!(row.matches(what).count(), 2, "{row}");
+    }
+    let all = learn_on(&["learn", "compare", "--part", "all"], &model, &data).stdout_ok();
+    assert!(all.contains("| Streaks | 10 |"), "{all}");
 }

@@ -89,3 +89,56 @@ pub fn model_build(tmp: &Path) -> (std::path::PathBuf, String) {
     let out = run_build(&path);
     (dir, String::from_utf8_lossy(&out.stderr).into_owned())
 }
+
+/// A `layerwise flaws --build` output in `root` as `learn` reads it: `labels.json` (COCO
+/// `images` with `file_name`, `kind`, `layer`, `flaw_id`, `grid`) and 17 x 17 16-bit patches,
+/// per layer 1..=`layers` three views of the flaw `(layer + 1) / 2` (a dark pore of 2 to 3 px
+/// radius near the centre; each flaw spans two layers) and three flaw-free controls (which,
+/// as in `flaws`, carry the id of the flaw they are the control of). Level and grain vary in
+/// both classes.
+pub fn flaws_output(root: &Path, layers: u32) {
+    let mut rng = Rng(0xF1A5);
+    std::fs::create_dir_all(root.join("patches")).unwrap();
+    std::fs::create_dir_all(root.join("controls")).unwrap();
+    let mut images = Vec::new();
+    for layer in 1..=layers {
+        for (kind, dir) in [("flaw", "patches"), ("control", "controls")] {
+            for view in ["pre_top", "post_top", "post_side"] {
+                let base = 25_000.0 + rng.below(15_000) as f64;
+                let grain = 300.0 + rng.below(900) as f64;
+                let (cx, cy) = (7 + rng.below(3), 7 + rng.below(3));
+                let radius = 2.0 + rng.below(2) as f64;
+                let img =
+                    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(17, 17, |x, y| {
+                        let mut v = base + grain * (rng.below(1000) as f64 / 500.0 - 1.0);
+                        let d = ((x as f64 - cx as f64).powi(2) + (y as f64 - cy as f64).powi(2))
+                            .sqrt();
+                        if kind == "flaw" && d <= radius {
+                            v *= 0.55;
+                        }
+                        image::Luma([v.clamp(0.0, 65_535.0) as u16])
+                    });
+                let flaw_id = layer.div_ceil(2);
+                let name = format!(
+                    "{dir}/{}{flaw_id:04}_L{layer:05}_{view}.png",
+                    &kind[..1].to_uppercase()
+                );
+                img.save(root.join(&name)).unwrap();
+                let grid = layerwise::geometry::Grid {
+                    x_min: 0.0,
+                    x_max: 17.0 * 0.0625,
+                    y_min: 0.0,
+                    y_max: 17.0 * 0.0625,
+                    pixel_mm: 0.0625,
+                };
+                images.push(serde_json::json!({
+                    "id": images.len() + 1, "file_name": name, "width": 17, "height": 17,
+                    "kind": kind, "layer": layer, "view": view, "flaw_id": flaw_id,
+                    "grid": grid, "value_scale": 1,
+                }));
+            }
+        }
+    }
+    let labels = serde_json::json!({"images": images, "annotations": [], "categories": []});
+    std::fs::write(root.join("labels.json"), labels.to_string()).unwrap();
+}
