@@ -10,7 +10,9 @@
 //! 3. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
 //!
-//! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2.
+//! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2;
+//! `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to the "on" builds (issue 26: the
+//! capture path's overhead must not move with a model on).
 
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
@@ -159,6 +161,12 @@ fn calibrated(dir: &Path, layers: u32, width: u32, height: u32, inspect: bool) -
     layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
     config.build.vectors = Some(vectors);
     config.inspection.enabled = inspect;
+    // LAYERWISE_BENCH_MODEL=FILE: "on" runs that defect model too (`learn train --cell-mm`).
+    if let Some(model) = std::env::var_os("LAYERWISE_BENCH_MODEL").filter(|_| inspect) {
+        config.inspection.model = Some(layerwise::config::model::ModelConfig::for_file(
+            model.into(),
+        ));
+    }
     // Signals a second apart: the worker keeps up, as between the layers of a real build.
     if let TriggerConfig::Mock(mock) = &mut config.trigger {
         mock.interval_ms = 1000;

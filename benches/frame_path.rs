@@ -3,13 +3,16 @@
 //! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 
+#[path = "support/views.rs"]
+mod bench_views;
+
 #[path = "support/manifest.rs"]
 mod manifest;
 
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
-use layerwise::rectify::{Calibration, Grid, Interpolation};
+use layerwise::rectify::{Calibration, Interpolation};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
 use manifest::bench_manifest;
@@ -46,20 +49,6 @@ fn time_frames(
     (per_frame, layer_totals)
 }
 
-/// Layer 1 of the demo plate as `view` sees it.
-fn scene<'a>(parts: &'a [mock_camera::Shape], view: &View) -> mock_camera::Scene<'a> {
-    mock_camera::Scene {
-        layer: 1,
-        fused: parts,
-        scanned: view.phase == Phase::Post,
-        illumination: match view.light {
-            Light::Front => mock_camera::Illumination::Front,
-            Light::Side => mock_camera::Illumination::Side,
-            Light::Top => mock_camera::Illumination::Top,
-        },
-    }
-}
-
 /// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it.
 fn write_originals(
     build_dir: &std::path::Path,
@@ -85,7 +74,7 @@ fn write_originals(
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let (w, h) = if full { (7360, 4912) } else { (736, 491) };
+    let (w, h, grid) = bench_views::bench_scale(full);
     let truth = mock_camera::Homography::oblique_view(w, h);
     let renderer = mock_camera::Renderer::new(w, h, truth);
     let parts = mock_camera::demo_parts(1);
@@ -95,21 +84,13 @@ fn main() {
         .flat_map(|&phase| Light::ALL.iter().map(move |&light| View { phase, light }))
         .collect();
     let originals = write_originals(dir.path(), &views, "jpg", |view| {
-        renderer.render_jpeg(&scene(&parts, view), 95)
+        renderer.render_jpeg(&bench_views::scene(&parts, view), 95)
     });
     let jpeg_mb = std::fs::metadata(&originals[0].1)
         .map(|m| m.len())
         .unwrap_or(0) as f64
         / 1e6;
     let manifest = bench_manifest(&views);
-    let grid = if full {
-        Grid::plate()
-    } else {
-        Grid {
-            pixel_mm: 0.625,
-            ..Grid::plate()
-        }
-    };
     let calibration = Calibration {
         build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
         distortion: None,
@@ -199,7 +180,7 @@ fn raw_frames(
     let dir = tempfile::tempdir().expect("tempdir");
     let originals = write_originals(dir.path(), views, "nef", |view| {
         mock_camera::nef::encode_nef(
-            &renderer.render(&scene(parts, view)),
+            &renderer.render(&bench_views::scene(parts, view)),
             &mock_camera::nef::NefOptions::default(),
         )
     });

@@ -4,6 +4,9 @@
 //! each view to 0.5 mm cells and inspecting the layer against the demo vectors). Target: inspection
 //! ≤ 0.5 s per layer on this 2-core machine. Run: `cargo bench --bench inspection`.
 
+#[path = "support/views.rs"]
+mod bench_views;
+
 #[path = "support/manifest.rs"]
 mod manifest;
 
@@ -15,7 +18,7 @@ use layerwise::config::{Config, DEMO_CONFIG};
 use layerwise::dicom::Compression;
 use layerwise::hardware::lights::NoLights;
 use layerwise::inspect::Inspector;
-use layerwise::rectify::{Calibration, Grid, Interpolation, Rectifier};
+use layerwise::rectify::{Calibration, Interpolation, Rectifier};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
 use manifest::bench_manifest;
@@ -38,14 +41,6 @@ fn cpu_seconds() -> f64 {
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
-}
-
-fn illumination(light: Light) -> mock_camera::Illumination {
-    match light {
-        Light::Front => mock_camera::Illumination::Front,
-        Light::Side => mock_camera::Illumination::Side,
-        Light::Top => mock_camera::Illumination::Top,
-    }
 }
 
 /// The six originals of `layers` layers (the same pictures under each layer's names).
@@ -87,15 +82,7 @@ fn per_layer(processor: &dyn FrameProcessor, dir: &Path, layers: &[Vec<(Shot, Pa
 
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
-    let (w, h) = if full { (7360, 4912) } else { (736, 491) };
-    let grid = if full {
-        Grid::plate()
-    } else {
-        Grid {
-            pixel_mm: 0.625,
-            ..Grid::plate()
-        }
-    };
+    let (w, h, grid) = bench_views::bench_scale(full);
     let rounds = if full { 4 } else { 2 };
     let truth = mock_camera::Homography::oblique_view(w, h);
     let renderer = mock_camera::Renderer::new(w, h, truth);
@@ -107,13 +94,10 @@ fn main() {
     let pictures: Vec<(View, Vec<u8>)> = views
         .iter()
         .map(|view| {
-            let scene = mock_camera::Scene {
-                layer: 1,
-                fused: &parts,
-                scanned: view.phase == Phase::Post,
-                illumination: illumination(view.light),
-            };
-            (*view, renderer.render_jpeg(&scene, 95))
+            (
+                *view,
+                renderer.render_jpeg(&bench_views::scene(&parts, view), 95),
+            )
         })
         .collect();
     let tmp = tempfile::tempdir().expect("tempdir");

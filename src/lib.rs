@@ -11,7 +11,7 @@
 //! | 2 records | [`build_dir`], [`config`], [`raster`] | the build directory, the configuration, vectors on a grid |
 //! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
 //! | 4 registration | [`calibrate`], [`ct`], [`series`] | image ↔ vectors, CT ↔ vectors, the live DICOM series of a view |
-//! | 5 products | [`export`], [`flaws`], [`locate`], [`hardware`], [`inspect`], [`pacs`] | one study per build, CT flaws, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives |
+//! | 5 products | [`export`], [`flaws`], [`learn`], [`locate`], [`hardware`], [`inspect`], [`pacs`] | one study per build, CT flaws, the trained defect model, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives |
 //! | 6 daemon | [`acquisition`], [`web`] | the acquisition daemon; the operator page |
 //! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
 //!
@@ -27,6 +27,7 @@
 //! | calibration | [`calibrate`] (`register images`), [`rectify`] (calibration.toml, the rectifier), [`geometry`] (the camera model) |
 //! | CT | [`ct`] (readers, segmentation, registration, `register ct`), [`flaws`] (pores → labelled patches), [`tsdf`] |
 //! | export and locate | [`export`], [`locate`], [`dicom`] |
+//! | the defect model | [`learn`] (training, the model file, `learn predict/eval`, [`learn::live`]: per-tile flags and heat maps), [`config::model`] (`[inspection.model]`), [`acquisition::inspection`] (after the classical checks), [`web`] (verdicts, heat maps) |
 
 pub mod acquisition;
 pub mod build_dir;
@@ -41,6 +42,7 @@ pub mod fsutil;
 pub mod geometry;
 pub mod hardware;
 pub mod inspect;
+pub mod learn;
 pub mod locate;
 pub mod logging;
 pub mod optics;

@@ -295,6 +295,7 @@ mod tests {
             flags: severity
                 .map(|severity| Flag {
                     kind: FlagKind::Spatter,
+                    class: None,
                     severity,
                     part: None,
                     view: "post_top".into(),

@@ -30,6 +30,8 @@ pub enum AcquisitionError {
     Series(#[from] crate::series::SeriesError),
     #[error("cannot record the configuration")]
     Snapshot(#[from] toml::ser::Error),
+    #[error("cannot use the inspection model ([inspection.model] file)")]
+    Model(#[source] crate::learn::ModelError),
     #[error("the journal's lock was poisoned by a panic on another thread")]
     Poisoned,
 }

@@ -27,6 +27,8 @@ pub struct InspectingSeries {
     log: Mutex<InspectionLog>,
     alarm: AlarmThread,
     clock: SharedClock,
+    /// `[inspection.model]`: the trained model after the classical checks.
+    model: Option<super::model::ModelStage>,
 }
 
 impl InspectingSeries {
@@ -74,6 +76,7 @@ impl InspectingSeries {
         }
         inspector.resume(&done);
         let missed = missed_layers(build_dir, &inspector, &config.views.all())?;
+        let model = open_model(config, build_dir, &live)?;
         let mut alarm = alarm;
         alarm.resume(build_dir, config.storage.fsync)?;
         let alarm = AlarmThread::spawn(alarm, build_dir.to_path_buf(), clock.clone());
@@ -85,6 +88,7 @@ impl InspectingSeries {
             log: Mutex::new(log),
             alarm,
             clock,
+            model,
         })
     }
 
@@ -116,10 +120,44 @@ impl InspectingSeries {
     }
 }
 
+impl InspectingSeries {
+    /// The records with the model's flags added (those the model is done with), or as they are
+    /// without a model.
+    fn with_model(&self, records: Vec<InspectionRecord>, flush: bool) -> Vec<InspectionRecord> {
+        match &self.model {
+            Some(model) => model.complete(records, flush),
+            None => records,
+        }
+    }
+}
+
+/// The configured model, checked against the series' views: a bad model file stops the start.
+fn open_model(
+    config: &Config,
+    build_dir: &Path,
+    live: &LiveSeries,
+) -> Result<Option<super::model::ModelStage>, super::AcquisitionError> {
+    let Some(cfg) = &config.inspection.model else {
+        return Ok(None);
+    };
+    let model = crate::learn::live::LiveModel::open(cfg, &live.grid())
+        .map_err(super::AcquisitionError::Model)?;
+    Ok(Some(super::model::ModelStage::new(
+        model,
+        live.grid(),
+        &config.views.all(),
+        build_dir,
+        config.storage.fsync,
+    )))
+}
+
 impl FrameProcessor for InspectingSeries {
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
         let (bytes, acquired) = crate::series::read_original(original)?;
         let rectified = self.live.rectified_luma(&bytes)?;
+        if let Some(model) = &self.model {
+            model.scan(shot.layer, shot.view(), &rectified);
+        }
         let cells = self
             .reducer
             .needs(shot.view())
@@ -131,16 +169,14 @@ impl FrameProcessor for InspectingSeries {
         };
         self.live
             .write_rectified(build_dir, shot, rectified, acquired, Some(source))?;
-        if let Some(cells) = cells {
-            let records = match self.inspector.lock() {
-                Ok(mut inspector) => {
-                    inspector.add(shot.layer, shot.view(), cells, self.clock.now())
-                }
-                Err(_) => Vec::new(),
-            };
-            for record in &records {
-                self.record(record);
+        let records = match (cells, self.inspector.lock()) {
+            (Some(cells), Ok(mut inspector)) => {
+                inspector.add(shot.layer, shot.view(), cells, self.clock.now())
             }
+            _ => Vec::new(),
+        };
+        for record in &self.with_model(records, false) {
+            self.record(record);
         }
         Ok(())
     }
@@ -162,6 +198,9 @@ impl FrameProcessor for InspectingSeries {
 
     /// The alarm handles the last layers' records, then its thread ends.
     fn finish(&self) {
+        for record in &self.with_model(Vec::new(), true) {
+            self.record(record);
+        }
         self.alarm.finish();
     }
 

@@ -15,6 +15,7 @@ mod exposure;
 mod health;
 pub mod inspection;
 pub mod lifecycle;
+pub mod model;
 mod open;
 mod preflight;
 pub mod processing;
@@ -300,6 +301,10 @@ fn default_processor(
     ),
     clock: &SharedClock,
 ) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
+    if let (true, Some(model)) = (config.inspection.enabled, &config.inspection.model) {
+        // A bad model file stops the start, calibrated or not.
+        crate::learn::Model::load(&model.file).map_err(AcquisitionError::Model)?;
+    }
     let Some(path) = &config.calibration.file else {
         warn!("no calibration.file: frames are kept but not rectified; run `layerwise register images` and set it");
         return Ok(Arc::new(KeepOriginals));

@@ -55,10 +55,12 @@ pub enum FlagKind {
     Spatter,
     /// A part metric moved away from its running baseline.
     Drift,
+    /// A trained model's defect class (the flag's `class`), `[inspection.model]`.
+    Model,
 }
 
 impl FlagKind {
-    pub const ALL: [FlagKind; 8] = [
+    pub const ALL: [FlagKind; 9] = [
         FlagKind::Streak,
         FlagKind::ShortFeed,
         FlagKind::Coverage,
@@ -67,6 +69,7 @@ impl FlagKind {
         FlagKind::OverFusion,
         FlagKind::Spatter,
         FlagKind::Drift,
+        FlagKind::Model,
     ];
     pub fn name(self) -> &'static str {
         match self {
@@ -78,6 +81,7 @@ impl FlagKind {
             FlagKind::OverFusion => "over_fusion",
             FlagKind::Spatter => "spatter",
             FlagKind::Drift => "drift",
+            FlagKind::Model => "model",
         }
     }
 }
@@ -92,6 +96,9 @@ impl fmt::Display for FlagKind {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Flag {
     pub kind: FlagKind,
+    /// A model flag's class (the model's class name); absent for the classical checks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub class: Option<String>,
     pub severity: Severity,
     /// The vector file's part id, `None` for plate-wide findings.
     pub part: Option<i64>,
@@ -246,6 +253,7 @@ pub(crate) mod tests {
     pub(crate) fn streak(severity: Severity) -> Flag {
         Flag {
             kind: FlagKind::Streak,
+            class: None,
             severity,
             part: None,
             view: "pre_top".into(),

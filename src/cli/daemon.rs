@@ -237,6 +237,18 @@ impl CheckConfigArgs {
             Some(builds) => format!("builds in {}", builds.display()),
             None => format!("output in {}", config.build.output_dir.display()),
         };
+        if let Some(model) = &config.inspection.model {
+            let live = layerwise::learn::live::LiveModel::open(model, &config.rectify)
+                .context("[inspection.model] file")?;
+            let h = &live.model.header;
+            println!(
+                "{}: model {:?} (validation accuracy {:.3}, macro recall {:.3}) runs on every layer",
+                model.file.display(),
+                h.classes,
+                h.validation.accuracy,
+                h.validation.macro_recall
+            );
+        }
         println!(
             "{}: valid ({} views per layer, {output})",
             self.file.display(),

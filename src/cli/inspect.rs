@@ -5,6 +5,7 @@ use anyhow::{anyhow, Context, Result};
 use clap::Args;
 use layerwise::build_dir::inspection::{FlagKind, Severity};
 use layerwise::config::inspection::InspectionConfig;
+use layerwise::config::model::ModelConfig;
 use layerwise::config::Config;
 use layerwise::inspect::{offline, Inspector};
 use layerwise::rectify::{Calibration, Grid, Rectifier};
@@ -48,6 +49,13 @@ pub struct InspectArgs {
     /// One JSON record per layer, as inspection.jsonl holds them, instead of text.
     #[arg(long)]
     json: bool,
+    /// A trained defect model to run after the classical checks (default: the configuration's
+    /// [inspection.model]).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The model's mm per cell when it was trained on frames of unknown scale.
+    #[arg(long)]
+    model_cell_mm: Option<f64>,
     /// Draw per-part metrics against layer with the flagged layers marked in red: SVG, or PNG
     /// when the name ends in .png.
     #[arg(long)]
@@ -148,7 +156,8 @@ impl InspectArgs {
             inspector.resolve_camera(footprint);
         }
         let to = self.to.unwrap_or(u32::MAX);
-        let (records, skipped) = offline::run(
+        let model = self.model_config(&cfg)?;
+        let (mut records, skipped) = offline::run(
             &mut inspector,
             &rectifier,
             &frames,
@@ -156,6 +165,28 @@ impl InspectArgs {
             to,
             chrono::Utc::now(),
         );
+        if let Some(model) = &model {
+            let live = layerwise::learn::live::LiveModel::open(model, &grid)
+                .context("the inspection model")?;
+            let unread = layerwise::learn::live::apply_offline(
+                &live,
+                &rectifier,
+                &grid,
+                &frames.paths,
+                &mut records,
+                &move |luma, bin| {
+                    let c = layerwise::inspect::cells::Cells::from_luma(luma, &grid, bin);
+                    (c.rows, c.cols, c.mean, c.texture)
+                },
+            );
+            for u in &unread {
+                eprintln!(
+                    "model skipped {}: {}",
+                    u.shot,
+                    layerwise::logging::Chain(&u.error)
+                );
+            }
+        }
         for s in &skipped {
             eprintln!(
                 "skipped {}: {}",
@@ -232,4 +263,22 @@ fn parse_view(text: &str) -> std::result::Result<layerwise::shot::View, String> 
         phase: phase.parse().map_err(|e| format!("{e}"))?,
         light: light.parse().map_err(|e| format!("{e}"))?,
     })
+}
+
+impl InspectArgs {
+    /// `--model` (with `--model-cell-mm`) or the configuration's `[inspection.model]`.
+    fn model_config(&self, cfg: &InspectionConfig) -> Result<Option<ModelConfig>> {
+        let mut model = match &self.model {
+            Some(file) => Some(ModelConfig::for_file(file.clone())),
+            None => cfg.model.clone(),
+        };
+        if let (Some(m), Some(mm)) = (&mut model, self.model_cell_mm) {
+            m.cell_mm = Some(mm);
+        }
+        if let Some(m) = &model {
+            m.validate()
+                .map_err(|e| anyhow!("--model: {}", layerwise::logging::chain(&e)))?;
+        }
+        Ok(model)
+    }
 }

@@ -8,6 +8,8 @@ mod daemon;
 mod files;
 mod flaws;
 mod inspect;
+mod learn;
+mod learn_compare;
 mod lifecycle;
 mod numbering;
 mod register;
@@ -86,6 +88,12 @@ pub enum Command {
     Inspect(inspect::InspectArgs),
     /// The inspection alarm: acknowledge it (`alarm ack --build DIR`) or show it.
     Alarm(alarm::AlarmArgs),
+    /// A defect model: train it on labelled pictures, CT flaws or operator verdicts, evaluate
+    /// it, run it on pictures (docs/learning.md).
+    Learn {
+        #[command(subcommand)]
+        command: learn::LearnCommand,
+    },
 }
 
 impl Command {
@@ -109,6 +117,7 @@ impl Command {
             Command::Push(args) => args.run(),
             Command::Inspect(args) => args.run(),
             Command::Alarm(args) => args.run(),
+            Command::Learn { command } => command.run(),
         }
     }
 }

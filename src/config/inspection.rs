@@ -149,6 +149,8 @@ pub struct InspectionConfig {
     /// Score ≥ this × threshold: critical.
     pub critical_factor: f64,
     pub alarm: AlarmConfig,
+    /// A trained defect model run after the classical checks (src/config/model.rs).
+    pub model: Option<super::model::ModelConfig>,
 }
 
 impl Default for InspectionConfig {
@@ -182,6 +184,7 @@ impl Default for InspectionConfig {
             drift_min_layers: 10,
             critical_factor: 2.0,
             alarm: AlarmConfig::default(),
+            model: None,
         }
     }
 }
@@ -298,6 +301,15 @@ impl InspectionConfig {
                 "inspection.reference_layers / drift_window / drift_min_layers",
                 "must be 3 or more (a median of fewer layers is no baseline)",
             ));
+        }
+        if let Some(model) = &self.model {
+            model.validate()?;
+            if !self.enabled {
+                return Err(Invalid::new(
+                    "inspection.model",
+                    "runs with the inspection: set inspection.enabled = true or leave the model out",
+                ));
+            }
         }
         if let Some(serial) = &self.alarm.serial {
             if serial.port.trim().is_empty() || serial.message.is_empty() || serial.baud == 0 {

@@ -13,6 +13,7 @@ mod common;
 mod error;
 pub mod inspection;
 mod lights;
+pub mod model;
 pub mod pacs;
 mod rectify;
 pub mod series;

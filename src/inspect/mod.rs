@@ -475,6 +475,7 @@ impl Inspector {
         };
         Flag {
             kind: f.kind,
+            class: None,
             severity,
             part: f.part,
             view: view.to_string(),

@@ -116,6 +116,7 @@ mod tests {
     fn flag(kind: FlagKind, part: Option<i64>, score: f64, bbox_mm: [f64; 4]) -> Flag {
         Flag {
             kind,
+            class: None,
             severity: Severity::Warning,
             part,
             view: "post_top".into(),

@@ -57,6 +57,7 @@ pub fn kind_letter(kind: FlagKind) -> char {
         FlagKind::OverFusion => 'O',
         FlagKind::Spatter => 'P',
         FlagKind::Drift => 'D',
+        FlagKind::Model => 'M',
     }
 }
 

@@ -23,6 +23,7 @@ mod routes;
 mod state;
 pub mod supervisor;
 pub mod timeline;
+mod verdicts;
 
 use crate::config::WebConfig;
 use crate::shutdown::Shutdown;

@@ -61,6 +61,14 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
         .route("/api/layers/{layer}/vectors.svg", get(vectors))
         .route("/api/layers/{layer}/{view}/picture.jpg", get(picture))
         .route("/api/layers/{layer}/{view}/original", get(original))
+        .route(
+            "/api/layers/{layer}/verdicts",
+            get(super::verdicts::list).post(super::verdicts::post),
+        )
+        .route(
+            "/api/layers/{layer}/{view}/heatmap.png",
+            get(super::verdicts::heatmap),
+        )
         .route("/api/events", get(events))
         // Bodies are received (bounded in bytes and time) only once the token was shown.
         .layer(middleware::from_fn_with_state(limits, clients::receive))

@@ -30,6 +30,7 @@ mod fuzz_smoke;
 mod health;
 mod inspect_frames;
 mod inspection;
+mod learn;
 mod lifecycle;
 mod pacs;
 mod pacs_push;

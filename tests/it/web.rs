@@ -564,3 +564,82 @@ fn the_calibration_page_saves_new_points_files_and_registers_only_when_enabled()
     );
     drop(on);
 }
+
+/// Confirm / false alarm on the model's flags through the page: recorded with who and when in
+/// verdicts.jsonl (only for a flag the layer has), listed back, behind the token when one is
+/// set; the model's heat map is served per layer and view.
+#[test]
+fn operators_confirm_or_dismiss_flags_and_the_page_serves_the_heat_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, _) = model_build(tmp.path());
+    let token = "0123456789abcdef0123";
+    let token_file = tmp.path().join("token");
+    std::fs::write(&token_file, token).unwrap();
+    let (_child, addr) = serve(&dir, &["--token-file", token_file.to_str().unwrap()]);
+    let auth = format!("token={token}");
+    let (layer, flag) = (1..=3)
+        .find_map(|n| {
+            let (status, body) = http(addr, "GET", &format!("/api/layers/{n}?{auth}"), b"");
+            assert_eq!(status, 200);
+            let detail: serde_json::Value = serde_json::from_slice(&body).unwrap();
+            let flags = detail["inspection"].as_array().unwrap().clone();
+            flags
+                .into_iter()
+                .find(|f| f["kind"] == "model")
+                .map(|f| (n, f))
+        })
+        .expect("a model flag");
+    let body = serde_json::json!({
+        "view": flag["view"], "verdict": "confirm", "who": "anna",
+        "flag": {"kind": "model", "class": flag["class"], "bbox_mm": flag["bbox_mm"]},
+    })
+    .to_string();
+    let path = format!("/api/layers/{layer}/verdicts");
+    let (status, _) = http(addr, "POST", &path, body.as_bytes());
+    assert_eq!(status, 401, "no token, no verdict");
+    let (status, answer) = http(addr, "POST", &format!("{path}?{auth}"), body.as_bytes());
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&answer));
+    let wrong = body
+        .replace("\"confirm\"", "\"false_alarm\"")
+        .replace("\"model\"", "\"streak\"");
+    let (status, answer) = http(addr, "POST", &format!("{path}?{auth}"), wrong.as_bytes());
+    assert_eq!(status, 404, "{}", String::from_utf8_lossy(&answer));
+    let (status, _) = http(
+        addr,
+        "POST",
+        &format!("{path}?{auth}"),
+        b"{\"view\":\"pre_top\"}",
+    );
+    assert!(status == 400 || status == 422, "{status}");
+    let lines = std::fs::read_to_string(dir.join("verdicts.jsonl")).unwrap();
+    assert_eq!(lines.lines().count(), 1, "{lines}");
+    let v: serde_json::Value = serde_json::from_str(lines.trim()).unwrap();
+    assert_eq!(
+        (v["who"].as_str(), v["verdict"].as_str()),
+        (Some("anna"), Some("confirm"))
+    );
+    assert_eq!(v["layer"], layer);
+    assert!(v["at"].as_str().unwrap().contains('T'), "{v}");
+    let (status, listed) = http(addr, "GET", &format!("{path}?{auth}"), b"");
+    assert_eq!(status, 200);
+    let listed: serde_json::Value = serde_json::from_slice(&listed).unwrap();
+    assert_eq!(listed["verdicts"].as_array().unwrap().len(), 1, "{listed}");
+    let view = flag["view"].as_str().unwrap();
+    let (status, png) = http(
+        addr,
+        "GET",
+        &format!("/api/layers/{layer}/{view}/heatmap.png?{auth}"),
+        b"",
+    );
+    assert_eq!(status, 200);
+    assert_eq!(image::load_from_memory(&png).unwrap().width(), 137);
+
+    // Training on the build's verdicts needs 10 or more of each class; it says so.
+    let said = layerwise()
+        .args(["learn", "train", "--out"])
+        .arg(tmp.path().join("v.safetensors"))
+        .arg("--data")
+        .arg(&dir)
+        .fails();
+    assert!(said.contains("a model needs 10 or more of each"), "{said}");
+}

@@ -233,6 +233,7 @@ async function showLayer(n) {
       if (svg) { const o = document.createElement("div"); o.className = "vectors"; o.innerHTML = svg; t.append(o); }
       const boxes = kind() === "rectified" && flagBoxes(detail.inspection, view);
       if (boxes) t.append(boxes);
+      if (kind() === "rectified") t.append(heatLayer(n, view));
       t.addEventListener("click", () => openZoom(n, view, p, detail.inspection));
     }
     const label = document.createElement("span"); label.className = "label"; label.textContent = view;
@@ -250,9 +251,56 @@ async function showLayer(n) {
     if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
     for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
     for (const f of detail.flags) dd(d, "flag", f, "wait");
-    for (const f of detail.inspection || []) dd(d, f.kind, f.message + " (" + f.severity + ", score " + f.score.toFixed(2) + ")", f.severity === "critical" ? "bad" : "wait");
+    for (const f of detail.inspection || []) flagEntry(d, n, f);
   }
   $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
+}
+
+// The model's heat map over a rectified view ([inspection.model]: per-tile defect probability,
+// white = defect), tinted red; absent without a model. Toggled with H.
+function heatLayer(n, view) {
+  const img = document.createElement("img");
+  img.className = "heatmap"; img.alt = ""; img.src = "/api/layers/" + n + "/" + view + "/heatmap.png";
+  img.style.cssText = "position:absolute;left:0;top:0;width:100%;height:100%;opacity:.45;pointer-events:none;filter:sepia(1) saturate(6) hue-rotate(-40deg);mix-blend-mode:screen";
+  img.onerror = () => img.remove();
+  return img;
+}
+function addHeatToggle() {
+  const label = document.createElement("label");
+  label.innerHTML = '<input id="heat" type="checkbox" checked> heat map (H)';
+  document.querySelector(".controls").append(label);
+  $("heat").addEventListener("change", (e) => document.body.classList.toggle("no-heat", !e.target.checked));
+  const style = document.createElement("style");
+  style.textContent = "body.no-heat .heatmap { display: none; } .verdict { margin-left: .4em; font-size: .8em; }";
+  document.head.append(style);
+  document.addEventListener("keydown", (e) => { if (e.key === "h" && e.target.tagName !== "INPUT") $("heat").click(); });
+}
+addHeatToggle();
+
+// A flag in the layer's list, with the operator's verdict buttons: "confirm" or "false alarm"
+// (recorded with who and when in the build's verdicts.jsonl; the model learns from them).
+function flagEntry(dl, n, f) {
+  const what = (f.class ? f.class + ": " : "") + f.message + " (" + f.severity + ", score " + f.score.toFixed(2) + ")";
+  dd(dl, f.kind, what, f.severity === "critical" ? "bad" : "wait");
+  const d = dl.lastElementChild;
+  for (const [verdict, text] of [["confirm", "confirm"], ["false_alarm", "false alarm"]]) {
+    const b = document.createElement("button");
+    b.className = "verdict"; b.textContent = text; b.dataset.verdict = verdict;
+    b.addEventListener("click", () => sendVerdict(n, f, verdict, d));
+    d.append(b);
+  }
+}
+async function sendVerdict(n, f, verdict, d) {
+  const who = localStorage.getItem("layerwise-who") || prompt("Your name (recorded with the verdict)") || "operator";
+  localStorage.setItem("layerwise-who", who);
+  const body = { view: f.view, flag: { kind: f.kind, class: f.class, bbox_mm: f.bbox_mm }, verdict, who };
+  const r = await fetch("/api/layers/" + n + "/verdicts", {
+    method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+  });
+  const note = document.createElement("span"); note.className = "verdict";
+  note.textContent = r.ok ? "✓ " + verdict.replace("_", " ") + " by " + who : "not recorded: " + ((await r.json().catch(() => ({}))).error || r.status);
+  d.querySelectorAll("button.verdict").forEach((b) => b.remove());
+  d.append(note);
 }
 
 // Zoom: the preview on the left, a full-resolution crop around the clicked point on the right.

@@ -1,0 +1,139 @@
+//! The trained model in the processing worker (`[inspection.model]`): every view it looks at
+//! is classified tile by tile as soon as it is rectified (in the model's own threads); a
+//! layer's inspection record waits here until the model has seen that layer's views (or a later
+//! layer's arrive), then gets the model's flags after the classical ones, and each view's heat
+//! map is written to `model/<view>/L00042.png` for the page.
+
+use crate::build_dir::inspection::InspectionRecord;
+use crate::learn::live::{heatmap_path, heatmap_png, LiveModel, ViewScan};
+use crate::logging::Chain;
+use crate::rectify::FrameLuma;
+use crate::shot::View;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use tracing::{info, warn};
+
+/// The model's part of the live inspection.
+pub struct ModelStage {
+    live: LiveModel,
+    grid: crate::geometry::Grid,
+    wanted: BTreeSet<View>,
+    build_dir: PathBuf,
+    fsync: bool,
+    state: Mutex<State>,
+}
+
+#[derive(Default)]
+struct State {
+    scans: BTreeMap<u32, Vec<ViewScan>>,
+    waiting: BTreeMap<u32, InspectionRecord>,
+}
+
+impl ModelStage {
+    /// The stage for a checked model, over views on `grid` of the configured `views`.
+    pub fn new(
+        live: LiveModel,
+        grid: crate::geometry::Grid,
+        views: &[View],
+        build_dir: &Path,
+        fsync: bool,
+    ) -> ModelStage {
+        let wanted = views.iter().copied().filter(|v| live.wants(*v)).collect();
+        let h = &live.model.header;
+        info!(
+            model = %live.model.path.display(),
+            classes = ?h.classes,
+            validation_accuracy = h.validation.accuracy,
+            "inspection: the model runs on every layer after the classical checks"
+        );
+        ModelStage {
+            live,
+            grid,
+            wanted,
+            build_dir: build_dir.to_path_buf(),
+            fsync,
+            state: Mutex::new(State::default()),
+        }
+    }
+
+    /// Classifies a rectified view of `layer` (when the model looks at it).
+    pub fn scan(&self, layer: u32, view: View, luma: &FrameLuma) {
+        if !self.wanted.contains(&view) {
+            return;
+        }
+        let scanned = self.live.install(|| {
+            let cells =
+                crate::inspect::cells::Cells::from_luma(luma, &self.grid, self.live.cell_px());
+            self.live.scan_cells(
+                view,
+                (cells.rows, cells.cols),
+                &cells.mean,
+                &cells.texture,
+                &self.grid,
+            )
+        });
+        match scanned {
+            Ok(scan) => {
+                if let Some(png) = heatmap_png(&scan) {
+                    let path = heatmap_path(&self.build_dir, &view.to_string(), layer);
+                    let written = path
+                        .parent()
+                        .map_or(Ok(()), std::fs::create_dir_all)
+                        .map_err(|e| e.to_string())
+                        .and_then(|_| {
+                            crate::fsutil::write_atomic(&path, &png, self.fsync)
+                                .map_err(|e| crate::logging::chain(&e))
+                        });
+                    if let Err(e) = written {
+                        warn!(layer, view = %view, error = %e, "model: cannot write the heat map");
+                    }
+                }
+                if let Ok(mut s) = self.state.lock() {
+                    s.scans.entry(layer).or_default().push(scan);
+                }
+            }
+            Err(e) => {
+                warn!(layer, view = %view, error = %Chain(&e), "model: cannot classify the view")
+            }
+        }
+    }
+
+    /// Takes the classical records; returns the records that are complete, model flags added,
+    /// in layer order. `flush` completes every record waiting.
+    pub fn complete(&self, records: Vec<InspectionRecord>, flush: bool) -> Vec<InspectionRecord> {
+        let Ok(mut s) = self.state.lock() else {
+            return records;
+        };
+        for r in records {
+            s.waiting.insert(r.layer, r);
+        }
+        let newest = s.scans.keys().next_back().copied().unwrap_or(0);
+        let ready: Vec<u32> = s
+            .waiting
+            .keys()
+            .copied()
+            .filter(|l| {
+                flush || *l < newest || s.scans.get(l).map_or(0, |v| v.len()) >= self.wanted.len()
+            })
+            .collect();
+        let mut out = Vec::new();
+        for layer in ready {
+            let Some(mut record) = s.waiting.remove(&layer) else {
+                continue;
+            };
+            let scans = s.scans.remove(&layer).unwrap_or_default();
+            let ms: f64 = scans.iter().map(|v| v.ms).sum();
+            for scan in &scans {
+                record.flags.extend(self.live.flags(scan, &self.grid));
+            }
+            record.plate.insert("model_ms".into(), ms);
+            out.push(record);
+        }
+        // Scans of layers that never got a record (not inspected) are dropped once passed.
+        let oldest_waiting = s.waiting.keys().next().copied().unwrap_or(u32::MAX);
+        s.scans
+            .retain(|l, _| *l + 2 >= newest || *l >= oldest_waiting);
+        out
+    }
+}

@@ -1,0 +1,312 @@
+//! What the model sees: a grey picture reduced to cells (mean grey level and texture per cell, as
+//! the inspection's cells are) and normalised per input so that neither the overall brightness
+//! nor the overall grain level of a frame can decide its class (on the pblm collection each class
+//! is one session, and those two numbers alone separate them: docs/learning.md).
+//!
+//! The recipe, versioned as [`NORMALISATION`]:
+//! - mean channel: the cell mean less its 15 x 15-cell box mean (a flat field, so vignetting and
+//!   the light's fall-off go), divided by 1.4826 x the median absolute value of that difference
+//!   over the input (at least 0.5 grey levels), clipped to ±6;
+//! - texture channel: ln((t + 0.5) / (median t + 0.5)) of the cell's standard deviation t over the
+//!   cell grown by one pixel each side, clipped to ±6.
+
+use serde::{Deserialize, Serialize};
+
+/// The normalisation recipe's name, recorded in every model file.
+pub const NORMALISATION: &str = "flatfield15-mad/log-texture-median/clip6";
+/// Input channels in order.
+pub const CHANNELS: [&str; 2] = ["mean", "texture"];
+const CLIP: f32 = 6.0;
+const FLAT_RADIUS: usize = 7;
+
+/// A grey picture, values on the 8-bit scale (16-bit values divided by 257).
+#[derive(Clone, Debug)]
+pub struct Gray {
+    pub width: usize,
+    pub height: usize,
+    pub px: Vec<f32>,
+}
+
+impl Gray {
+    pub fn new(width: usize, height: usize, px: Vec<f32>) -> Gray {
+        debug_assert_eq!(px.len(), width * height);
+        Gray { width, height, px }
+    }
+
+    pub fn from_luma(luma: &crate::rectify::FrameLuma) -> Gray {
+        match luma {
+            crate::rectify::FrameLuma::Gamma8(g) => Gray::new(
+                g.width() as usize,
+                g.height() as usize,
+                g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+            ),
+            crate::rectify::FrameLuma::Linear16(g) => Gray::new(
+                g.width() as usize,
+                g.height() as usize,
+                g.as_raw().iter().map(|&v| f32::from(v) / 257.0).collect(),
+            ),
+        }
+    }
+
+    pub fn at(&self, x: usize, y: usize) -> f32 {
+        self.px[y * self.width + x]
+    }
+
+    /// The centred square of side min(width, height).
+    pub fn center_square(&self) -> Gray {
+        let s = self.width.min(self.height);
+        let (x0, y0) = ((self.width - s) / 2, (self.height - s) / 2);
+        let mut px = Vec::with_capacity(s * s);
+        for y in y0..y0 + s {
+            px.extend_from_slice(&self.px[y * self.width + x0..y * self.width + x0 + s]);
+        }
+        Gray::new(s, s, px)
+    }
+
+    /// Resampled to `w` x `h`: area average when shrinking, bilinear when growing.
+    pub fn resize(&self, w: usize, h: usize) -> Gray {
+        if (w, h) == (self.width, self.height) {
+            return self.clone();
+        }
+        let (sx, sy) = (self.width as f64 / w as f64, self.height as f64 / h as f64);
+        let mut px = vec![0f32; w * h];
+        if sx >= 1.0 && sy >= 1.0 {
+            for (y, row) in px.chunks_mut(w).enumerate() {
+                let y0 = (y as f64 * sy) as usize;
+                let y1 = (((y + 1) as f64 * sy).ceil() as usize).clamp(y0 + 1, self.height);
+                for (x, out) in row.iter_mut().enumerate() {
+                    let x0 = (x as f64 * sx) as usize;
+                    let x1 = (((x + 1) as f64 * sx).ceil() as usize).clamp(x0 + 1, self.width);
+                    let mut sum = 0f32;
+                    for yy in y0..y1 {
+                        sum += self.px[yy * self.width + x0..yy * self.width + x1]
+                            .iter()
+                            .sum::<f32>();
+                    }
+                    *out = sum / ((y1 - y0) * (x1 - x0)) as f32;
+                }
+            }
+        } else {
+            for (y, row) in px.chunks_mut(w).enumerate() {
+                let fy = ((y as f64 + 0.5) * sy - 0.5).clamp(0.0, (self.height - 1) as f64);
+                for (x, out) in row.iter_mut().enumerate() {
+                    let fx = ((x as f64 + 0.5) * sx - 0.5).clamp(0.0, (self.width - 1) as f64);
+                    *out = self.bilinear(fx, fy);
+                }
+            }
+        }
+        Gray::new(w, h, px)
+    }
+
+    /// Bilinear sample at (x, y), clamped to the picture.
+    pub fn bilinear(&self, x: f64, y: f64) -> f32 {
+        let x = x.clamp(0.0, (self.width - 1) as f64);
+        let y = y.clamp(0.0, (self.height - 1) as f64);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let a = self.at(x0, y0) * (1.0 - fx) + self.at(x1, y0) * fx;
+        let b = self.at(x0, y1) * (1.0 - fx) + self.at(x1, y1) * fx;
+        a * (1.0 - fy) + b * fy
+    }
+}
+
+/// How a picture becomes the model's input; recorded in the model file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputSpec {
+    /// Channel names ([`CHANNELS`]).
+    pub channels: Vec<String>,
+    /// Cells of one input, rows x columns (whole frames and patches; a view is scanned at any size).
+    pub cells: [usize; 2],
+    /// Pixels per cell side of the canonical picture.
+    pub cell_px: usize,
+    /// Frames: the centred square is resampled to this many pixels a side before the cells
+    /// (`None`: patches, taken as they are, centre-cropped to the cells).
+    pub frame_px: Option<usize>,
+    /// Millimetres per cell on the build plate, when the training data had a scale (flaws
+    /// patches, build views); `None` for camera frames of unknown scale.
+    pub cell_mm: Option<f64>,
+    /// Cells per tile of the class map (the heat map's resolution).
+    pub map_stride_cells: usize,
+    /// The normalisation recipe ([`NORMALISATION`]).
+    pub normalisation: String,
+}
+
+impl InputSpec {
+    /// The input size in pixels of the canonical picture.
+    pub fn input_px(&self) -> [usize; 2] {
+        [self.cells[0] * self.cell_px, self.cells[1] * self.cell_px]
+    }
+
+    /// The canonical picture of a frame or patch: frames are centre-squared and resampled to
+    /// `frame_px`; patches are centre-cropped to the input size. `None` when a patch is smaller
+    /// than the input.
+    pub fn canonical(&self, img: &Gray) -> Option<Gray> {
+        let [h, w] = self.input_px();
+        match self.frame_px {
+            Some(f) => Some(img.center_square().resize(f, f)),
+            None => {
+                if img.width < w || img.height < h {
+                    return None;
+                }
+                let (x0, y0) = ((img.width - w) / 2, (img.height - h) / 2);
+                let mut px = Vec::with_capacity(w * h);
+                for y in y0..y0 + h {
+                    px.extend_from_slice(&img.px[y * img.width + x0..y * img.width + x0 + w]);
+                }
+                Some(Gray::new(w, h, px))
+            }
+        }
+    }
+}
+
+/// A normalised input: `channels` x `rows` x `cols`, channel-major.
+#[derive(Clone, Debug)]
+pub struct Input {
+    pub rows: usize,
+    pub cols: usize,
+    pub data: Vec<f32>,
+}
+
+/// Cells of `cell_px` pixels over the whole picture (a partial last row or column dropped),
+/// normalised: the model's input.
+pub fn cells(img: &Gray, cell_px: usize) -> Input {
+    let cp = cell_px.max(1);
+    let (rows, cols) = ((img.height / cp).max(1), (img.width / cp).max(1));
+    let (w, h) = (img.width, img.height);
+    // Integral images of values and squares (f64: exact enough for millions of pixels).
+    let mut s1 = vec![0f64; (w + 1) * (h + 1)];
+    let mut s2 = vec![0f64; (w + 1) * (h + 1)];
+    for y in 0..h {
+        let (mut r1, mut r2) = (0f64, 0f64);
+        for x in 0..w {
+            let v = f64::from(img.px[y * w + x]);
+            r1 += v;
+            r2 += v * v;
+            s1[(y + 1) * (w + 1) + x + 1] = s1[y * (w + 1) + x + 1] + r1;
+            s2[(y + 1) * (w + 1) + x + 1] = s2[y * (w + 1) + x + 1] + r2;
+        }
+    }
+    let rect = |s: &[f64], x0: usize, y0: usize, x1: usize, y1: usize| {
+        s[y1 * (w + 1) + x1] - s[y0 * (w + 1) + x1] - s[y1 * (w + 1) + x0] + s[y0 * (w + 1) + x0]
+    };
+    let mut mean = vec![0f32; rows * cols];
+    let mut texture = vec![0f32; rows * cols];
+    for r in 0..rows {
+        let (y0, y1) = ((r * cp).min(h - 1), ((r + 1) * cp).min(h));
+        let (g0, g1) = (y0.saturating_sub(1), (y1 + 1).min(h));
+        for c in 0..cols {
+            let (x0, x1) = ((c * cp).min(w - 1), ((c + 1) * cp).min(w));
+            let n = ((y1 - y0) * (x1 - x0)) as f64;
+            mean[r * cols + c] = (rect(&s1, x0, y0, x1, y1) / n) as f32;
+            let (e0, e1) = (x0.saturating_sub(1), (x1 + 1).min(w));
+            let n = ((g1 - g0) * (e1 - e0)) as f64;
+            let a = rect(&s1, e0, g0, e1, g1) / n;
+            let b = rect(&s2, e0, g0, e1, g1) / n;
+            texture[r * cols + c] = (b - a * a).max(0.0).sqrt() as f32;
+        }
+    }
+    normalise(rows, cols, &mean, &texture)
+}
+
+fn median(values: &mut [f32]) -> f32 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// The box mean of radius `r` cells (edge-clamped window) of a `rows` x `cols` map.
+fn box_mean(rows: usize, cols: usize, v: &[f32], r: usize) -> Vec<f32> {
+    let mut s = vec![0f64; (rows + 1) * (cols + 1)];
+    for y in 0..rows {
+        let mut run = 0f64;
+        for x in 0..cols {
+            run += f64::from(v[y * cols + x]);
+            s[(y + 1) * (cols + 1) + x + 1] = s[y * (cols + 1) + x + 1] + run;
+        }
+    }
+    let mut out = vec![0f32; rows * cols];
+    for y in 0..rows {
+        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(rows));
+        for x in 0..cols {
+            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(cols));
+            let sum = s[y1 * (cols + 1) + x1] - s[y0 * (cols + 1) + x1] - s[y1 * (cols + 1) + x0]
+                + s[y0 * (cols + 1) + x0];
+            out[y * cols + x] = (sum / ((y1 - y0) * (x1 - x0)) as f64) as f32;
+        }
+    }
+    out
+}
+
+/// The normalisation of the module's recipe, from raw cell means and textures.
+pub fn normalise(rows: usize, cols: usize, mean: &[f32], texture: &[f32]) -> Input {
+    let flat = box_mean(rows, cols, mean, FLAT_RADIUS);
+    let diff: Vec<f32> = mean.iter().zip(&flat).map(|(m, f)| m - f).collect();
+    let mut abs: Vec<f32> = diff.iter().map(|d| d.abs()).collect();
+    let scale = (1.4826 * median(&mut abs)).max(0.5);
+    let mut t = texture.to_vec();
+    let tm = median(&mut t) + 0.5;
+    let mut data = Vec::with_capacity(2 * rows * cols);
+    data.extend(diff.iter().map(|d| (d / scale).clamp(-CLIP, CLIP)));
+    data.extend(
+        texture
+            .iter()
+            .map(|t| ((t + 0.5) / tm).ln().clamp(-CLIP, CLIP)),
+    );
+    Input { rows, cols, data }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn brightness_and_grain_level_do_not_change_the_input() {
+        // A bright bar on a speckled ground; the same scene darker with twice the grain.
+        let make = |gain: f32, grain: f32| {
+            let px = (0..64 * 64)
+                .map(|i| {
+                    let (y, x) = (i / 64, i % 64);
+                    let speckle = if (x * 7 + y * 13) % 5 == 0 {
+                        grain
+                    } else {
+                        0.0
+                    };
+                    let bar = if (20..28).contains(&x) { 30.0 } else { 0.0 };
+                    gain * (100.0 + bar + speckle)
+                })
+                .collect();
+            cells(&Gray::new(64, 64, px), 4)
+        };
+        let (a, b) = (make(1.0, 4.0), make(0.5, 8.0));
+        assert_eq!((a.rows, a.cols), (16, 16));
+        let bar = |i: &Input| i.data[8 * 16 + 5];
+        assert!(bar(&a) > 1.0, "{}", bar(&a));
+        let t = |i: &Input| i.data[256 + 8 * 16 + 1];
+        assert!((t(&a) - t(&b)).abs() < 0.5, "{} {}", t(&a), t(&b));
+    }
+
+    #[test]
+    fn frames_are_squared_and_resampled_patches_cropped() {
+        let img = Gray::new(40, 20, (0..800).map(|i| (i % 40) as f32).collect());
+        let sq = img.center_square();
+        assert_eq!((sq.width, sq.height, sq.at(0, 0)), (20, 20, 10.0));
+        let small = sq.resize(10, 10);
+        assert!((small.at(0, 0) - 10.5).abs() < 1e-4);
+        let spec = InputSpec {
+            channels: CHANNELS.map(String::from).to_vec(),
+            cells: [4, 4],
+            cell_px: 2,
+            frame_px: None,
+            cell_mm: Some(0.1),
+            map_stride_cells: 2,
+            normalisation: NORMALISATION.into(),
+        };
+        let c = spec.canonical(&img).unwrap();
+        assert_eq!((c.width, c.height, c.at(0, 0)), (8, 8, 16.0));
+        assert!(spec.canonical(&Gray::new(6, 6, vec![0.0; 36])).is_none());
+    }
+}

@@ -1,0 +1,363 @@
+//! Training: class-balanced batches of augmented pictures, AdamW with a plain cross-entropy, the
+//! learning rate cut by 0.3 after 3 epochs without a better validation loss, an early stop after
+//! `patience` such epochs, and a time budget that ends training cleanly after the epoch that
+//! would overrun it. The weights of the best validation epoch are the ones kept. Deterministic
+//! for a seed: one generator drives the weights, the batches and every augmentation.
+
+use super::augment::Augment;
+use super::data::{read_item, DataKind, Dataset, Part};
+use super::error::LearnError;
+use super::file::{DataInfo, Header, SplitInfo, TrainingInfo, FORMAT, VERSION};
+use super::input::{self, Gray, Input, InputSpec, CHANNELS, NORMALISATION};
+use super::metrics::Metrics;
+use super::net::{self, Arch, Net};
+use super::rng::Rng;
+use candle_core::{Device, Tensor};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// `learn train`'s settings.
+#[derive(Clone, Debug)]
+pub struct TrainOptions {
+    pub epochs: usize,
+    pub val_fraction: f64,
+    pub seed: u64,
+    /// Frames: the side of the canonical square, px.
+    pub frame_px: usize,
+    /// Frames: pixels per cell of the canonical square.
+    pub cell_px: usize,
+    /// mm per cell to record for frames of a known scale.
+    pub cell_mm: Option<f64>,
+    /// The defect-free class (class folders).
+    pub normal: Option<String>,
+    pub channels: Vec<usize>,
+    pub batch: usize,
+    pub learning_rate: f64,
+    pub patience: usize,
+    pub max_seconds: f64,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            epochs: 40,
+            val_fraction: 0.2,
+            seed: 1,
+            frame_px: 512,
+            cell_px: 4,
+            cell_mm: None,
+            normal: None,
+            channels: vec![8, 16, 32, 64],
+            batch: 16,
+            learning_rate: 2e-3,
+            patience: 6,
+            max_seconds: 540.0,
+        }
+    }
+}
+
+/// One epoch, for the progress line.
+#[derive(Clone, Debug)]
+pub struct Epoch {
+    pub epoch: usize,
+    pub epochs: usize,
+    pub loss: f64,
+    pub val_loss: Option<f64>,
+    pub val: Option<Metrics>,
+    pub seconds: f64,
+    /// Of which preparing the augmented inputs.
+    pub prepare_seconds: f64,
+}
+
+/// The input recipe and the network for a data set.
+fn design(
+    data: &Dataset,
+    opts: &TrainOptions,
+    first: &Gray,
+) -> Result<(InputSpec, Arch), LearnError> {
+    let blocks = opts.channels.len().max(1);
+    let fit = |cells: usize| {
+        (0..blocks.min(4))
+            .rev()
+            .find(|&p| cells >> p >= 4)
+            .unwrap_or(0)
+    };
+    let (spec, pools) = match data.kind {
+        DataKind::ClassFolders => {
+            let cells = opts.frame_px / opts.cell_px.max(1);
+            if cells < 4 {
+                return Err(LearnError::data(
+                    &data.root,
+                    format!("--frame-px {} / --cell-px {} leaves {cells} cells a side; at least 4 are needed", opts.frame_px, opts.cell_px),
+                ));
+            }
+            let pools = fit(cells);
+            (
+                InputSpec {
+                    channels: CHANNELS.map(String::from).to_vec(),
+                    cells: [cells, cells],
+                    cell_px: opts.cell_px.max(1),
+                    frame_px: Some(cells * opts.cell_px.max(1)),
+                    cell_mm: opts.cell_mm,
+                    map_stride_cells: 1 << pools,
+                    normalisation: NORMALISATION.into(),
+                },
+                pools,
+            )
+        }
+        DataKind::Flaws | DataKind::Verdicts => {
+            let side = first.width.min(first.height);
+            let pools = fit(side).min(2);
+            let stride = 1 << pools;
+            let cells = side / stride * stride;
+            if cells < 4 {
+                return Err(LearnError::data(
+                    &data.root,
+                    format!("patches of {side} px are too small to learn from (4 px at least)"),
+                ));
+            }
+            (
+                InputSpec {
+                    channels: CHANNELS.map(String::from).to_vec(),
+                    cells: [cells, cells],
+                    cell_px: 1,
+                    frame_px: None,
+                    cell_mm: data.pixel_mm,
+                    map_stride_cells: stride,
+                    normalisation: NORMALISATION.into(),
+                },
+                pools,
+            )
+        }
+    };
+    Ok((spec, Arch::cnn(CHANNELS.len(), &opts.channels, pools)))
+}
+
+/// The model's input of a canonical picture.
+pub fn input_of(spec: &InputSpec, canonical: &Gray) -> Input {
+    input::cells(canonical, spec.cell_px)
+}
+
+/// Mean loss and predictions over inputs, in batches.
+fn evaluate(
+    net: &Net,
+    inputs: &[(Input, usize)],
+    batch: usize,
+) -> Result<(f64, Vec<usize>), LearnError> {
+    let mut loss = 0.0;
+    let mut predicted = Vec::with_capacity(inputs.len());
+    for chunk in inputs.chunks(batch.max(1)) {
+        let refs: Vec<&Input> = chunk.iter().map(|(i, _)| i).collect();
+        let x = net::batch(&refs, CHANNELS.len())?;
+        let targets: Vec<u32> = chunk.iter().map(|(_, c)| *c as u32).collect();
+        let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
+        let logits = net.logits(&x)?;
+        let l = candle_nn::loss::cross_entropy(&logits, &y)?.to_scalar::<f32>()?;
+        loss += f64::from(l) * chunk.len() as f64;
+        predicted.extend(
+            logits
+                .argmax(1)?
+                .to_vec1::<u32>()?
+                .into_iter()
+                .map(|p| p as usize),
+        );
+    }
+    Ok((loss / inputs.len().max(1) as f64, predicted))
+}
+
+/// Trains a model on `data`; `progress` sees every epoch. Returns the network (the best
+/// validation epoch's weights) and its header (without the weights' checksum).
+pub fn train(
+    data: &Dataset,
+    opts: &TrainOptions,
+    mut progress: impl FnMut(&Epoch),
+) -> Result<(Net, Header), LearnError> {
+    let started = Instant::now();
+    let parts = data.split(opts.val_fraction);
+    let train_idx: Vec<usize> = (0..data.items.len())
+        .filter(|&i| parts[i] == Part::Train)
+        .collect();
+    let val_idx: Vec<usize> = (0..data.items.len())
+        .filter(|&i| parts[i] == Part::Val)
+        .collect();
+    for (c, name) in data.classes.iter().enumerate() {
+        if !train_idx.iter().any(|&i| data.items[i].class == c) {
+            return Err(LearnError::data(
+                &data.root,
+                format!("class {name} has no training pictures"),
+            ));
+        }
+    }
+    let first = read_item(&data.items[train_idx[0]])?;
+    let (spec, arch) = design(data, opts, &first)?;
+    // The canonical pictures, decoded once (frames: 512 px squares, 1 MB each as f32).
+    let wanted: Vec<usize> = train_idx.iter().chain(&val_idx).copied().collect();
+    let pictures: Vec<(usize, Gray)> = wanted
+        .par_iter()
+        .map(|&i| {
+            let item = &data.items[i];
+            let img = read_item(item)?;
+            let canonical = spec.canonical(&img).ok_or_else(|| {
+                LearnError::data(
+                    &item.path,
+                    format!(
+                        "{}x{} px is smaller than the input of {:?} px",
+                        img.width,
+                        img.height,
+                        spec.input_px()
+                    ),
+                )
+            })?;
+            Ok((i, canonical))
+        })
+        .collect::<Result<_, LearnError>>()?;
+    let picture = |i: usize| &pictures[wanted.iter().position(|&w| w == i).unwrap_or(0)].1;
+    let val_inputs: Vec<(Input, usize)> = val_idx
+        .par_iter()
+        .map(|&i| (input_of(&spec, picture(i)), data.items[i].class))
+        .collect();
+    let augment = Augment {
+        isotropic: data.kind != DataKind::ClassFolders,
+    };
+    let mut rng = Rng::new(opts.seed);
+    let (mut net, vars) = Net::init(&arch, data.classes.len(), &mut rng)?;
+    let mut opt = AdamW::new(
+        vars,
+        ParamsAdamW {
+            lr: opts.learning_rate,
+            weight_decay: 1e-4,
+            ..ParamsAdamW::default()
+        },
+    )?;
+    let by_class: Vec<Vec<usize>> = (0..data.classes.len())
+        .map(|c| {
+            train_idx
+                .iter()
+                .copied()
+                .filter(|&i| data.items[i].class == c)
+                .collect()
+        })
+        .collect();
+    let per_epoch = train_idx.len().max(opts.batch);
+    let mut best: Option<(f64, usize, Vec<Tensor>, Option<Metrics>)> = None;
+    let mut since_best = 0;
+    let mut stopped = "epochs";
+    let mut epochs_run = 0;
+    for epoch in 1..=opts.epochs.max(1) {
+        let t0 = Instant::now();
+        // Class-balanced draws: equal shares per class, each a fresh augmentation.
+        let mut draws: Vec<usize> = (0..per_epoch)
+            .map(|k| {
+                let class = &by_class[k % by_class.len()];
+                class[rng.below(class.len())]
+            })
+            .collect();
+        rng.shuffle(&mut draws);
+        let stream = rng.fork(epoch as u64);
+        let mut loss_sum = 0.0;
+        let mut prepare_seconds = 0.0;
+        for (b, chunk) in draws.chunks(opts.batch.max(1)).enumerate() {
+            let t1 = Instant::now();
+            let inputs: Vec<Input> = chunk
+                .par_iter()
+                .enumerate()
+                .map(|(k, &i)| {
+                    let mut r = stream.fork((b * opts.batch + k) as u64);
+                    input_of(&spec, &augment.apply(picture(i), &mut r))
+                })
+                .collect();
+            prepare_seconds += t1.elapsed().as_secs_f64();
+            let refs: Vec<&Input> = inputs.iter().collect();
+            let x = net::batch(&refs, CHANNELS.len())?;
+            let targets: Vec<u32> = chunk.iter().map(|&i| data.items[i].class as u32).collect();
+            let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
+            let loss = candle_nn::loss::cross_entropy(&net.logits(&x)?, &y)?;
+            opt.backward_step(&loss)?;
+            loss_sum += f64::from(loss.to_scalar::<f32>()?) * chunk.len() as f64;
+        }
+        epochs_run = epoch;
+        let loss = loss_sum / draws.len() as f64;
+        let (val_loss, val) = if val_inputs.is_empty() {
+            (None, None)
+        } else {
+            let (l, predicted) = evaluate(&net, &val_inputs, opts.batch)?;
+            let pairs: Vec<(usize, usize)> =
+                val_inputs.iter().map(|(_, c)| *c).zip(predicted).collect();
+            (Some(l), Some(Metrics::new(&data.classes, &pairs)))
+        };
+        let seconds = t0.elapsed().as_secs_f64();
+        progress(&Epoch {
+            epoch,
+            epochs: opts.epochs,
+            loss,
+            val_loss,
+            val: val.clone(),
+            seconds,
+            prepare_seconds,
+        });
+        let score = val_loss.unwrap_or(loss);
+        if best.as_ref().is_none_or(|(b, ..)| score < b - 1e-3) {
+            let copy = net
+                .params
+                .iter()
+                .map(|t| t.copy())
+                .collect::<Result<_, _>>()?;
+            best = Some((score, epoch, copy, val));
+            since_best = 0;
+        } else {
+            since_best += 1;
+            if since_best % 3 == 0 {
+                opt.set_learning_rate(opt.learning_rate() * 0.3);
+            }
+            if since_best >= opts.patience {
+                stopped = "plateau";
+                break;
+            }
+        }
+        let elapsed = started.elapsed().as_secs_f64();
+        if epoch < opts.epochs && elapsed + seconds > opts.max_seconds {
+            stopped = "time budget";
+            break;
+        }
+    }
+    let (_, best_epoch, params, val) =
+        best.ok_or_else(|| LearnError::data(&data.root, "no epoch ran"))?;
+    net.params = params;
+    let split = SplitInfo {
+        rule: data.rule().into(),
+        val_fraction: opts.val_fraction,
+        train: data.counts(Some((&parts, Part::Train))),
+        val: data.counts(Some((&parts, Part::Val))),
+        dropped: parts.iter().filter(|p| **p == Part::Dropped).count(),
+    };
+    let header = Header {
+        format: FORMAT.into(),
+        version: VERSION,
+        arch,
+        classes: data.classes.clone(),
+        normal_class: data.normal.clone(),
+        input: spec,
+        training: TrainingInfo {
+            data: DataInfo {
+                kind: data.kind.name().into(),
+                root: data.root.display().to_string(),
+                counts: data.counts(None),
+                sha256: data.hash()?,
+            },
+            split,
+            seed: opts.seed,
+            epochs: opts.epochs,
+            epochs_run,
+            best_epoch,
+            stopped: stopped.into(),
+            seconds: started.elapsed().as_secs_f64(),
+            augmentation: augment.describe(),
+            layerwise: env!("CARGO_PKG_VERSION").into(),
+            candle: "0.11.1".into(),
+        },
+        validation: val.unwrap_or_else(|| Metrics::new(&data.classes, &[])),
+        weights_sha256: String::new(),
+    };
+    Ok((net, header))
+}

@@ -1,0 +1,365 @@
+//! `layerwise learn` through the binary on generated pictures: training is deterministic for a
+//! seed (on 1 thread or 2), eval's JSON has its contract, predict names the class and draws the
+//! heat map; a flaws output (labels.json) trains a patch model on held-out layers; compare
+//! tabulates the model beside the classical inspection; damaged, foreign, newer and mismatched
+//! model files are refused with their own message, by predict and by check-config. The
+//! real-data training (../shared/data/real/pblm) is measured in docs/learning.md, not a test.
+
+use crate::common::*;
+use std::path::{Path, PathBuf};
+
+/// `learn train` on the class folders with a small network: 64 px frames, 16 x 16 cells.
+fn train(data: &Path, out: &Path, seed: u64, threads: &str) -> std::process::Output {
+    train_small(
+        data,
+        out,
+        &[
+            "--seed",
+            &seed.to_string(),
+            "--channels",
+            "6,12",
+            "--epochs",
+            "40",
+            "--patience",
+            "40",
+        ],
+    )
+    .env("RAYON_NUM_THREADS", threads)
+    .succeeds()
+}
+
+/// The model file's JSON header (safetensors metadata `layerwise.model`).
+fn header_of(bytes: &[u8]) -> serde_json::Value {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let st: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    serde_json::from_str(st["__metadata__"]["layerwise.model"].as_str().unwrap()).unwrap()
+}
+
+/// The model file with its header changed by `edit` (lengths and padding redone).
+fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut st: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let mut header = header_of(bytes);
+    edit(&mut header);
+    st["__metadata__"]["layerwise.model"] = serde_json::Value::String(header.to_string());
+    let mut text = st.to_string().into_bytes();
+    while !text.len().is_multiple_of(8) {
+        text.push(b' ');
+    }
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend(text);
+    out.extend_from_slice(&bytes[8 + n..]);
+    out
+}
+
+/// `layerwise ARGS --model MODEL --data DATA` (eval, compare).
+fn learn_on(args: &[&str], model: &Path, data: &Path) -> std::process::Command {
+    let mut c = layerwise();
+    c.args(args)
+        .arg("--model")
+        .arg(model)
+        .arg("--data")
+        .arg(data);
+    c
+}
+
+fn predict_fails(model: &Path, image: &Path) -> String {
+    layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(model)
+        .arg(image)
+        .fails()
+}
+
+#[test]
+fn train_eval_and_predict_on_generated_classes_deterministically() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 10);
+    let model = tmp.path().join("m.safetensors");
+    let out = train(&data, &model, 3, "2");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("validation (sequence-tail)"), "{text}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("epoch 1/40") && stderr.contains("val acc"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("21 for training, 6 for validation, 3 left out"),
+        "{stderr}"
+    );
+
+    // The same seed on one thread: the same file, byte for byte.
+    let again = tmp.path().join("again.safetensors");
+    train(&data, &again, 3, "1");
+    let (a, b) = (
+        std::fs::read(&model).unwrap(),
+        std::fs::read(&again).unwrap(),
+    );
+    assert_eq!(
+        header_of(&a)["weights_sha256"],
+        header_of(&b)["weights_sha256"]
+    );
+    let h = header_of(&a);
+    assert_eq!(
+        h["classes"],
+        serde_json::json!(["No_Defect", "Spots", "Streaks"])
+    );
+    assert_eq!(h["normal_class"], "No_Defect");
+    assert_eq!(h["training"]["data"]["counts"]["Spots"], 10);
+    assert_eq!(h["training"]["split"]["val"]["Spots"], 2);
+    assert_eq!(h["training"]["data"]["sha256"].as_str().unwrap().len(), 64);
+
+    let eval = learn_on(&["learn", "eval", "--json"], &model, &data).json_ok();
+    for c in ["No_Defect", "Spots", "Streaks"] {
+        let m = &eval["per_class"][c];
+        assert_eq!(m["support"], 10, "{eval}");
+        assert!(m["recall"].as_f64().unwrap() >= 0.7, "{c}: {eval}");
+        assert!(m["precision"].as_f64().is_some(), "{eval}");
+    }
+    assert!(eval["accuracy"].as_f64().unwrap() >= 0.8, "{eval}");
+    let confusion = eval["confusion"].as_array().unwrap();
+    assert_eq!(confusion.len(), 3);
+    let total: u64 = confusion
+        .iter()
+        .flat_map(|r| r.as_array().unwrap())
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(total, 30);
+    let val = learn_on(&["learn", "eval", "--part", "val"], &model, &data).stdout_ok();
+    assert!(val.starts_with("6 images: accuracy"), "{val}");
+
+    let streak = data.join("Streaks/frame_0009.png");
+    let heat = tmp.path().join("heat.png");
+    let said = layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(&model)
+        .arg(&streak)
+        .arg("--heatmap")
+        .arg(&heat)
+        .stdout_ok();
+    assert!(said.contains(": Streaks ("), "{said}");
+    let picture = image::open(&heat).unwrap();
+    assert_eq!((picture.width(), picture.height()), (64, 64));
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&model)
+        .stdout_ok();
+    assert!(
+        info.contains("trained on") && info.contains("confusion"),
+        "{info}"
+    );
+}
+
+#[test]
+fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 5);
+    let model = tmp.path().join("m.safetensors");
+    train_small(&data, &model, &["--channels", "4,8", "--epochs", "1"]).succeeds();
+    let bytes = std::fs::read(&model).unwrap();
+    let image = data.join("Spots/frame_0000.png");
+    let bad = |name: &str, content: &[u8]| -> PathBuf {
+        let p = tmp.path().join(name);
+        std::fs::write(&p, content).unwrap();
+        p
+    };
+    let cases: Vec<(PathBuf, &str)> = vec![
+        (bad("truncated", &bytes[..bytes.len() / 2]), "damaged or not a safetensors file"),
+        (bad("text", b"not a model at all"), "damaged or not a safetensors file"),
+        (
+            bad("flipped", &{
+                let mut b = bytes.clone();
+                let last = b.len() - 3;
+                b[last] ^= 0x40;
+                b
+            }),
+            "the weights do not match their checksum",
+        ),
+        (
+            bad("newer", &with_header(&bytes, |h| h["version"] = 2.into())),
+            "written by a newer layerwise (model format 2, this one reads 1)",
+        ),
+        (
+            bad("older", &with_header(&bytes, |h| h["version"] = 0.into())),
+            "retrain it",
+        ),
+        (
+            bad("foreign", &with_header(&bytes, |h| h["format"] = "other".into())),
+            "not a layerwise model",
+        ),
+        (
+            bad("header", &with_header(&bytes, |h| h["input"]["cells"] = "many".into())),
+            "header is damaged at `input.cells`",
+        ),
+        (
+            bad(
+                "channels",
+                &with_header(&bytes, |h| {
+                    h["arch"]["in_channels"] = 3.into();
+                    h["input"]["channels"] = serde_json::json!(["mean", "texture", "range"]);
+                }),
+            ),
+            "does not match its architecture: conv0.weight is F32 [4, 2, 3, 3], expected F32 [4, 3, 3, 3]",
+        ),
+    ];
+    for (path, message) in &cases {
+        let said = predict_fails(path, &image);
+        assert!(said.contains(message), "{}: {said}", path.display());
+        assert!(said.contains(&path.display().to_string()), "{said}");
+    }
+
+    // The daemon's configuration: check-config refuses a bad model, and a model of camera
+    // frames (no scale) without [inspection.model] cell_mm.
+    let config_for = |file: &Path, extra: &str| {
+        let mut config = demo_config(&tmp.path().join("build"), 2);
+        config.inspection.model = Some(
+            toml::from_str(&format!("file = {:?}\n{extra}", file.display().to_string())).unwrap(),
+        );
+        let path = tmp.path().join("layerwise.toml");
+        write_config(&config, &path);
+        path
+    };
+    let said = layerwise()
+        .arg("check-config")
+        .arg(config_for(&cases[2].0, ""))
+        .fails();
+    assert!(
+        said.contains("[inspection.model] file") && said.contains("checksum"),
+        "{said}"
+    );
+    let said = layerwise()
+        .arg("check-config")
+        .arg(config_for(&model, ""))
+        .fails();
+    assert!(said.contains("the model has no scale"), "{said}");
+    let fine = layerwise()
+        .arg("check-config")
+        .arg(config_for(&model, "cell_mm = 2.0"))
+        .stdout_ok();
+    assert!(fine.contains("runs on every layer"), "{fine}");
+    let stderr = run_command(&config_for(&cases[2].0, "cell_mm = 2.0")).fails();
+    assert!(stderr.contains("checksum"), "{stderr}");
+}
+
+#[test]
+fn the_daemon_runs_the_model_on_every_layer_after_the_classical_checks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, stderr) = model_build(tmp.path());
+    let records = layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .unwrap();
+    assert_eq!(records.len(), 3, "{records:?}");
+    let classes = ["Spots", "Streaks"];
+    let mut model_flags = 0;
+    for r in &records {
+        assert!(r.plate.contains_key("model_ms"), "{r:?}");
+        for view in layerwise::config::ViewsConfig::default().all() {
+            let heat = layerwise::learn::live::heatmap_path(&dir, &view.to_string(), r.layer);
+            let png = image::open(&heat).unwrap_or_else(|e| panic!("{}: {e}", heat.display()));
+            // 550 px views of 0.5 mm, cells of 1 mm, tiles of 2 cells (one pool): 137 a side.
+            assert_eq!((png.width(), png.height()), (137, 137));
+        }
+        // The classical flags first, then the model's.
+        let first_model = r.flags.iter().position(|f| f.class.is_some());
+        if let Some(k) = first_model {
+            assert!(r.flags[k..].iter().all(|f| f.class.is_some()), "{r:?}");
+        }
+        for f in r.flags.iter().filter(|f| f.class.is_some()) {
+            model_flags += 1;
+            assert_eq!(f.kind.name(), "model");
+            assert!(classes.contains(&f.class.as_deref().unwrap()), "{f:?}");
+            assert!(
+                f.bbox_mm[0] < f.bbox_mm[2] && f.bbox_mm[1] < f.bbox_mm[3],
+                "{f:?}"
+            );
+            assert!(f.message.starts_with("model: "), "{f:?}");
+        }
+    }
+    assert!(model_flags > 0, "no model flag: {records:?}");
+    assert!(stderr.contains("the model runs on every layer"), "{stderr}");
+    assert!(
+        stderr.contains("WARN") && stderr.contains("model: "),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_flaws_output_trains_a_patch_model_on_held_out_layers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("flaws");
+    flaws_output(&data, 10);
+    let model = tmp.path().join("patches.safetensors");
+    let out = train(&data, &model, 1, "2");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // Layers 9-10 are validation, layer 8 the guard band: 42 patches train, 12 validate.
+    assert!(
+        stderr.contains(
+            "(flaws): 60 pictures in 2 classes; 42 for training, 12 for validation, 6 left out"
+        ),
+        "{stderr}"
+    );
+    let h = header_of(&std::fs::read(&model).unwrap());
+    assert_eq!(h["classes"], serde_json::json!(["control", "flaw"]));
+    assert_eq!(h["normal_class"], "control");
+    assert_eq!(h["training"]["split"]["rule"], "layer-tail");
+    // Patches carry their scale: the grid's pixel, cells of one pixel.
+    assert_eq!(h["input"]["cell_mm"], 0.0625);
+    assert_eq!(h["input"]["cell_px"], 1);
+    assert!(h["input"]["frame_px"].is_null(), "{h}");
+
+    let eval = learn_on(&["learn", "eval", "--json", "--part", "val"], &model, &data).json_ok();
+    assert_eq!(eval["per_class"]["flaw"]["support"], 6, "{eval}");
+    for c in ["control", "flaw"] {
+        assert!(
+            eval["per_class"][c]["recall"].as_f64().unwrap() >= 0.8,
+            "{c}: {eval}"
+        );
+    }
+    let said = layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(&model)
+        .arg(data.join("patches/F0005_L00010_pre_top.png"))
+        .stdout_ok();
+    assert!(said.contains(": flaw ("), "{said}");
+    // A patch model is not for whole frames: compare says so.
+    let frames = tmp.path().join("frames");
+    class_folders(&frames, 5);
+    let err = learn_on(&["learn", "compare"], &model, &frames).fails();
+    assert!(err.contains("not whole frames"), "{err}");
+}
+
+#[test]
+fn compare_tabulates_the_model_beside_the_classical_inspection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 10);
+    let model = tmp.path().join("m.safetensors");
+    train(&data, &model, 3, "2");
+    let table = learn_on(&["learn", "compare"], &model, &data).stdout_ok();
+    let lines: Vec<&str> = table.lines().collect();
+    assert!(
+        lines[0].starts_with(
+            "| class | frames | model: flagged | model: right class | classical: flagged"
+        ),
+        "{table}"
+    );
+    // One row per class, the validation part (the last 2 of each sequence of 10).
+    for class in ["No_Defect", "Spots", "Streaks"] {
+        let row = lines
+            .iter()
+            .find(|l| l.starts_with(&format!("| {class} | 2 |")))
+            .unwrap_or_else(|| panic!("no row of 2 {class} frames: {table}"));
+        let what = if class == "No_Defect" {
+            "false alarms"
+        } else {
+            "found"
+        };
+        assert_eq!(row.matches(what).count(), 2, "{row}");
+    }
+    let all = learn_on(&["learn", "compare", "--part", "all"], &model, &data).stdout_ok();
+    assert!(all.contains("| Streaks | 10 |"), "{all}");
+}
