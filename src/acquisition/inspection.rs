@@ -24,6 +24,7 @@ pub struct InspectingSeries {
     log: Mutex<InspectionLog>,
     alarm: AlarmThread,
     clock: SharedClock,
+    plant: crate::plant::PlantSink,
 }
 
 impl InspectingSeries {
@@ -80,7 +81,14 @@ impl InspectingSeries {
             log: Mutex::new(log),
             alarm,
             clock,
+            plant: crate::plant::PlantSink::off(),
         })
+    }
+
+    /// Also tells the plant interfaces each layer's record.
+    pub fn with_plant(mut self, plant: crate::plant::PlantSink) -> InspectingSeries {
+        self.plant = plant;
+        self
     }
 
     fn record(&self, record: &InspectionRecord) {
@@ -97,6 +105,8 @@ impl InspectingSeries {
                 error!(error = %Chain(&e), layer = record.layer, "inspection: cannot write the record");
             }
         }
+        self.plant
+            .emit(|| crate::plant::PlantEvent::Inspected(std::sync::Arc::new(record.clone())));
         self.alarm.after_layer(record);
     }
 }

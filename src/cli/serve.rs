@@ -25,6 +25,9 @@ pub struct ServeArgs {
     /// before it is closed, as `[web] idle_timeout_s`.
     #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
     idle_timeout_s: u64,
+    /// Serve Prometheus metrics of the build at /metrics (docs/metrics.md).
+    #[arg(long)]
+    metrics: bool,
 }
 
 impl ServeArgs {
@@ -53,6 +56,9 @@ impl ServeArgs {
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
+        if self.metrics {
+            layerwise::plant::metrics::install(None);
+        }
         let server = WebServer::start(&self.build, &config, addr, &process)?;
         println!(
             "serving {} at http://{}/ (Ctrl-C stops)",

@@ -18,7 +18,9 @@ const LAYERS: &[&[&str]] = &[
     &["build_dir", "config", "raster"],
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
-    &["export", "flaws", "locate", "hardware", "inspect", "pacs"],
+    &[
+        "export", "flaws", "locate", "hardware", "inspect", "pacs", "plant",
+    ],
     &["acquisition", "web"],
     &["sim"],
 ];

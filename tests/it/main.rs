@@ -29,6 +29,8 @@ mod health;
 mod inspection;
 mod lifecycle;
 mod pacs;
+mod plant_metrics;
+mod plant_mqtt;
 mod raster;
 #[cfg(feature = "nef")]
 mod raw_frames;

@@ -9,6 +9,7 @@ mod fixtures;
 pub mod pty;
 pub mod render2;
 mod rng;
+mod services;
 
 pub use build_dir::*;
 pub use cli::*;
@@ -16,3 +17,4 @@ pub use daemon::*;
 pub use data::*;
 pub use fixtures::*;
 pub use rng::*;
+pub use services::*;
