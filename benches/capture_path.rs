@@ -9,10 +9,13 @@
 //!    capture path's overhead unchanged.
 //! 3. resident memory through a long mock build (default 10,000 layers; LAYERWISE_BENCH_LAYERS
 //!    overrides): it must stay flat.
+//! 4. the same overhead with the plant interfaces off and on, side by side: on = `/metrics`
+//!    served by the page and scraped every 100 ms, MQTT to a broker that accepts and never
+//!    reads (a slow one) or to a closed port (an absent one), rounds alternating. They must leave the capture path's overhead unchanged.
 //!
-//! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2;
-//! `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to the "on" builds (issue 26: the
-//! capture path's overhead must not move with a model on).
+//! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2,
+//! `LAYERWISE_BENCH_ONLY=plant` only 4; `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to
+//! the "on" builds (issue 26: the capture path's overhead must not move with a model on).
 
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
@@ -20,7 +23,7 @@ mod prerecorded;
 use layerwise::build_dir::inspection::InspectionLog;
 use layerwise::build_dir::journal::Record;
 use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
-use prerecorded::{mock_frame, run_prerecorded};
+use prerecorded::{mock_frame, run_prerecorded, run_prerecorded_with};
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -219,23 +222,119 @@ fn inspection_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
         ("capture-path overhead per frame", &off.0, &on.0),
         ("processing after a layer's last frame", &off.1, &on.1),
     ] {
-        println!(
-            "  {what}: off median {:.2} ms, p95 {:.2} ms ({} samples); on median {:.2} ms, p95 {:.2} ms ({} samples); on/off median {:.3}, p95 {:.3}",
-            percentile(a, 0.5),
-            percentile(a, 0.95),
-            a.len(),
-            percentile(b, 0.5),
-            percentile(b, 0.95),
-            b.len(),
-            percentile(b, 0.5) / percentile(a, 0.5),
-            percentile(b, 0.95) / percentile(a, 0.95),
-        );
+        println!("  {what}: {}", off_vs_on(a, b));
     }
     println!(
         "  inspecting a layer (its record's ms, after the views' cells): median {:.2} ms, p95 {:.2} ms",
         percentile(&on.2, 0.5),
         percentile(&on.2, 0.95)
     );
+}
+
+/// A broker that accepts connections and never reads from them; and a port nobody listens on.
+fn broken_brokers() -> (String, String) {
+    let blackhole = std::net::TcpListener::bind("127.0.0.1:0").expect("blackhole");
+    let slow = format!("mqtt://{}", blackhole.local_addr().expect("address"));
+    std::thread::spawn(move || {
+        let mut held = Vec::new();
+        for stream in blackhole.incoming() {
+            held.extend(stream.ok());
+        }
+    });
+    let closed = std::net::TcpListener::bind("127.0.0.1:0").expect("port");
+    let absent = format!("mqtt://{}", closed.local_addr().expect("address"));
+    drop(closed);
+    (slow, absent)
+}
+
+/// GETs `/metrics` from `addr` every 100 ms until `done`; how many answers came.
+fn scrape(addr: std::net::SocketAddr, done: Arc<AtomicBool>) -> std::thread::JoinHandle<u32> {
+    std::thread::spawn(move || {
+        use std::io::{Read, Write};
+        let mut answers = 0;
+        while !done.load(Ordering::SeqCst) {
+            if let Ok(mut stream) = std::net::TcpStream::connect(addr) {
+                let _ = stream
+                    .write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+                let mut answer = Vec::new();
+                if stream.read_to_end(&mut answer).is_ok() && answer.starts_with(b"HTTP/1.1 200") {
+                    answers += 1;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        answers
+    })
+}
+
+/// The capture path with the plant interfaces off and on: `rounds` pairs of builds.
+fn plant_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
+    use layerwise::shutdown::{Shutdown, StopReason};
+    let frame = mock_frame(width, height);
+    let (slow, absent) = broken_brokers();
+    let mut runs: [Vec<f64>; 2] = Default::default();
+    let mut scrapes = 0;
+    for round in 0..rounds {
+        for (k, on) in [false, true].into_iter().enumerate() {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let build_dir = dir.path().join("build");
+            std::fs::create_dir_all(&build_dir).expect("build dir");
+            let mut config = config(&build_dir, layers, true);
+            let mut options = layerwise::acquisition::RunOptions::new();
+            let stop = Shutdown::new();
+            let mut running = None;
+            if on {
+                config.metrics.enabled = true;
+                config.mqtt.url = if round % 2 == 0 {
+                    slow.clone()
+                } else {
+                    absent.clone()
+                };
+                config.mqtt.queue_dir = dir.path().join("mqtt");
+                config.mqtt.retry_backoff_ms = [100, 1000];
+                let plant = layerwise::plant::Plant::start(&config, &stop);
+                options.plant = plant.sink();
+                let addr = "127.0.0.1:0".parse().expect("address");
+                let page = layerwise::web::WebServer::start(&build_dir, &config.web, addr, &stop)
+                    .expect("page");
+                let done = Arc::new(AtomicBool::new(false));
+                let scraper = scrape(page.addr, done.clone());
+                running = Some((plant, page, done, scraper));
+            }
+            run_prerecorded_with(&config, frame.clone(), options);
+            if let Some((plant, page, done, scraper)) = running {
+                done.store(true, Ordering::SeqCst);
+                scrapes += scraper.join().expect("scraper");
+                stop.request(StopReason::TriggerEnded);
+                page.join();
+                plant.join();
+            }
+            runs[k].extend(frame_gaps(&journal(&build_dir)));
+        }
+    }
+    for run in &mut runs {
+        run.sort_by(|a, b| a.total_cmp(b));
+    }
+    let [off, on] = &runs;
+    println!(
+        "plant interfaces off vs on ({width}x{height} JPEG, {rounds} x {layers} layers each, alternated; on: /metrics scraped every 100 ms ({scrapes} answers), MQTT to a broker that never reads / a closed port): capture-path overhead per frame: {}",
+        off_vs_on(off, on)
+    );
+}
+
+/// Two sorted samples side by side: medians, 95th percentiles, sizes and their ratios.
+fn off_vs_on(off: &[f64], on: &[f64]) -> String {
+    format!(
+        "off median {:.2} ms, p95 {:.2} ms ({} samples); on median {:.2} ms, p95 {:.2} ms ({} samples); on/off median {:.3}, p95 {:.3}",
+        percentile(off, 0.5),
+        percentile(off, 0.95),
+        off.len(),
+        percentile(on, 0.5),
+        percentile(on, 0.95),
+        on.len(),
+        percentile(on, 0.5) / percentile(off, 0.5),
+        percentile(on, 0.95) / percentile(off, 0.95),
+    )
 }
 
 fn rss_kib() -> u64 {
@@ -308,11 +407,17 @@ fn main() {
         inspection_side_by_side(1472, 982, 8, 2);
         return;
     }
+    if std::env::var("LAYERWISE_BENCH_ONLY").is_ok_and(|v| v == "plant") {
+        plant_side_by_side(1472, 982, 30, 4);
+        return;
+    }
     if full {
         inspection_side_by_side(1472, 982, 8, 2);
+        plant_side_by_side(1472, 982, 30, 4);
         overhead("D810-size mock frame", 7360, 4912, 20);
         memory(layers);
     } else {
         inspection_side_by_side(1472, 982, 2, 1);
+        plant_side_by_side(1472, 982, 2, 1);
     }
 }

@@ -11,7 +11,7 @@
 //! | 2 records | [`build_dir`], [`config`], [`raster`] | the build directory, the configuration, vectors on a grid |
 //! | 3 images | [`rectify`], [`tsdf`] | frame → top-down view and its calibration file; distance fields of the vectors |
 //! | 4 registration | [`calibrate`], [`ct`], [`series`] | image ↔ vectors, CT ↔ vectors, the live DICOM series of a view |
-//! | 5 products | [`export`], [`flaws`], [`learn`], [`locate`], [`hardware`], [`inspect`], [`pacs`] | one study per build, CT flaws, the trained defect model, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives |
+//! | 5 products | [`export`], [`flaws`], [`learn`], [`locate`], [`hardware`], [`inspect`], [`pacs`], [`plant`] | one study per build, CT flaws, the trained defect model, a point in every view, camera/lights/trigger, per-layer inspection, the push to archives, the plant interfaces (Prometheus, MQTT) |
 //! | 6 daemon | [`acquisition`], [`web`] | the acquisition daemon; the operator page |
 //! | 7 simulation | [`sim`] | the simulated machine; only the binary and tests name it |
 //!
@@ -23,6 +23,7 @@
 //! | inspection | [`inspect`] (cells, detectors, drift, `layerwise inspect`), [`acquisition::inspection`] (live, in the processing worker), [`build_dir::inspection`] (inspection.jsonl), [`config::inspection`] |
 //! | the alarm | [`acquisition::alarm`] (stack light, printer message, its thread), [`build_dir::alarm`] (alarm.jsonl, `layerwise alarm ack`), [`hardware::message`] |
 //! | the operator page | [`web`] (server, routes, previews, timeline, calibration page), [`build_dir::status`] (what it shows of health) |
+//! | plant interfaces | [`plant`] (the sink the daemon feeds, [`plant::metrics`] for `/metrics`, [`plant::mqtt`]), [`config::metrics`], [`config::mqtt`] |
 //! | PACS push | [`pacs`] (STOW-RS, C-STORE, [`pacs::live`] beside the daemon), [`build_dir::pushlog`] (what each archive confirmed), [`config::pacs`] |
 //! | calibration | [`calibrate`] (`register images`), [`rectify`] (calibration.toml, the rectifier), [`geometry`] (the camera model) |
 //! | CT | [`ct`] (readers, segmentation, registration, `register ct`), [`flaws`] (pores → labelled patches), [`tsdf`] |
@@ -47,6 +48,7 @@ pub mod locate;
 pub mod logging;
 pub mod optics;
 pub mod pacs;
+pub mod plant;
 pub mod raster;
 pub mod rectify;
 pub mod series;

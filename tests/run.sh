@@ -9,14 +9,21 @@ cd "$(dirname "$0")/.."
 # the DICOM we write, cmake and g++ to build CharLS (JPEG-LS), python3-venv for the test venv;
 # orthanc, orthanc-dicomweb and iproute2: the real PACS tests/it/pacs.rs pushes to (STOW-RS,
 # C-STORE); chromium and chromium-driver for the browser test of the operator page
-# (tests/it/web.rs).
-packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver)
+# (tests/it/web.rs); mosquitto and mosquitto-clients, the broker and the counting subscriber of
+# the MQTT tests (tests/it/plant_mqtt.rs); prometheus (and promtool), which scrapes /metrics in
+# tests/it/plant_metrics.rs, installed without its recommends (prometheus-node-exporter).
+packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver mosquitto mosquitto-clients)
+lean_packages=(prometheus)
 missing=()
+lean_missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-if ((${#missing[@]})); then
-  echo "installing: ${missing[*]}"
+for p in "${lean_packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || lean_missing+=("$p")
+done
+if ((${#missing[@]} + ${#lean_missing[@]})); then
+  echo "installing: ${missing[*]} ${lean_missing[*]}"
   sudo_cmd=()
   [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
   "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get update -qq
@@ -31,7 +38,12 @@ if ((${#missing[@]})); then
     added_policy=1
   fi
   status=0
-  "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null || status=$?
+  if ((${#missing[@]})); then
+    "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null || status=$?
+  fi
+  if ((${#lean_missing[@]})) && [ "$status" -eq 0 ]; then
+    "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${lean_missing[@]}" >/dev/null || status=$?
+  fi
   if [ -n "$added_policy" ]; then "${sudo_cmd[@]}" rm -f "$policy"; fi
   [ "$status" -eq 0 ] || exit "$status"
 fi

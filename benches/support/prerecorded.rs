@@ -45,7 +45,16 @@ pub fn mock_frame(width: u32, height: u32) -> Vec<u8> {
 
 /// Runs the daemon to the end of its mock trigger with the prerecorded camera giving `frame`.
 pub fn run_prerecorded(config: &layerwise::config::Config, frame: Vec<u8>) {
-    let options = layerwise::acquisition::RunOptions::new();
+    run_prerecorded_with(config, frame, layerwise::acquisition::RunOptions::new());
+}
+
+/// As [`run_prerecorded`], with `options` (e.g. the plant interfaces' sink).
+#[allow(dead_code)]
+pub fn run_prerecorded_with(
+    config: &layerwise::config::Config,
+    frame: Vec<u8>,
+    options: layerwise::acquisition::RunOptions,
+) {
     let (mut machine, _simulation) =
         layerwise::sim::open(config, options.clock.clone()).expect("simulated machine");
     machine.camera = Box::new(move || Ok(Box::new(Prerecorded(frame)) as Box<dyn Camera>));

@@ -34,6 +34,8 @@ pub struct Alarm {
     history: Option<AlarmLog>,
     /// Events of the history already looked at.
     seen: usize,
+    /// Told every change (raised, acknowledged, cleared).
+    plant: crate::plant::PlantSink,
 }
 
 impl Alarm {
@@ -50,7 +52,14 @@ impl Alarm {
             message: None,
             history: None,
             seen: 0,
+            plant: crate::plant::PlantSink::off(),
         }
+    }
+
+    /// Also tells the plant interfaces each change.
+    pub fn with_plant(mut self, plant: crate::plant::PlantSink) -> Alarm {
+        self.plant = plant;
+        self
     }
 
     /// Also sends `config.serial`'s message through `link` whenever the alarm is raised.
@@ -92,6 +101,8 @@ impl Alarm {
     }
 
     fn journal(&mut self, event: AlarmEvent) {
+        self.plant
+            .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
         if let Some(log) = self.history.as_mut() {
             match log.append(&event) {
                 Ok(()) => self.seen += 1,
@@ -176,7 +187,12 @@ impl Alarm {
         self.seen = events.len();
         for event in new {
             if let AlarmEvent::Acknowledged { by, .. } = event {
-                if self.on && self.switch(false) {
+                if !self.on {
+                    continue;
+                }
+                self.plant
+                    .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
+                if self.switch(false) {
                     info!(by = %by, "inspection alarm off: acknowledged by {by}");
                 }
             }

@@ -29,6 +29,7 @@ pub struct InspectingSeries {
     clock: SharedClock,
     /// `[inspection.model]`: the trained model after the classical checks.
     model: Option<super::model::ModelStage>,
+    plant: crate::plant::PlantSink,
 }
 
 impl InspectingSeries {
@@ -89,7 +90,14 @@ impl InspectingSeries {
             alarm,
             clock,
             model,
+            plant: crate::plant::PlantSink::off(),
         })
+    }
+
+    /// Also tells the plant interfaces each layer's record.
+    pub fn with_plant(mut self, plant: crate::plant::PlantSink) -> InspectingSeries {
+        self.plant = plant;
+        self
     }
 
     fn record(&self, record: &InspectionRecord) {
@@ -116,6 +124,8 @@ impl InspectingSeries {
                 error!(error = %Chain(&e), layer = record.layer, "inspection: cannot write the record");
             }
         }
+        self.plant
+            .emit(|| crate::plant::PlantEvent::Inspected(std::sync::Arc::new(record.clone())));
         self.alarm.after_layer(record);
     }
 }

@@ -67,6 +67,9 @@ pub struct RunOptions {
     /// Called, without blocking, each time a series instance is written (the daemon wakes its
     /// PACS push with it, `pacs::live::PushWaker`).
     pub on_instance: Option<processing::OnWritten>,
+    /// Where the plant interfaces (metrics, MQTT) are told what happens, without
+    /// waiting; off by default.
+    pub plant: crate::plant::PlantSink,
 }
 
 impl Default for RunOptions {
@@ -85,6 +88,7 @@ impl RunOptions {
             shutdown: Shutdown::new(),
             free_space: Arc::new(crate::fsutil::Statvfs),
             on_instance: None,
+            plant: crate::plant::PlantSink::off(),
         }
     }
 }
@@ -126,9 +130,11 @@ pub fn run(
     let trigger_health = trigger.health();
 
     let mut backlog = progress.take_backlog(config.series.take);
+    let plant = options.plant.clone();
+    plant.emit(|| build_started(config, &clock));
     let processor = match options.processor.take() {
         Some(p) => p,
-        None => default_processor(config, &manifest, (alarm, alarm_message), &clock)?,
+        None => default_processor(config, &manifest, (alarm, alarm_message), &clock, &plant)?,
     };
     // What the processor wants again (layers a stop left uninspected) goes first, in build
     // order with the backlog, so that layers complete in order.
@@ -145,6 +151,7 @@ pub fn run(
             backlog,
             take: config.series.take,
             frames_per_signal: config.views.lights.len(),
+            plant: plant.clone(),
         },
         clock.clone(),
         options.on_instance.clone(),
@@ -160,6 +167,7 @@ pub fn run(
         clock: clock.clone(),
         notify: options.notify_systemd,
         trigger: trigger_health.clone(),
+        plant: plant.clone(),
     };
     let recorder = Recorder::new(storage, progress, journal, disk, queue, sink);
     let exposure = Exposure::new(
@@ -213,6 +221,17 @@ pub fn run(
             Err(e)
         }
     };
+    plant.emit(|| {
+        let stop = result.as_ref().ok().and_then(|s| s.stop_reason.as_ref());
+        crate::plant::PlantEvent::BuildEnded {
+            reason: match (&result, stop) {
+                (Err(e), _) => crate::logging::chain(e),
+                (Ok(_), stop) => stop.map_or_else(String::new, ToString::to_string),
+            },
+            completed: stop.is_some_and(StopReason::completes_the_build),
+            at: clock.now(),
+        }
+    });
     // Every path above requested the shutdown: the trigger's and the watchdog's threads end.
     events.join();
     if let Some(watchdog) = watchdog {
@@ -300,6 +319,7 @@ fn default_processor(
         Option<Box<dyn crate::hardware::message::MessageLink>>,
     ),
     clock: &SharedClock,
+    plant: &crate::plant::PlantSink,
 ) -> Result<Arc<dyn FrameProcessor>, AcquisitionError> {
     if let (true, Some(model)) = (config.inspection.enabled, &config.inspection.model) {
         // A bad model file stops the start, calibrated or not.
@@ -320,13 +340,30 @@ fn default_processor(
         return Ok(Arc::new(live));
     }
     let alarm = alarm::Alarm::new(alarm, &config.inspection.alarm)
-        .with_message(message, &config.inspection.alarm);
+        .with_message(message, &config.inspection.alarm)
+        .with_plant(plant.clone());
     let dir = &config.build.output_dir;
-    Ok(Arc::new(inspection::InspectingSeries::open(
-        config,
-        dir,
-        live,
-        alarm,
-        clock.clone(),
-    )?))
+    Ok(Arc::new(
+        inspection::InspectingSeries::open(config, dir, live, alarm, clock.clone())?
+            .with_plant(plant.clone()),
+    ))
+}
+
+/// What the plant interfaces are told when a run of the build starts.
+fn build_started(config: &Config, clock: &SharedClock) -> crate::plant::PlantEvent {
+    let dir = &config.build.output_dir;
+    crate::plant::PlantEvent::BuildStarted(crate::plant::event::BuildInfo {
+        name: config.build.name.clone(),
+        id: config.build_id().to_string(),
+        dir: dir.clone(),
+        layers_expected: config.build.layers,
+        program: config
+            .build
+            .vectors
+            .as_ref()
+            .and_then(|v| v.file_name())
+            .map(|n| n.to_string_lossy().into_owned()),
+        alarm: crate::build_dir::alarm::state(dir),
+        at: clock.now(),
+    })
 }

@@ -77,6 +77,8 @@ pub struct WorkerPlan {
     /// The frames of one layer signal (the lights of a phase): a layer's line is logged once
     /// they are processed.
     pub frames_per_signal: usize,
+    /// Told how long each frame took (the processing histograms of `/metrics`).
+    pub plant: crate::plant::PlantSink,
 }
 
 /// The worker's channels.
@@ -128,6 +130,7 @@ impl ProcessingQueue {
                         tally: Mutex::new(LayerTally::new(plan.frames_per_signal)),
                         state: &worker_state,
                     },
+                    plant: &plan.plant,
                 };
                 worker.run(inbox, plan.backlog, plan.take);
                 // A processor with threads of its own (the inspection's alarm) stops them now.
@@ -343,6 +346,7 @@ struct Worker<'a> {
     journal: &'a Mutex<Journal>,
     clock: &'a SharedClock,
     tally: TallyGuard<'a>,
+    plant: &'a crate::plant::PlantSink,
 }
 
 /// How a catch-up pass from the journal ended.
@@ -588,6 +592,7 @@ impl Worker<'_> {
         if let Some(lag) = lag {
             state.lag_ms.store(lag.as_millis() as u64, Ordering::SeqCst);
         }
+        self.plant.processed(end.saturating_sub(start), lag);
         let ok = !matches!(record, Record::ProcessingFailed { .. });
         if let Ok(mut open) = self.tally.tally.lock() {
             log_layers(

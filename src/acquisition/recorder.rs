@@ -28,6 +28,8 @@ pub(super) struct StatusSink {
     pub(super) notify: bool,
     /// The trigger's health, updated on its thread.
     pub(super) trigger: SharedHealth,
+    /// The plant interfaces.
+    pub(super) plant: crate::plant::PlantSink,
 }
 
 /// A frame handed to the recorder.
@@ -84,6 +86,19 @@ impl Recorder {
         recorder
     }
 
+    /// Every light of a layer signal is done: the plant interfaces are told.
+    pub(super) fn phase_done(&self, layer: u32, phase: Phase, signal_at: DateTime<Utc>) {
+        let at = self.sink.clock.now();
+        self.sink
+            .plant
+            .emit(|| crate::plant::PlantEvent::PhaseDone {
+                layer,
+                phase,
+                signal_at,
+                at,
+            });
+    }
+
     /// Where the build stands.
     pub(super) fn progress(&self) -> &Progress {
         &self.progress
@@ -103,12 +118,20 @@ impl Recorder {
     /// A frame not taken: journaled, counted, logged.
     pub(super) fn missing(&mut self, shot: Shot, reason: String) -> Result<(), AcquisitionError> {
         error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "frame missing");
+        let at = self.sink.clock.now();
+        self.sink
+            .plant
+            .emit(|| crate::plant::PlantEvent::FrameMissing {
+                shot,
+                reason: reason.clone(),
+                at,
+            });
         self.journal(&Record::Missing {
             layer: shot.layer,
             phase: shot.phase,
             light: shot.light,
             reason,
-            at: self.sink.clock.now(),
+            at,
         })?;
         self.summary.missing += 1;
         Ok(())
@@ -230,6 +253,18 @@ impl Recorder {
         } else {
             self.summary.stored += 1;
         }
+        self.sink.plant.emit(|| {
+            crate::plant::PlantEvent::FrameStored(crate::plant::event::FrameInfo {
+                shot,
+                take,
+                file: sidecar.file.clone(),
+                bytes: sidecar.bytes,
+                capture_ms: frame.capture_ms,
+                download_ms: frame.download_ms,
+                attempts,
+                at: sidecar.captured_at,
+            })
+        });
         info!(
             layer = shot.layer,
             phase = %shot.phase,
@@ -329,6 +364,13 @@ impl Recorder {
         self.live.health = parts.health(clock.now(), &trigger, &processing, &disk);
         self.live.camera = Some(parts.camera_report());
         self.live.disk = Some(disk);
+        self.sink.plant.status(|| crate::plant::PlantStatus {
+            layer: self.live.layer,
+            phase: self.live.phase,
+            state: self.live.state.clone(),
+            health: self.live.health.clone(),
+            updated_at: self.live.updated_at,
+        });
         if let Err(e) = self.live.write(self.storage.root()) {
             warn!(error = %Chain(&e), "status: cannot write status.json");
         }

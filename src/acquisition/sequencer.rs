@@ -241,6 +241,7 @@ impl Sequencer {
             self.take(shot, 1)?;
         }
         self.open = None;
+        self.recorder.phase_done(event.layer, event.phase, event.at);
         let (stored_now, missing_now) = self.recorder.counts();
         info!(
             layer = event.layer,
@@ -261,6 +262,7 @@ impl Sequencer {
             let take = self.recorder.progress().takes(&shot) + 1;
             self.take(shot, take)?;
         }
+        self.recorder.phase_done(event.layer, event.phase, event.at);
         Ok(())
     }
 

@@ -90,6 +90,8 @@ pub struct StatusReport {
     pub phase: Option<Phase>,
     pub frames: usize,
     pub frames_missing: usize,
+    /// Per view (`post_top`, …): frames stored and recorded missing (for `/metrics`).
+    pub frames_by_view: BTreeMap<String, ViewCounts>,
     pub missing: Vec<String>,
     /// Frames taken again for repeated signals (kept beside the first takes).
     pub retakes: usize,
@@ -130,6 +132,25 @@ pub struct StatusReport {
     /// each with where and why: the report shows what it could; `layerwise status` exits 1.
     pub damaged: Vec<String>,
     pub warning: Option<String>,
+}
+
+/// One view's frames: stored (first takes) and recorded missing.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ViewCounts {
+    pub stored: usize,
+    pub missing: usize,
+}
+
+/// Frames stored and missing per view.
+fn frames_by_view(replay: &super::journal::Replay) -> BTreeMap<String, ViewCounts> {
+    let mut views: BTreeMap<String, ViewCounts> = BTreeMap::new();
+    for shot in replay.frames.keys() {
+        views.entry(shot.view().to_string()).or_default().stored += 1;
+    }
+    for shot in replay.missing.keys() {
+        views.entry(shot.view().to_string()).or_default().missing += 1;
+    }
+    views
 }
 
 /// Free bytes for an unprivileged writer on the filesystem holding `path`.
@@ -363,6 +384,7 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
         phase: replay.last_event.map(|(_, p)| p).or(live.phase),
         frames: replay.frames.len(),
         frames_missing: replay.missing.len(),
+        frames_by_view: frames_by_view(&replay),
         missing: replay
             .missing
             .iter()

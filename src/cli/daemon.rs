@@ -29,24 +29,54 @@ impl RunArgs {
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
-        match config.build.builds_dir.clone() {
-            None => {
-                let summary = run_daemon(&config, service_options(&process))?;
+        let plant = PlantRunning::start(&config);
+        let result = match config.build.builds_dir.clone() {
+            None => run_daemon(&config, service_options(&process, &plant.sink)).map(|summary| {
                 print_stopped(&summary);
-                Ok(())
-            }
-            Some(builds) => run_builds(&config, &builds, &process),
+            }),
+            Some(builds) => run_builds(&config, &builds, &process, &plant.sink),
+        };
+        plant.stop(&process);
+        result
+    }
+}
+
+/// The plant interfaces (`[metrics]`, `[mqtt]`) for the whole process: they go on
+/// across builds and stop once every run has ended.
+struct PlantRunning {
+    plant: layerwise::plant::Plant,
+    sink: layerwise::plant::PlantSink,
+    stop: Shutdown,
+}
+
+impl PlantRunning {
+    fn start(config: &Config) -> PlantRunning {
+        let stop = Shutdown::new();
+        let plant = layerwise::plant::Plant::start(config, &stop);
+        PlantRunning {
+            sink: plant.sink(),
+            plant,
+            stop,
         }
+    }
+
+    /// Stops them with the process's reason (or as after a build that ended).
+    fn stop(self, process: &Shutdown) {
+        self.stop
+            .request(process.reason().unwrap_or(StopReason::TriggerEnded));
+        drop(self.sink);
+        self.plant.join();
     }
 }
 
 /// The service's options: systemd told, the frames taken processed when a build ends, stopped
-/// by `process` (a child of it: the run also ends on its own).
-fn service_options(process: &Shutdown) -> RunOptions {
+/// by `process` (a child of it: the run also ends on its own), the plant interfaces told.
+fn service_options(process: &Shutdown, plant: &layerwise::plant::PlantSink) -> RunOptions {
     let mut options = RunOptions::new();
     options.notify_systemd = true;
     options.drain_at_end = true;
     options.shutdown = process.child();
+    options.plant = plant.clone();
     options
 }
 
@@ -63,7 +93,12 @@ fn print_stopped(summary: &RunSummary) {
 
 /// The daemon with `[build] builds_dir`: records into the build an operator started
 /// (`layerwise build start`), switches when the next one starts, waits while none is open.
-fn run_builds(config: &Config, builds: &Path, process: &Shutdown) -> Result<()> {
+fn run_builds(
+    config: &Config,
+    builds: &Path,
+    process: &Shutdown,
+    plant: &layerwise::plant::PlantSink,
+) -> Result<()> {
     use layerwise::acquisition::lifecycle::{self, Next};
     std::fs::create_dir_all(builds)
         .with_context(|| format!("cannot create [build] builds_dir {}", builds.display()))?;
@@ -79,7 +114,7 @@ fn run_builds(config: &Config, builds: &Path, process: &Shutdown) -> Result<()> 
             }
             Next::Record(order) => {
                 let build_config = lifecycle::config_for(config, builds, order);
-                let options = service_options(process);
+                let options = service_options(process, plant);
                 // The order's change ends this run (the frames taken are processed first).
                 let watch = lifecycle::watch_order(
                     builds.to_path_buf(),
@@ -422,11 +457,15 @@ impl DemoArgs {
         };
         config.web.listen = String::new();
         let started = std::time::Instant::now();
+        let plant = PlantRunning::start(&config);
         let mut options = RunOptions::new();
         options.clock = SystemClock::shared();
         options.drain_at_end = true;
         options.shutdown = process.child();
-        let summary = run_daemon(&config, options)?;
+        options.plant = plant.sink.clone();
+        let summary = run_daemon(&config, options);
+        plant.stop(&process);
+        let summary = summary?;
         println!(
             "demo build of {layers} layers in {:.1} s: {} frames stored, {} missing, {} already there; see {}",
             started.elapsed().as_secs_f64(),

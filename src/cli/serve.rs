@@ -42,11 +42,20 @@ pub struct ServeArgs {
     /// The daemon's page process: the daemon's `[web]` section, as TOML.
     #[arg(long, hide = true, requires = "listen_fd")]
     web_config: Option<String>,
+    /// The daemon's page process: serve /metrics with the daemon's live metrics from this file.
+    #[arg(long, hide = true, requires = "listen_fd")]
+    live_metrics: Option<PathBuf>,
+    /// Serve Prometheus metrics of the build at /metrics (docs/metrics.md).
+    #[arg(long)]
+    metrics: bool,
 }
 
 impl ServeArgs {
     pub fn run(self) -> Result<()> {
         if let (Some(fd), Some(web)) = (self.listen_fd, &self.web_config) {
+            if let Some(path) = &self.live_metrics {
+                layerwise::plant::metrics::install_from_file(path.clone());
+            }
             return serve_for_daemon(&self.build, fd, web);
         }
         layerwise::build_dir::require_build(&self.build)?;
@@ -68,6 +77,9 @@ impl ServeArgs {
         let process = Shutdown::new();
         let _signals =
             shutdown::watch_signals(&process).context("cannot watch SIGTERM and SIGINT")?;
+        if self.metrics {
+            layerwise::plant::metrics::install(None);
+        }
         let server = start_page(&self.build, &config, &process)?;
         println!(
             "serving {} at http://{}/ (Ctrl-C stops)",
@@ -184,17 +196,22 @@ fn page_command(config: &layerwise::config::Config) -> Result<PageCommand> {
         std::env::current_exe().context("cannot find this program to start the page with")?
     };
     let web = toml::to_string(&config.web).context("cannot write the [web] section")?;
+    let mut args: Vec<std::ffi::OsString> = vec![
+        "serve".into(),
+        "--build".into(),
+        config.build.output_dir.clone().into(),
+        "--listen-fd".into(),
+        LISTEN_FD.to_string().into(),
+        "--web-config".into(),
+        web.into(),
+    ];
+    if config.metrics.enabled {
+        args.push("--live-metrics".into());
+        args.push(layerwise::plant::live_file().into());
+    }
     Ok(PageCommand {
         program,
         name: "layerwise".into(),
-        args: vec![
-            "serve".into(),
-            "--build".into(),
-            config.build.output_dir.clone().into(),
-            "--listen-fd".into(),
-            LISTEN_FD.to_string().into(),
-            "--web-config".into(),
-            web.into(),
-        ],
+        args,
     })
 }

@@ -13,7 +13,9 @@ mod common;
 mod error;
 pub mod inspection;
 mod lights;
+pub mod metrics;
 pub mod model;
+pub mod mqtt;
 pub mod pacs;
 mod rectify;
 pub mod series;
@@ -81,6 +83,12 @@ pub struct Config {
     /// The live series and the export (src/config/series.rs).
     #[serde(default)]
     pub series: series::SeriesConfig,
+    /// Plant interfaces (src/plant, docs/plant.md), each off by default: Prometheus metrics on
+    /// the page, events to an MQTT broker.
+    #[serde(default)]
+    pub metrics: metrics::MetricsConfig,
+    #[serde(default)]
+    pub mqtt: mqtt::MqttConfig,
 }
 
 impl Config {
@@ -134,6 +142,7 @@ impl Config {
         self.calibration.validate(&self.build)?;
         self.storage.validate()?;
         self.inspection.validate()?;
+        self.mqtt.validate()?;
         self.web.validate()
     }
 

@@ -70,12 +70,31 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
             get(super::verdicts::heatmap),
         )
         .route("/api/events", get(events))
+        .route("/metrics", get(metrics))
         // Bodies are received (bounded in bytes and time) only once the token was shown.
         .layer(middleware::from_fn_with_state(limits, clients::receive))
         .layer(middleware::from_fn_with_state(shared.clone(), authorize))
         .layer(middleware::from_fn(clients::track))
         .layer(DefaultBodyLimit::max(clients::MAX_BODY_BYTES))
         .with_state(shared)
+}
+
+/// Prometheus metrics, when on (`[metrics] enabled`, `serve --metrics`; docs/metrics.md).
+async fn metrics(State(shared): State<Arc<PageState>>) -> Response {
+    let status = shared
+        .status
+        .read()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    match crate::plant::metrics::render(status, chrono::Utc::now()) {
+        Some(text) => (
+            [(header::CONTENT_TYPE, crate::plant::metrics::CONTENT_TYPE)],
+            text,
+        )
+            .into_response(),
+        None => not_found("metrics are off: set [metrics] enabled = true (serve: --metrics)")
+            .into_response(),
+    }
 }
 
 fn page(text: &'static str, kind: &'static str) -> Response {

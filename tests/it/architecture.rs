@@ -19,7 +19,7 @@ const LAYERS: &[&[&str]] = &[
     &["rectify", "tsdf"],
     &["calibrate", "ct", "series"],
     &[
-        "export", "flaws", "learn", "locate", "hardware", "inspect", "pacs",
+        "export", "flaws", "learn", "locate", "hardware", "inspect", "pacs", "plant",
     ],
     &["acquisition", "web"],
     &["sim"],

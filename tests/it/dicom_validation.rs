@@ -49,19 +49,6 @@ fn python_says(script: &str, arg: &Path) -> String {
         .stdout_ok()
 }
 
-fn python() -> PathBuf {
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-venv/bin/python");
-    let python = std::env::var_os("LAYERWISE_TEST_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or(venv);
-    assert!(
-        python.exists(),
-        "{}: run `bash tests/run.sh`, which makes the venv with pydicom and SimpleITK",
-        python.display()
-    );
-    python
-}
-
 /// Runs to the end of the mock trigger and processes every frame before returning.
 fn drained() -> RunOptions {
     let mut options = RunOptions::new();

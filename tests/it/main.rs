@@ -34,6 +34,8 @@ mod learn;
 mod lifecycle;
 mod pacs;
 mod pacs_push;
+mod plant_metrics;
+mod plant_mqtt;
 mod raster;
 #[cfg(feature = "nef")]
 mod raw_frames;

@@ -4,7 +4,7 @@
 //! layerwise) and every request it makes stays inside.
 
 use crate::common;
-use crate::common::{calibrated_config, layerwise, write_config, Run};
+use crate::common::{calibrated_config, layerwise, private_network, wait_until, write_config, Run};
 use layerwise::config::pacs::PacsDestination;
 use layerwise::dicom::Compression;
 use std::collections::BTreeMap;
@@ -14,25 +14,6 @@ use std::time::{Duration, Instant};
 
 const ORTHANC: &str = "/usr/sbin/Orthanc";
 const DICOMWEB_PLUGIN: &str = "/usr/share/orthanc/plugins/libOrthancDicomWeb.so";
-
-/// Moves this test's thread (and so every process it starts) into a new network namespace
-/// with loopback up. Needs root (CI runs as root).
-fn private_network() {
-    // SAFETY: unshare only changes the calling thread's namespaces.
-    let rc = unsafe { libc::unshare(libc::CLONE_NEWNET) };
-    assert_eq!(
-        rc,
-        0,
-        "unshare(CLONE_NEWNET) failed ({}): the PACS tests need root, as CI runs them, to keep \
-         Orthanc reachable from this machine alone",
-        std::io::Error::last_os_error()
-    );
-    let up = Command::new("ip")
-        .args(["link", "set", "lo", "up"])
-        .status()
-        .expect("ip (iproute2) runs");
-    assert!(up.success(), "ip link set lo up failed");
-}
 
 /// One Orthanc with its own storage, HTTP port and DICOM port, the DICOMweb plugin loaded.
 struct Orthanc {
@@ -405,14 +386,6 @@ fn slow_build(
     let config_path = tmp.join("layerwise.toml");
     write_config(&config, &config_path);
     (build, config_path)
-}
-
-fn wait_until(what: &str, timeout: Duration, mut done: impl FnMut() -> bool) {
-    let deadline = Instant::now() + timeout;
-    while !done() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
 }
 
 /// Every series file is logged stored exactly once.

@@ -11,6 +11,7 @@ mod learn;
 pub mod pty;
 pub mod render2;
 mod rng;
+mod services;
 mod web;
 
 pub use bounded::*;
@@ -21,4 +22,5 @@ pub use data::*;
 pub use fixtures::*;
 pub use learn::*;
 pub use rng::*;
+pub use services::*;
 pub use web::*;
