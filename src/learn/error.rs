@@ -100,7 +100,7 @@ pub enum LearnError {
     Build {
         path: PathBuf,
         #[source]
-        source: crate::series::SeriesError,
+        source: Box<crate::series::SeriesError>,
     },
     #[error("{path}: cannot read the verdicts")]
     Verdicts {

@@ -95,7 +95,7 @@ pub fn dataset(build: &Path) -> Result<Dataset, LearnError> {
     })?;
     let record = crate::series::BuildRecord::open(build).map_err(|source| LearnError::Build {
         path: build.to_path_buf(),
-        source,
+        source: Box::new(source),
     })?;
     let grid = record.grid;
     let mut labelled: Vec<(String, Item)> = Vec::new();
