@@ -33,7 +33,7 @@ fn model(dir: &std::path::Path) -> std::path::PathBuf {
             img.save(d.join(format!("f_{i:04}.png"))).expect("picture");
         }
     }
-    let data = layerwise::learn::data::open(dir, None).expect("data");
+    let data = layerwise::learn::source::open(dir, None).expect("data");
     let opts = TrainOptions {
         epochs: 1,
         frame_px: 128,

@@ -235,7 +235,7 @@ pub fn acknowledge(
     {
         return invalid(
             "by or note",
-            "holds control or bidirectional characters (one line of plain text)",
+            "holds control characters or bidirectional marks (one line of plain text)",
         );
     }
     let path = dir.join(super::ALARM);

@@ -31,6 +31,8 @@ pub const JOURNAL: &str = "journal.jsonl";
 pub const INSPECTION: &str = "inspection.jsonl";
 /// The inspection alarm's history: raised, acknowledged, cleared (build_dir::alarm).
 pub const ALARM: &str = "alarm.jsonl";
+/// The operators' verdicts on flags, confirmed or a false alarm (learn::verdicts).
+pub const VERDICTS: &str = "verdicts.jsonl";
 /// The configuration the daemon last ran with.
 pub const CONFIG_SNAPSHOT: &str = "config.toml";
 /// The calibration the daemon last ran with.

@@ -90,7 +90,7 @@ impl TrainArgs {
         if self.channels.is_empty() || self.channels.iter().any(|&c| c == 0 || c > 512) {
             bail!("--channels must be 1 to 512 each");
         }
-        let data = learn::data::open(&self.data, self.normal.as_deref())?;
+        let data = learn::source::open(&self.data, self.normal.as_deref())?;
         let opts = TrainOptions {
             epochs: self.epochs.max(1),
             val_fraction: self.val_fraction,
@@ -177,8 +177,8 @@ pub struct EvalArgs {
 impl EvalArgs {
     fn run(self) -> Result<()> {
         let model = Model::load(&self.model)?;
-        let data = learn::data::open(&self.data, Some(&model.header.normal_class))
-            .or_else(|_| learn::data::open(&self.data, None))?;
+        let data = learn::source::open(&self.data, Some(&model.header.normal_class))
+            .or_else(|_| learn::source::open(&self.data, None))?;
         let part = match self.part {
             Which::All => None,
             Which::Train => Some(Part::Train),

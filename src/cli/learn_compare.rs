@@ -61,7 +61,7 @@ impl CompareArgs {
     pub fn run(self) -> Result<()> {
         let model = Model::load(&self.model)?;
         model.check_use(learn::Use::Frames)?;
-        let data = learn::data::open(&self.data, Some(&model.header.normal_class))?;
+        let data = learn::source::open(&self.data, Some(&model.header.normal_class))?;
         let parts = data.split(model.header.training.split.val_fraction);
         let want = match self.part {
             Which::All => None,

@@ -140,23 +140,6 @@ pub fn pick_normal(
         })
 }
 
-/// Reads a data folder of any of the three kinds.
-pub fn open(root: &Path, normal: Option<&str>) -> Result<Dataset, LearnError> {
-    if root.join(LABELS).is_file() {
-        return open_flaws(root);
-    }
-    if root.join(super::verdicts::VERDICTS).is_file() {
-        return super::verdicts::dataset(root);
-    }
-    if root.join(crate::build_dir::JOURNAL).is_file() {
-        return Err(LearnError::data(
-            root,
-            "a build without verdicts.jsonl: confirm or dismiss its flags on the operator page first",
-        ));
-    }
-    open_class_folders(root, normal)
-}
-
 /// A folder with one subfolder of pictures per class.
 pub fn open_class_folders(root: &Path, normal: Option<&str>) -> Result<Dataset, LearnError> {
     let mut classes = Vec::new();
@@ -404,12 +387,12 @@ impl Dataset {
 
 /// Decodes a picture (JPEG, PNG, TIFF, 8 or 16 bits) to grey on the 8-bit scale.
 pub fn read_picture(path: &Path) -> Result<Gray, LearnError> {
-    let bytes = std::fs::read(path).map_err(|source| LearnError::Read {
+    let bytes = crate::fsutil::read_regular(path).map_err(|source| LearnError::Read {
         path: path.to_path_buf(),
         source,
     })?;
     if bytes.get(128..132) == Some(b"DICM".as_slice()) {
-        return super::verdicts::read_slice(path);
+        return read_slice(path);
     }
     let decode = |source| LearnError::Decode {
         path: path.to_path_buf(),
@@ -434,9 +417,56 @@ pub fn read_picture(path: &Path) -> Result<Gray, LearnError> {
 pub fn read_item(item: &Item) -> Result<Gray, LearnError> {
     let img = read_picture(&item.path)?;
     Ok(match item.window {
-        Some(w) => super::verdicts::cut(&img, w),
+        Some(w) => cut(&img, w),
         None => img,
     })
+}
+
+/// A rectified view stored as a DICOM slice, on the 8-bit scale (16-bit linear views / 257).
+pub fn read_slice(path: &Path) -> Result<Gray, LearnError> {
+    use dicom_pixeldata::PixelDecoder;
+    let bad = |detail: String| LearnError::data(path, detail);
+    let dicom = |what, source: Box<dyn std::error::Error + Send + Sync>| LearnError::Dicom {
+        path: path.to_path_buf(),
+        what,
+        source,
+    };
+    let obj =
+        dicom_object::open_file(path).map_err(|e| dicom("read the DICOM file", Box::new(e)))?;
+    let width = obj
+        .element(dicom_dictionary_std::tags::WINDOW_WIDTH)
+        .ok()
+        .and_then(|e| e.to_float64().ok())
+        .unwrap_or(256.0);
+    let px = obj
+        .decode_pixel_data()
+        .map_err(|e| dicom("decode the pixel data of", Box::new(e)))?;
+    let (w, h) = (px.columns() as usize, px.rows() as usize);
+    let bytes = px.data();
+    if px.bits_allocated() != 16 || bytes.len() < 2 * w * h {
+        return Err(bad(format!(
+            "{w}x{h} slice of {} bits is not a layerwise view",
+            px.bits_allocated()
+        )));
+    }
+    let scale = if width > 1000.0 { 1.0 / 257.0 } else { 1.0 };
+    let values = bytes[..2 * w * h]
+        .chunks_exact(2)
+        .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]])) * scale)
+        .collect();
+    Ok(Gray::new(w, h, values))
+}
+
+/// A window of `img`, clamped inside it.
+pub fn cut(img: &Gray, w: Window) -> Gray {
+    let (ww, wh) = (w.w.min(img.width), w.h.min(img.height));
+    let x0 = w.x0.min(img.width - ww);
+    let y0 = w.y0.min(img.height - wh);
+    let mut px = Vec::with_capacity(ww * wh);
+    for y in y0..y0 + wh {
+        px.extend_from_slice(&img.px[y * img.width + x0..y * img.width + x0 + ww]);
+    }
+    Gray::new(ww, wh, px)
 }
 
 #[cfg(test)]

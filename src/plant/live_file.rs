@@ -12,9 +12,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use tracing::warn;
 
-/// The largest live-metrics text read back (a few KB in practice).
-const MAX_BYTES: u64 = 4 << 20;
-
 /// The file this daemon process keeps its live metrics in.
 pub fn live_file() -> PathBuf {
     std::env::temp_dir().join(format!("layerwise-{}-metrics.prom", std::process::id()))
@@ -48,14 +45,6 @@ async fn keep(live: &LiveMetrics, path: &Path, mut feed: PlantFeed, shutdown: Sh
         }
     }
     let _ = std::fs::remove_file(path);
-}
-
-/// The live metrics' text in `path` (nothing while the daemon has not written it yet).
-pub fn read(path: &Path) -> String {
-    crate::fsutil::read_bounded(path, MAX_BYTES)
-        .ok()
-        .and_then(|bytes| String::from_utf8(bytes).ok())
-        .unwrap_or_default()
 }
 
 /// Starts [`keep`] on a thread of its own (`plant-metrics`), until `shutdown` is requested.

@@ -234,7 +234,7 @@ impl LiveMetrics {
 enum Live {
     /// This process is the daemon (the demo's page, in its process).
     Here(Arc<LiveMetrics>),
-    /// The daemon's page process: the file the daemon keeps them in ([`super::live_file`]).
+    /// The daemon's page process: the file the daemon keeps them in (`plant::live_file`).
     File(std::path::PathBuf),
 }
 
@@ -270,11 +270,23 @@ pub fn render(status: Option<Arc<StatusReport>>, now: DateTime<Utc>) -> Option<S
         Some(Live::Here(live)) => encode(status, Some(live), now),
         Some(Live::File(path)) => {
             let mut text = encode(status, None, now);
-            text.push_str(&super::live_file::read(path));
+            text.push_str(&read_live(path));
             text
         }
         None => encode(status, None, now),
     })
+}
+
+/// The largest live-metrics text read back from the daemon's file (a few KB in practice).
+const MAX_LIVE_BYTES: u64 = 4 << 20;
+
+/// The daemon's live metrics' text in `path` (`plant::live_file`; nothing while the daemon has
+/// not written it yet).
+fn read_live(path: &std::path::Path) -> String {
+    crate::fsutil::read_bounded(path, MAX_LIVE_BYTES)
+        .ok()
+        .and_then(|bytes| String::from_utf8(bytes).ok())
+        .unwrap_or_default()
 }
 
 /// The state of `status` (when there is one yet) and the live metrics.
