@@ -4,10 +4,13 @@ a raised alarm and flags on FIRST and SECOND, behind a token, and runs this.
 
 usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND
 
-Checks: a deep link #layer=FIRST opens that layer; the next flag is SECOND and the previous one
+Checks: a deep link #layer=FIRST opens that layer; its three flags or more have no two labels
+overlapping and each says what to do; a view zoomed shows a crop at 1:1 (full resolution) and
+at 2:1 with +; a link to a view and a flag opens that view with the flag marked; the next flag is SECOND and the previous one
 FIRST again; the alarm acknowledged on one page (name, note, the button) clears the banner of
 the other open page within 2 s; the history on the page lists the acknowledgement. Keeps
-screenshots: console-alarm.png (the banner with the button), console-acknowledged.png.
+screenshots: console-alarm.png (the banner with the button), console-acknowledged.png,
+console-flags.png (layer FIRST), console-zoom.png.
 """
 import base64
 import os
@@ -69,6 +72,66 @@ try:
     assert not linked.js("return document.getElementById('follow').checked"), "a linked layer is not followed away from"
     wait_for("the alarm banner", lambda: "ALARM since layer" in linked.banner())
     print(f"#layer={first} opened layer {first}; banner: {linked.banner()[:80]}")
+
+    # Layer FIRST has three flags or more: no two labels overlap anywhere on the page.
+    labels = """
+        return [...document.querySelectorAll(arguments[0] + ' .flags')].map(layer =>
+            [...layer.querySelectorAll('.flag-box span')].map(l => { const r = l.getBoundingClientRect(); return [r.left, r.top, r.right, r.bottom, l.textContent]; }));"""
+
+    def overlaps(groups):
+        return [(a[4], b[4]) for g in groups for i, a in enumerate(g) for b in g[i + 1:]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]]
+
+    def settled():
+        shown = linked.js(labels, "#views")
+        # The labels are moved once the layer is drawn: wait for a frame after the pictures.
+        return shown if shown and linked.js("return [...document.querySelectorAll('#views img')].every(i => i.complete)") else None
+    groups = wait_for("the flag labels of layer FIRST", settled)
+    time.sleep(0.3)
+    groups = linked.js(labels, "#views")
+    most = max(len(g) for g in groups)
+    assert most >= 3, f"a view of layer {first} with three flag labels: {[[l[4] for l in g] for g in groups]}"
+    assert not overlaps(groups), f"overlapping flag labels: {overlaps(groups)}"
+    print(f"layer {first}: {sum(map(len, groups))} flag labels, {most} on one view, none overlapping")
+    # Each flag in the layer's list says what it means, what to check and when to stop.
+    guide = linked.js("return [...document.querySelectorAll('#layer-detail details.guide')].map(d => d.textContent)")
+    assert guide and all("when to stop" in g for g in guide), guide
+    linked.screenshot("console-flags.png")
+
+    # Zoom a view to full resolution: a crop at 1:1, then enlarged 2:1 with +.
+    linked.click(".tile img")
+    wait_for("the large view", lambda: linked.js("return !document.getElementById('zoom').hidden"))
+    linked.click("#zoom-img")
+    crop = """
+        const c = document.getElementById('zoom-crop');
+        if (!c.complete || !c.naturalWidth || !c.dataset.scale) return null;
+        const r = c.getBoundingClientRect();
+        return {natural: [c.naturalWidth, c.naturalHeight], shown: [r.width, r.height], scale: Number(c.dataset.scale),
+                src: c.getAttribute('src'), label: document.getElementById('zoom-scale').textContent,
+                crop_px: window.layerwiseCropPx};"""
+    one = wait_for("a crop at 1:1", lambda: (lambda c: c if c and c["scale"] == 1 else None)(linked.js(crop)))
+    assert all(abs(s - n) < 1 for s, n in zip(one["shown"], one["natural"])), f"1:1 shows a pixel as a pixel: {one}"
+    assert max(one["natural"]) < one["crop_px"], f"the crop is not scaled down by the server: {one}"
+    assert "full resolution" in one["label"], one
+    linked.js("document.dispatchEvent(new KeyboardEvent('keydown', {key: '+'}))")
+    two = wait_for("the crop at 2:1", lambda: (lambda c: c if c and c["scale"] == 2 and c["src"] != one["src"] else None)(linked.js(crop)))
+    assert all(abs(s - 2 * n) < 1.5 for s, n in zip(two["shown"], two["natural"])), f"2:1: {two}"
+    q1 = dict(kv.split("=") for kv in one["src"].split("?")[1].split("&"))
+    q2 = dict(kv.split("=") for kv in two["src"].split("?")[1].split("&"))
+    assert abs(float(q2["w"]) - float(q1["w"]) / 2) < 2e-4, (q1, q2)
+    print(f"zoom: crop {one['natural']} at 1:1 ({q1['w']} of the picture), then 2:1 ({q2['w']})")
+    linked.screenshot("console-zoom.png")
+    linked.js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
+
+    # A link to a view and a flag opens that view large with the flag marked.
+    view = linked.js("return document.querySelector('#layer-detail .flag-link').getAttribute('href')")
+    assert view.startswith(f"#layer={first}&view=") and view.endswith("&flag=1"), view
+    linked.js("location.hash = arguments[0]", view)
+    wait_for("the linked view large, its flag marked", lambda: linked.js(
+        "return !document.getElementById('zoom').hidden && document.querySelector('#zoom-flags .flag-box.selected') !== null"
+        " && document.querySelector('#layer-detail dd.selected') !== null"))
+    print(f"link {view} opened the view with flag 1 marked")
+    linked.js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
     linked.click("#next-flag")
     wait_for(f"the next flag, layer {second}", lambda: linked.shown() == second)
     assert linked.js("return location.hash") == f"#layer={second}", linked.js("return location.hash")

@@ -260,6 +260,9 @@ async fn layers(
         "vectors": info.as_ref().is_some_and(|i| i.vectors_file.is_some()),
         "grid": info.as_ref().map(|i| i.grid),
         "calibration_page": shared.config.calibration_page,
+        // A crop larger than this many pixels a side is scaled down (web.preview_px): the
+        // page's zoom keeps its crops smaller, at full resolution.
+        "crop_px": shared.config.preview_px,
         "layers": layers,
     }))
 }
@@ -562,7 +565,7 @@ pub fn layer_svg(layer: &crate::vectors::Layer, grid: &crate::geometry::Grid) ->
     format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 {} {}\" preserveAspectRatio=\"none\">\
          <path class=\"hatch\" d=\"{hatches}\" fill=\"none\" stroke=\"#29b6f6\" stroke-opacity=\"0.5\" vector-effect=\"non-scaling-stroke\"/>\
-         <path class=\"contour\" d=\"{contours}\" fill=\"none\" stroke=\"#ff4081\" stroke-width=\"1.5\" vector-effect=\"non-scaling-stroke\"/></svg>",
+         <path class=\"contour\" d=\"{contours}\" fill=\"none\" stroke=\"#56b4e9\" stroke-width=\"1.5\" vector-effect=\"non-scaling-stroke\"/></svg>",
         grid.columns(),
         grid.rows()
     )

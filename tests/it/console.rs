@@ -508,16 +508,27 @@ fn config_errors_point_at_the_bad_keys_own_line_and_builds_dir_needs_no_output_d
 /// Headless Chromium, two windows on `serve` behind a token (tests/console_browser.py): a link
 /// `#layer=N` opens layer N, next/previous flag step between the flagged layers, the alarm
 /// acknowledged on one page clears the banner of the other within 2 s and shows in the history;
-/// the acknowledgement is the one `alarm show` reads. Screenshots are kept in
-/// target/test-artifacts: console-alarm.png and console-acknowledged.png.
+/// the acknowledgement is the one `alarm show` reads. On the layer with three flags no two
+/// labels overlap and each flag says what to do; a view zooms to 1:1 and 2:1; a link to a view
+/// and a flag opens it. Screenshots are kept in target/test-artifacts: console-alarm.png,
+/// console-acknowledged.png, console-flags.png and console-zoom.png.
 #[test]
 fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
     let chromedriver = chromedriver();
     let tmp = tempfile::tempdir().unwrap();
     let build = tmp.path().join("build");
     let (first, second) = (3, 6);
-    let inject = [first, second].map(|l| format!("no-fusion@{l}/part=3"));
-    let config = crate::web::injected_config(&build, 8, &[&inject[0], &inject[1]]);
+    // Layer `first` has three flags or more on one view, two labels close together: the
+    // unfused box with spatter just above its far edge (part 3 is the 20 x 12 mm box at 40..60,
+    // 44..56 mm), and the unfused cylinder (part 1).
+    let inject = [
+        format!("no-fusion@{first}/part=3"),
+        format!("spatter@{first}/n=3/x=47/y=58.5/r=0.8"),
+        format!("no-fusion@{first}/part=1"),
+        format!("no-fusion@{second}/part=3"),
+    ];
+    let inject: Vec<&str> = inject.iter().map(String::as_str).collect();
+    let config = crate::web::injected_config(&build, 8, &inject);
     let config_path = tmp.path().join("layerwise.toml");
     write_config(&config, &config_path);
     run_build(&config_path);

@@ -114,12 +114,20 @@ function flagged(direction) {
 $("next-flag").addEventListener("click", () => flagged(1));
 $("prev-flag").addEventListener("click", () => flagged(-1));
 
-// Deep links: #layer=N (the layer shown is always in the address, to copy and send).
+// Deep links: #layer=N (the layer shown is always in the address, to copy and send), with
+// &view=V to open that view large and &flag=K to mark the layer's flag K.
 function layerFromHash() {
   const m = /(?:^#|&)layer=(\d{1,5})(?:&|$)/.exec(location.hash);
   return m ? Number(m[1]) : null;
 }
-window.addEventListener("hashchange", () => { const n = layerFromHash(); if (n && n !== state.current) { setFollow(false); showLayer(n); } });
+function hashParam(key) {
+  const m = new RegExp("(?:^#|&)" + key + "=([a-z_0-9]{1,32})(?:&|$)").exec(location.hash);
+  return m ? m[1] : null;
+}
+window.addEventListener("hashchange", () => {
+  const n = layerFromHash();
+  if (n && (n !== state.current || hashParam("view") || hashParam("flag"))) { setFollow(false); showLayer(n, true); }
+});
 
 async function loadLayers() {
   const j = await getJson("/api/layers");
@@ -127,7 +135,7 @@ async function loadLayers() {
   // a click (or End) away.
   const before = state.byLayer && JSON.stringify(state.byLayer.get(state.current));
   state.views = j.views; state.layers = j.layers; state.newest = j.complete || j.newest;
-  state.expected = j.layers_expected; state.rectified = j.rectified; state.vectors = j.vectors;
+  state.expected = j.layers_expected; state.rectified = j.rectified; state.vectors = j.vectors; state.cropPx = j.crop_px; window.layerwiseCropPx = j.crop_px;
   state.byLayer = new Map(j.layers.map((l) => [l.layer, l]));
   // The layer shown changed (its frames processed, inspected, flagged): show it as it is now.
   const changed = before !== undefined && before !== JSON.stringify(state.byLayer.get(state.current));
@@ -135,7 +143,7 @@ async function loadLayers() {
   const max = Math.max(1, j.newest || 1, ...j.layers.map((l) => l.layer));
   slider.max = max;
   drawTimeline();
-  if (state.linked) { const n = state.linked; state.linked = null; showLayer(n); }
+  if (state.linked) { const n = state.linked; state.linked = null; showLayer(n, true); }
   else if (state.follow && state.newest && state.newest !== state.current) showLayer(state.newest);
   else if (state.current == null && state.newest) showLayer(state.newest);
   else if (changed) showLayer(state.current);
@@ -149,30 +157,82 @@ function cellClass(l) {
   return flagged;
 }
 
+// What each kind of flag means, what to check and when to stop the build (the operator's card;
+// docs/inspection.md says the same at length).
+const GUIDE = {
+  streak: ["a line along the recoater's path in the fresh powder: a worn or damaged recoater blade, or a part standing up that the blade caught",
+    "the blade, and the parts on the line in the post-scan view", "stop when it persists over several layers across parts, or a part it crosses is also flagged"],
+  short_feed: ["the new powder did not reach the end of the plate: too little powder dosed",
+    "the dose factor and the powder left in the feed", "stop when parts lie in the bare band, or it repeats on the next layer"],
+  coverage: ["a region of the fresh powder unlike the bed: uneven or thin powder, the layer below showing through, or something standing above it",
+    "the region in the pre-scan views, and whether a part lies under it", "stop when it covers a part two layers running, or grows"],
+  elevation: ["a part stands above the fresh powder (swelling, curling, super-elevation)",
+    "the part's edge in the pre-scan views; the recoater may strike it", "stop before the recoater hits it: a critical elevation that persists"],
+  under_fusion: ["the part fused less than its scan vectors say: the laser did not melt there",
+    "the post-scan view against the vectors; the laser's power and the part's parameters", "stop when it is critical, or on two layers of the same part"],
+  over_fusion: ["the part fused beyond its scan vectors' outline",
+    "the part's contour in the post-scan view", "watch; stop if it grows layer after layer"],
+  spatter: ["fused spots away from every part: spatter or a stray scan",
+    "the spots in the post-scan view; the gas flow", "watch; stop if spots land on parts layer after layer"],
+  drift: ["a part's metric moved away from its own running baseline (laser power, focus, powder)",
+    "the part's trend; the same part on earlier layers", "stop when it keeps moving and the part is critical to you"],
+  model: ["the trained model's class for this tile of the bed",
+    "the tile's heat map (H) and the views under it; confirm or dismiss it to teach the model", "as the class's own kind says"],
+};
+function guide(kind) { const g = GUIDE[kind]; return g ? { means: g[0], check: g[1], stop: g[2] } : null; }
+
 // The inspection flags of `view` as outlined boxes over a rectified picture, or over the crop
-// `region` of it (fractions of the picture); null when there are none.
+// `region` of it (fractions of the picture); null when there are none. Each box is numbered as
+// the layer's flag list is, and its label says the kind and the score.
 function flagBoxes(flags, view, region) {
   const r = region || { x: 0, y: 0, w: 1, h: 1 };
-  const mine = (flags || []).filter((f) => f.box && f.draw_on.includes(view));
+  const mine = (flags || []).map((f, i) => [f, i + 1]).filter(([f]) => f.box && f.draw_on.includes(view));
   if (!mine.length) return null;
   const layer = document.createElement("div");
   layer.className = "flags";
-  for (const f of mine) {
+  for (const [f, number] of mine) {
     const b = document.createElement("div");
     b.className = "flag-box " + f.severity;
-    b.dataset.kind = f.kind;
+    b.dataset.kind = f.kind; b.dataset.flag = number;
     b.style.left = (100 * (f.box.x - r.x) / r.w) + "%";
     b.style.top = (100 * (f.box.y - r.y) / r.h) + "%";
     b.style.width = (100 * f.box.w / r.w) + "%";
     b.style.height = (100 * f.box.h / r.h) + "%";
-    b.title = f.message + " (score " + f.score.toFixed(2) + ", threshold " + f.threshold.toFixed(2) + ", " + f.severity + ")";
+    const g = guide(f.kind);
+    b.title = f.message + " (score " + f.score.toFixed(2) + ", threshold " + f.threshold.toFixed(2) + ", " + f.severity + ")" + (g ? "\n" + g.means + "\ncheck: " + g.check + "\n" + g.stop : "");
     const t = document.createElement("span");
-    t.textContent = f.kind + " " + f.score.toFixed(1);
+    t.textContent = (f.severity === "critical" ? "\u25b2 " : "") + number + " " + (f.class || f.kind) + " " + f.score.toFixed(1);
     b.append(t);
     layer.append(b);
   }
   return layer;
 }
+
+// Labels never overlap: within each flag layer, a label that would cover one placed before it
+// (top to bottom, left to right) moves down below it. Run once the layer is on the page, and
+// again when the page's size changes.
+function declutter(root) {
+  for (const layer of root.querySelectorAll(".flags")) {
+    const labels = [...layer.querySelectorAll(".flag-box span")];
+    labels.forEach((l) => { l.style.transform = ""; });
+    const placed = [];
+    const sorted = labels.map((l) => [l, l.getBoundingClientRect()]).sort((a, b) => a[1].top - b[1].top || a[1].left - b[1].left);
+    for (const [l, r0] of sorted) {
+      let dy = 0;
+      for (let moved = true, rounds = 0; moved && rounds < 50; rounds++) {
+        moved = false;
+        for (const q of placed) {
+          const top = r0.top + dy, bottom = r0.bottom + dy;
+          if (r0.left < q.right && q.left < r0.right && top < q.bottom && q.top < bottom) { dy += q.bottom - top + 1; moved = true; }
+        }
+      }
+      if (dy) l.style.transform = "translateY(" + dy + "px)";
+      placed.push({ left: r0.left, right: r0.right, top: r0.top + dy, bottom: r0.bottom + dy });
+    }
+  }
+}
+function declutterSoon(root) { requestAnimationFrame(() => declutter(root)); }
+window.addEventListener("resize", () => { declutter($("views")); declutter($("zoom")); });
 
 function drawTimeline() {
   const tl = $("timeline");
@@ -207,10 +267,11 @@ async function vectorsSvg(n) {
 
 function kind() { return $("raw").checked || !state.rectified ? "raw" : "rectified"; }
 
-async function showLayer(n) {
+async function showLayer(n, linked) {
   n = Math.max(1, Math.min(Number($("slider").max), n));
   state.current = n;
-  if (layerFromHash() !== n) history.replaceState(null, "", "#layer=" + n);
+  const want = linked ? { view: hashParam("view"), flag: hashParam("flag") } : {};
+  if (!linked && location.hash !== "#layer=" + n) history.replaceState(null, "", "#layer=" + n);
   $("layer-number").textContent = n;
   $("slider").value = n;
   document.querySelectorAll("#timeline .cell.current").forEach((c) => c.classList.remove("current"));
@@ -243,6 +304,7 @@ async function showLayer(n) {
     return t;
   });
   $("views").replaceChildren(...tiles);
+  declutterSoon($("views"));
   const d = $("layer-detail"); d.replaceChildren();
   if (detail) {
     const s = detail.summary;
@@ -251,8 +313,10 @@ async function showLayer(n) {
     if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
     for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
     for (const f of detail.flags) dd(d, "flag", f, "wait");
-    for (const f of detail.inspection || []) flagEntry(d, n, f);
+    (detail.inspection || []).forEach((f, i) => flagEntry(d, n, f, i + 1));
   }
+  if (detail && want.flag) document.querySelectorAll('[data-flag="' + want.flag + '"]').forEach((e) => e.classList.add("selected"));
+  if (detail && want.view && detail.pictures[want.view]) openZoom(n, want.view, detail.pictures[want.view], detail.inspection, want.flag);
   $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
 }
 
@@ -279,10 +343,28 @@ addHeatToggle();
 
 // A flag in the layer's list, with the operator's verdict buttons: "confirm" or "false alarm"
 // (recorded with who and when in the build's verdicts.jsonl; the model learns from them).
-function flagEntry(dl, n, f) {
+function flagEntry(dl, n, f, number) {
   const what = (f.class ? f.class + ": " : "") + f.message + " (" + f.severity + ", score " + f.score.toFixed(2) + ")";
-  dd(dl, f.kind, what, f.severity === "critical" ? "bad" : "wait");
+  dd(dl, number + " " + f.kind, what, f.severity === "critical" ? "bad" : "wait");
   const d = dl.lastElementChild;
+  d.dataset.flag = number; dl.lastElementChild.previousElementSibling.dataset.flag = number;
+  const link = document.createElement("a");
+  link.className = "flag-link"; link.textContent = "link"; link.title = "a link to this flag, to copy and send";
+  link.href = "#layer=" + n + "&view=" + f.view + "&flag=" + number;
+  d.append(" ", link);
+  const g = guide(f.kind);
+  if (g) {
+    const more = document.createElement("details");
+    more.className = "guide";
+    const summary = document.createElement("summary"); summary.textContent = "what to do";
+    more.append(summary);
+    for (const [key, text] of [["means", g.means], ["check", g.check], ["stop", g.stop]]) {
+      const p = document.createElement("p"); p.className = "guide-" + key;
+      const b = document.createElement("b"); b.textContent = key === "means" ? "what it means: " : key === "check" ? "check: " : "when to stop: ";
+      p.append(b, text); more.append(p);
+    }
+    d.append(more);
+  }
   for (const [verdict, text] of [["confirm", "confirm"], ["false_alarm", "false alarm"]]) {
     const b = document.createElement("button");
     b.className = "verdict"; b.textContent = text; b.dataset.verdict = verdict;
@@ -303,29 +385,89 @@ async function sendVerdict(n, f, verdict, d) {
   d.append(note);
 }
 
-// Zoom: the preview on the left, a full-resolution crop around the clicked point on the right.
+// Zoom: the preview on the left; on the right a crop around the clicked point at full
+// resolution (one pixel of the picture to one pixel of the screen, "1:1"), enlarged 2x, 4x or
+// 8x with + and - (or the wheel) and moved by dragging it. A crop the server would scale down
+// (wider than web.preview_px) or larger than the room beside the preview is halved until it is
+// not; one that would fill a quarter of the room is doubled.
 let zoomed = null;
-async function openZoom(n, view, p, flags) {
-  zoomed = { n, view, p, kind: kind(), flags: flags || [] };
+async function openZoom(n, view, p, flags, selected) {
+  zoomed = { n, view, p, kind: kind(), flags: flags || [], crop: null, scale: 1 };
   $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
   $("zoom-img").src = p[zoomed.kind];
   $("zoom-original").href = p.original;
   $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
   const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, view);
   $("zoom-flags").replaceChildren(...(boxes ? [boxes] : []));
+  if (selected) $("zoom-flags").querySelectorAll('[data-flag="' + selected + '"]').forEach((e) => e.classList.add("selected"));
   $("zoom-crop-frame").hidden = true;
+  $("zoom-scale").textContent = "";
   $("zoom").hidden = false;
+  declutterSoon($("zoom-flags"));
 }
+function showCrop() {
+  const c = zoomed.crop;
+  c.x = Math.min(1 - c.w, Math.max(0, c.x)); c.y = Math.min(1 - c.h, Math.max(0, c.y));
+  const q = { x: Number(c.x.toFixed(4)), y: Number(c.y.toFixed(4)), w: Number(c.w.toFixed(4)), h: Number(c.h.toFixed(4)) };
+  $("zoom-crop").src = zoomed.p[zoomed.kind] + "&x=" + q.x + "&y=" + q.y + "&w=" + q.w + "&h=" + q.h;
+  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, q);
+  $("zoom-crop-flags").replaceChildren(...(boxes ? [boxes] : []));
+  $("zoom-crop-frame").hidden = false;
+}
+$("zoom-crop").addEventListener("load", (e) => {
+  const img = e.target;
+  if (!zoomed || !zoomed.crop) return;
+  const room = { w: window.innerWidth / 2 - 40, h: window.innerHeight - 90 };
+  const scaledDown = img.naturalWidth >= (state.cropPx || 1024) || img.naturalHeight >= (state.cropPx || 1024);
+  const tooLarge = img.naturalWidth * zoomed.scale > room.w || img.naturalHeight * zoomed.scale > room.h;
+  if ((scaledDown || tooLarge) && zoomed.crop.w > 0.002) {
+    // Scaled down by the server, or larger than the room beside the preview: a smaller crop
+    // around the same center.
+    const c = zoomed.crop; c.x += c.w / 4; c.y += c.h / 4; c.w /= 2; c.h /= 2;
+    showCrop(); return;
+  }
+  const roomy = img.naturalWidth * zoomed.scale * 2 <= room.w && img.naturalHeight * zoomed.scale * 2 <= room.h;
+  const small = img.naturalWidth * 2 < (state.cropPx || 1024) && img.naturalHeight * 2 < (state.cropPx || 1024);
+  if (roomy && small && zoomed.crop.w < 1 && zoomed.crop.h < 1) {
+    // A crop that would fill only a quarter of the room: twice as large around its center.
+    const c = zoomed.crop, w = Math.min(1, c.w * 2), h = Math.min(1, c.h * 2);
+    c.x -= (w - c.w) / 2; c.y -= (h - c.h) / 2; c.w = w; c.h = h;
+    showCrop(); return;
+  }
+  img.style.width = img.naturalWidth * zoomed.scale + "px";
+  img.style.height = img.naturalHeight * zoomed.scale + "px";
+  img.dataset.scale = zoomed.scale;
+  $("zoom-scale").textContent = zoomed.scale + ":1" + (zoomed.scale === 1 ? " (full resolution)" : "") + " · + / − or wheel to enlarge, drag to move";
+  declutter($("zoom-crop-flags"));
+});
 $("zoom-img").addEventListener("click", (e) => {
   const r = e.target.getBoundingClientRect();
   const fx = (e.clientX - r.left) / r.width, fy = (e.clientY - r.top) / r.height;
   const w = 0.1, h = 0.1;
-  const x = Math.min(1 - w, Math.max(0, fx - w / 2)), y = Math.min(1 - h, Math.max(0, fy - h / 2));
-  const c = $("zoom-crop");
-  c.src = zoomed.p[zoomed.kind] + "&x=" + x.toFixed(4) + "&y=" + y.toFixed(4) + "&w=" + w + "&h=" + h;
-  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, { x: Number(x.toFixed(4)), y: Number(y.toFixed(4)), w, h });
-  $("zoom-crop-flags").replaceChildren(...(boxes ? [boxes] : []));
-  $("zoom-crop-frame").hidden = false;
+  zoomed.crop = { x: fx - w / 2, y: fy - h / 2, w, h };
+  showCrop();
+});
+function zoomScale(factor) {
+  if (!zoomed || !zoomed.crop) return;
+  const next = Math.min(8, Math.max(1, zoomed.scale * factor));
+  if (next === zoomed.scale) return;
+  // The same center, the crop's share of the picture in proportion.
+  const c = zoomed.crop, k = zoomed.scale / next;
+  c.x += c.w * (1 - k) / 2; c.y += c.h * (1 - k) / 2; c.w *= k; c.h *= k;
+  zoomed.scale = next;
+  showCrop();
+}
+$("zoom-crop-frame").addEventListener("wheel", (e) => { e.preventDefault(); zoomScale(e.deltaY < 0 ? 2 : 0.5); }, { passive: false });
+let dragging = null;
+$("zoom-crop").addEventListener("pointerdown", (e) => { e.preventDefault(); dragging = { x: e.clientX, y: e.clientY }; });
+window.addEventListener("pointerup", (e) => {
+  if (!dragging || !zoomed || !zoomed.crop) { dragging = null; return; }
+  const img = $("zoom-crop").getBoundingClientRect();
+  const dx = (e.clientX - dragging.x) / img.width, dy = (e.clientY - dragging.y) / img.height;
+  dragging = null;
+  if (Math.abs(dx) + Math.abs(dy) < 0.005) return;
+  zoomed.crop.x -= dx * zoomed.crop.w; zoomed.crop.y -= dy * zoomed.crop.h;
+  showCrop();
 });
 function closeZoom() { $("zoom").hidden = true; zoomed = null; }
 $("zoom-close").addEventListener("click", closeZoom);
@@ -349,6 +491,8 @@ document.addEventListener("keydown", (e) => {
   else if (e.key === "r") $("raw").click();
   else if (e.key === "n") flagged(1);
   else if (e.key === "p") flagged(-1);
+  else if ((e.key === "+" || e.key === "=") && !$("zoom").hidden) zoomScale(2);
+  else if (e.key === "-" && !$("zoom").hidden) zoomScale(0.5);
 });
 
 let refreshing = false, again = false;
