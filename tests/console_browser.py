@@ -6,11 +6,11 @@ usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SE
 
 Checks: a deep link #layer=FIRST opens that layer; its three flags or more have no two labels
 overlapping and each says what to do; a view zoomed shows a crop at 1:1 (full resolution) and
-at 2:1 with +; a link to a view and a flag opens that view with the flag marked; the next flag is SECOND and the previous one
+at 2:1 with +; the trends of part 2 have a value for every layer and a baseline band; a link to a view and a flag opens that view with the flag marked; the next flag is SECOND and the previous one
 FIRST again; the alarm acknowledged on one page (name, note, the button) clears the banner of
 the other open page within 2 s; the history on the page lists the acknowledgement. Keeps
 screenshots: console-alarm.png (the banner with the button), console-acknowledged.png,
-console-flags.png (layer FIRST), console-zoom.png.
+console-flags.png (layer FIRST), console-trends.png, console-zoom.png.
 """
 import base64
 import os
@@ -97,6 +97,25 @@ try:
     guide = linked.js("return [...document.querySelectorAll('#layer-detail details.guide')].map(d => d.textContent)")
     assert guide and all("when to stop" in g for g in guide), guide
     linked.screenshot("console-flags.png")
+
+    # The trends: part 2's metrics (never flagged) over every layer, each with its baseline band
+    # once the part has inspection.drift_min_layers (10) layers, and the line of the layer shown.
+    linked.js("document.getElementById('trends').open = true; document.getElementById('trends').dispatchEvent(new Event('toggle'))")
+    charts = wait_for("the trend charts", lambda: linked.js("""
+        const part = document.getElementById('trend-part');
+        if (!part.options.length) return null;
+        part.value = '2'; part.dispatchEvent(new Event('change'));
+        return [...document.querySelectorAll('#trend-charts .trend')].map(t => ({metric: t.dataset.metric,
+            points: t.querySelector('.value').getAttribute('points').split(' ').length,
+            bands: t.querySelectorAll('.band').length, now: t.querySelectorAll('.now').length}));"""))
+    post_mean = [c for c in charts if c["metric"] == "post_mean"]
+    layers = linked.js("return Number(document.getElementById('slider').max)")
+    assert post_mean and post_mean[0]["points"] == layers and post_mean[0]["bands"] >= 1 and post_mean[0]["now"] == 1, charts
+    print(f"trends of part 2 over {layers} layers: {charts}")
+    linked.js("document.getElementById('trends').scrollIntoView()")
+    time.sleep(0.3)
+    linked.screenshot("console-trends.png")
+    linked.js("window.scrollTo(0, 0)")
 
     # Zoom a view to full resolution: a crop at 1:1, then enlarged 2:1 with +.
     linked.click(".tile img")

@@ -15,7 +15,7 @@ pub const METRICS: [&str; 4] = ["post_mean", "post_contrast", "fused_fraction", 
 /// The followed metrics of a part; the fused fraction only when the part is wide enough to judge
 /// (it has a core), since a part a cell or two wide gains or loses half its fused cells as its
 /// edges move across the grid.
-fn values(m: &PartMetrics) -> [f64; 4] {
+pub fn values(m: &PartMetrics) -> [f64; 4] {
     [
         m.post_mean,
         m.post_contrast,
@@ -71,12 +71,12 @@ impl Baseline {
         let now = values(m);
         let mut out = Vec::new();
         for (k, name) in METRICS.iter().enumerate() {
-            let past = history.iter().map(|v| v[k]).filter(|v| v.is_finite());
-            if past.clone().count() < self.min_layers || !now[k].is_finite() {
+            let Some((median, sigma)) = self.stats(history, k) else {
+                continue;
+            };
+            if !now[k].is_finite() {
                 continue;
             }
-            let (median, _) = robust(past.clone(), 0.0);
-            let (_, sigma) = robust(past, 0.02 * median.abs() + 1e-3);
             let z = (now[k] - median) / sigma;
             if z.abs() >= z_threshold {
                 out.push(Drifted {
@@ -91,6 +91,28 @@ impl Baseline {
             }
         }
         out
+    }
+
+    /// The baseline of each followed metric of `part` as [`Baseline::check`] judges a layer
+    /// against it: (median, robust sigma), `None` while it has fewer than `min_layers` layers.
+    pub fn band(&self, part: i64) -> [Option<(f64, f64)>; 4] {
+        let mut out = [None; 4];
+        if let Some(history) = self.history.get(&part) {
+            for (k, slot) in out.iter_mut().enumerate() {
+                *slot = self.stats(history, k);
+            }
+        }
+        out
+    }
+
+    fn stats(&self, history: &VecDeque<[f64; 4]>, k: usize) -> Option<(f64, f64)> {
+        let past = history.iter().map(|v| v[k]).filter(|v| v.is_finite());
+        if past.clone().count() < self.min_layers {
+            return None;
+        }
+        let (median, _) = robust(past.clone(), 0.0);
+        let (_, sigma) = robust(past, 0.02 * median.abs() + 1e-3);
+        Some((median, sigma))
     }
 
     /// Adds a layer's metrics of a part: a layer that raised a flag on the part never, and drops

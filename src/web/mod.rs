@@ -23,6 +23,7 @@ mod routes;
 mod state;
 pub mod supervisor;
 pub mod timeline;
+pub mod trends;
 mod verdicts;
 
 use crate::config::WebConfig;

@@ -56,6 +56,7 @@ pub(crate) fn router(shared: Arc<PageState>) -> Router {
             "/api/alarm/ack",
             axum::routing::post(super::alarm::acknowledge),
         )
+        .route("/api/trends", get(super::trends::get))
         .route("/api/layers", get(layers))
         .route("/api/layers/{layer}", get(layer))
         .route("/api/layers/{layer}/vectors.svg", get(vectors))

@@ -26,6 +26,8 @@ pub(crate) struct BuildInfo {
     pub vectors: OnceLock<Result<LayerIndex, Arc<VectorError>>>,
     /// What the status report takes from the build's configuration.
     pub report: status::ReportSettings,
+    /// The build's inspection settings (the trends' drift baseline).
+    pub inspection: crate::config::inspection::InspectionConfig,
 }
 
 impl BuildInfo {
@@ -42,6 +44,7 @@ impl BuildInfo {
             numbering: record.config.build.numbering(),
             vectors: OnceLock::new(),
             report: crate::series::report_settings(Some(&record.config)),
+            inspection: record.config.inspection.clone(),
         })
     }
 

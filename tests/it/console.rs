@@ -528,7 +528,8 @@ fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
         format!("no-fusion@{second}/part=3"),
     ];
     let inject: Vec<&str> = inject.iter().map(String::as_str).collect();
-    let config = crate::web::injected_config(&build, 8, &inject);
+    // 14 layers: the trends' baseline band needs 10 (inspection.drift_min_layers).
+    let config = crate::web::injected_config(&build, 14, &inject);
     let config_path = tmp.path().join("layerwise.toml");
     write_config(&config, &config_path);
     run_build(&config_path);

@@ -495,12 +495,65 @@ document.addEventListener("keydown", (e) => {
   else if (e.key === "-" && !$("zoom").hidden) zoomScale(0.5);
 });
 
+// Trends: a part's metrics over the layers, each beside the baseline band the drift check
+// judged it against, the drifted layers marked; loaded when the panel is open, at most every 5 s
+// while the build goes on.
+let trends = null, trendsAt = 0;
+async function loadTrends(force) {
+  if (!$("trends").open || (!force && Date.now() - trendsAt < 5000)) return;
+  trendsAt = Date.now();
+  try { trends = await getJson("/api/trends"); } catch (e) { return; }
+  const sel = $("trend-part"), keep = sel.value, parts = Object.keys(trends.parts);
+  sel.replaceChildren(...parts.map((p) => new Option("part " + p, p)));
+  const drifted = parts.find((p) => Object.values(trends.parts[p].series).some((s) => s.drift.length));
+  sel.value = parts.includes(keep) ? keep : drifted || parts[0] || "";
+  drawTrends();
+}
+function drawTrends() {
+  const p = trends && trends.parts[$("trend-part").value];
+  const box = $("trend-charts");
+  if (!p) { box.textContent = "no part metrics yet (they need the inspection and a vector file)"; return; }
+  box.replaceChildren(...trends.metrics.map((m) => trendChart(m, p.layers, p.series[m], trends.z)).filter(Boolean));
+}
+function trendChart(name, layers, s, z) {
+  const at = (v) => v == null ? null : v;
+  const lo = s.median.map((m, i) => m == null ? null : m - z * s.sigma[i]);
+  const hi = s.median.map((m, i) => m == null ? null : m + z * s.sigma[i]);
+  const ys = [...s.value, ...lo, ...hi].filter((v) => v != null);
+  if (!s.value.some((v) => v != null)) return null;
+  let y0 = Math.min(...ys), y1 = Math.max(...ys);
+  if (y1 - y0 < 1e-9) { y0 -= 1; y1 += 1; }
+  const W = 600, H = 130, L = 52, first = layers[0], last = layers[layers.length - 1];
+  const x = (l) => (L + (W - L - 6) * (last > first ? (l - first) / (last - first) : 0.5)).toFixed(1);
+  const y = (v) => (6 + (H - 24) * (1 - (v - y0) / (y1 - y0))).toFixed(1);
+  // The band where a baseline exists, as one polygon per run of layers that have one.
+  let band = "", run = [];
+  const close = () => { if (run.length) band += '<polygon class="band" points="' + run.map((i) => x(layers[i]) + "," + y(hi[i])).concat(run.slice().reverse().map((i) => x(layers[i]) + "," + y(lo[i]))).join(" ") + '"/>'; run = []; };
+  layers.forEach((_, i) => { if (hi[i] != null) run.push(i); else close(); });
+  close();
+  const line = (vals, cls) => {
+    const pts = layers.map((l, i) => at(vals[i]) == null ? null : x(l) + "," + y(vals[i])).filter(Boolean);
+    return pts.length ? '<polyline class="' + cls + '" points="' + pts.join(" ") + '"/>' : "";
+  };
+  const dots = s.drift.map((l) => { const i = layers.indexOf(l); return '<circle class="drift" r="3.5" cx="' + x(l) + '" cy="' + y(s.value[i]) + '"><title>layer ' + l + ": " + name + " " + s.value[i].toFixed(3) + " drifted</title></circle>"; }).join("");
+  const now = state.current >= first && state.current <= last ? '<line class="now" x1="' + x(state.current) + '" x2="' + x(state.current) + '" y1="4" y2="' + (H - 18) + '"/>' : "";
+  const fmt = (v) => Math.abs(v) >= 100 ? v.toFixed(0) : v.toPrecision(3);
+  const div = document.createElement("div");
+  div.className = "trend"; div.dataset.metric = name;
+  div.innerHTML = '<svg viewBox="0 0 ' + W + " " + H + '" role="img" aria-label="' + name + '">' + band + line(s.median, "median") + line(s.value, "value") + dots + now +
+    '<text x="4" y="14">' + fmt(y1) + '</text><text x="4" y="' + (H - 20) + '">' + fmt(y0) + '</text><text x="' + L + '" y="' + (H - 4) + '">' + name + " · layers " + first + "–" + last + "</text></svg>";
+  return div;
+}
+$("trends").addEventListener("toggle", () => loadTrends(true));
+$("trend-part").addEventListener("change", drawTrends);
+
 let refreshing = false, again = false;
 async function refresh(status) {
   showStatus(status);
   if (refreshing) { again = true; return; }
   refreshing = true;
   try { await loadLayers(); } catch (e) { console.error(e); }
+  loadTrends(false);
   refreshing = false;
   if (again) { again = false; refresh(null); }
 }
