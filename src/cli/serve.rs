@@ -28,6 +28,14 @@ pub struct ServeArgs {
     /// before it is closed, as `[web] idle_timeout_s`.
     #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
     idle_timeout_s: u64,
+    /// Seconds a client has to send a request's headers (from its connection's start or the
+    /// previous answer's end), as `[web] header_timeout_s`.
+    #[arg(long, default_value_t = WebConfig::default().header_timeout_s)]
+    header_timeout_s: u64,
+    /// Seconds a client has to send a request's body (from its headers), as
+    /// `[web] body_timeout_s`.
+    #[arg(long, default_value_t = WebConfig::default().body_timeout_s)]
+    body_timeout_s: u64,
     /// Connections open at once, as `[web] max_connections` (beyond it, one waiting for a request
     /// makes room).
     #[arg(long, default_value_t = WebConfig::default().max_connections)]
@@ -64,6 +72,8 @@ impl ServeArgs {
             token_file: self.token_file.clone(),
             calibration_page: self.calibration_page,
             idle_timeout_s: self.idle_timeout_s,
+            header_timeout_s: self.header_timeout_s,
+            body_timeout_s: self.body_timeout_s,
             max_connections: self.max_connections,
             ..WebConfig::default()
         };

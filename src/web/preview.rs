@@ -87,8 +87,17 @@ pub enum PreviewError {
     NoCalibration,
     #[error(transparent)]
     File(#[from] FileError),
+    /// The stored frame is not a picture this page can decode (damaged, truncated, crafted):
+    /// the request is refused (422), the page goes on.
+    #[error("{frame}: the frame cannot be decoded")]
+    Decode {
+        frame: String,
+        #[source]
+        source: RectifyError,
+    },
+    /// The build's calibration cannot rectify onto the requested grid.
     #[error(transparent)]
-    Decode(#[from] RectifyError),
+    Rectify(#[from] RectifyError),
     #[error("the crop is smaller than a pixel of the picture: zoom out")]
     TooSmall,
     #[error("cannot encode the picture")]
@@ -260,9 +269,15 @@ impl Pictures {
             return Ok(hit.clone());
         }
         let bytes = original.read(FileKind::Frame)?;
+        let undecodable = |source| PreviewError::Decode {
+            frame: original.name(),
+            source,
+        };
         let decoded = Arc::new(match kind {
-            Kind::Rectified => Decoded::Luma(rectify::decode_frame_luma(&bytes)?),
-            Kind::Raw => Decoded::Colour(rectify::decode_frame(&bytes)?),
+            Kind::Rectified => {
+                Decoded::Luma(rectify::decode_frame_luma(&bytes).map_err(undecodable)?)
+            }
+            Kind::Raw => Decoded::Colour(rectify::decode_frame(&bytes).map_err(undecodable)?),
         });
         let mut kept = lock(&self.decoded);
         kept.push_front((key, decoded.clone()));

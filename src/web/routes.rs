@@ -462,6 +462,8 @@ async fn make_picture(
         PreviewError::NoCalibration => not_found(e.to_string()),
         PreviewError::TooSmall => bad(e.to_string()),
         PreviewError::File(e) => file_error(&e),
+        // The request was understood; the frame it names is not a picture.
+        PreviewError::Decode { .. } => ApiError(StatusCode::UNPROCESSABLE_ENTITY, chain(&e)),
         other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, chain(&other)),
     })
 }

@@ -228,6 +228,82 @@ fn c_store_archive_trickling_its_association_is_cut_at_the_deadline_naming_it() 
     stop.store(true, Ordering::SeqCst);
 }
 
+/// A DIMSE archive on loopback that accepts every association (dicom-ul's own server side),
+/// takes what it is sent, and answers by trickling a P-DATA-TF one byte every second (within
+/// any read timeout: only a deadline ends it). Runs until `stop` (its threads are detached).
+fn trickling_store_scp(stop: Arc<AtomicBool>) -> u16 {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    std::thread::spawn(move || {
+        for stream in listener.incoming().flatten() {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let accepted = dicom_ul::ServerAssociationOptions::new()
+                    .accept_any()
+                    .promiscuous(true)
+                    .establish(stream);
+                if let Ok(mut association) = accepted {
+                    // A P-DATA-TF (type 4) of 255 bytes that never completes.
+                    let stream = association.inner_stream();
+                    trickle(
+                        stream,
+                        &[4, 0, 0, 0, 0, 0xFF],
+                        Duration::from_secs(1),
+                        &stop,
+                    );
+                }
+            });
+        }
+    });
+    port
+}
+
+/// The finding for C-STORE: an archive that accepts the association and then trickles its
+/// C-STORE-RSP kept a push busy (the read timeout restarts with each byte). Each instance has
+/// `deadline_s` (2 s of a 3-instance batch's 6 s), and `--deadline-s 3` bounds the push itself
+/// with the destination's deadline_s at 30; each ends naming the destination and the deadline,
+/// the instances left pending.
+#[test]
+fn c_store_archive_trickling_its_store_answer_is_cut_per_instance_and_per_push_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (folder, _) = instances(dir.path(), 3);
+    let stop = Arc::new(AtomicBool::new(false));
+    let port = trickling_store_scp(stop.clone());
+    let config = config_with_pacs(
+        dir.path(),
+        &format!(
+            "name = \"slowstore\"\nhost = \"127.0.0.1\"\nport = {port}\ncalled_ae = \"SLOW\"\n\
+             timeout_s = 30\ndeadline_s = 2\n"
+        ),
+    );
+    let (out, took) = push(&folder, &["--config", config.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", report(&out));
+    assert!(
+        stderr.contains("slowstore")
+            && stderr.contains(&format!("C-STORE to SLOW@127.0.0.1:{port}"))
+            && stderr.contains("deadline of 2 s"),
+        "{stderr}"
+    );
+    assert!(took < Duration::from_secs(15), "{took:?}");
+    // The push's own deadline, for a destination given on the command line (deadline_s 60).
+    let to = format!("dicom://SLOW@127.0.0.1:{port}");
+    let (out, took) = push(&folder, &["--to", &to, "--deadline-s", "3"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{}", report(&out));
+    assert!(
+        stderr.contains(&format!("SLOW_127.0.0.1_{port}")) && stderr.contains("deadline of 3 s"),
+        "{stderr}"
+    );
+    assert!(took < Duration::from_secs(15), "{took:?}");
+    // Nothing was confirmed: every instance is still to push.
+    for entry in std::fs::read_dir(folder.join("pacs")).into_iter().flatten() {
+        let text = std::fs::read_to_string(entry.unwrap().path()).unwrap();
+        assert!(!text.contains("\"kind\":\"stored\""), "{text}");
+    }
+    stop.store(true, Ordering::SeqCst);
+}
+
 /// The finding: an archive that confirmed 16 of a 33-instance batch got those 16 again. What it
 /// confirms is logged; the next push sends only the rest.
 #[test]

@@ -301,8 +301,7 @@ fn the_daemon_serves_its_page_while_capturing_and_many_idle_connections_do_not_s
     let config_path = tmp.path().join("layerwise.toml");
     write_config(&config, &config_path);
     let started = Instant::now();
-    let mut child = spawn_build(&config_path, std::process::Stdio::piped());
-    let (addr, stderr) = watch_output(child.stderr.take().unwrap());
+    let (mut child, addr, stderr) = live_page(&config_path);
     // Four open pages, then two hundred connections that never send a request: far beyond
     // web.max_connections. They give way to one another; capture does not notice.
     let mut streams = Vec::new();
@@ -401,6 +400,75 @@ fn idle_connections_give_way_to_a_request_and_are_closed_after_the_idle_timeout(
     drop(child);
 }
 
+/// The daemon's page is a process of its own (issue 30, "One request stops a build": a request
+/// once ended the daemon mid-build). Killed with SIGKILL mid-build, the page takes nothing of
+/// capture with it: every frame of 30 layers x 6 views is stored with its sidecar, none missing;
+/// the daemon's supervisor starts the page again on the same address, and it serves the layers
+/// captured since before the build ends.
+#[test]
+fn killing_the_page_process_mid_build_leaves_capture_whole_and_the_page_restarts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let layers = 30;
+    let mut config = web_config(&dir, layers);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 200;
+    }
+    config.web.listen = "127.0.0.1:0".into();
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    let (mut daemon, addr, log) = live_page(&config_path);
+    let stored = |layer: u32| dir.join(format!("raw/L{layer:05}_post_top.json")).exists();
+    wait_until("layer 4 captured", Duration::from_secs(60), || stored(4));
+    let first = page_process(daemon.id()).expect("the daemon's page process");
+    assert_eq!(http(addr, "GET", "/api/status", b"").0, 200);
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(first as i32),
+        nix::sys::signal::Signal::SIGKILL,
+    )
+    .unwrap();
+    // Started again (after the supervisor's 1 s back-off), while the daemon goes on capturing.
+    let mut second = None;
+    wait_until(
+        "the page process started again",
+        Duration::from_secs(20),
+        || {
+            second = page_process(daemon.id()).filter(|&p| p != first);
+            second.is_some()
+        },
+    );
+    let (status, body) = http(addr, "GET", "/api/layers", b"");
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    let newest = get_json(addr, "/api/status");
+    assert!(
+        daemon.try_wait().unwrap().is_none() && !stored(layers),
+        "the page came back only after the build: {newest}"
+    );
+    // A layer captured after the kill is served by the new process.
+    wait_until("a layer after the kill", Duration::from_secs(30), || {
+        stored(8)
+    });
+    let (status, _) = http(addr, "GET", "/api/layers/8/post_top/picture.jpg", b"");
+    assert_eq!(status, 200);
+    let ended = daemon.wait().unwrap();
+    let log = log.join().unwrap();
+    assert!(ended.success(), "{log}");
+    let replay = replay(&dir);
+    assert_eq!(
+        (replay.frames.len(), replay.missing.len()),
+        (layers as usize * 6, 0),
+        "{log}"
+    );
+    assert_sidecars_match(&dir);
+    // The supervisor said what happened, once.
+    let restarts = log.matches("the operator page process ended").count();
+    assert_eq!(restarts, 1, "{log}");
+    assert!(
+        log.contains("SIGKILL") || log.contains("signal: 9"),
+        "{log}"
+    );
+}
+
 /// Headless Chromium drives the page of a running build (tests/web_browser.py): the layer
 /// advances without a reload, the newest layer's picture loads, a click on an earlier layer of
 /// the timeline shows it; on the layer where part 3 did not fuse (injected) the flag is outlined
@@ -420,8 +488,7 @@ fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
     config.web.listen = "127.0.0.1:0".into();
     let config_path = tmp.path().join("layerwise.toml");
     write_config(&config, &config_path);
-    let mut child = spawn_build(&config_path, std::process::Stdio::piped());
-    let (addr, stderr) = watch_output(child.stderr.take().unwrap());
+    let (child, addr, stderr) = live_page(&config_path);
     let artifacts = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/test-artifacts");
     std::fs::create_dir_all(&artifacts).unwrap();
     let screenshot = artifacts.join("live-page.png");

@@ -1,6 +1,8 @@
 //! The page stays inside its build (issue 30, "The page leaves its build"): links planted in
 //! `raw/` (to /etc/passwd, ../../etc/hostname, another build's frame) are not followed, a FIFO
-//! blocks no request, `/dev/zero` is not read; a crop smaller than a pixel is a bad request.
+//! blocks no request, `/dev/zero` is not read; a crop smaller than a pixel is a bad request; a
+//! frame that cannot be decoded is refused (422) and the page goes on ("One request stops a
+//! build").
 
 use crate::common::*;
 use std::os::unix::fs::symlink;
@@ -157,4 +159,55 @@ fn the_calibration_page_writes_nothing_through_a_link_planted_as_its_folder() {
     assert!(text.contains("not a folder of the build"), "{text}");
     assert_eq!(std::fs::read_dir(&elsewhere).unwrap().count(), 0);
     drop(served);
+}
+
+/// A 30-byte little-endian TIFF whose one directory names itself as the next (the probe's
+/// input: decoders that follow the chain never end, or reserve gigabytes on the way).
+fn self_pointing_tiff() -> Vec<u8> {
+    let mut tiff = b"II*\0".to_vec();
+    tiff.extend_from_slice(&8u32.to_le_bytes()); // the first directory, at 8
+    tiff.extend_from_slice(&1u16.to_le_bytes()); // one entry:
+    tiff.extend_from_slice(&[0x00, 0x01, 3, 0, 1, 0, 0, 0, 1, 0, 0, 0]); // ImageWidth 1
+    tiff.extend_from_slice(&8u32.to_le_bytes()); // the next directory: this one again
+    tiff.resize(30, 0);
+    tiff
+}
+
+/// The finding: a 30-byte TIFF whose directory points to itself, stored as a frame and asked
+/// for through the daemon's page (`…/picture.jpg?kind=raw`), aborted the daemon mid-build.
+/// Every picture of it (raw, rectified, crops) is refused 422 naming the frame, at once, and
+/// the page goes on: the other frames are served, by the same process, no bigger for it.
+#[test]
+fn a_self_pointing_tiff_as_a_frame_is_refused_and_the_page_goes_on() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 2);
+    std::fs::write(dir.join("raw/L00001_post_top.jpg"), self_pointing_tiff()).unwrap();
+    let (mut served, addr) = serve(&dir, &[]);
+    let crop = "x=0.25&y=0.25&w=0.5&h=0.5";
+    for query in [
+        "kind=raw".to_string(),
+        "kind=rectified".to_string(),
+        format!("kind=raw&{crop}"),
+        format!("kind=rectified&{crop}"),
+    ] {
+        let path = format!("/api/layers/1/post_top/picture.jpg?{query}");
+        let started = Instant::now();
+        let (status, body) = http(addr, "GET", &path, b"");
+        let text = String::from_utf8_lossy(&body);
+        assert_eq!(status, 422, "{path}: {text}");
+        assert!(
+            text.contains("raw/L00001_post_top.jpg") && text.contains("cannot be decoded"),
+            "{path}: {text}"
+        );
+        assert!(started.elapsed() < Duration::from_secs(10), "{path}");
+        // The page goes on, for every other picture.
+        for other in ["1/post_front", "2/post_top"] {
+            let path = format!("/api/layers/{other}/picture.jpg?{query}");
+            assert_eq!(http(addr, "GET", &path, b"").0, 200, "{path}");
+        }
+    }
+    assert_eq!(http(addr, "GET", "/api/status", b"").0, 200);
+    assert!(served.0.try_wait().unwrap().is_none(), "the page ended");
+    let peak = peak_rss_mb(served.pid());
+    assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
 }

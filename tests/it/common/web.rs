@@ -1,7 +1,7 @@
 //! The operator page over HTTP as a client meets it: one request per connection, `layerwise
 //! serve` of a build, the daemon's page address from its output.
 
-use super::{calibrated_config, layerwise, run_build, write_config};
+use super::{calibrated_config, layerwise, run_build, spawn_build, write_config};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::path::Path;
@@ -146,6 +146,37 @@ pub fn serve(dir: &Path, extra: &[&str]) -> (Served, SocketAddr) {
         .unwrap();
     let (addr, _) = watch_output(child.stdout.take().unwrap());
     (Served(child), addr)
+}
+
+/// `layerwise run --config FILE` whose configuration serves the page (`web.listen`): the
+/// daemon, the page's address from its log, and its whole log once it ended.
+pub fn live_page(
+    config_path: &Path,
+) -> (
+    std::process::Child,
+    SocketAddr,
+    std::thread::JoinHandle<String>,
+) {
+    let mut daemon = spawn_build(config_path, std::process::Stdio::piped());
+    let (addr, log) = watch_output(daemon.stderr.take().unwrap());
+    (daemon, addr, log)
+}
+
+/// The page process the daemon `daemon` supervises (its child serving on `--listen-fd`).
+pub fn page_process(daemon: u32) -> Option<u32> {
+    let tasks = std::fs::read_dir(format!("/proc/{daemon}/task")).ok()?;
+    tasks
+        .flatten()
+        .filter_map(|t| std::fs::read_to_string(t.path().join("children")).ok())
+        .flat_map(|c| {
+            c.split_whitespace()
+                .filter_map(|p| p.parse::<u32>().ok())
+                .collect::<Vec<_>>()
+        })
+        .find(|pid| {
+            std::fs::read(format!("/proc/{pid}/cmdline"))
+                .is_ok_and(|c| c.split(|&b| b == 0).any(|a| a == b"--listen-fd"))
+        })
 }
 
 /// Where Debian's chromium-driver put chromedriver (tests/run.sh installs it).
