@@ -31,6 +31,7 @@ mod pipeline;
 pub mod points;
 mod prepare;
 mod report;
+pub mod spread;
 
 use std::path::PathBuf;
 
@@ -47,9 +48,10 @@ pub use overlay::draw_overlay;
 pub use pipeline::{register_frames, register_images, register_images_with};
 pub use points::{
     calibrate_from_points, dlt_build_from_image, parse_points, read_points, Correspondence,
-    PointsFit,
+    PointsFit, SpreadTargets,
 };
 pub use prepare::{filter_frame, load_image, luma_f32, render_exemplar};
+pub use spread::{ErrorModel, PartCentre, PointPair, SpreadReport};
 
 /// Half the side of the ProX320 plate, mm (the default output grid spans it).
 const PLATE_HALF_MM: f64 = 137.5;
@@ -185,6 +187,11 @@ pub struct RegistrationOptions {
     /// A frame must show at least this ratio of mean local std over the parts to around them.
     pub min_contrast: f64,
     pub lm: LmOptions,
+    /// The plate whose corners the report across the plate looks at ([`spread`]): the
+    /// configuration's `[rectify]` grid.
+    pub plate: Grid,
+    /// The expected error beyond which the report warns, mm.
+    pub max_error_mm: f64,
 }
 
 impl Default for RegistrationOptions {
@@ -198,6 +205,8 @@ impl Default for RegistrationOptions {
             seed: exemplar::DEFAULT_SEED,
             min_contrast: 1.5,
             lm: LmOptions::default(),
+            plate: Grid::default(),
+            max_error_mm: spread::DEFAULT_MAX_ERROR_MM,
         }
     }
 }
@@ -257,6 +266,9 @@ pub struct ImageRegistrationReport {
     /// Per correspondence, distance in pixels between the clicked image point and where the
     /// refined mapping puts its build point (large values flag a bad click).
     pub click_residuals_px: Vec<f64>,
+    /// The expected error across the plate, from the parts' contours the fit leans on (`None`
+    /// when they cannot support a homography).
+    pub spread: Option<SpreadReport>,
     pub seconds: f64,
 }
 

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use super::prepare::check_frame;
 use super::report::fit_table;
+use super::spread::SpreadReport;
 use super::{
     align, dlt_build_from_image, draw_overlay, exemplar, filter_frame, load_image, luma_f32,
     read_points, render_exemplar, Correspondence, DistortionChoice, Frame, ImageFit,
@@ -336,8 +337,23 @@ pub fn register_frames(
             fit: fit.clone(),
         })
         .collect();
+    let layers: Vec<&crate::vectors::Layer> = frames.iter().map(|f| f.layer).collect();
+    let spread = super::spread::ErrorModel::fit(
+        &super::spread::contour_support(&layers, &build_from_image),
+        &build_from_image,
+        super::spread::CLICK_PX,
+    )
+    .map(|model| {
+        SpreadReport::new(
+            &model,
+            &options.plate,
+            &super::spread::part_centres(layers.iter().copied()),
+            options.max_error_mm,
+            "contour points of the parts",
+        )
+    });
     let seconds = started.elapsed().as_secs_f64();
-    let fit = fit_table(
+    let mut fit = fit_table(
         &images,
         points_file,
         &build_from_image0,
@@ -348,6 +364,9 @@ pub fn register_frames(
         &click_residuals_px,
         seconds,
     );
+    if let Some(s) = &spread {
+        fit.insert("spread".into(), toml::Value::Table(s.to_table()));
+    }
     Ok(ImageRegistrationReport {
         calibration: Calibration {
             build_from_image,
@@ -362,6 +381,7 @@ pub fn register_frames(
         levels: aligned.levels,
         images,
         click_residuals_px,
+        spread,
         seconds,
     })
 }

@@ -6,6 +6,9 @@
 
 use std::path::Path;
 
+use super::spread::{
+    ErrorModel, PartCentre, PointPair, SpreadReport, CLICK_PX, DEFAULT_MAX_ERROR_MM,
+};
 use super::RegistrationError;
 use crate::geometry::{BuildPoint, DltError, Homography, ImagePoint, PointSet};
 
@@ -163,11 +166,36 @@ pub struct PointsFit {
     pub residuals: Vec<(usize, f64)>,
     pub rms_mm: f64,
     pub max_mm: f64,
+    /// The expected error across the plate (`None` when the points cannot support it).
+    pub spread: Option<SpreadReport>,
+}
+
+/// Where [`calibrate_from_points`] reports the expected error: the plate (its corners), the
+/// parts (their centres and between them) and the limit beyond which it warns.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpreadTargets {
+    pub plate: crate::geometry::Grid,
+    pub parts: Vec<PartCentre>,
+    pub max_error_mm: f64,
+}
+
+impl Default for SpreadTargets {
+    fn default() -> Self {
+        SpreadTargets {
+            plate: crate::geometry::Grid::default(),
+            parts: Vec::new(),
+            max_error_mm: DEFAULT_MAX_ERROR_MM,
+        }
+    }
 }
 
 /// Fits [`PointsFit`] to the points of `file` (at least 4; with exactly 4 the homography passes
-/// through them and the residuals are 0: more points show how well it fits).
-pub fn calibrate_from_points(file: &Path) -> Result<PointsFit, RegistrationError> {
+/// through them and the residuals are 0: more points show how well it fits), with the expected
+/// error across the plate at `targets` (in the `fit` table as `spread`).
+pub fn calibrate_from_points(
+    file: &Path,
+    targets: &SpreadTargets,
+) -> Result<PointsFit, RegistrationError> {
     let points = read_points(file)?;
     let h = dlt_build_from_image(&points, file)?;
     let residuals: Vec<(usize, f64)> = points
@@ -188,6 +216,25 @@ pub fn calibrate_from_points(file: &Path) -> Result<PointsFit, RegistrationError
     fit.insert("points".into(), (points.len() as i64).into());
     fit.insert("rms_mm".into(), rms_mm.into());
     fit.insert("max_mm".into(), max_mm.into());
+    let pairs: Vec<PointPair> = points
+        .iter()
+        .map(|p| PointPair {
+            image: p.image,
+            build: p.build,
+        })
+        .collect();
+    let spread = ErrorModel::fit(&pairs, &h, CLICK_PX).map(|model| {
+        SpreadReport::new(
+            &model,
+            &targets.plate,
+            &targets.parts,
+            targets.max_error_mm,
+            "clicked points",
+        )
+    });
+    if let Some(s) = &spread {
+        fit.insert("spread".into(), toml::Value::Table(s.to_table()));
+    }
     Ok(PointsFit {
         calibration: crate::rectify::Calibration {
             build_from_image: h,
@@ -198,6 +245,7 @@ pub fn calibrate_from_points(file: &Path) -> Result<PointsFit, RegistrationError
         residuals,
         rms_mm,
         max_mm,
+        spread,
     })
 }
 
@@ -302,7 +350,7 @@ mod tests {
             .map(|p| format!("{} {} {} {}\n", p.image.u, p.image.v, p.build.x, p.build.y))
             .collect();
         std::fs::write(&file, text).unwrap();
-        let fit = calibrate_from_points(&file).unwrap();
+        let fit = calibrate_from_points(&file, &SpreadTargets::default()).unwrap();
         assert_eq!(fit.residuals.len(), 5);
         assert!(fit.max_mm > 0.05 && fit.max_mm < 0.5, "{fit:?}");
         assert!(fit.rms_mm <= fit.max_mm);

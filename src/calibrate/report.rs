@@ -46,6 +46,9 @@ impl fmt::Display for ImageRegistrationReport {
         if let Some(note) = &self.distortion_note {
             writeln!(f, "note: {note}")?;
         }
+        if let Some(spread) = &self.spread {
+            write!(f, "{spread}")?;
+        }
         Ok(())
     }
 }
@@ -253,6 +256,7 @@ mod tests {
                 },
             }],
             click_residuals_px: vec![],
+            spread: None,
             seconds: 1.5,
         }
     }

@@ -29,11 +29,60 @@ pub struct PointsArgs {
     /// Where to write calibration.toml.
     #[arg(long)]
     out: PathBuf,
+    /// The laser scan vector file: the expected error is also reported at its parts' centres
+    /// and between them.
+    #[arg(long)]
+    vectors: Option<PathBuf>,
+    #[command(flatten)]
+    spread: SpreadArgs,
+}
+
+/// Where the calibration's expected error is reported and when it warns.
+#[derive(Args)]
+pub struct SpreadArgs {
+    /// The configuration whose plate ([rectify] grid) the corners are taken from (default: the
+    /// whole 275 x 275 mm plate).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Warn when the calibration's expected error anywhere on the plate exceeds this, mm.
+    #[arg(long, default_value_t = layerwise::calibrate::spread::DEFAULT_MAX_ERROR_MM, value_parser = super::values::max_error_mm)]
+    max_error_mm: f64,
+}
+
+impl SpreadArgs {
+    fn plate(&self) -> Result<layerwise::geometry::Grid> {
+        Ok(match &self.config {
+            Some(path) => layerwise::config::Config::load(path)?.rectify,
+            None => layerwise::geometry::Grid::default(),
+        })
+    }
 }
 
 impl PointsArgs {
     fn run(self) -> Result<()> {
-        let fit = layerwise::calibrate::calibrate_from_points(&self.points)?;
+        let parts = match &self.vectors {
+            Some(path) => layerwise::vectors::info(path)?
+                .parts
+                .iter()
+                .filter_map(|p| {
+                    let b = p.bbox?;
+                    Some(layerwise::calibrate::PartCentre {
+                        part: p.id,
+                        centre: layerwise::geometry::BuildPoint::new(
+                            0.5 * (b[0] + b[2]),
+                            0.5 * (b[1] + b[3]),
+                        ),
+                    })
+                })
+                .collect(),
+            None => Vec::new(),
+        };
+        let targets = layerwise::calibrate::SpreadTargets {
+            plate: self.spread.plate()?,
+            parts,
+            max_error_mm: self.spread.max_error_mm,
+        };
+        let fit = layerwise::calibrate::calibrate_from_points(&self.points, &targets)?;
         println!("point   residual (mm)");
         for (line, d) in &fit.residuals {
             println!("line {line:<3} {d:>9.3}");
@@ -49,6 +98,9 @@ impl PointsArgs {
                 ""
             }
         );
+        if let Some(spread) = &fit.spread {
+            print!("{spread}");
+        }
         layerwise::fsutil::write_atomic(&self.out, fit.calibration.to_toml().as_bytes(), false)?;
         println!("wrote {}", self.out.display());
         Ok(())
@@ -240,7 +292,8 @@ pub struct ImagesArgs {
     /// Where to write calibration.toml.
     #[arg(long)]
     out: PathBuf,
-    /// Also draw the contours through the start (red) and result (blue) on the first image.
+    /// Also draw the contours through the start (red) and result (blue) on the first image,
+    /// with each part enlarged below it and a legend.
     #[arg(long)]
     overlay: Option<PathBuf>,
     /// Lens model fitted with the homography.
@@ -255,6 +308,8 @@ pub struct ImagesArgs {
     /// Std filter window of the exemplar, pixels (odd).
     #[arg(long, default_value_t = 11)]
     std_window: usize,
+    #[command(flatten)]
+    spread: SpreadArgs,
 }
 
 impl ImagesArgs {
@@ -266,6 +321,8 @@ impl ImagesArgs {
         };
         let mut options = RegistrationOptions {
             std_window: self.std_window,
+            plate: self.spread.plate()?,
+            max_error_mm: self.spread.max_error_mm,
             ..RegistrationOptions::default()
         };
         options.lm.levels = self.levels;

@@ -23,6 +23,15 @@ pub fn layer(text: &str) -> Result<u32> {
     }
 }
 
+/// A calibration's error limit: more than 0 and at most 100 mm.
+pub fn max_error_mm(text: &str) -> Result<f64> {
+    number(
+        text,
+        |v| v > 0.0 && v <= 100.0,
+        "the error limit is more than 0 and at most 100 mm",
+    )
+}
+
 /// A build's layer count: 1 to 99999.
 pub fn layer_count(text: &str) -> Result<u32> {
     match text.trim().parse::<u32>() {

@@ -387,11 +387,28 @@ fn recovers_the_true_homography_to_a_quarter_pixel() {
     let pinhole = CameraModel::pinhole(cal.build_from_image);
     Rectifier::new(&pinhole, grid, Interpolation::Bilinear, 0).expect("usable");
 
-    // Fig. 11 left: red (start) and blue (refined) contours on the frame.
+    // Fig. 11 left: red (start) and blue (refined) contours on the frame; below it a legend
+    // and each part enlarged with both contours again.
     let pic = image::open(&overlay).expect("overlay PNG").to_rgb8();
-    assert_eq!(pic.dimensions(), (W, H));
-    let count = |c: [u8; 3]| pic.pixels().filter(|p| p.0 == c).count();
-    assert!(count([255, 0, 0]) > 500 && count([0, 0, 255]) > 500);
+    assert_eq!(pic.width(), W);
+    assert!(pic.height() > H + 200, "{:?}", pic.dimensions());
+    let count = |rows: std::ops::Range<u32>, c: [u8; 3]| {
+        pic.enumerate_pixels()
+            .filter(|(_, y, p)| rows.contains(y) && p.0 == c)
+            .count()
+    };
+    assert!(count(0..H, [255, 0, 0]) > 500 && count(0..H, [0, 0, 255]) > 500);
+    let below = H..pic.height();
+    assert!(count(below.clone(), [255, 0, 0]) > 2000 && count(below, [0, 0, 255]) > 2000);
+
+    // The expected error across the plate: small at the parts, in the fit table with its limit.
+    let spread = report.spread.as_ref().expect("the report across the plate");
+    for p in &spread.places {
+        if p.kind == calibrate::spread::PlaceKind::Part {
+            assert!(p.error_mm.expect("seen") < 0.5, "{spread}");
+        }
+    }
+    assert_eq!(fit["spread"]["max_error_mm"].as_float(), Some(0.5));
 }
 
 #[test]
@@ -694,6 +711,14 @@ fn the_command_line_writes_the_calibration_or_names_the_problem() {
     let stdout = String::from_utf8_lossy(&ok.stdout);
     assert!(
         stdout.contains("level 0") && stdout.contains("wrote"),
+        "{stdout}"
+    );
+    // The report across the plate: a row per corner and per part, and its verdict.
+    assert!(
+        stdout.contains("expected error across the plate")
+            && stdout.contains("corner +x +y")
+            && stdout.contains("part 1")
+            && (stdout.contains("WARN:") || stdout.contains("within the limit 0.50 mm")),
         "{stdout}"
     );
     let cal = Calibration::load(&out).expect("calibration written");
