@@ -15,6 +15,7 @@ mod common;
 mod architecture;
 mod argument_values;
 mod bounded_inputs;
+mod check_config;
 mod cli;
 mod console;
 #[cfg(feature = "testkit")]
