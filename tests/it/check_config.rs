@@ -3,7 +3,7 @@
 //! check-config (naming the file and the key) and by `run` before any frame, under the memory
 //! and time limits of `common::bounded`.
 
-use crate::common::{bounded, config_refused, config_with, layerwise, refused, report, section};
+use crate::common::{config_refused, config_with, layerwise, refused, section};
 
 /// The finding: check-config called these valid (a newline, NUL or backslash written into
 /// PatientID; 5,000 characters cut to 64 silently). Both check-config and run refuse each.
@@ -109,6 +109,6 @@ fn config_jpeg_ls_on_a_binary_with_the_feature_passes_check_config() {
     let path = config_with(dir.path(), "jpegls.toml", |t| {
         section(t, "storage").insert("dicom".into(), "jpeg-ls".into());
     });
-    let out = bounded(layerwise().arg("check-config").arg(&path));
-    assert!(out.status.success(), "{}", report(&out));
+    let out = crate::common::bounded(layerwise().arg("check-config").arg(&path));
+    assert!(out.status.success(), "{}", crate::common::report(&out));
 }
