@@ -4,7 +4,7 @@
 use super::health::{mb, Seen, Written as WrittenHealth};
 use super::journal::Journal;
 use super::manifest::BuildManifest;
-use super::{JOURNAL, MANIFEST, STATUS};
+use super::{JOURNAL, STATUS};
 use crate::fsutil::{write_atomic, WriteError};
 use crate::shot::{Phase, SeriesTake};
 use chrono::{DateTime, Utc};
@@ -66,6 +66,14 @@ pub enum StatusError {
     NotABuild(#[from] super::NotABuild),
     #[error(transparent)]
     Journal(#[from] super::journal::JournalError),
+    /// status.json that is not a regular file of at most [`super::MAX_RECORD_BYTES`] (a FIFO,
+    /// `/dev/zero`, a planted link) or cannot be read.
+    #[error("{}: cannot be read", path.display())]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{path}: not a status file of a layerwise build")]
     Unreadable {
         path: PathBuf,
@@ -128,8 +136,8 @@ pub struct StatusReport {
     /// The inspection alarm: raised since layer N, or acknowledged by whom and when
     /// (`alarm.jsonl`; none when it was never raised).
     pub alarm: Option<super::alarm::AlarmState>,
-    /// Files of the build that could not be read (status.json, inspection.jsonl, alarm.jsonl),
-    /// each with where and why: the report shows what it could; `layerwise status` exits 1.
+    /// Files of the build that could not be read (status.json, build.json, inspection.jsonl,
+    /// alarm.jsonl), each with where and why: the report shows what it could; `layerwise status` exits 1.
     pub damaged: Vec<String>,
     pub warning: Option<String>,
 }
@@ -256,22 +264,40 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
     super::require_build(dir)?;
     let journal_path = dir.join(JOURNAL);
     let replay = Journal::read(&journal_path)?;
-    let manifest: Option<BuildManifest> = std::fs::read(dir.join(MANIFEST))
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok());
     // A damaged secondary file is shown as damaged, never a reason to show nothing (the alarm
-    // and the frames must stay in view).
+    // and the frames must stay in view). Both are read bounded, as regular files: a FIFO or
+    // `/dev/zero` in their place is damage, never a hang.
     let mut damaged = Vec::new();
-    let live: Option<LiveStatus> = match std::fs::read(dir.join(STATUS)) {
+    let manifest = match BuildManifest::read(dir) {
+        Ok(manifest) => Some(manifest),
+        Err(super::manifest::ManifestError::Read { source, .. })
+            if source.kind() == std::io::ErrorKind::NotFound =>
+        {
+            None
+        }
+        Err(e) => {
+            damaged.push(crate::logging::chain(&e));
+            None
+        }
+    };
+    let status_path = dir.join(STATUS);
+    let live: Option<LiveStatus> = match super::read_record_file(&status_path) {
         Ok(bytes) => serde_json::from_slice(&bytes)
             .map_err(|source| {
                 damaged.push(crate::logging::chain(&StatusError::Unreadable {
-                    path: dir.join(STATUS),
+                    path: status_path.clone(),
                     source,
                 }))
             })
             .ok(),
-        Err(_) => None,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(source) => {
+            damaged.push(crate::logging::chain(&StatusError::Read {
+                path: status_path.clone(),
+                source,
+            }));
+            None
+        }
     };
     let live = live.unwrap_or_default();
     let bytes_stored: u64 = replay.frames.values().map(|f| f.bytes).sum::<u64>()

@@ -339,7 +339,7 @@ impl StatusArgs {
         if !report.damaged.is_empty() {
             anyhow::bail!(
                 "{} of the build's files cannot be read ({}): what they hold may be missing \
-                 above; keep a copy, then repair or remove the damaged line",
+                 above; keep a copy, then repair or remove the damaged line or file",
                 report.damaged.len(),
                 if self.json {
                     "\"damaged\""

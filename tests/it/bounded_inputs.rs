@@ -3,9 +3,8 @@
 //! place, within seconds, under a 2 GiB address-space limit (an allocation sized by a wild header
 //! aborts the child instead of swapping the machine), never a panic, a hang or a silent exit 0.
 
-use crate::common;
 use crate::common::{
-    bounded, demo_config, layerwise, mkfifo, refused, report, write_config, SmallView,
+    bounded, config_refused, config_with, layerwise, mkfifo, refused, report, section, SmallView,
 };
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -386,6 +385,108 @@ fn nef_frame_on_a_binary_without_the_feature_names_the_feature() {
     }
 }
 
+/// The same 30 bytes as the finding: a TIFF header and one directory of one entry whose next
+/// directory is itself (a decoder following the chain grows its list until it aborts at 3-4 GB).
+fn self_pointing_tiff() -> Vec<u8> {
+    let mut tiff = Vec::from(*b"II\x2A\0");
+    tiff.extend(8u32.to_le_bytes());
+    tiff.extend(1u16.to_le_bytes());
+    // ImageWidth, SHORT, 1 value: 64.
+    tiff.extend([0, 1, 3, 0, 1, 0, 0, 0, 64, 0, 0, 0]);
+    tiff.extend(8u32.to_le_bytes());
+    tiff.resize(30, 0);
+    tiff
+}
+
+/// The finding: a 30-byte TIFF whose directory points to itself, stored as a frame, aborted
+/// `rectify` and `register images` at 3-4 GB. Both refuse it by name, under the 2 GiB limit.
+#[test]
+fn tiff_whose_directory_points_to_itself_is_refused_by_rectify_and_register_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = SmallView::new(dir.path());
+    let image = dir.path().join("L00001_post_top.tif");
+    std::fs::write(&image, self_pointing_tiff()).unwrap();
+    let started = Instant::now();
+    rectify_refused(&view, &image, &["L00001_post_top.tif", "loop"]);
+    let points = dir.path().join("points.txt");
+    std::fs::write(&points, "0 0 0 0\n100 0 10 0\n100 100 10 10\n0 100 0 10\n").unwrap();
+    refused(
+        layerwise()
+            .args(["register", "images", "--layer", "1", "--vectors"])
+            .arg(vectors(dir.path()))
+            .arg("--image")
+            .arg(&image)
+            .arg("--init")
+            .arg(&points)
+            .arg("--out")
+            .arg(dir.path().join("calibration-out.toml")),
+        &["L00001_post_top.tif", "loop"],
+    );
+    assert!(!dir.path().join("calibration-out.toml").exists());
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "{:?}",
+        started.elapsed()
+    );
+}
+
+/// `picture` as a JPEG of quality 90 written by jpeg-encoder, progressive or baseline.
+fn encode_jpeg(picture: &image::RgbImage, progressive: bool) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = jpeg_encoder::Encoder::new(&mut out, 90);
+    encoder.set_progressive(progressive);
+    encoder
+        .encode(
+            picture.as_raw(),
+            picture.width() as u16,
+            picture.height() as u16,
+            jpeg_encoder::ColorType::Rgb,
+        )
+        .unwrap();
+    out
+}
+
+/// The finding: every progressive JPEG was refused with "Exhausted data in the image". A
+/// progressive frame rectifies, to PNG and to DICOM, into the picture its baseline twin (the same
+/// picture, quality and tables) gives.
+#[test]
+fn progressive_jpeg_rectifies_like_its_baseline_twin() {
+    let dir = tempfile::tempdir().unwrap();
+    let view = SmallView::new(dir.path());
+    let picture = view.picture();
+    let mut rectified = Vec::new();
+    for (name, progressive) in [("progressive.jpg", true), ("baseline.jpg", false)] {
+        let jpeg = encode_jpeg(&picture, progressive);
+        let marker = jpeg[sof(&jpeg) + 1];
+        assert_eq!(marker == 0xC2, progressive, "{name}: SOF {marker:#x}");
+        let image = dir.path().join(name);
+        std::fs::write(&image, &jpeg).unwrap();
+        let png = image.with_extension("png");
+        for out in [png.clone(), image.with_extension("dcm")] {
+            let done = bounded(&mut rectify(&view, &image, &out));
+            assert!(done.status.success(), "{name}: {}", report(&done));
+        }
+        rectified.push(image::open(&png).unwrap().to_luma8());
+    }
+    let (progressive, baseline) = (&rectified[0], &rectified[1]);
+    assert_eq!(progressive.dimensions(), baseline.dimensions());
+    let differences: Vec<u8> = progressive
+        .as_raw()
+        .iter()
+        .zip(baseline.as_raw())
+        .map(|(a, b)| a.abs_diff(*b))
+        .collect();
+    let mean = differences.iter().map(|&d| f64::from(d)).sum::<f64>() / differences.len() as f64;
+    let max = differences.iter().max().copied().unwrap_or(0);
+    assert!(mean < 0.5 && max <= 8, "mean {mean}, max {max}");
+    // Not a blank picture: the plate shows.
+    let (lo, hi) = baseline
+        .as_raw()
+        .iter()
+        .fold((255u8, 0u8), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    assert!(hi - lo > 50, "{lo}..{hi}");
+}
+
 fn grid_toml(side: f64) -> String {
     format!("[rectify]\nx_min = 0.0\nx_max = {side}\ny_min = 0.0\ny_max = {side}\npixel_mm = 1.0\n")
 }
@@ -476,36 +577,6 @@ fn vector_file_with_units_1e308_is_refused_as_non_finite() {
 }
 
 // ---------------------------------------------------------------- configurations
-
-/// The demo configuration (small, mock hardware) with `edit` applied, written to `name`.
-fn config_with(dir: &Path, name: &str, edit: impl FnOnce(&mut toml::Table)) -> PathBuf {
-    let config = demo_config(&dir.join("build"), 2);
-    let path = dir.join(name);
-    write_config(&config, &path);
-    let mut table: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    edit(&mut table);
-    std::fs::write(&path, toml::to_string(&table).unwrap()).unwrap();
-    path
-}
-
-fn section<'a>(table: &'a mut toml::Table, name: &str) -> &'a mut toml::Table {
-    table
-        .get_mut(name)
-        .and_then(|v| v.as_table_mut())
-        .unwrap_or_else(|| panic!("[{name}]"))
-}
-
-/// check-config refuses it (naming the file and the key), and `run` refuses it before it
-/// starts a build (nothing captured).
-fn config_refused(dir: &Path, name: &str, key: &str, edit: impl FnOnce(&mut toml::Table)) {
-    let path = config_with(dir, name, edit);
-    refused(layerwise().arg("check-config").arg(&path), &[name, key]);
-    refused(layerwise().arg("run").arg("--config").arg(&path), &[key]);
-    assert!(
-        common::originals(&dir.join("build")).is_empty(),
-        "{name}: frames were captured"
-    );
-}
 
 #[test]
 fn config_the_demo_itself_passes_check_config() {

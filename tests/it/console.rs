@@ -101,6 +101,66 @@ fn alarm_show_and_ack_refuse_a_folder_that_is_not_a_build() {
     assert!(err.contains("control characters"), "{err}");
 }
 
+/// What an alarm note or message may hold when alarm.jsonl was written by hand or by another
+/// tool: a title change, a clear screen, a right-to-left override, a line break.
+const HOSTILE: &str = "ok\u{1b}]0;pwned\u{7}\u{1b}[2J\u{202e}gpj.exe\r\nforged line";
+
+/// Checks that no line of `shown` holds a character a terminal acts on (or hides), and that
+/// the hostile text is there, written out.
+fn printed_escaped(what: &str, shown: &str) {
+    for line in shown.lines() {
+        assert!(
+            !line.chars().any(layerwise::logging::is_hidden_char),
+            "{what} printed a raw control or bidirectional character: {line:?}"
+        );
+    }
+    assert!(
+        shown.contains("ok\\u{1b}]0;pwned\\u{7}\\u{1b}[2J\\u{202e}gpj.exe\\r\\nforged line"),
+        "{what}: {shown}"
+    );
+    assert!(
+        !shown.lines().any(|l| l.starts_with("forged line")),
+        "{what}: {shown}"
+    );
+}
+
+/// The finding: alarm notes reached the terminal raw through `status` and `alarm show`, escape
+/// sequences included. A message and a note written into alarm.jsonl (as another tool or a
+/// hand edit could) are printed escaped, one line each.
+#[test]
+fn alarm_notes_with_escape_sequences_are_printed_escaped_by_alarm_show_and_status() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    let path = build.join(layerwise::build_dir::ALARM);
+    let raised = AlarmEvent::Raised {
+        at: chrono::Utc::now(),
+        layer: 2,
+        kind: FlagKind::UnderFusion,
+        severity: Severity::Critical,
+        message: HOSTILE.into(),
+    };
+    let line = |event: &AlarmEvent| serde_json::to_string(event).unwrap() + "\n";
+    std::fs::write(&path, line(&raised)).unwrap();
+    let show = || {
+        layerwise()
+            .args(["alarm", "show", "--build"])
+            .arg(&build)
+            .stdout_ok()
+    };
+    printed_escaped("alarm show (raised)", &show());
+    printed_escaped("status (raised)", &status_text(&build));
+    let acknowledged = AlarmEvent::Acknowledged {
+        at: chrono::Utc::now(),
+        by: "op\u{1b}[31m".into(),
+        note: Some(HOSTILE.into()),
+    };
+    std::fs::write(&path, line(&raised) + &line(&acknowledged)).unwrap();
+    let shown = show();
+    printed_escaped("alarm show (acknowledged)", &shown);
+    assert!(shown.contains("op\\u{1b}[31m"), "{shown}");
+    printed_escaped("status (acknowledged)", &status_text(&build));
+}
+
 #[test]
 fn status_with_a_damaged_alarm_log_still_shows_the_alarm() {
     let tmp = tempfile::tempdir().unwrap();

@@ -16,6 +16,7 @@ mod architecture;
 mod argument_values;
 mod bounded_inputs;
 mod calibration_spread;
+mod check_config;
 mod cli;
 mod console;
 #[cfg(feature = "testkit")]

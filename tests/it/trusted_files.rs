@@ -342,3 +342,104 @@ fn current_build_folder_outside_builds_dir_is_refused() {
     assert_eq!(std::fs::read_dir(&outside).unwrap().count(), 0);
     assert!(!Path::new("/raw").exists() && !Path::new("/journal.jsonl").exists());
 }
+
+/// The finding: files a configuration names (the page's token, the mock printer's script, the
+/// vector file) as a FIFO hung `run` and as `/dev/zero` read without end. check-config and
+/// `run` refuse each by its key and its path, promptly, before any frame.
+#[test]
+fn token_file_script_and_vectors_as_fifo_or_dev_zero_are_refused_by_check_config_and_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("named.fifo");
+    mkfifo(&fifo);
+    let keys = ["web.token_file", "trigger.script", "build.vectors"];
+    for (i, key) in keys.into_iter().enumerate() {
+        for (j, path) in [fifo.as_path(), Path::new("/dev/zero")]
+            .into_iter()
+            .enumerate()
+        {
+            let build = dir.path().join(format!("build-{i}-{j}"));
+            let mut config = demo_config(&build, 2);
+            match key {
+                "web.token_file" => config.web.token_file = Some(path.into()),
+                "build.vectors" => config.build.vectors = Some(path.into()),
+                _ => match &mut config.trigger {
+                    layerwise::config::TriggerConfig::Mock(mock) => mock.script = Some(path.into()),
+                    _ => unreachable!("the demo's trigger is the mock"),
+                },
+            }
+            let file = dir.path().join(format!("config-{i}-{j}.toml"));
+            write_config(&config, &file);
+            let shown = path.display().to_string();
+            let started = std::time::Instant::now();
+            refused(
+                layerwise().arg("check-config").arg(&file),
+                &[key, shown.as_str()],
+            );
+            refused(
+                layerwise().args(["run", "--config"]).arg(&file),
+                &[key, shown.as_str()],
+            );
+            assert!(
+                started.elapsed() < std::time::Duration::from_secs(10),
+                "{key} = {shown}: {:?}",
+                started.elapsed()
+            );
+            assert!(
+                crate::common::originals(&build).is_empty(),
+                "{key} = {shown}: frames were captured"
+            );
+        }
+    }
+}
+
+/// The finding, for `status`'s own report: status.json or build.json as a FIFO hung `status`,
+/// as `/dev/zero` it aborted at 2.2 GB. Each is refused by name as damaged, promptly, while the
+/// rest of the build (its frames) is still shown; `status` exits 1 and `--json` lists it.
+#[test]
+fn status_with_status_json_or_build_json_as_fifo_or_dev_zero_names_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let template = demo_build(dir.path(), "template");
+    for (i, file) in ["status.json", "build.json"].into_iter().enumerate() {
+        for (j, hostile) in [Hostile::Fifo, Hostile::DevZero, Hostile::Sparse]
+            .into_iter()
+            .enumerate()
+        {
+            let build = dir.path().join(format!("case{i}-{j}"));
+            copy_build(&template, &build);
+            hostile.plant(&build.join(file));
+            let what = format!("status with {file} as {hostile:?}");
+            let started = std::time::Instant::now();
+            let out = bounded(layerwise().args(["status", "--build"]).arg(&build));
+            assert!(
+                started.elapsed() < std::time::Duration::from_secs(10),
+                "{what}: {:?}",
+                started.elapsed()
+            );
+            assert_eq!(out.status.code(), Some(1), "{what}: {}", report(&out));
+            let shown = String::from_utf8_lossy(&out.stdout);
+            let damaged = shown
+                .lines()
+                .find(|l| l.starts_with("DAMAGED") && l.contains(file))
+                .unwrap_or_else(|| panic!("{what}: {file} is not named damaged: {shown}"));
+            assert!(damaged.contains("cannot"), "{what}: {damaged}");
+            assert!(shown.contains("frames     12 stored"), "{what}: {shown}");
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert!(
+                stderr.contains("cannot be read") && !stderr.contains("panicked"),
+                "{what}: {stderr}"
+            );
+            let out = bounded(
+                layerwise()
+                    .args(["status", "--json", "--build"])
+                    .arg(&build),
+            );
+            assert_eq!(out.status.code(), Some(1), "{what}: {}", report(&out));
+            let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let named = json["damaged"].as_array().is_some_and(|d| {
+                d.iter()
+                    .any(|d| d.as_str().is_some_and(|d| d.contains(file)))
+            });
+            assert!(named, "{what}: {json:#}");
+        }
+    }
+}

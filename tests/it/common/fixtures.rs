@@ -50,6 +50,42 @@ pub fn write_config(config: &Config, path: &Path) {
     std::fs::write(path, text).expect("config written");
 }
 
+/// The demo configuration (small, mock hardware, writing into `dir/build`) with `edit` applied
+/// to its TOML, written to `dir/name`.
+pub fn config_with(
+    dir: &Path,
+    name: &str,
+    edit: impl FnOnce(&mut toml::Table),
+) -> std::path::PathBuf {
+    let config = demo_config(&dir.join("build"), 2);
+    let path = dir.join(name);
+    write_config(&config, &path);
+    let mut table: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    edit(&mut table);
+    std::fs::write(&path, toml::to_string(&table).unwrap()).unwrap();
+    path
+}
+
+/// The table `[name]` of a configuration's TOML.
+pub fn section<'a>(table: &'a mut toml::Table, name: &str) -> &'a mut toml::Table {
+    table
+        .get_mut(name)
+        .and_then(|v| v.as_table_mut())
+        .unwrap_or_else(|| panic!("[{name}]"))
+}
+
+/// check-config refuses it (naming the file and the key), and `run` refuses it before it
+/// starts a build (nothing captured).
+pub fn config_refused(dir: &Path, name: &str, key: &str, edit: impl FnOnce(&mut toml::Table)) {
+    let path = config_with(dir, name, edit);
+    super::bounded::refused(layerwise().arg("check-config").arg(&path), &[name, key]);
+    super::bounded::refused(layerwise().arg("run").arg("--config").arg(&path), &[key]);
+    assert!(
+        super::build_dir::originals(&dir.join("build")).is_empty(),
+        "{name}: frames were captured"
+    );
+}
+
 /// A calibrated mock build: the mock camera's true homography as the calibration.
 pub fn calibrated_config(
     dir: &Path,
