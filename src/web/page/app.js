@@ -174,6 +174,23 @@ function flagBoxes(flags, view, region) {
   return layer;
 }
 
+// The powder bed the inspection judges (found over the build's first layers, then kept) as a
+// faint dashed outline over a rectified pre-scan view, or over the crop `region` of it
+// (fractions of the picture); null on the other views and before the bed settled.
+function bedOutline(bed, view, region) {
+  if (!bed || !view.startsWith("pre_") || bed.outline.length < 3) return null;
+  const r = region || { x: 0, y: 0, w: 1, h: 1 };
+  const ns = "http://www.w3.org/2000/svg";
+  const svg = document.createElementNS(ns, "svg");
+  svg.setAttribute("class", "bed-outline");
+  svg.setAttribute("viewBox", [r.x, r.y, r.w, r.h].join(" "));
+  svg.setAttribute("preserveAspectRatio", "none");
+  const line = document.createElementNS(ns, "polygon");
+  line.setAttribute("points", bed.outline.map(([x, y]) => x + "," + y).join(" "));
+  svg.append(line);
+  return svg;
+}
+
 function drawTimeline() {
   const tl = $("timeline");
   const maxLag = Math.max(1000, ...state.layers.map((l) => l.lag_ms || 0));
@@ -231,10 +248,12 @@ async function showLayer(n) {
       img.alt = "layer " + n + " " + view; img.src = p[kind()]; img.dataset.layer = n;
       t.append(img);
       if (svg) { const o = document.createElement("div"); o.className = "vectors"; o.innerHTML = svg; t.append(o); }
+      const bed = kind() === "rectified" && bedOutline(detail.bed, view);
+      if (bed) t.append(bed);
       const boxes = kind() === "rectified" && flagBoxes(detail.inspection, view);
       if (boxes) t.append(boxes);
       if (kind() === "rectified") t.append(heatLayer(n, view));
-      t.addEventListener("click", () => openZoom(n, view, p, detail.inspection));
+      t.addEventListener("click", () => openZoom(n, view, p, detail.inspection, detail.bed));
     }
     const label = document.createElement("span"); label.className = "label"; label.textContent = view;
     const st = document.createElement("span"); st.className = "state";
@@ -251,6 +270,7 @@ async function showLayer(n) {
     if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
     for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
     for (const f of detail.flags) dd(d, "flag", f, "wait");
+    if (detail.bed) dd(d, "powder bed", Math.round(detail.bed.area_mm2) + " mm\u00b2 judged (settled at layer " + detail.bed.layer + ")");
     for (const f of detail.inspection || []) flagEntry(d, n, f);
   }
   $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
@@ -305,14 +325,15 @@ async function sendVerdict(n, f, verdict, d) {
 
 // Zoom: the preview on the left, a full-resolution crop around the clicked point on the right.
 let zoomed = null;
-async function openZoom(n, view, p, flags) {
-  zoomed = { n, view, p, kind: kind(), flags: flags || [] };
+async function openZoom(n, view, p, flags, bed) {
+  zoomed = { n, view, p, kind: kind(), flags: flags || [], bed };
   $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
   $("zoom-img").src = p[zoomed.kind];
   $("zoom-original").href = p.original;
   $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
   const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, view);
-  $("zoom-flags").replaceChildren(...(boxes ? [boxes] : []));
+  const outline = zoomed.kind === "rectified" && bedOutline(bed, view);
+  $("zoom-flags").replaceChildren(...[outline, boxes].filter(Boolean));
   $("zoom-crop-frame").hidden = true;
   $("zoom").hidden = false;
 }
@@ -323,8 +344,10 @@ $("zoom-img").addEventListener("click", (e) => {
   const x = Math.min(1 - w, Math.max(0, fx - w / 2)), y = Math.min(1 - h, Math.max(0, fy - h / 2));
   const c = $("zoom-crop");
   c.src = zoomed.p[zoomed.kind] + "&x=" + x.toFixed(4) + "&y=" + y.toFixed(4) + "&w=" + w + "&h=" + h;
-  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, { x: Number(x.toFixed(4)), y: Number(y.toFixed(4)), w, h });
-  $("zoom-crop-flags").replaceChildren(...(boxes ? [boxes] : []));
+  const region = { x: Number(x.toFixed(4)), y: Number(y.toFixed(4)), w, h };
+  const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, region);
+  const outline = zoomed.kind === "rectified" && bedOutline(zoomed.bed, zoomed.view, region);
+  $("zoom-crop-flags").replaceChildren(...[outline, boxes].filter(Boolean));
   $("zoom-crop-frame").hidden = false;
 });
 function closeZoom() { $("zoom").hidden = true; zoomed = null; }
