@@ -7,8 +7,10 @@ Checks that the shown layer number advances without a reload, that a picture of 
 layer loads, that a click on an earlier layer in the timeline shows that layer, and keeps a
 screenshot. With the optional arguments: on FLAGGED_LAYER an inspection flag is outlined over
 VIEW at X Y W H (fractions of the rectified picture, from the injected anomaly's place), in
-the small view, the large view and a crop; F hides the outlines; CLEAN_LAYER shows none; a
-screenshot of the flagged layer is kept in FLAG_PNG.
+the small view, the large view and a crop; F hides the outlines; CLEAN_LAYER shows none; the
+powder bed the inspection judged is outlined (faint, dashed) over the pre-scan views of
+FLAGGED_LAYER, after the bed settled, and not over the post-scan ones nor on CLEAN_LAYER, before
+it settled; a screenshot of the flagged layer is kept in FLAG_PNG.
 """
 import base64
 import json
@@ -44,7 +46,8 @@ def diagnosis():
             return {layer: document.getElementById('layer-number').textContent,
                     pictures: [...document.querySelectorAll('#views img')].map(i =>
                         [i.src.replace(location.origin, ''), i.complete, i.naturalWidth]),
-                    outlines: document.querySelectorAll('.flag-box').length};"""), indent=1)
+                    outlines: document.querySelectorAll('.flag-box').length,
+                    beds: document.querySelectorAll('.bed-outline').length};"""), indent=1)
     except Exception as e:  # no session yet
         return f" ({e})"
 
@@ -149,12 +152,29 @@ try:
         click_layer(clean_layer)
         wait_for(f"layer {clean_layer} shown", lambda: shown() == clean_layer and js(boxes, f'.tile[data-view="{flagged_view}"]', '#views') is not None)
         assert js("return document.querySelectorAll('.flag-box').length") == 0, "a clean layer has no outline"
+        assert js("return document.querySelectorAll('.bed-outline').length") == 0, "no bed outline before the bed settled"
         click_layer(flagged_layer)
         tile = f'.tile[data-view="{flagged_view}"][data-layer="{flagged_layer}"]'
         found = wait_for(f"an outline over {flagged_view} of layer {flagged_layer}", lambda: shown() == flagged_layer and js(boxes, tile, tile))
         near(found[0]["box"], expected, found[0]["px"], "small view")
         others = js("return [...document.querySelectorAll('.tile')].filter(t => t.querySelector('.flag-box')).map(t => t.dataset.view)")
         assert others == [flagged_view], f"a part's flag is outlined over its own view only: {others}"
+        # The powder bed: a dashed outline over each pre-scan view, most of the picture, inside it.
+        beds = js("""
+            return [...document.querySelectorAll('.tile')].map(t => {
+                const line = t.querySelector('.bed-outline polygon'), img = t.querySelector('img');
+                if (!line || !img) return [t.dataset.view, null];
+                const p = img.getBoundingClientRect(), r = line.getBoundingClientRect();
+                return [t.dataset.view, [(r.left - p.left) / p.width, (r.top - p.top) / p.height,
+                    (r.right - p.left) / p.width, (r.bottom - p.top) / p.height,
+                    getComputedStyle(line).strokeDasharray]];
+            });""")
+        outlined = [v for v, b in beds if b]
+        assert outlined and outlined == [v for v, _ in beds if v.startswith("pre_")], f"the powder bed is outlined over the pre-scan views only: {beds}"
+        for view, (x0, y0, x1, y1, dashes) in [(v, b) for v, b in beds if b]:
+            assert -0.01 <= x0 < x1 <= 1.01 and -0.01 <= y0 < y1 <= 1.01 and x1 - x0 > 0.3 and y1 - y0 > 0.3, f"{view}: bed outline at {x0, y0, x1, y1}"
+            assert dashes not in ("", "none"), f"{view}: the bed outline is dashed ({dashes!r})"
+        print(f"layer {flagged_layer}: the powder bed outlined over {outlined} at {[round(v, 3) for v in dict(beds)[outlined[0]][:4]]}")
         print(f"layer {flagged_layer}: {found[0]['kind']} outlined over {flagged_view} at {[round(v, 4) for v in found[0]['box']]} (anomaly at {[round(v, 4) for v in expected]})")
         js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'f'}))")
         assert not js(boxes, tile, tile)[0]["visible"], "F hides the outlines"

@@ -11,6 +11,7 @@
 //! events. Only layer numbers and view names from a request reach the file system.
 
 mod alarm;
+pub mod bed;
 pub mod calibration;
 pub mod clients;
 pub mod files;

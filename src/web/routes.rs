@@ -276,6 +276,10 @@ async fn layer(
     let state = layer_state(&shared, n)?;
     let grid = shared.info().map(|i| i.grid);
     let inspection = inspection_flags(&state, grid.as_ref(), &views(&shared));
+    let bed = {
+        let timeline = shared.timeline.read().unwrap_or_else(|e| e.into_inner());
+        super::bed::layer_bed(&timeline, n, grid.as_ref())
+    };
     let pictures: BTreeMap<String, serde_json::Value> = state
         .views
         .iter()
@@ -299,6 +303,7 @@ async fn layer(
         "signals": state.signals,
         "flags": state.flags,
         "inspection": inspection,
+        "bed": bed,
         "pictures": pictures,
         "vectors": format!("/api/layers/{n}/vectors.svg"),
     })))

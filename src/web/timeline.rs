@@ -2,7 +2,7 @@
 //! as they grow (only the bytes appended since the last look), so a page on a long build costs no
 //! full replay per update.
 
-use crate::build_dir::inspection::{Flag, InspectionRecord, Severity};
+use crate::build_dir::inspection::{BedRecord, Flag, InspectionRecord, Severity};
 use crate::build_dir::Record;
 use crate::shot::{Shot, View};
 use chrono::{DateTime, Utc};
@@ -124,6 +124,9 @@ pub struct Timeline {
     journal: Tail,
     inspection: Tail,
     pub layers: BTreeMap<u32, LayerState>,
+    /// The powder beds the inspection settled, by the layer each settled on (the record that
+    /// carries its outline); a layer shows the latest one settled at or before it.
+    pub beds: BTreeMap<u32, BedRecord>,
     /// Records read that did not parse (a newer journal format); skipped.
     pub unreadable: usize,
 }
@@ -140,6 +143,7 @@ impl Timeline {
                 offset: 0,
             },
             layers: BTreeMap::new(),
+            beds: BTreeMap::new(),
             unreadable: 0,
         }
     }
@@ -152,6 +156,7 @@ impl Timeline {
         if let Some((data, restarted)) = self.journal.read()? {
             if restarted {
                 self.layers.clear();
+                self.beds.clear();
                 self.inspection.offset = 0;
             }
             for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
@@ -165,17 +170,37 @@ impl Timeline {
         if let Some((data, restarted)) = self.inspection.read()? {
             if restarted {
                 self.layers.values_mut().for_each(|l| l.inspection.clear());
+                self.beds.clear();
             }
             for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
                 match serde_json::from_slice::<InspectionRecord>(line) {
                     // A layer inspected again (`layerwise inspect`) shows its newest flags.
-                    Ok(record) => self.layer_mut(record.layer).inspection = record.flags,
+                    Ok(record) => {
+                        self.settle_bed(record.layer, record.bed);
+                        self.layer_mut(record.layer).inspection = record.flags;
+                    }
                     Err(_) => self.unreadable += 1,
                 }
             }
             changed = true;
         }
         Ok(changed)
+    }
+
+    /// Keeps the bed a record settled (the one with an outline). A bed settled again at an
+    /// earlier layer is a new pass over the build (`layerwise inspect`): the beds the earlier
+    /// pass settled after it no longer stand.
+    fn settle_bed(&mut self, layer: u32, bed: Option<BedRecord>) {
+        if let Some(bed) = bed.filter(|b| !b.outline_mm.is_empty()) {
+            self.beds.retain(|l, _| *l < layer);
+            self.beds.insert(layer, bed);
+        }
+    }
+
+    /// The bed judged on `layer`: the latest settled at or before it, with the layer it settled
+    /// on; none before the bed settled.
+    pub fn bed_at(&self, layer: u32) -> Option<(u32, &BedRecord)> {
+        self.beds.range(..=layer).next_back().map(|(l, b)| (*l, b))
     }
 
     fn view_mut(&mut self, shot: Shot) -> &mut ViewState {

@@ -473,7 +473,8 @@ fn killing_the_page_process_mid_build_leaves_capture_whole_and_the_page_restarts
 /// advances without a reload, the newest layer's picture loads, a click on an earlier layer of
 /// the timeline shows it; on the layer where part 3 did not fuse (injected) the flag is outlined
 /// on the part's place over the post-scan top view, in the large view and a crop, F toggles it,
-/// a clean layer shows none. Screenshots are kept in target/test-artifacts: live-page.png,
+/// a clean layer shows none; the powder bed, settled by then, is outlined over the pre-scan views
+/// of that layer and not before it settled. Screenshots are kept in target/test-artifacts: live-page.png,
 /// flagged-layer.png and flagged-layer-zoom.png.
 #[test]
 fn a_browser_follows_the_build_live_and_jumps_to_an_earlier_layer() {
@@ -709,4 +710,72 @@ fn operators_confirm_or_dismiss_flags_and_the_page_serves_the_heat_map() {
         .arg(&dir)
         .fails();
     assert!(said.contains("a model needs 10 or more of each"), "{said}");
+}
+
+/// The powder bed the inspection judged (found over the first `reference_layers` layers, then
+/// kept) joins the layer detail once it settled: null on the layers before, and from the layer
+/// it settled on its outline in fractions of the rectified picture spans the box inspection.jsonl
+/// recorded (within half a pixel of the picture), with the same box and area, on every later
+/// layer too.
+#[test]
+fn the_layer_detail_outlines_the_powder_bed_the_inspection_judged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let layers = 7;
+    let config = injected_config(&dir, layers, &[]);
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    run_build(&config_path);
+    let records = std::fs::read_to_string(dir.join(layerwise::build_dir::INSPECTION)).unwrap();
+    let (settled, bed) = records
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .find(|r| r["bed"]["outline_mm"].is_array())
+        .map(|r| (r["layer"].as_u64().unwrap() as u32, r["bed"].clone()))
+        .unwrap_or_else(|| panic!("no settled bed in inspection.jsonl:\n{records}"));
+    assert_eq!(
+        settled as usize, config.inspection.reference_layers,
+        "{records}"
+    );
+    let (child, addr) = serve(&dir, &[]);
+    let grid = get_json(addr, "/api/layers")["grid"].clone();
+    let (cols, rows) = (550.0, 550.0);
+    assert_eq!(grid["pixel_mm"], 0.5, "{grid}");
+    let mm: Vec<f64> = bed["bbox_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let [x, y, w, h] = picture_fractions(&grid, [mm[0], mm[1], mm[2], mm[3]]);
+    assert!(w > 0.3 && h > 0.3, "the bed is most of the plate: {bed}");
+    for n in 1..settled {
+        let detail = get_json(addr, &format!("/api/layers/{n}"));
+        assert!(detail["bed"].is_null(), "layer {n}: {}", detail["bed"]);
+    }
+    for n in settled..=layers {
+        let shown = get_json(addr, &format!("/api/layers/{n}"))["bed"].clone();
+        assert_eq!(shown["layer"], settled, "layer {n}: {shown}");
+        assert_eq!(shown["bbox_mm"], bed["bbox_mm"], "layer {n}");
+        assert_eq!(shown["area_mm2"], bed["area_mm2"], "layer {n}");
+        let outline: Vec<[f64; 2]> = serde_json::from_value(shown["outline"].clone()).unwrap();
+        assert!(outline.len() >= 16, "layer {n}: {shown}");
+        let extent = |k: usize| {
+            let v = outline.iter().map(|p| p[k]);
+            (
+                v.clone().fold(f64::INFINITY, f64::min),
+                v.fold(f64::NEG_INFINITY, f64::max),
+            )
+        };
+        let ((x0, x1), (y0, y1)) = (extent(0), extent(1));
+        let (px, py) = (0.5 / cols, 0.5 / rows);
+        for (got, want, half) in [(x0, x, px), (x1, x + w, px), (y0, y, py), (y1, y + h, py)] {
+            assert!(
+                (got - want).abs() <= half,
+                "layer {n}: outline spans x {x0}..{x1}, y {y0}..{y1}; the bed {bed} is at {:?}",
+                [x, y, w, h]
+            );
+        }
+    }
+    drop(child);
 }

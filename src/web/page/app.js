@@ -234,6 +234,23 @@ function declutter(root) {
 function declutterSoon(root) { requestAnimationFrame(() => declutter(root)); }
 window.addEventListener("resize", () => { declutter($("views")); declutter($("zoom")); });
 
+// The powder bed the inspection judges (found over the build's first layers, then kept) as a
+// faint dashed outline over a rectified pre-scan view, or over the crop `region` of it
+// (fractions of the picture); null on the other views and before the bed settled.
+function bedOutline(bed, view, region) {
+  if (!bed || !view.startsWith("pre_") || bed.outline.length < 3) return null;
+  const r = region || { x: 0, y: 0, w: 1, h: 1 };
+  const ns = "http://www.w3.org/2000/svg";
+  const svg = document.createElementNS(ns, "svg");
+  svg.setAttribute("class", "bed-outline");
+  svg.setAttribute("viewBox", [r.x, r.y, r.w, r.h].join(" "));
+  svg.setAttribute("preserveAspectRatio", "none");
+  const line = document.createElementNS(ns, "polygon");
+  line.setAttribute("points", bed.outline.map(([x, y]) => x + "," + y).join(" "));
+  svg.append(line);
+  return svg;
+}
+
 function drawTimeline() {
   const tl = $("timeline");
   const maxLag = Math.max(1000, ...state.layers.map((l) => l.lag_ms || 0));
@@ -292,10 +309,12 @@ async function showLayer(n, linked) {
       img.alt = "layer " + n + " " + view; img.src = p[kind()]; img.dataset.layer = n;
       t.append(img);
       if (svg) { const o = document.createElement("div"); o.className = "vectors"; o.innerHTML = svg; t.append(o); }
+      const bed = kind() === "rectified" && bedOutline(detail.bed, view);
+      if (bed) t.append(bed);
       const boxes = kind() === "rectified" && flagBoxes(detail.inspection, view);
       if (boxes) t.append(boxes);
       if (kind() === "rectified") t.append(heatLayer(n, view));
-      t.addEventListener("click", () => openZoom(n, view, p, detail.inspection));
+      t.addEventListener("click", () => openZoom(n, view, p, detail.inspection, detail.bed));
     }
     const label = document.createElement("span"); label.className = "label"; label.textContent = view;
     const st = document.createElement("span"); st.className = "state";
@@ -313,10 +332,11 @@ async function showLayer(n, linked) {
     if (s.lag_ms != null) dd(d, "lag", s.lag_ms + " ms");
     for (const [phase, at] of Object.entries(detail.signals)) dd(d, phase + " signal", new Date(at).toLocaleTimeString());
     for (const f of detail.flags) dd(d, "flag", f, "wait");
+    if (detail.bed) dd(d, "powder bed", Math.round(detail.bed.area_mm2) + " mm\u00b2 judged (settled at layer " + detail.bed.layer + ")");
     (detail.inspection || []).forEach((f, i) => flagEntry(d, n, f, i + 1));
   }
   if (detail && want.flag) document.querySelectorAll('[data-flag="' + want.flag + '"]').forEach((e) => e.classList.add("selected"));
-  if (detail && want.view && detail.pictures[want.view]) openZoom(n, want.view, detail.pictures[want.view], detail.inspection, want.flag);
+  if (detail && want.view && detail.pictures[want.view]) openZoom(n, want.view, detail.pictures[want.view], detail.inspection, detail.bed, want.flag);
   $("newest-note").textContent = state.follow || n === state.newest || !state.newest ? "" : "(newest: " + state.newest + ")";
 }
 
@@ -391,14 +411,15 @@ async function sendVerdict(n, f, verdict, d) {
 // (wider than web.preview_px) or larger than the room beside the preview is halved until it is
 // not; one that would fill a quarter of the room is doubled.
 let zoomed = null;
-async function openZoom(n, view, p, flags, selected) {
-  zoomed = { n, view, p, kind: kind(), flags: flags || [], crop: null, scale: 1 };
+async function openZoom(n, view, p, flags, bed, selected) {
+  zoomed = { n, view, p, kind: kind(), flags: flags || [], bed, crop: null, scale: 1 };
   $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
   $("zoom-img").src = p[zoomed.kind];
   $("zoom-original").href = p.original;
   $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
   const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, view);
-  $("zoom-flags").replaceChildren(...(boxes ? [boxes] : []));
+  const outline = zoomed.kind === "rectified" && bedOutline(bed, view);
+  $("zoom-flags").replaceChildren(...[outline, boxes].filter(Boolean));
   if (selected) $("zoom-flags").querySelectorAll('[data-flag="' + selected + '"]').forEach((e) => e.classList.add("selected"));
   $("zoom-crop-frame").hidden = true;
   $("zoom-scale").textContent = "";
@@ -411,7 +432,8 @@ function showCrop() {
   const q = { x: Number(c.x.toFixed(4)), y: Number(c.y.toFixed(4)), w: Number(c.w.toFixed(4)), h: Number(c.h.toFixed(4)) };
   $("zoom-crop").src = zoomed.p[zoomed.kind] + "&x=" + q.x + "&y=" + q.y + "&w=" + q.w + "&h=" + q.h;
   const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, zoomed.view, q);
-  $("zoom-crop-flags").replaceChildren(...(boxes ? [boxes] : []));
+  const outline = zoomed.kind === "rectified" && bedOutline(zoomed.bed, zoomed.view, q);
+  $("zoom-crop-flags").replaceChildren(...[outline, boxes].filter(Boolean));
   $("zoom-crop-frame").hidden = false;
 }
 $("zoom-crop").addEventListener("load", (e) => {
