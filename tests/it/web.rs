@@ -448,8 +448,12 @@ fn killing_the_page_process_mid_build_leaves_capture_whole_and_the_page_restarts
     wait_until("a layer after the kill", Duration::from_secs(30), || {
         stored(8)
     });
-    let (status, _) = http(addr, "GET", "/api/layers/8/post_top/picture.jpg", b"");
-    assert_eq!(status, 200);
+    // (once the new process's journal watch has seen it: it may answer 404 for a moment)
+    wait_until(
+        "layer 8's picture from the new page",
+        Duration::from_secs(20),
+        || http(addr, "GET", "/api/layers/8/post_top/picture.jpg", b"").0 == 200,
+    );
     let ended = daemon.wait().unwrap();
     let log = log.join().unwrap();
     assert!(ended.success(), "{log}");
