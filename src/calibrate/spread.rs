@@ -52,13 +52,9 @@ struct Normaliser {
 }
 
 impl Normaliser {
-    fn of(points: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Normaliser> {
-        let n = points.clone().count() as f64;
-        let (sx, sy) = points
-            .clone()
-            .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
-        let (cx, cy) = (sx / n, sy / n);
-        let mean = points.map(|(x, y)| (x - cx).hypot(y - cy)).sum::<f64>() / n;
+    fn of(points: impl Iterator<Item = (f64, f64)>) -> Option<Normaliser> {
+        let points: Vec<[f64; 2]> = points.map(|(x, y)| [x, y]).collect();
+        let (cx, cy, mean) = crate::geometry::homography::centroid_spread(&points);
         let scale = std::f64::consts::SQRT_2 / mean;
         (scale.is_finite() && scale > 0.0).then_some(Normaliser { cx, cy, scale })
     }

@@ -260,8 +260,8 @@ fn check_spread(set: PointSet, p: &[[f64; 2]]) -> Result<(), DltError> {
     Ok(())
 }
 
-/// Centroid and mean distance to it.
-fn centroid_spread(p: &[[f64; 2]]) -> (f64, f64, f64) {
+/// Centroid and mean distance to it (Hartley normalisation's figures).
+pub fn centroid_spread(p: &[[f64; 2]]) -> (f64, f64, f64) {
     let n = p.len() as f64;
     let cx = p.iter().map(|q| q[0]).sum::<f64>() / n;
     let cy = p.iter().map(|q| q[1]).sum::<f64>() / n;
