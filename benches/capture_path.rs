@@ -11,7 +11,9 @@
 //!    overrides): it must stay flat.
 //! 4. the same overhead with the plant interfaces off and on, side by side: on = `/metrics`
 //!    served by the page and scraped every 100 ms, MQTT to a broker that accepts and never
-//!    reads (a slow one) or to a closed port (an absent one), rounds alternating. They must leave the capture path's overhead unchanged.
+//!    reads (a slow one) or to a closed port (an absent one), the OPC UA server with a client
+//!    that sends it garbage every 100 ms, rounds alternating. They must leave the capture path's
+//!    overhead unchanged.
 //!
 //! `LAYERWISE_BENCH_ONLY=inspection cargo bench --bench capture_path` runs only 2,
 //! `LAYERWISE_BENCH_ONLY=plant` only 4; `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to
@@ -267,6 +269,23 @@ fn scrape(addr: std::net::SocketAddr, done: Arc<AtomicBool>) -> std::thread::Joi
     })
 }
 
+/// Connects to the OPC UA server at `addr` every 100 ms and sends it 4 KiB of garbage, until
+/// `done`.
+fn pester(addr: std::net::SocketAddr, done: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        use std::io::Write;
+        let junk: Vec<u8> = (0..4096u32)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+            .collect();
+        while !done.load(Ordering::SeqCst) {
+            if let Ok(mut stream) = std::net::TcpStream::connect(addr) {
+                let _ = stream.write_all(&junk);
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    })
+}
+
 /// The capture path with the plant interfaces off and on: `rounds` pairs of builds.
 fn plant_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
     use layerwise::shutdown::{Shutdown, StopReason};
@@ -292,6 +311,11 @@ fn plant_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
                 };
                 config.mqtt.queue_dir = dir.path().join("mqtt");
                 config.mqtt.retry_backoff_ms = [100, 1000];
+                let opcua = std::net::TcpListener::bind("127.0.0.1:0").expect("port");
+                let opcua_addr = opcua.local_addr().expect("address");
+                drop(opcua);
+                config.opcua.listen = format!("opc.tcp://{opcua_addr}");
+                config.opcua.pki_dir = dir.path().join("opcua-pki");
                 let plant = layerwise::plant::Plant::start(&config, &stop);
                 options.plant = plant.sink();
                 let addr = "127.0.0.1:0".parse().expect("address");
@@ -299,12 +323,14 @@ fn plant_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
                     .expect("page");
                 let done = Arc::new(AtomicBool::new(false));
                 let scraper = scrape(page.addr, done.clone());
-                running = Some((plant, page, done, scraper));
+                let pester = pester(opcua_addr, done.clone());
+                running = Some((plant, page, done, (scraper, pester)));
             }
             run_prerecorded_with(&config, frame.clone(), options);
             if let Some((plant, page, done, scraper)) = running {
                 done.store(true, Ordering::SeqCst);
-                scrapes += scraper.join().expect("scraper");
+                scrapes += scraper.0.join().expect("scraper");
+                let _ = scraper.1.join();
                 stop.request(StopReason::TriggerEnded);
                 page.join();
                 plant.join();
@@ -317,7 +343,7 @@ fn plant_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
     }
     let [off, on] = &runs;
     println!(
-        "plant interfaces off vs on ({width}x{height} JPEG, {rounds} x {layers} layers each, alternated; on: /metrics scraped every 100 ms ({scrapes} answers), MQTT to a broker that never reads / a closed port): capture-path overhead per frame: {}",
+        "plant interfaces off vs on ({width}x{height} JPEG, {rounds} x {layers} layers each, alternated; on: /metrics scraped every 100 ms ({scrapes} answers), MQTT to a broker that never reads / a closed port, the OPC UA server with a client sending it garbage every 100 ms): capture-path overhead per frame: {}",
         off_vs_on(off, on)
     );
 }

@@ -4,7 +4,8 @@ a raised alarm and flags on FIRST and SECOND, behind a token, and runs this.
 
 usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND
 
-Checks: a deep link #layer=FIRST opens that layer; its three flags or more have no two labels
+Checks: a deep link #layer=FIRST opens that layer; the health of the stopped daemon that wrote
+the build is shown nowhere green and says "daemon stopped"; its three flags or more have no two labels
 overlapping and each says what to do; a view zoomed shows a crop at 1:1 (full resolution) and
 at 2:1 with +; the trends of part 2 have a value for every layer and a baseline band; a link to a view and a flag opens that view with the flag marked; the next flag is SECOND and the previous one
 FIRST again; the alarm acknowledged on one page (name, note, the button) clears the banner of
@@ -72,6 +73,18 @@ try:
     assert not linked.js("return document.getElementById('follow').checked"), "a linked layer is not followed away from"
     wait_for("the alarm banner", lambda: "ALARM since layer" in linked.banner())
     print(f"#layer={first} opened layer {first}; banner: {linked.banner()[:80]}")
+
+    # The daemon that wrote this build has stopped: nothing of it is shown green, and each part
+    # says when it was last true and that the daemon stopped.
+    health_js = "return [...document.querySelectorAll('#health dd')].map(d => [d.previousElementSibling.textContent, d.className, d.textContent])"
+    health = wait_for("the health panel", lambda: linked.js(health_js) or None)
+    parts = [h for h in health if h[0] in ("trigger", "camera", "lights", "processing")]
+    assert len(parts) == 4, health
+    assert not [h for h in parts if "ok" in h[1].split()], f"green for a stopped daemon: {health}"
+    assert all("daemon stopped" in h[2] for h in parts), health
+    green = linked.js("return getComputedStyle(document.querySelector('#health dd')).color")
+    assert green != "rgb(119, 221, 119)", green
+    print("health of the stopped daemon:", "; ".join(f"{h[0]}: {h[2]}" for h in parts))
 
     # Layer FIRST has three flags or more: no two labels overlap anywhere on the page.
     labels = """

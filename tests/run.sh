@@ -50,11 +50,12 @@ fi
 
 # A Python venv with: the PyPI gphoto2 wheel (it bundles libgphoto2 with the vusb virtual PTP
 # camera, which tests/it/virtual_camera.rs drives through our real libgphoto2 backend); pydicom
-# (with a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back.
+# (with a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back;
+# asyncua, the OPC UA client tests/opcua_client.py drives our OPC UA server with.
 venv=target/test-venv
-if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg" 2>/dev/null; then
+if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg, asyncua" 2>/dev/null; then
   python3 -m venv "$venv"
-  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3" pydicom SimpleITK numpy pylibjpeg pylibjpeg-libjpeg
+  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3" pydicom SimpleITK numpy pylibjpeg pylibjpeg-libjpeg asyncua
 fi
 LAYERWISE_VCAM_LIBDIR="$("$venv/bin/python" -c 'import gphoto2, os; print(os.path.join(os.path.dirname(gphoto2.__file__), "libgphoto2"))')"
 export LAYERWISE_VCAM_LIBDIR

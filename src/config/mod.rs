@@ -16,6 +16,7 @@ mod lights;
 pub mod metrics;
 pub mod model;
 pub mod mqtt;
+pub mod opcua;
 pub mod pacs;
 mod rectify;
 pub mod series;
@@ -84,11 +85,14 @@ pub struct Config {
     #[serde(default)]
     pub series: series::SeriesConfig,
     /// Plant interfaces (src/plant, docs/plant.md), each off by default: Prometheus metrics on
-    /// the page, events to an MQTT broker.
+    /// the page, events to an MQTT broker, an OPC UA server.
     #[serde(default)]
     pub metrics: metrics::MetricsConfig,
     #[serde(default)]
     pub mqtt: mqtt::MqttConfig,
+    /// The OPC UA server (src/config/opcua.rs, docs/opcua.md).
+    #[serde(default)]
+    pub opcua: opcua::OpcuaConfig,
 }
 
 impl Config {
@@ -143,6 +147,7 @@ impl Config {
         self.storage.validate()?;
         self.inspection.validate()?;
         self.mqtt.validate()?;
+        self.opcua.validate()?;
         self.web.validate()
     }
 

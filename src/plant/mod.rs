@@ -1,14 +1,15 @@
 //! The plant interfaces (docs/plant.md): Prometheus metrics on the page (`/metrics`), the
-//! build's events on an MQTT broker. Each is off
+//! build's events on an MQTT broker, an OPC UA server (OPC 40540). Each is off
 //! until configured, and none can make capture wait: the daemon hands them what happens through
 //! a [`PlantSink`] (atomics, `try_send` into bounded channels, a watch of the latest status),
-//! and MQTT runs on a thread of its own (`plant-mqtt`) that outlives
+//! and MQTT and OPC UA run on threads of their own (`plant-mqtt`, `plant-opcua`) that outlives
 //! each build's run and stop on the shutdown they were started with.
 
 pub mod event;
 pub mod live_file;
 pub mod metrics;
 pub mod mqtt;
+pub mod opcua;
 pub mod sink;
 mod task;
 
@@ -59,6 +60,21 @@ impl Plant {
                 }
             }
             Err(e) => warn!(error = %crate::logging::Chain(&e), "no MQTT; capture goes on"),
+        }
+        match opcua::prepare(&config.opcua) {
+            Ok(None) => {}
+            Ok(Some(server)) => {
+                let feed = sink.consumer("opcua");
+                match server.start(feed, shutdown.clone()) {
+                    Ok(thread) => threads.push(thread),
+                    Err(e) => {
+                        warn!(error = %crate::logging::Chain(&e), "no OPC UA server; capture goes on")
+                    }
+                }
+            }
+            Err(e) => {
+                warn!(error = %crate::logging::Chain(&e), "no OPC UA server; capture goes on")
+            }
         }
         Plant {
             sink: sink.build(),

@@ -1,6 +1,6 @@
 //! The plant interfaces' threads: each a small tokio runtime of its own, below capture and
 //! processing in priority (nice +10), so no broker or client can take time from the capture
-//! path.
+//! path; and the machine's name they announce.
 
 use std::future::Future;
 use tokio::runtime::Runtime;
@@ -38,4 +38,13 @@ pub fn spawn_on(
             runtime.block_on(future);
             runtime.shutdown_timeout(std::time::Duration::from_millis(200));
         })
+}
+
+/// This machine's name (MQTT's default client id, the OPC UA server's application URI).
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "host".into())
 }

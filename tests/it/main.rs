@@ -38,6 +38,7 @@ mod pacs;
 mod pacs_push;
 mod plant_metrics;
 mod plant_mqtt;
+mod plant_opcua;
 mod raster;
 #[cfg(feature = "nef")]
 mod raw_frames;

@@ -41,7 +41,7 @@ pub fn prepare(config: &MqttConfig) -> Result<Option<Prepared>, MqttError> {
         _ => None,
     };
     let client_id = match config.client_id.trim() {
-        "" => format!("layerwise-{}", host_name()),
+        "" => format!("layerwise-{}", task::host_name()),
         id => id.to_string(),
     };
     let outbox = outbox::Outbox::open(&config.queue_dir, config.max_queue_mb << 20)?;
@@ -124,13 +124,4 @@ fn tls_config(ca_file: &Path) -> Result<rustls::ClientConfig, MqttError> {
         .map_err(MqttError::Tls)?
         .with_root_certificates(roots)
         .with_no_client_auth())
-}
-
-/// This machine's name (for the default client id).
-fn host_name() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .ok()
-        .map(|h| h.trim().to_string())
-        .filter(|h| !h.is_empty())
-        .unwrap_or_else(|| "host".into())
 }
