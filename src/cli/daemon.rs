@@ -525,7 +525,7 @@ fn own_command(command: &str) -> String {
 /// The embedded demo configuration for `layers` layers in `out`, with the simulated camera's
 /// true homography written as the calibration, so the demo writes rectified DICOM series like a
 /// calibrated machine does. The build directory also gets the parts' vector file (the build's
-/// `vectors`) and a points file of four clicks, to try `register images` on (README tutorial).
+/// `vectors`) and a points file of four clicks, to try `register images` on (docs/tutorial.md).
 fn demo_config(layers: u32, out: &Path) -> Result<Config> {
     let mut config = Config::parse(DEMO_CONFIG, Path::new("<embedded demo.toml>"))?;
     config.build.output_dir = out.to_path_buf();
@@ -537,7 +537,7 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
         use layerwise::sim::demo;
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
         // The parts the mock camera prints, as the build's vector file: the inspection checks
-        // each layer's fusion against it, and the README's tutorial registers to it.
+        // each layer's fusion against it, and the tutorial (docs/tutorial.md) registers to it.
         let vectors_path = std::fs::canonicalize(out)
             .with_context(|| format!("cannot resolve {}", out.display()))?
             .join(demo::DEMO_VECTORS);

@@ -31,7 +31,7 @@ pub fn demo_points(width: u32, height: u32) -> String {
     ];
     let mut text = String::from(
         "# Four part corners clicked in a demo frame: u v (image px) x y (build mm).\n\
-         # register images --init reads this file; see the README's tutorial.\n",
+         # register images --init reads this file; see docs/tutorial.md.\n",
     );
     // Click errors scale with the frame (a few pixels at 1472 px wide).
     let scale = f64::from(width) / 1472.0;
@@ -151,7 +151,7 @@ impl DemoCt {
         ];
         let mut text = String::from(
             "# Four top corners of the box (part 3) clicked in the CT: cx cy cz (CT mm) bx by bz (build mm).\n\
-             # register ct --init reads this file; see the README's tutorial.\n",
+             # register ct --init reads this file; see docs/tutorial.md.\n",
         );
         for (b, e) in [[x0, y0, top], [x1, y0, top], [x1, y1, top], [x0, y1, top]]
             .into_iter()

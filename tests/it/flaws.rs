@@ -609,8 +609,9 @@ fn patches_of_a_build_sit_on_the_pores_and_controls_hold_none() {
     let sheet = image::open(out.join("contact_sheet.png")).unwrap();
     assert!(sheet.height() as usize >= sections * 9 && sheet.width() >= 7 * 9);
 
-    // The README's picture: `LAYERWISE_FLAWS_SHEET=docs/flaws_contact_sheet.png cargo test …`
-    // keeps a contact sheet of wider patches.
+    // The tutorial's picture (docs/tutorial.md):
+    // `LAYERWISE_FLAWS_SHEET=docs/flaws_contact_sheet.png cargo test …` keeps a contact sheet of
+    // wider patches.
     if let Some(picture) = std::env::var_os("LAYERWISE_FLAWS_SHEET") {
         let wide = dir.path().join("wide");
         cut("41", &wide).succeeds();

@@ -1,8 +1,8 @@
 //! Inspection against known truth: 200-layer mock builds rendered in-process (the mock camera's
 //! frames, JPEG-encoded, decoded, rectified and inspected exactly as the daemon's worker does,
 //! without the daemon around them), one with at least 10 injections of each anomaly at varied
-//! positions and strengths, one clean. Prints recall and false alarms per kind (the README
-//! table): `cargo test --release --test it inspection:: -- --nocapture`.
+//! positions and strengths, one clean. Prints recall and false alarms per kind (the table of
+//! docs/benchmarks.md): `cargo test --release --test it inspection:: -- --nocapture`.
 
 use crate::common;
 use layerwise::build_dir::inspection::{FlagKind, InspectionRecord, Severity};
@@ -79,7 +79,7 @@ fn flag_kind(kind: InjectKind) -> FlagKind {
 }
 
 /// At least 10 of each kind, spread over the build, positions and strengths varied at or above
-/// the detectability stated in the README.
+/// the detectability stated in docs/benchmarks.md.
 fn injections() -> Vec<MockInjection> {
     let mut list = Vec::new();
     for k in 0..12u32 {

@@ -26,6 +26,8 @@ mod ct_dicom;
 mod daemon;
 mod dicom_validation;
 mod disk;
+mod doc_commands;
+mod doc_links;
 #[cfg(feature = "testkit")]
 mod flaws;
 mod fuzz_smoke;

@@ -1,7 +1,7 @@
 //! `layerwise register images` on frames of a second, independently written renderer
 //! (tests/it/common/render2.rs: its own camera, lens, textures, halo, previous layer, light and
 //! JPEG), judged against the renderer's known truth over the parts' pixels. Prints the accuracy
-//! table of the README (`cargo test --release --test it renderer2:: -- --nocapture`).
+//! table of docs/tutorial.md (`cargo test --release --test it renderer2:: -- --nocapture`).
 
 use crate::common;
 use crate::common::render2;

@@ -72,7 +72,7 @@ fn unit_exposure_is_at_most_1_5_in_systemd_analyze_security() {
 }
 
 /// IP is allowed for the operator page on loopback only: any other address is a drop-in the
-/// operator adds on purpose (README, "The operator page").
+/// operator adds on purpose (docs/configuration.md, "The operator page: network, limits and API").
 #[test]
 fn unit_allows_ip_on_loopback_only() {
     let unit = shipped_unit();

@@ -1,30 +1,21 @@
-//! The README's tutorial, run as written: the lines between `<!-- tutorial -->` and
-//! `<!-- /tutorial -->` are extracted and run by bash in an empty folder with this build's
-//! `layerwise` first on the PATH, so the README cannot drift from what works.
+//! The runnable blocks of the docs, run as written: the code blocks between
+//! `<!-- tutorial NAME -->` and `<!-- /tutorial -->` markers are extracted
+//! (`common::tutorial_script`) and run by bash in an empty folder with this build's `layerwise`
+//! first on the PATH, so the docs cannot drift from what works: the engineer's tutorial of
+//! docs/tutorial.md (`<!-- tutorial -->`) and the README's five-minute tour
+//! (`<!-- tutorial tour -->`). Every other `layerwise` line of the docs is checked against the
+//! binary's parser by doc_commands.rs.
 
 use crate::common;
 use std::path::Path;
 
-fn tutorial_script() -> String {
-    let readme = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md"))
-        .expect("README.md");
-    let start = readme
-        .find("<!-- tutorial -->")
-        .expect("tutorial start marker");
-    let end = readme
-        .find("<!-- /tutorial -->")
-        .expect("tutorial end marker");
-    readme[start..end]
-        .lines()
-        .filter(|l| !l.starts_with("```") && !l.starts_with("<!--"))
-        .collect::<Vec<_>>()
-        .join("\n")
-}
+/// The runnable regions there are: (file, name). A marker of any other name, or in another
+/// file, is run by no test, and fails `every_marked_block_is_run`.
+const RUN: [(&str, &str); 2] = [("docs/tutorial.md", ""), ("README.md", "tour")];
 
-#[test]
-fn the_readme_tutorial_runs_as_written() {
-    let script = tutorial_script();
-    assert!(script.contains("layerwise register images"), "{script}");
+/// Runs `script` with bash (`-euo pipefail`) in a new empty folder, this build's `layerwise`
+/// first on the PATH; checks it succeeded and returns the folder and what it printed.
+fn run_script(script: &str) -> (tempfile::TempDir, String) {
     let dir = tempfile::tempdir().unwrap();
     let bin = Path::new(env!("CARGO_BIN_EXE_layerwise")).parent().unwrap();
     let path = format!(
@@ -33,31 +24,75 @@ fn the_readme_tutorial_runs_as_written() {
         std::env::var("PATH").unwrap_or_default()
     );
     let out = std::process::Command::new("bash")
-        .args(["-euo", "pipefail", "-c", &script])
+        .args(["-euo", "pipefail", "-c", script])
         .current_dir(dir.path())
         .env("PATH", path)
         .output()
         .expect("bash runs");
     common::assert_success(&out);
-    let build = dir.path().join("demo-build");
-    for file in [
-        "my-calibration.toml",
-        "overlay.png",
-        "L00003_post_top.png",
-        "L00003_vectors.png",
-        "ct.toml",
-        "ct-surface.ply",
-        "located.png",
-        "flaw1.png",
-    ] {
-        assert!(build.join(file).is_file(), "{file} missing");
+    (dir, String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+/// Checks that each of `files` (paths under `dir`, separated by spaces) was written.
+fn assert_files(dir: &Path, files: &str) {
+    for file in files.split(' ') {
+        assert!(dir.join(file).is_file(), "{file} missing");
     }
+}
+
+#[test]
+fn every_marked_block_is_run() {
+    for (file, text) in common::markdown_docs() {
+        for name in common::tutorial_names(&text) {
+            assert!(
+                RUN.contains(&(file.as_str(), name.as_str())),
+                "{file}: <!-- tutorial {name} --> is run by no test (tests/it/tutorial.rs RUN)"
+            );
+        }
+    }
+    for (file, name) in RUN {
+        assert!(
+            common::tutorial_names(&common::markdown(file)).contains(&name.to_string()),
+            "{file} has no <!-- tutorial {name} --> region"
+        );
+    }
+}
+
+#[test]
+fn the_readme_tour_runs_as_written() {
+    let script = common::tutorial_script(&common::markdown("README.md"), "tour");
+    for step in ["layerwise demo", "layerwise alarm ack", "layerwise flaws"] {
+        assert!(script.contains(step), "{script}");
+    }
+    let (dir, stdout) = run_script(&script);
+    assert!(stdout.contains("alarm RAISED since layer 5"), "{stdout}");
+    assert!(stdout.contains("under_fusion"), "{stdout}");
+    assert!(stdout.contains("alarm acknowledged by ana at"), "{stdout}");
+    let build = dir.path().join("tour-build");
+    let written = "my-calibration.toml overlay.png ct.toml flaws/flaws.json flaw1.png";
+    assert_files(&build, written);
+    assert_files(&build, "flaws/contact_sheet.png");
+    assert!(build.join("export/ct_part_3").is_dir());
+    let flaws: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(build.join("flaws/flaws.json")).unwrap())
+            .unwrap();
+    assert_eq!(flaws["flaws"].as_array().unwrap().len(), 2, "{flaws:#}");
+}
+
+#[test]
+fn the_tutorial_runs_as_written() {
+    let script = common::tutorial_script(&common::markdown("docs/tutorial.md"), "");
+    assert!(script.contains("layerwise register images"), "{script}");
+    let (dir, stdout) = run_script(&script);
+    let build = dir.path().join("demo-build");
+    let written = "my-calibration.toml overlay.png ct.toml ct-surface.ply located.png flaw1.png";
+    assert_files(&build, written);
+    assert_files(&build, "L00003_post_top.png L00003_vectors.png");
     // The rectified frame and the vectors share the build's grid (demo [rectify]: 0.25 mm).
     assert_eq!(
         image::image_dimensions(build.join("L00003_post_top.png")).unwrap(),
         image::image_dimensions(build.join("L00003_vectors.png")).unwrap()
     );
-    let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("(layer 3): correlation"), "{stdout}");
     assert!(
         stdout.contains("wrote the CT surface coloured by distance to ct-surface.ply"),
