@@ -2,7 +2,8 @@
 //! seed (on 1 thread or 2), eval's JSON has its contract, predict names the class and draws the
 //! heat map; a flaws output (labels.json) trains a patch model on held-out layers; compare
 //! tabulates the model beside the classical inspection; damaged, foreign, newer and mismatched
-//! model files are refused with their own message, by predict and by check-config. The
+//! model files are refused with their own message, by predict and by check-config; verdicts
+//! given on the page train a model of the build. The
 //! real-data training (../shared/data/real/pblm) is measured in docs/learning.md, not a test.
 
 use crate::common::*;
@@ -362,4 +363,80 @@ fn compare_tabulates_the_model_beside_the_classical_inspection() {
     }
     let all = learn_on(&["learn", "compare", "--part", "all"], &model, &data).stdout_ok();
     assert!(all.contains("| Streaks | 10 |"), "{all}");
+}
+
+/// A shop's own model from its own builds: operators confirm the unfused part's flags and
+/// dismiss the spatter flags on the page (`POST /api/layers/N/verdicts`), then `learn train
+/// --data BUILD` trains on those verdicts (confirmed: their kind; dismissed: normal), and the
+/// model file says what it learnt from.
+#[test]
+fn verdicts_given_on_the_page_train_a_model_of_the_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("build");
+    let layers = 14;
+    let inject: Vec<String> = (1..=layers)
+        .flat_map(|l| {
+            [
+                format!("no-fusion@{l}/part=3"),
+                format!("spatter@{l}/n=3/x=20/y=90/r=0.8"),
+            ]
+        })
+        .collect();
+    let inject: Vec<&str> = inject.iter().map(String::as_str).collect();
+    let config = crate::web::injected_config(&dir, layers, &inject);
+    let config_path = tmp.path().join("layerwise.toml");
+    write_config(&config, &config_path);
+    run_build(&config_path);
+    let (_served, addr) = serve(&dir, &[]);
+    let mut given = std::collections::BTreeMap::<&str, usize>::new();
+    for layer in 1..=layers {
+        let detail = get_json(addr, &format!("/api/layers/{layer}"));
+        for flag in detail["inspection"].as_array().unwrap() {
+            let verdict = match flag["kind"].as_str().unwrap() {
+                "under_fusion" => "confirm",
+                "spatter" => "false_alarm",
+                _ => continue,
+            };
+            let body = serde_json::json!({
+                "view": flag["view"], "verdict": verdict, "who": "ana",
+                "flag": {"kind": flag["kind"], "bbox_mm": flag["bbox_mm"]},
+            })
+            .to_string();
+            let path = format!("/api/layers/{layer}/verdicts");
+            let (status, answer) = http(addr, "POST", &path, body.as_bytes());
+            assert_eq!(status, 200, "{}", String::from_utf8_lossy(&answer));
+            *given.entry(verdict).or_default() += 1;
+        }
+    }
+    assert!(
+        given.get("confirm") >= Some(&10) && given.get("false_alarm") >= Some(&10),
+        "{given:?}"
+    );
+    let model = tmp.path().join("shop.safetensors");
+    let said = layerwise()
+        .args(["learn", "train", "--epochs", "3", "--out"])
+        .arg(&model)
+        .arg("--data")
+        .arg(&dir)
+        .stdout_ok();
+    assert!(said.contains("under_fusion"), "{said}");
+    let info: serde_json::Value = serde_json::from_str(
+        &layerwise()
+            .args(["learn", "info", "--json", "--model"])
+            .arg(&model)
+            .stdout_ok(),
+    )
+    .unwrap();
+    let classes: Vec<&str> = info["classes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|c| c.as_str())
+        .collect();
+    assert_eq!(classes, ["normal", "under_fusion"], "{info:#}");
+    let data = &info["training"]["data"];
+    assert_eq!(data["kind"], "verdicts", "{info:#}");
+    assert_eq!(data["counts"]["under_fusion"], given["confirm"], "{info:#}");
+    assert_eq!(data["counts"]["normal"], given["false_alarm"], "{info:#}");
+    println!("{given:?}; {}", info["training"]);
 }
