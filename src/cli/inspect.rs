@@ -50,7 +50,7 @@ pub struct InspectArgs {
     #[arg(long)]
     json: bool,
     /// A trained defect model to run after the classical checks (default: the configuration's
-    /// [inspection.model]).
+    /// [inspection.model] file; its other settings, the probabilities and views, are kept).
     #[arg(long)]
     model: Option<PathBuf>,
     /// The model's mm per cell when it was trained on frames of unknown scale.
@@ -266,10 +266,18 @@ fn parse_view(text: &str) -> std::result::Result<layerwise::shot::View, String> 
 }
 
 impl InspectArgs {
-    /// `--model` (with `--model-cell-mm`) or the configuration's `[inspection.model]`.
+    /// `--model` (with `--model-cell-mm`) or the configuration's `[inspection.model]`; a
+    /// `--model` keeps the configuration's thresholds and views.
     fn model_config(&self, cfg: &InspectionConfig) -> Result<Option<ModelConfig>> {
         let mut model = match &self.model {
-            Some(file) => Some(ModelConfig::for_file(file.clone())),
+            // Another file, judged as the configuration judges its model.
+            Some(file) => Some(match &cfg.model {
+                Some(configured) => ModelConfig {
+                    file: file.clone(),
+                    ..configured.clone()
+                },
+                None => ModelConfig::for_file(file.clone()),
+            }),
             None => cfg.model.clone(),
         };
         if let (Some(m), Some(mm)) = (&mut model, self.model_cell_mm) {

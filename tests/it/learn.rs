@@ -440,3 +440,65 @@ fn verdicts_given_on_the_page_train_a_model_of_the_build() {
     assert_eq!(data["counts"]["normal"], given["false_alarm"], "{info:#}");
     println!("{given:?}; {}", info["training"]);
 }
+
+/// The model through the path an operator and an engineer take: its critical flags raise the
+/// daemon's alarm (`alarm show` names the model), and `inspect --build --model` runs it again
+/// on the stored build with the same flags.
+#[test]
+fn a_model_flag_raises_the_alarm_and_inspect_runs_the_model_on_a_stored_build() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("classes");
+    class_folders(&data, 5);
+    let model = tmp.path().join("model.safetensors");
+    train_small(
+        &data,
+        &model,
+        &["--channels", "4,8", "--epochs", "2", "--cell-mm", "1.0"],
+    )
+    .succeeds();
+    let dir = tmp.path().join("build");
+    let mut config = calibrated_config(&dir, 3, layerwise::dicom::Compression::None);
+    config.inspection.model = Some(
+        toml::from_str(&format!(
+            "file = {:?}\nmin_probability = 0.0\ncritical_probability = 0.0",
+            model.display().to_string()
+        ))
+        .unwrap(),
+    );
+    config.inspection.alarm.output = layerwise::config::LightsConfig::Mock;
+    let path = tmp.path().join("layerwise.toml");
+    write_config(&config, &path);
+    run_build(&path);
+    let shown = layerwise()
+        .args(["alarm", "show", "--build"])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(
+        shown.contains("RAISED since layer 1") && shown.contains("model"),
+        "{shown}"
+    );
+
+    let live = layerwise::build_dir::inspection::InspectionLog::read(
+        &dir.join(layerwise::build_dir::INSPECTION),
+    )
+    .unwrap();
+    let model_flags = |records: &[layerwise::build_dir::inspection::InspectionRecord]| {
+        records
+            .iter()
+            .map(|r| r.flags.iter().filter(|f| f.class.is_some()).count())
+            .collect::<Vec<_>>()
+    };
+    let out = layerwise()
+        .args(["inspect", "--json", "--build"])
+        .arg(&dir)
+        .arg("--model")
+        .arg(&model)
+        .stdout_ok();
+    let again: Vec<layerwise::build_dir::inspection::InspectionRecord> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert_eq!(again.len(), 3, "{out}");
+    assert!(model_flags(&again).iter().all(|&n| n > 0), "{out}");
+    assert_eq!(model_flags(&again), model_flags(&live), "{out}");
+}
