@@ -166,11 +166,12 @@ fn calibrated(dir: &Path, layers: u32, width: u32, height: u32, inspect: bool) -
     layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
     config.build.vectors = Some(vectors);
     config.inspection.enabled = inspect;
-    // LAYERWISE_BENCH_MODEL=FILE: "on" runs that defect model too (`learn train --cell-mm`).
+    // LAYERWISE_BENCH_MODEL=FILE: "on" runs that defect model too; a model trained on frames
+    // of unknown scale (the pblm one) is run at 1 mm per cell, as the live bench runs it.
     if let Some(model) = std::env::var_os("LAYERWISE_BENCH_MODEL").filter(|_| inspect) {
-        config.inspection.model = Some(layerwise::config::model::ModelConfig::for_file(
-            model.into(),
-        ));
+        let mut model = layerwise::config::model::ModelConfig::for_file(model.into());
+        model.cell_mm = Some(1.0);
+        config.inspection.model = Some(model);
     }
     // Signals a second apart: the worker keeps up, as between the layers of a real build.
     if let TriggerConfig::Mock(mock) = &mut config.trigger {

@@ -11,8 +11,9 @@ cd "$(dirname "$0")/.."
 # C-STORE); chromium and chromium-driver for the browser test of the operator page
 # (tests/it/web.rs); mosquitto and mosquitto-clients, the broker and the counting subscriber of
 # the MQTT tests (tests/it/plant_mqtt.rs); prometheus (and promtool), which scrapes /metrics in
-# tests/it/plant_metrics.rs, installed without its recommends (prometheus-node-exporter).
-packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver mosquitto mosquitto-clients)
+# tests/it/plant_metrics.rs, installed without its recommends (prometheus-node-exporter);
+# libjpeg-turbo-progs, whose cjpeg writes the progressive JPEGs tests/it/bounded_inputs.rs decodes.
+packages=(libgphoto2-dev libclang-dev pkg-config socat systemd dicom3tools dcmtk cmake g++ python3-venv orthanc orthanc-dicomweb iproute2 chromium chromium-driver mosquitto mosquitto-clients libjpeg-turbo-progs)
 lean_packages=(prometheus)
 missing=()
 lean_missing=()
@@ -51,11 +52,12 @@ fi
 # A Python venv with: the PyPI gphoto2 wheel (it bundles libgphoto2 with the vusb virtual PTP
 # camera, which tests/it/virtual_camera.rs drives through our real libgphoto2 backend); pydicom
 # (with a JPEG-LS decoder) and SimpleITK, which tests/dicom_check.py uses to read our DICOM back;
-# asyncua, the OPC UA client tests/opcua_client.py drives our OPC UA server with.
+# asyncua, the OPC UA client tests/opcua_client.py drives our OPC UA server with; Pillow, one
+# of the writers of the progressive JPEGs tests/it/bounded_inputs.rs decodes.
 venv=target/test-venv
-if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg, asyncua" 2>/dev/null; then
+if ! "$venv/bin/python" -c "import gphoto2, pydicom, SimpleITK, numpy, pylibjpeg, asyncua, PIL" 2>/dev/null; then
   python3 -m venv "$venv"
-  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3" pydicom SimpleITK numpy pylibjpeg pylibjpeg-libjpeg asyncua
+  "$venv/bin/pip" install -q --disable-pip-version-check "gphoto2>=2.5,<3" pydicom SimpleITK numpy pylibjpeg pylibjpeg-libjpeg asyncua pillow
 fi
 LAYERWISE_VCAM_LIBDIR="$("$venv/bin/python" -c 'import gphoto2, os; print(os.path.join(os.path.dirname(gphoto2.__file__), "libgphoto2"))')"
 export LAYERWISE_VCAM_LIBDIR

@@ -229,6 +229,7 @@ pub fn run(
                 (Ok(_), stop) => stop.map_or_else(String::new, ToString::to_string),
             },
             completed: stop.is_some_and(StopReason::completes_the_build),
+            failed: result.is_err(),
             at: clock.now(),
         }
     });

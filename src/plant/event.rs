@@ -40,6 +40,8 @@ pub enum PlantEvent {
     BuildEnded {
         reason: String,
         completed: bool,
+        /// An error stopped it (`reason` is the error).
+        failed: bool,
         at: DateTime<Utc>,
     },
 }

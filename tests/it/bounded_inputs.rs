@@ -446,45 +446,89 @@ fn encode_jpeg(picture: &image::RgbImage, progressive: bool) -> Vec<u8> {
     out
 }
 
+/// `picture` as a JPEG of quality 90, progressive or baseline, written by `writer`: jpeg-encoder
+/// (in process), libjpeg-turbo's `cjpeg` (Debian's libjpeg-turbo-progs) or Pillow (the test venv).
+fn written_by(writer: &str, picture: &image::RgbImage, dir: &Path, progressive: bool) -> Vec<u8> {
+    let ppm = dir.join("picture.ppm");
+    if writer != "jpeg-encoder" {
+        // A binary PPM (P6), which both read.
+        let mut bytes = format!("P6\n{} {}\n255\n", picture.width(), picture.height()).into_bytes();
+        bytes.extend_from_slice(picture.as_raw());
+        std::fs::write(&ppm, bytes).unwrap();
+    }
+    let out = match writer {
+        "jpeg-encoder" => return encode_jpeg(picture, progressive),
+        "cjpeg" => {
+            let mut cjpeg = Command::new("cjpeg");
+            cjpeg.args(["-quality", "90"]);
+            if progressive {
+                cjpeg.arg("-progressive");
+            }
+            cjpeg.arg(&ppm).output()
+        }
+        _ => Command::new(crate::common::python())
+            .args([
+                "-c",
+                "import sys; from PIL import Image; \
+                 Image.open(sys.argv[1]).save(sys.stdout.buffer, 'JPEG', quality=90, \
+                 progressive=sys.argv[2] == '1')",
+            ])
+            .arg(&ppm)
+            .arg(if progressive { "1" } else { "0" })
+            .output(),
+    }
+    .unwrap_or_else(|e| panic!("{writer}: {e} (tests/run.sh installs it)"));
+    assert!(out.status.success(), "{writer}: {}", report(&out));
+    out.stdout
+}
+
 /// The finding: every progressive JPEG was refused with "Exhausted data in the image". A
-/// progressive frame rectifies, to PNG and to DICOM, into the picture its baseline twin (the same
-/// picture, quality and tables) gives.
+/// progressive frame, written by jpeg-encoder, by libjpeg-turbo's cjpeg or by Pillow, rectifies,
+/// to PNG and to DICOM, into the picture its baseline twin (the same writer, picture and
+/// quality) gives.
 #[test]
 fn progressive_jpeg_rectifies_like_its_baseline_twin() {
     let dir = tempfile::tempdir().unwrap();
     let view = SmallView::new(dir.path());
     let picture = view.picture();
-    let mut rectified = Vec::new();
-    for (name, progressive) in [("progressive.jpg", true), ("baseline.jpg", false)] {
-        let jpeg = encode_jpeg(&picture, progressive);
-        let marker = jpeg[sof(&jpeg) + 1];
-        assert_eq!(marker == 0xC2, progressive, "{name}: SOF {marker:#x}");
-        let image = dir.path().join(name);
-        std::fs::write(&image, &jpeg).unwrap();
-        let png = image.with_extension("png");
-        for out in [png.clone(), image.with_extension("dcm")] {
-            let done = bounded(&mut rectify(&view, &image, &out));
-            assert!(done.status.success(), "{name}: {}", report(&done));
+    for writer in ["jpeg-encoder", "cjpeg", "Pillow"] {
+        let mut rectified = Vec::new();
+        for (name, progressive) in [("progressive.jpg", true), ("baseline.jpg", false)] {
+            let jpeg = written_by(writer, &picture, dir.path(), progressive);
+            let marker = jpeg[sof(&jpeg) + 1];
+            assert_eq!(
+                marker == 0xC2,
+                progressive,
+                "{writer} {name}: SOF {marker:#x}"
+            );
+            let image = dir.path().join(name);
+            std::fs::write(&image, &jpeg).unwrap();
+            let png = image.with_extension("png");
+            for out in [png.clone(), image.with_extension("dcm")] {
+                let done = bounded(&mut rectify(&view, &image, &out));
+                assert!(done.status.success(), "{writer} {name}: {}", report(&done));
+            }
+            rectified.push(image::open(&png).unwrap().to_luma8());
         }
-        rectified.push(image::open(&png).unwrap().to_luma8());
+        let (progressive, baseline) = (&rectified[0], &rectified[1]);
+        assert_eq!(progressive.dimensions(), baseline.dimensions());
+        let differences: Vec<u8> = progressive
+            .as_raw()
+            .iter()
+            .zip(baseline.as_raw())
+            .map(|(a, b)| a.abs_diff(*b))
+            .collect();
+        let mean =
+            differences.iter().map(|&d| f64::from(d)).sum::<f64>() / differences.len() as f64;
+        let max = differences.iter().max().copied().unwrap_or(0);
+        assert!(mean < 0.5 && max <= 8, "{writer}: mean {mean}, max {max}");
+        // Not a blank picture: the plate shows.
+        let (lo, hi) = baseline
+            .as_raw()
+            .iter()
+            .fold((255u8, 0u8), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        assert!(hi - lo > 50, "{writer}: {lo}..{hi}");
     }
-    let (progressive, baseline) = (&rectified[0], &rectified[1]);
-    assert_eq!(progressive.dimensions(), baseline.dimensions());
-    let differences: Vec<u8> = progressive
-        .as_raw()
-        .iter()
-        .zip(baseline.as_raw())
-        .map(|(a, b)| a.abs_diff(*b))
-        .collect();
-    let mean = differences.iter().map(|&d| f64::from(d)).sum::<f64>() / differences.len() as f64;
-    let max = differences.iter().max().copied().unwrap_or(0);
-    assert!(mean < 0.5 && max <= 8, "mean {mean}, max {max}");
-    // Not a blank picture: the plate shows.
-    let (lo, hi) = baseline
-        .as_raw()
-        .iter()
-        .fold((255u8, 0u8), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-    assert!(hi - lo > 50, "{lo}..{hi}");
 }
 
 fn grid_toml(side: f64) -> String {

@@ -195,6 +195,7 @@ impl Messages {
                 reason,
                 completed,
                 at,
+                ..
             } => {
                 let body = json!({
                     "event": "ended", "build": self.build_name(),

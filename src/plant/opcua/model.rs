@@ -106,16 +106,14 @@ impl Model {
             PlantEvent::Alarm(alarm) => self.alarm(alarm),
             PlantEvent::BuildEnded {
                 completed,
-                reason,
+                failed,
                 at,
                 ..
             } => {
-                let state = if *completed {
-                    "Ended"
-                } else if reason.contains("fail") {
-                    "Failed"
-                } else {
-                    "Stopped"
+                let state = match (completed, failed) {
+                    (true, _) => "Ended",
+                    (false, true) => "Failed",
+                    (false, false) => "Stopped",
                 };
                 self.set(vec![
                     (format!("{JOB}.State"), Variant::from(state)),
