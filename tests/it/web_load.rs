@@ -214,8 +214,9 @@ fn attack(token: bool) -> Attacked {
     // between two signals (150 ms), the 95th percentile of them; a single slow frame is the
     // machine's (CI runs the other tests beside this one on 2 cores: one frame of 262 ms among
     // hundreds of 8 ms, p95 28 ms, once), and a page that held capture up would hold up many.
+    // No frame may take a second, whatever the machine.
     assert!(
-        loaded.1 < 150.0,
+        loaded.1 < 150.0 && loaded.2 < 1000.0,
         "capture under attack {loaded:?}, before {calm:?}"
     );
     Attacked {

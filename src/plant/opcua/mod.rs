@@ -135,19 +135,7 @@ impl Prepared {
         let ns = handle
             .get_namespace_index(space::NAMESPACE)
             .ok_or_else(|| OpcuaError::Setup("the monitor's namespace is missing".into()))?;
-        let model = Model {
-            manager,
-            subscriptions: handle.subscriptions().clone(),
-            ns,
-            alarm,
-            parts: Default::default(),
-            plate: Default::default(),
-            health: Default::default(),
-            warnings: 0,
-            criticals: 0,
-            inspected: 0,
-            events: 0,
-        };
+        let model = Model::new(manager, handle.subscriptions().clone(), ns, alarm);
         let listen = self.config.listen.clone();
         let future = async move {
             let stop = handle.clone();

@@ -19,17 +19,20 @@ use tracing::warn;
 
 /// Where the feed's events go.
 pub struct Model {
-    pub manager: Arc<Manager>,
-    pub subscriptions: Arc<SubscriptionCache>,
-    pub ns: u16,
-    pub alarm: Arc<Mutex<AlarmShared>>,
-    pub parts: BTreeSet<i64>,
-    pub plate: BTreeSet<String>,
-    pub health: BTreeSet<String>,
-    pub warnings: u32,
-    pub criticals: u32,
-    pub inspected: u32,
-    pub events: u64,
+    manager: Arc<Manager>,
+    subscriptions: Arc<SubscriptionCache>,
+    ns: u16,
+    alarm: Arc<Mutex<AlarmShared>>,
+    /// The parts, plate metrics and health entries that have nodes.
+    parts: BTreeSet<i64>,
+    plate: BTreeSet<String>,
+    health: BTreeSet<String>,
+    /// Flags at warning and at critical, and layers inspected, since the server started.
+    warnings: u32,
+    criticals: u32,
+    inspected: u32,
+    /// Condition events raised (their ids are unique with it).
+    events: u64,
 }
 
 fn time(at: DateTime<Utc>) -> opcua::types::DateTime {
@@ -44,15 +47,35 @@ fn node_name(name: &str) -> String {
 }
 
 impl Model {
+    pub fn new(
+        manager: Arc<Manager>,
+        subscriptions: Arc<SubscriptionCache>,
+        ns: u16,
+        alarm: Arc<Mutex<AlarmShared>>,
+    ) -> Model {
+        Model {
+            manager,
+            subscriptions,
+            ns,
+            alarm,
+            parts: BTreeSet::new(),
+            plate: BTreeSet::new(),
+            health: BTreeSet::new(),
+            warnings: 0,
+            criticals: 0,
+            inspected: 0,
+            events: 0,
+        }
+    }
+
+    /// Sets each path's value (subscribers are notified of the changes).
     fn set(&self, values: Vec<(String, Variant)>) {
-        let ids: Vec<(NodeId, Variant)> = values
-            .into_iter()
-            .map(|(path, value)| (id(self.ns, &path), value))
-            .collect();
+        let ids: Vec<NodeId> = values.iter().map(|(path, _)| id(self.ns, path)).collect();
         let result = self.manager.set_values(
             &self.subscriptions,
             ids.iter()
-                .map(|(id, value)| (id, None, DataValue::new_now(value.clone()))),
+                .zip(values)
+                .map(|(id, (_, value))| (id, None, DataValue::new_now(value))),
         );
         if let Err(status) = result {
             warn!(%status, "OPC UA: a value could not be set");
@@ -146,7 +169,8 @@ impl Model {
                 Variant::from(info.layers_expected.unwrap_or(0)),
             ),
         ]);
-        // A restart in the middle of a raise: the alarm is still waiting.
+        // A restart in the middle of a raise: the alarm is still waiting. The history keeps no
+        // severity; a raise is at the alarm's, critical by default.
         if let Some(AlarmState::Raised {
             layer,
             kind,
