@@ -123,6 +123,7 @@ impl Config {
         self.camera
             .check_backend()
             .and_then(|()| self.storage.check_backend())
+            .and_then(|()| self.opcua.check_backend())
             .map_err(|invalid| invalid.in_file(file))
     }
 

@@ -128,6 +128,19 @@ impl OpcuaConfig {
         }))
     }
 
+    /// Whether this binary has the OPC UA server a `listen` address asks for.
+    pub fn check_backend(&self) -> Result<(), Invalid> {
+        if !self.listen.is_empty() && cfg!(not(feature = "opcua")) {
+            return Err(Invalid::new(
+                "opcua.listen",
+                "needs a layerwise built with the `opcua` feature (a default one: cargo build \
+                 --release); this one was built without it: build it with the feature or leave \
+                 `listen` empty",
+            ));
+        }
+        Ok(())
+    }
+
     /// Checks the section: an endpoint, users where the server is reachable from elsewhere,
     /// bounds that fit, nameplates of plain text.
     pub fn validate(&self) -> Result<(), Invalid> {

@@ -9,6 +9,7 @@ pub mod event;
 pub mod live_file;
 pub mod metrics;
 pub mod mqtt;
+#[cfg(feature = "opcua")]
 pub mod opcua;
 pub mod sink;
 mod task;
@@ -61,6 +62,8 @@ impl Plant {
             }
             Err(e) => warn!(error = %crate::logging::Chain(&e), "no MQTT; capture goes on"),
         }
+        // A binary without the feature refused `[opcua] listen` in `Config::check_backends`.
+        #[cfg(feature = "opcua")]
         match opcua::prepare(&config.opcua) {
             Ok(None) => {}
             Ok(Some(server)) => {

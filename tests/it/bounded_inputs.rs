@@ -674,6 +674,21 @@ fn config_gphoto2_camera_on_a_binary_without_the_feature_is_refused() {
     });
 }
 
+/// A binary built without the `opcua` feature has no OPC UA server: check-config refuses a
+/// `[opcua] listen` instead of a daemon that silently serves nothing. Run by tests/run.sh with
+/// `--no-default-features`.
+#[cfg(not(feature = "opcua"))]
+#[test]
+fn config_opcua_listen_on_a_binary_without_the_feature_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    config_refused(dir.path(), "opcua.toml", "`opcua` feature", |t| {
+        t.insert(
+            "opcua".into(),
+            toml::from_str::<toml::Value>("listen = \"opc.tcp://127.0.0.1:4840\"").unwrap(),
+        );
+    });
+}
+
 #[test]
 fn config_duplicate_phases_or_lights_are_refused() {
     let dir = tempfile::tempdir().unwrap();

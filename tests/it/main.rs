@@ -40,6 +40,7 @@ mod pacs;
 mod pacs_push;
 mod plant_metrics;
 mod plant_mqtt;
+#[cfg(feature = "opcua")]
 mod plant_opcua;
 mod raster;
 #[cfg(feature = "nef")]
