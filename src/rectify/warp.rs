@@ -13,7 +13,7 @@
 //!    pixel), which measured ~2x faster per frame than re-evaluating the
 //!    lens model (see `Rectifier::position_map`).
 //! 2. a sampling kernel: scalar generic (`bilinear_run`, `bicubic_run` in `kernel.rs`) or
-//!    the AVX2 ones for 8-bit grey / RGB bilinear (see `simd.rs`).
+//!    the AVX2 / AVX-512 ones for 8-bit grey / RGB bilinear (see `simd.rs`).
 //!
 //! # Border rule
 //! The source position is first rounded to 1/2048 px. A sample is *inside*
