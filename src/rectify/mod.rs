@@ -27,7 +27,7 @@
 //!
 //! # Performance
 //! Rows are split over rayon; per row the mapping is incremental and the 8-bit
-//! bilinear kernels use AVX2 when the CPU has it (runtime detection, scalar
+//! bilinear kernels use AVX2, or AVX-512 when the CPU has it (runtime detection, scalar
 //! fallback with identical results). With distortion, the first call builds a
 //! cached position map (8 bytes per grid pixel, 155 MB for the plate grid).
 //! Output buffers are fresh per call unless the `*_into` variants are used.

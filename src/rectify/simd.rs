@@ -15,6 +15,16 @@ pub(crate) fn available() -> bool {
     std::is_x86_feature_detected!("avx2")
 }
 
+/// Whether the AVX-512 builds of the kernels can run here.
+#[inline]
+fn avx512() -> bool {
+    std::is_x86_feature_detected!("avx512f")
+        && std::is_x86_feature_detected!("avx512bw")
+        && std::is_x86_feature_detected!("avx512vl")
+        && std::is_x86_feature_detected!("avx512dq")
+        && std::is_x86_feature_detected!("avx512vbmi")
+}
+
 /// Largest source buffer the kernels address with i32 gather offsets.
 const MAX_I32_LEN: usize = (i32::MAX as usize) - 64;
 
@@ -46,8 +56,13 @@ fn row_generic_avx2<T: Sample, const CN: usize, const CUBIC: bool>(
 /// Bilinear 8-bit grey row kernel.
 pub(crate) fn row_gray8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
     if available() && job.src.data.len() <= MAX_I32_LEN {
-        // SAFETY: AVX2 is present (checked above).
-        unsafe { row_gray8_avx2(job, row, out, co) }
+        if avx512() {
+            // SAFETY: AVX-512 F/BW/VL/DQ/VBMI are present (checked).
+            unsafe { row_gray8_avx512(job, row, out, co) }
+        } else {
+            // SAFETY: AVX2 is present (checked above).
+            unsafe { row_gray8_avx2(job, row, out, co) }
+        }
     } else {
         super::row::row_generic::<u8, 1, false>(job, row, out, co)
     }
@@ -56,33 +71,56 @@ pub(crate) fn row_gray8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut 
 /// Bilinear 8-bit RGB row kernel.
 pub(crate) fn row_rgb8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
     if available() && job.src.data.len() <= MAX_I32_LEN {
-        // SAFETY: AVX2 is present (checked above).
-        unsafe { row_rgb8_avx2(job, row, out, co) }
+        if avx512() {
+            // SAFETY: AVX-512 F/BW/VL/DQ/VBMI are present (checked).
+            unsafe { row_rgb8_avx512(job, row, out, co) }
+        } else {
+            // SAFETY: AVX2 is present (checked above).
+            unsafe { row_rgb8_avx2(job, row, out, co) }
+        }
     } else {
         super::row::row_generic::<u8, 3, false>(job, row, out, co)
     }
 }
 
-#[target_feature(enable = "avx2")]
-fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
+/// Phase 1 then `run` (a phase-2 kernel), chunk by chunk along one row of `CN`-sample pixels.
+#[inline(always)]
+fn row_8bit<const CN: usize>(
+    job: &Job<'_, u8>,
+    row: usize,
+    out: &mut [u8],
+    co: &mut Coords,
+    run: impl Fn(&Job<'_, u8>, &Coords, &mut [u8]),
+) {
     let mut col0 = 0;
-    for chunk in out.chunks_mut(CHUNK) {
-        let n = chunk.len();
+    for chunk in out.chunks_mut(CHUNK * CN) {
+        let n = chunk.len() / CN;
         map_run(job, row, col0, n, co);
-        gray8_run(job, co, chunk);
+        run(job, co, chunk);
         col0 += n;
     }
 }
 
 #[target_feature(enable = "avx2")]
+fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
+    row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run(j, c, o))
+}
+
+#[target_feature(enable = "avx2")]
 fn row_rgb8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    let mut col0 = 0;
-    for chunk in out.chunks_mut(CHUNK * 3) {
-        let n = chunk.len() / 3;
-        map_run(job, row, col0, n, co);
-        rgb8_run(job, co, chunk);
-        col0 += n;
-    }
+    row_8bit::<3>(job, row, out, co, |j, c, o| rgb8_run(j, c, o))
+}
+
+/// [`row_gray8_avx2`] in AVX-512: phase 1 compiled 16 lanes wide, phase 2 [`gray8_run16`].
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
+fn row_gray8_avx512(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
+    row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run16(j, c, o))
+}
+
+/// [`row_rgb8_avx2`] with phase 1 compiled for AVX-512.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
+fn row_rgb8_avx512(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
+    row_8bit::<3>(job, row, out, co, |j, c, o| rgb8_run(j, c, o))
 }
 
 /// Loads 8 i32 from `v[i..i + 8]`.
@@ -237,6 +275,128 @@ fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
     bilinear_run::<u8, 1>(job, co, out, i);
 }
 
+/// Grey, AVX-512: [`gray8_run`] 16 pixels per step, the row windows 64 bytes wide (any 16
+/// samples within 62 columns and two source rows) picked from with `vpermb`. Same integer
+/// arithmetic, so bit-identical.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vbmi")]
+fn gray8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
+    let src = &job.src;
+    let (data, stride) = (src.data, src.stride);
+    let n = out.len();
+    let base = data.as_ptr();
+    const Z: i8 = -128;
+    #[rustfmt::skip]
+    let shuf_top = _mm512_broadcast_i32x4(_mm_setr_epi8(
+        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
+    ));
+    #[rustfmt::skip]
+    let shuf_bot = _mm512_broadcast_i32x4(_mm_setr_epi8(
+        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
+    ));
+    let stride_v = _mm512_set1_epi32(stride as i32);
+    let one = _mm512_set1_epi32(ONE);
+    let round = _mm512_set1_epi32(ROUND2 as i32);
+    let fillv = _mm512_set1_epi32(i32::from(job.fill));
+    let max_dx = _mm512_set1_epi32(62);
+    let max_dy = _mm512_set1_epi32(1);
+    // Even bytes of each dword: the sample pairs, odd bytes zero (i16 lanes for madd).
+    let even: __mmask64 = 0x5555_5555_5555_5555;
+    // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
+    let base_bot = unsafe { base.add(stride - 2) };
+    let mut i = 0;
+    while i + 16 <= n {
+        let ix = load16(&co.ix, i);
+        let iy = load16(&co.iy, i);
+        let fx = load16(&co.fx, i);
+        let fy = load16(&co.fy, i);
+        let valid = _mm512_cmpgt_epi32_mask(ix, _mm512_set1_epi32(-1));
+        let bx = co.ix[i].min(co.ix[i + 15]);
+        let by = co.iy[i].min(co.iy[i + 15]);
+        let mut pairs = None;
+        // Rows by..=by+2 from column bx, 64 bytes each, must be in the buffer.
+        if bx >= 0 && (by as usize + 2) * stride + bx as usize + 64 <= data.len() {
+            let dx = _mm512_sub_epi32(ix, _mm512_set1_epi32(bx));
+            let dy = _mm512_sub_epi32(iy, _mm512_set1_epi32(by));
+            let fits = _mm512_cmple_epu32_mask(dx, max_dx) & _mm512_cmple_epu32_mask(dy, max_dy);
+            if fits == 0xffff {
+                let at = by as usize * stride + bx as usize;
+                let w = &data[at..at + 2 * stride + 64];
+                if let Some(ahead) = data.get(at + 3 * stride) {
+                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
+                }
+                // SAFETY: each 64-byte window lies inside `w` (bounds-checked).
+                let (r0, r1, r2) = unsafe {
+                    (
+                        _mm512_loadu_si512(w.as_ptr().cast()),
+                        _mm512_loadu_si512(w[stride..].as_ptr().cast()),
+                        _mm512_loadu_si512(w[2 * stride..].as_ptr().cast()),
+                    )
+                };
+                // Byte index per dword: [dx, ·, dx + 1, ·].
+                let idx = _mm512_add_epi32(
+                    _mm512_add_epi32(dx, _mm512_slli_epi32::<16>(dx)),
+                    _mm512_set1_epi32(0x1_0000),
+                );
+                let (t0, t1, t2) = (
+                    _mm512_maskz_permutexvar_epi8(even, idx, r0),
+                    _mm512_maskz_permutexvar_epi8(even, idx, r1),
+                    _mm512_maskz_permutexvar_epi8(even, idx, r2),
+                );
+                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2).
+                let first = _mm512_cmpeq_epi32_mask(dy, _mm512_setzero_si512());
+                pairs = Some((
+                    _mm512_mask_blend_epi32(first, t1, t0),
+                    _mm512_mask_blend_epi32(first, t2, t1),
+                ));
+            }
+        }
+        let (pt, pb) = match pairs {
+            Some(p) => p,
+            None => {
+                // Outside samples read offset 0 (in bounds) and become fill.
+                let off = _mm512_maskz_add_epi32(valid, _mm512_mullo_epi32(iy, stride_v), ix);
+                // SAFETY: as in gray8_run: inside samples have ix ≤ W−2, iy ≤ H−2, so the top
+                // dword [off, off+3] ends at ≤ (H−1)·W + 1 < W·H and the bottom dword
+                // [off+W−2, off+W+1] ends at ≤ H·W − 1; offset 0 is in bounds since W, H ≥ 2.
+                // The driver caps the buffer below i32::MAX.
+                let (gt, gb) = unsafe {
+                    (
+                        _mm512_i32gather_epi32::<1>(off, base.cast()),
+                        _mm512_i32gather_epi32::<1>(off, base_bot.cast()),
+                    )
+                };
+                (
+                    _mm512_shuffle_epi8(gt, shuf_top),
+                    _mm512_shuffle_epi8(gb, shuf_bot),
+                )
+            }
+        };
+        let wx = _mm512_or_si512(_mm512_sub_epi32(one, fx), _mm512_slli_epi32::<16>(fx));
+        let top = _mm512_madd_epi16(pt, wx);
+        let bot = _mm512_madd_epi16(pb, wx);
+        let val = _mm512_add_epi32(
+            _mm512_slli_epi32::<{ FRAC_BITS }>(top),
+            _mm512_mullo_epi32(_mm512_sub_epi32(bot, top), fy),
+        );
+        let val = _mm512_srai_epi32::<{ 2 * FRAC_BITS }>(_mm512_add_epi32(val, round));
+        // Values are 0..=255 (a convex blend of bytes, fill clamped), so truncation is exact.
+        let px = _mm512_cvtepi32_epi8(_mm512_mask_blend_epi32(valid, fillv, val));
+        let dst = &mut out[i..i + 16];
+        // SAFETY: `dst` is exactly 16 bytes; unaligned store.
+        unsafe { _mm_storeu_si128(dst.as_mut_ptr().cast(), px) };
+        i += 16;
+    }
+    bilinear_run::<u8, 1>(job, co, out, i);
+}
+
+/// Loads 16 i32 from `v[i..i + 16]`.
+#[inline(always)]
+fn load16(v: &[i32], i: usize) -> __m512i {
+    let s = &v[i..i + 16];
+    // SAFETY: `s` holds exactly 16 i32 (bounds-checked slice); unaligned load.
+    unsafe { _mm512_loadu_si512(s.as_ptr().cast()) }
+}
+
 /// RGB: 8 pixels per step. Per pixel one 8-byte load from each of the two
 /// rows; a pair of pixels shares a 256-bit register (one per 128-bit lane).
 #[target_feature(enable = "avx2")]
@@ -348,4 +508,71 @@ fn rgb8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
         i += 8;
     }
     bilinear_run::<u8, 3>(job, co, out, i);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rectify::kernel::CHUNK;
+
+    /// The AVX2 and AVX-512 grey kernels give exactly the scalar kernel's output, on runs that
+    /// take their window paths (nearby samples in two rows) and their gather paths (scattered
+    /// samples, outside ones, the last column and row).
+    #[test]
+    fn gray8_kernels_match_scalar() {
+        let (w, h) = (300usize, 70usize);
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move |m: u64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % m) as i32
+        };
+        let data: Vec<u8> = (0..w * h).map(|_| next(256) as u8).collect();
+        let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let job = Job::for_test(&data, w, h, identity, None);
+        let mut co = Coords::new();
+        let (mut windows, mut scattered) = (0, 0);
+        for trial in 0..400 {
+            let n = CHUNK - trial % 37;
+            let (x0, y0) = (next(w as u64 - 1), next(h as u64 - 1));
+            for j in 0..n {
+                let (x, y) = if trial % 2 == 0 {
+                    // Along a nearly horizontal line: the window paths.
+                    let x = x0 + (j as i32 * 3) / 4;
+                    (
+                        x.min(w as i32 - 2),
+                        (y0 + (j as i32 / 200)).min(h as i32 - 2),
+                    )
+                } else {
+                    (next(w as u64 - 1), next(h as u64 - 1))
+                };
+                let outside = trial % 3 == 1 && next(5) == 0;
+                co.ix[j] = if outside { -1 } else { x };
+                co.iy[j] = y;
+                co.fx[j] = next(ONE as u64 + 1);
+                co.fy[j] = next(ONE as u64 + 1);
+            }
+            if trial % 2 == 0 {
+                windows += 1;
+            } else {
+                scattered += 1;
+            }
+            let mut want = vec![0u8; n];
+            bilinear_run::<u8, 1>(&job, &co, &mut want, 0);
+            if available() {
+                let mut got = vec![1u8; n];
+                // SAFETY: AVX2 is present (checked).
+                unsafe { gray8_run(&job, &co, &mut got) };
+                assert_eq!(got, want, "AVX2, trial {trial}");
+            }
+            if avx512() {
+                let mut got = vec![1u8; n];
+                // SAFETY: AVX-512 F/BW/VL/VBMI are present (checked).
+                unsafe { gray8_run16(&job, &co, &mut got) };
+                assert_eq!(got, want, "AVX-512, trial {trial}");
+            }
+        }
+        assert!(windows > 100 && scattered > 100);
+    }
 }

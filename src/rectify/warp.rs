@@ -13,7 +13,7 @@
 //!    pixel), which measured ~2x faster per frame than re-evaluating the
 //!    lens model (see `Rectifier::position_map`).
 //! 2. a sampling kernel: scalar generic (`bilinear_run`, `bicubic_run` in `kernel.rs`) or
-//!    the AVX2 ones for 8-bit grey / RGB bilinear (see `simd.rs`).
+//!    the AVX2 / AVX-512 ones for 8-bit grey / RGB bilinear (see `simd.rs`).
 //!
 //! # Border rule
 //! The source position is first rounded to 1/2048 px. A sample is *inside*
@@ -30,6 +30,7 @@
 //! of the camera) and is outside too, as is a point past the radius where the
 //! distortion polynomial folds back.
 
+use std::mem::{ManuallyDrop, MaybeUninit};
 use std::sync::{Arc, OnceLock};
 
 use image::{DynamicImage, GrayImage, ImageBuffer, RgbImage};
@@ -152,14 +153,16 @@ impl Rectifier {
     }
 
     /// Shared driver: splits `out` (the whole grid, `CN` samples per pixel)
-    /// into row bands over rayon and runs `row_fn` on every row.
-    pub(crate) fn run_into<T: Sample, const CN: usize>(
+    /// into row bands over rayon and runs `row_fn` on every row. `init` turns each band into
+    /// samples before its rows are rendered ([`as_is`], or [`init_band`] for a fresh buffer).
+    pub(crate) fn run_into<T: Sample, U: Send, const CN: usize>(
         &self,
         data: &[T],
         width: u32,
         height: u32,
         row_fn: RowFn<T>,
-        out: &mut [T],
+        out: &mut [U],
+        init: fn(&mut [U], T) -> &mut [T],
     ) {
         let row_len = self.grid.columns() * CN;
         debug_assert_eq!(out.len(), row_len * self.grid.rows());
@@ -168,7 +171,7 @@ impl Rectifier {
         if w < 2 || h < 2 || w > MAX_SOURCE_SIDE || h > MAX_SOURCE_SIDE || data.len() < w * h * CN {
             // No 2x2 neighbourhood, or beyond the fixed-point range: nothing is inside.
             out.par_chunks_mut(row_len.max(1))
-                .for_each(|r| r.fill(fill));
+                .for_each(|r| init(r, fill).fill(fill));
             return;
         }
         let job = Job {
@@ -191,10 +194,50 @@ impl Rectifier {
         out.par_chunks_mut(row_len * BAND)
             .enumerate()
             .for_each_init(Coords::new, |co, (b, band)| {
+                let band = init(band, fill);
                 for (k, row_out) in band.chunks_mut(row_len).enumerate() {
                     row_fn(&job, b * BAND + k, row_out, co);
                 }
             });
+    }
+
+    /// Warps `src` into `dst`, or, when `dst` is not the grid's size, into a fresh buffer that
+    /// then replaces it.
+    ///
+    /// The fresh buffer is never zeroed as a whole: each band is filled by the worker thread
+    /// that renders it, just before (in cache), so there is no serial memset (glibc's `calloc`
+    /// clears reused heap memory in the calling thread) and the pages are first touched in
+    /// parallel. Huge pages are asked for, which cuts first-touch page faults ~500-fold (a 4400²
+    /// RGB frame is 58 MB: ~14 000 faults otherwise).
+    fn warp_to<P, T, const CN: usize>(
+        &self,
+        src: &ImageBuffer<P, Vec<T>>,
+        row_fn: RowFn<T>,
+        dst: &mut ImageBuffer<P, Vec<T>>,
+    ) where
+        P: image::Pixel<Subpixel = T>,
+        T: Sample,
+    {
+        let g = self.grid();
+        let (cols, rows) = (g.columns() as u32, g.rows() as u32);
+        let (data, w, h) = (src.as_raw(), src.width(), src.height());
+        if dst.dimensions() == (cols, rows) {
+            self.run_into::<T, T, CN>(data, w, h, row_fn, dst, as_is);
+            return;
+        }
+        let len = g.columns() * g.rows() * CN;
+        let mut buf: Vec<MaybeUninit<T>> = Vec::with_capacity(len);
+        // SAFETY: capacity is `len`, and `MaybeUninit` elements need no initialisation.
+        unsafe { buf.set_len(len) };
+        os::advise_huge_pages(&mut buf);
+        self.run_into::<T, MaybeUninit<T>, CN>(data, w, h, row_fn, &mut buf, init_band);
+        let mut buf = ManuallyDrop::new(buf);
+        // SAFETY: run_into initialised every element (it passes every band of `buf`, and the
+        // bands cover it, through `init_band` before anything else); `MaybeUninit<T>` has the
+        // layout of `T`, so pointer, length and capacity describe the same allocation as a
+        // `Vec<T>`, whose ownership moves here (the `ManuallyDrop` never frees it).
+        let buf = unsafe { Vec::from_raw_parts(buf.as_mut_ptr().cast::<T>(), len, buf.capacity()) };
+        *dst = ImageBuffer::from_raw(cols, rows, buf).expect("the buffer is the grid's size");
     }
 
     /// The cached position map (built on first call; see [`PositionMap`]).
@@ -275,28 +318,28 @@ impl Rectifier {
     /// Rectifies an 8-bit grey frame onto the grid (see the module docs for
     /// the sampling and border rules).
     pub fn rectify_gray8(&self, src: &GrayImage) -> GrayImage {
-        let mut dst = self.blank();
+        let mut dst = ImageBuffer::new(0, 0);
         self.rectify_gray8_into(src, &mut dst);
         dst
     }
 
     /// Rectifies an 8-bit RGB frame.
     pub fn rectify_rgb8(&self, src: &RgbImage) -> RgbImage {
-        let mut dst = self.blank();
+        let mut dst = ImageBuffer::new(0, 0);
         self.rectify_rgb8_into(src, &mut dst);
         dst
     }
 
     /// Rectifies a 16-bit grey frame.
     pub fn rectify_gray16(&self, src: &Gray16Image) -> Gray16Image {
-        let mut dst = self.blank();
+        let mut dst = ImageBuffer::new(0, 0);
         self.rectify_gray16_into(src, &mut dst);
         dst
     }
 
     /// Rectifies a 16-bit RGB frame.
     pub fn rectify_rgb16(&self, src: &Rgb16Image) -> Rgb16Image {
-        let mut dst = self.blank();
+        let mut dst = ImageBuffer::new(0, 0);
         self.rectify_rgb16_into(src, &mut dst);
         dst
     }
@@ -309,9 +352,8 @@ impl Rectifier {
         let fast = Some(simd::row_gray8 as RowFn<u8>);
         #[cfg(not(target_arch = "x86_64"))]
         let fast = None;
-        self.fit(dst);
         let row_fn = self.row_fn::<u8, 1>(fast);
-        self.run_into::<u8, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+        self.warp_to::<_, u8, 1>(src, row_fn, dst);
     }
 
     /// As [`Rectifier::rectify_rgb8`], writing into `dst`.
@@ -320,23 +362,20 @@ impl Rectifier {
         let fast = Some(simd::row_rgb8 as RowFn<u8>);
         #[cfg(not(target_arch = "x86_64"))]
         let fast = None;
-        self.fit(dst);
         let row_fn = self.row_fn::<u8, 3>(fast);
-        self.run_into::<u8, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+        self.warp_to::<_, u8, 3>(src, row_fn, dst);
     }
 
     /// As [`Rectifier::rectify_gray16`], writing into `dst`.
     pub fn rectify_gray16_into(&self, src: &Gray16Image, dst: &mut Gray16Image) {
-        self.fit(dst);
         let row_fn = self.row_fn::<u16, 1>(None);
-        self.run_into::<u16, 1>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+        self.warp_to::<_, u16, 1>(src, row_fn, dst);
     }
 
     /// As [`Rectifier::rectify_rgb16`], writing into `dst`.
     pub fn rectify_rgb16_into(&self, src: &Rgb16Image, dst: &mut Rgb16Image) {
-        self.fit(dst);
         let row_fn = self.row_fn::<u16, 3>(None);
-        self.run_into::<u16, 3>(src.as_raw(), src.width(), src.height(), row_fn, dst);
+        self.warp_to::<_, u16, 3>(src, row_fn, dst);
     }
 
     /// Rectifies any image: L8/Rgb8/L16/Rgb16 directly; other formats are
@@ -360,27 +399,20 @@ impl Rectifier {
             _ => DynamicImage::ImageRgb16(self.rectify_rgb16(&src.to_rgb16())),
         }
     }
+}
 
-    /// A zeroed output image of the grid's size. The zeroed allocation is
-    /// mapped lazily by the OS, so its pages are first touched by the worker
-    /// threads that fill them, not by a serial memset; asking for huge pages
-    /// cuts those first-touch page faults ~500-fold (a 4400² RGB frame is
-    /// 58 MB: ~14 000 faults, about a third of the warp time without it).
-    fn blank<P: image::Pixel>(&self) -> ImageBuffer<P, Vec<P::Subpixel>> {
-        let g = self.grid();
-        let mut img: ImageBuffer<P, Vec<P::Subpixel>> =
-            ImageBuffer::new(g.columns() as u32, g.rows() as u32);
-        os::advise_huge_pages(&mut img);
-        img
-    }
+/// A band of an initialised buffer, as it is.
+fn as_is<T>(band: &mut [T], _fill: T) -> &mut [T] {
+    band
+}
 
-    /// Makes `dst` the grid's size (keeping its buffer when it already is).
-    fn fit<P: image::Pixel>(&self, dst: &mut ImageBuffer<P, Vec<P::Subpixel>>) {
-        let g = self.grid();
-        if dst.dimensions() != (g.columns() as u32, g.rows() as u32) {
-            *dst = self.blank();
-        }
+/// A band of a fresh buffer, every element set to `fill`.
+fn init_band<T: Copy>(band: &mut [MaybeUninit<T>], fill: T) -> &mut [T] {
+    for v in band.iter_mut() {
+        v.write(fill);
     }
+    // SAFETY: every element was just written, and `MaybeUninit<T>` has the layout of `T`.
+    unsafe { &mut *(band as *mut [MaybeUninit<T>] as *mut [T]) }
 }
 
 #[cfg(test)]
