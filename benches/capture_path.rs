@@ -19,12 +19,15 @@
 //! `LAYERWISE_BENCH_ONLY=plant` only 4; `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to
 //! the "on" builds (issue 26: the capture path's overhead must not move with a model on).
 
+#[path = "support/builds.rs"]
+mod builds;
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
 
+use builds::{calibrated, config, journal, percentile};
 use layerwise::build_dir::inspection::InspectionLog;
 use layerwise::build_dir::journal::Record;
-use layerwise::config::{CameraConfig, Config, TriggerConfig, DEMO_CONFIG};
+use layerwise::config::{CameraConfig, Config};
 use prerecorded::{mock_frame, run_prerecorded, run_prerecorded_with};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -32,36 +35,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-fn config(dir: &Path, layers: u32, fsync: bool) -> Config {
-    let mut config = Config::parse(DEMO_CONFIG, Path::new("demo.toml")).expect("demo config");
-    config.build.output_dir = dir.to_path_buf();
-    config.storage.fsync = fsync;
-    if let TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.layers = layers;
-    }
-    config
-}
-
 fn build(config: &Config, frame: Vec<u8>) {
     run_prerecorded(config, frame);
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
 type At = chrono::DateTime<chrono::Utc>;
 
 fn ms(d: chrono::TimeDelta) -> f64 {
     d.num_microseconds().unwrap_or_default() as f64 / 1e3
-}
-
-/// The journal's records of a finished build.
-fn journal(dir: &Path) -> Vec<Record> {
-    let text = std::fs::read_to_string(dir.join("journal.jsonl")).expect("journal");
-    text.lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect()
 }
 
 /// Intervals between consecutive frames of the same layer signal, ms, sorted: the capture
@@ -143,43 +124,6 @@ fn worker_per_layer(dir: &Path, records: &[Record]) -> Vec<f64> {
     times
 }
 
-/// A calibrated build (the mock camera's true homography onto the demo grid) with the demo
-/// vectors, so that every frame is rectified into its series and, with `inspect`, inspected.
-fn calibrated(dir: &Path, layers: u32, width: u32, height: u32, inspect: bool) -> Config {
-    let mut config = config(dir, layers, true);
-    if let CameraConfig::Mock(mock) = &mut config.camera {
-        mock.width = width;
-        mock.height = height;
-    }
-    std::fs::create_dir_all(dir).expect("build dir");
-    let truth = mock_camera::Homography::oblique_view(width, height);
-    let calibration = layerwise::rectify::Calibration {
-        build_from_image: layerwise::geometry::Homography::from_matrix(truth.m),
-        distortion: None,
-        grid: Some(config.rectify),
-        fit: None,
-    };
-    let path = dir.join("calibration.toml");
-    std::fs::write(&path, calibration.to_toml()).expect("calibration");
-    config.calibration.file = Some(path);
-    let vectors = dir.join("demo.cli");
-    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
-    config.build.vectors = Some(vectors);
-    config.inspection.enabled = inspect;
-    // LAYERWISE_BENCH_MODEL=FILE: "on" runs that defect model too; a model trained on frames
-    // of unknown scale (the pblm one) is run at 1 mm per cell, as the live bench runs it.
-    if let Some(model) = std::env::var_os("LAYERWISE_BENCH_MODEL").filter(|_| inspect) {
-        let mut model = layerwise::config::model::ModelConfig::for_file(model.into());
-        model.cell_mm = Some(1.0);
-        config.inspection.model = Some(model);
-    }
-    // Signals a second apart: the worker keeps up, as between the layers of a real build.
-    if let TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.interval_ms = 1000;
-    }
-    config
-}
-
 /// Inspection off and on side by side: `rounds` pairs of builds of `layers` layers.
 fn inspection_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
     let frame = mock_frame(width, height);
@@ -190,7 +134,7 @@ fn inspection_side_by_side(width: u32, height: u32, layers: u32, rounds: u32) {
             let dir = tempfile::tempdir().expect("tempdir");
             let build_dir = dir.path().join("build");
             build(
-                &calibrated(&build_dir, layers, width, height, inspect),
+                &calibrated(&build_dir, layers, (width, height), None, inspect),
                 frame.clone(),
             );
             let records = journal(&build_dir);

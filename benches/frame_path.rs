@@ -49,7 +49,8 @@ fn time_frames(
     (per_frame, layer_totals)
 }
 
-/// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it.
+/// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it, with the
+/// sidecar the processing checks it against.
 fn write_originals(
     build_dir: &std::path::Path,
     views: &[View],
@@ -65,8 +66,27 @@ fn write_originals(
                 phase: view.phase,
                 light: view.light,
             };
-            let path = build_dir.join(format!("raw/{}.{extension}", shot.stem()));
-            std::fs::write(&path, frame(view)).expect("frame");
+            let file = format!("raw/{}.{extension}", shot.stem());
+            let path = build_dir.join(&file);
+            let bytes = frame(view);
+            let now = chrono::Utc::now();
+            let sidecar = layerwise::build_dir::Sidecar {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                file,
+                bytes: bytes.len() as u64,
+                sha256: layerwise::fsutil::sha256_hex(&bytes),
+                event_at: now,
+                captured_at: now,
+                capture_ms: 0.0,
+                download_ms: 0.0,
+                attempts: 1,
+                camera: Default::default(),
+            };
+            std::fs::write(&path, bytes).expect("frame");
+            let sidecar = serde_json::to_vec(&sidecar).expect("sidecar");
+            std::fs::write(path.with_extension("json"), sidecar).expect("sidecar");
             (shot, path)
         })
         .collect()

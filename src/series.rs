@@ -11,6 +11,7 @@ use crate::shot::{Shot, View};
 use crate::vectors::{LayerIndex, LayerMap, VectorError};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Why a frame could not be processed, for the journal (the build goes on).
 pub type ProcessError = Box<dyn std::error::Error + Send + Sync>;
@@ -254,8 +255,22 @@ impl LiveSeries {
     /// The rectified luma of an original, as the slice will hold it: 8-bit luma of a JPEG, or
     /// linear 16-bit luminance of a raw frame.
     pub fn rectified_luma(&self, original: &[u8]) -> Result<FrameLuma, SeriesError> {
+        self.rectified_luma_timed(original, &mut StepTimes::default())
+    }
+
+    /// [`LiveSeries::rectified_luma`], its decode and rectify times put in `steps`.
+    pub fn rectified_luma_timed(
+        &self,
+        original: &[u8],
+        steps: &mut StepTimes,
+    ) -> Result<FrameLuma, SeriesError> {
+        let started = Instant::now();
         let luma = rectify::decode_frame_luma(original)?;
-        Ok(luma.rectified(&self.rectifier))
+        steps.decode_ms = ms_since(started);
+        let started = Instant::now();
+        let rectified = luma.rectified(&self.rectifier);
+        steps.rectify_ms = ms_since(started);
+        Ok(rectified)
     }
 
     /// The same series under other names (`{view} {label}`, numbered from `first_number`) in
@@ -308,11 +323,13 @@ impl LiveSeries {
         source: Option<SliceSource>,
     ) -> Result<PathBuf, SeriesError> {
         let rectified = self.rectified_luma(original)?;
-        self.write_rectified(build_dir, shot, rectified, acquired, source)
+        let steps = &mut StepTimes::default();
+        self.write_rectified(build_dir, shot, rectified, acquired, source, steps)
     }
 
     /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]), made
-    /// from `source` (its take picks the SOP Instance UID); replaces the slice atomically.
+    /// from `source` (its take picks the SOP Instance UID); replaces the slice atomically. Its
+    /// encode and write times go into `steps`.
     pub fn write_rectified(
         &self,
         build_dir: &Path,
@@ -320,6 +337,7 @@ impl LiveSeries {
         rectified: FrameLuma,
         acquired: Option<chrono::DateTime<chrono::Utc>>,
         source: Option<SliceSource>,
+        steps: &mut StepTimes,
     ) -> Result<PathBuf, SeriesError> {
         let series = self
             .series
@@ -347,7 +365,9 @@ impl LiveSeries {
             derivation,
         };
         let path = self.slice_path(build_dir, shot);
-        dicom::write_slice_from(&path, &self.study, series, &slice, self.compression, source)?;
+        let times =
+            dicom::write_slice_from(&path, &self.study, series, &slice, self.compression, source)?;
+        (steps.encode_ms, steps.write_ms) = (times.encode_ms, times.write_ms);
         Ok(path)
     }
 }
@@ -362,11 +382,62 @@ impl LiveSeries {
         take: u32,
         original: &Path,
     ) -> Result<PathBuf, SeriesError> {
+        self.write_original_timed(build_dir, shot, take, original, &mut StepTimes::default())
+    }
+
+    /// [`LiveSeries::write_original`], the time of each step put in `steps`.
+    pub fn write_original_timed(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+        steps: &mut StepTimes,
+    ) -> Result<PathBuf, SeriesError> {
+        let started = Instant::now();
         let (bytes, acquired) = read_original(original)?;
+        steps.read_ms = ms_since(started);
         let file = source_file(build_dir, original);
         let source = SliceSource { take, file: &file };
-        self.write(build_dir, shot, &bytes, acquired, Some(source))
+        let rectified = self.rectified_luma_timed(&bytes, steps)?;
+        self.write_rectified(build_dir, shot, rectified, acquired, Some(source), steps)
     }
+}
+
+/// How long each step of one frame's processing took, ms: reading the original (checked
+/// against its sidecar), decoding it to luma, rectifying, encoding the slice, writing it; and,
+/// with inspection on, reducing it to the inspection's cells. Said at DEBUG as `frame processed`
+/// (the signal-to-screen benchmark reads them there).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepTimes {
+    pub read_ms: f64,
+    pub decode_ms: f64,
+    pub rectify_ms: f64,
+    pub encode_ms: f64,
+    pub write_ms: f64,
+    pub cells_ms: f64,
+}
+
+impl StepTimes {
+    /// The DEBUG line of the frame of `shot` processed.
+    pub fn log(&self, shot: Shot) {
+        tracing::debug!(
+            layer = shot.layer,
+            view = %shot.view(),
+            read_ms = self.read_ms,
+            decode_ms = self.decode_ms,
+            rectify_ms = self.rectify_ms,
+            encode_ms = self.encode_ms,
+            write_ms = self.write_ms,
+            cells_ms = self.cells_ms,
+            "frame processed"
+        );
+    }
+}
+
+/// Milliseconds since `started`.
+pub fn ms_since(started: Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
 }
 
 /// How a slice names its original: relative to the build directory (`raw/L00003_post_front.jpg`).
@@ -399,7 +470,9 @@ impl FrameProcessor for LiveSeries {
         take: u32,
         original: &Path,
     ) -> Result<(), ProcessError> {
-        self.write_original(build_dir, shot, take, original)?;
+        let mut steps = StepTimes::default();
+        self.write_original_timed(build_dir, shot, take, original, &mut steps)?;
+        steps.log(shot);
         Ok(())
     }
 }

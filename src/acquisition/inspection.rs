@@ -10,10 +10,11 @@ use crate::clock::SharedClock;
 use crate::config::Config;
 use crate::inspect::{Inspector, Reducer};
 use crate::logging::Chain;
-use crate::series::{FrameProcessor, LiveSeries, ProcessError};
+use crate::series::{ms_since, FrameProcessor, LiveSeries, ProcessError, StepTimes};
 use crate::shot::Shot;
 use std::path::Path;
 use std::sync::Mutex;
+use std::time::Instant;
 use tracing::{error, info, warn};
 
 /// The live series plus the inspection of every layer.
@@ -163,22 +164,34 @@ fn open_model(
 
 impl FrameProcessor for InspectingSeries {
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
+        let mut steps = StepTimes::default();
+        let started = Instant::now();
         let (bytes, acquired) = crate::series::read_original(original)?;
-        let rectified = self.live.rectified_luma(&bytes)?;
+        steps.read_ms = ms_since(started);
+        let rectified = self.live.rectified_luma_timed(&bytes, &mut steps)?;
         if let Some(model) = &self.model {
             model.scan(shot.layer, shot.view(), &rectified);
         }
+        let started = Instant::now();
         let cells = self
             .reducer
             .needs(shot.view())
             .then(|| self.reducer.cells(&rectified));
+        steps.cells_ms = ms_since(started);
         let file = crate::series::source_file(build_dir, original);
         let source = crate::dicom::SliceSource {
             take: 1,
             file: &file,
         };
-        self.live
-            .write_rectified(build_dir, shot, rectified, acquired, Some(source))?;
+        self.live.write_rectified(
+            build_dir,
+            shot,
+            rectified,
+            acquired,
+            Some(source),
+            &mut steps,
+        )?;
+        steps.log(shot);
         let records = match (cells, self.inspector.lock()) {
             (Some(cells), Ok(mut inspector)) => {
                 inspector.add(shot.layer, shot.view(), cells, self.clock.now())
