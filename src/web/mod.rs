@@ -221,15 +221,19 @@ pub fn read_token(path: &Path) -> Result<String, WebError> {
     Ok(token)
 }
 
-/// Looks at the journal, the inspection and alarm logs and status.json every [`WATCH_PERIOD`]; when they changed, reads what
-/// is new, remakes the status (at most every [`STATUS_PERIOD`], at least every
-/// [`STATUS_STALE`]), tells the open pages, and
-/// makes the newest layer's previews ahead of their request.
+/// Looks at the journal, the inspection and alarm logs and status.json every [`WATCH_PERIOD`];
+/// when they changed, reads what is new, remakes the status (at most every [`STATUS_PERIOD`],
+/// at least every [`STATUS_STALE`]; at once when the inspection or alarm log grew: a layer's
+/// flags or an alarm wait for no period), tells the open pages, and makes the newest layer's
+/// previews ahead of their request.
 async fn watch_build(shared: Arc<PageState>) {
     let mut tick = tokio::time::interval(WATCH_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let stop = shared.stop.clone();
     let mut seen: Option<(u64, Option<SystemTime>)> = None;
+    // The inspection and alarm logs' lengths: what the operator must see without delay.
+    let mut seen_urgent: Option<u64> = None;
+    let mut urgent = false;
     let mut status_at: Option<Instant> = None;
     let mut pending = true;
     let mut warned = false;
@@ -244,19 +248,19 @@ async fn watch_build(shared: Arc<PageState>) {
             let stamp = |name: &str| std::fs::metadata(s.dir.join(name)).ok();
             // The alarm's history too: an acknowledgement (on any page, or `alarm ack`) clears
             // the banner of every open page.
-            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len())
-                + stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len())
+            let logs = stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len())
                 + stamp(crate::build_dir::ALARM).map_or(0, |m| m.len());
+            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len()) + logs;
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
             let changed = s
                 .timeline
                 .write()
                 .unwrap_or_else(|e| e.into_inner())
                 .refresh();
-            (journal, status, changed)
+            (journal, logs, status, changed)
         })
         .await;
-        let Ok((journal, status_time, changed)) = looked else {
+        let Ok((journal, logs, status_time, changed)) = looked else {
             continue;
         };
         match changed {
@@ -272,10 +276,15 @@ async fn watch_build(shared: Arc<PageState>) {
             seen = Some((journal, status_time));
             pending = true;
         }
-        if !pending || status_at.is_some_and(|t| t.elapsed() < STATUS_PERIOD) {
+        if seen_urgent.is_some_and(|n| n != logs) {
+            urgent = true;
+        }
+        seen_urgent = Some(logs);
+        if !pending || (!urgent && status_at.is_some_and(|t| t.elapsed() < STATUS_PERIOD)) {
             continue;
         }
         pending = false;
+        urgent = false;
         status_at = Some(Instant::now());
         let s = shared.clone();
         let _ = tokio::task::spawn_blocking(move || s.refresh_status()).await;
