@@ -565,3 +565,58 @@ fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
     );
     assert!(!tmp.path().join("demo").exists(), "nothing written");
 }
+
+/// The processing worker says what each frame's steps took, the figures
+/// `benches/signal_to_screen.rs` reads: one `frame processed` line at DEBUG per frame of an
+/// inspected build, with the read, decode, rectify, encode, write and cells times in ms.
+#[test]
+fn each_processed_frame_says_what_its_steps_took_at_debug() {
+    use crate::common::Run;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().join("build");
+    let layers = 2;
+    let mut config =
+        common::calibrated_config(&dir, layers, layerwise::dicom::Compression::Deflate);
+    let vectors = tmp.path().join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    let path = tmp.path().join("layerwise.toml");
+    common::write_config(&config, &path);
+    let out = common::run_command(&path)
+        .env("RUST_LOG", "info,layerwise=debug")
+        .succeeds();
+    let log = String::from_utf8_lossy(&out.stderr);
+    let lines: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("frame processed"))
+        .collect();
+    let frames = common::originals(&dir).len();
+    assert!(frames >= 2 * layers as usize, "{frames} originals");
+    assert_eq!(lines.len(), frames, "one line per frame: {log}");
+    for line in lines {
+        let field = |key: &str| -> f64 {
+            let token = line
+                .split_whitespace()
+                .find_map(|t| t.strip_prefix(&format!("{key}=")))
+                .unwrap_or_else(|| panic!("no {key} in {line}"));
+            token
+                .parse()
+                .unwrap_or_else(|_| panic!("{key}={token} in {line}"))
+        };
+        for key in [
+            "read_ms",
+            "decode_ms",
+            "rectify_ms",
+            "encode_ms",
+            "write_ms",
+            "cells_ms",
+        ] {
+            let ms = field(key);
+            assert!(ms.is_finite() && (0.0..60_000.0).contains(&ms), "{line}");
+        }
+        assert!(
+            field("decode_ms") > 0.0 && field("encode_ms") > 0.0,
+            "{line}"
+        );
+    }
+}
