@@ -10,8 +10,10 @@ mod bench_views;
 mod manifest;
 
 use layerwise::acquisition::processing::FrameProcessor;
+use layerwise::acquisition::storage::Storage;
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
+use layerwise::hardware::camera::Frame;
 use layerwise::rectify::{Calibration, Interpolation};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
 use layerwise::shot::{Light, Phase, Shot, View};
@@ -49,15 +51,15 @@ fn time_frames(
     (per_frame, layer_totals)
 }
 
-/// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it, with the
-/// sidecar the processing checks it against.
+/// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it, stored as the
+/// daemon stores a frame (with the sidecar the processing checks it against).
 fn write_originals(
     build_dir: &std::path::Path,
     views: &[View],
     extension: &str,
     frame: impl Fn(&View) -> Vec<u8>,
 ) -> Vec<(Shot, std::path::PathBuf)> {
-    std::fs::create_dir_all(build_dir.join("raw")).expect("raw");
+    let storage = Storage::open(build_dir, false).expect("raw");
     views
         .iter()
         .map(|view| {
@@ -66,28 +68,17 @@ fn write_originals(
                 phase: view.phase,
                 light: view.light,
             };
-            let file = format!("raw/{}.{extension}", shot.stem());
-            let path = build_dir.join(&file);
-            let bytes = frame(view);
-            let now = chrono::Utc::now();
-            let sidecar = layerwise::build_dir::Sidecar {
-                layer: shot.layer,
-                phase: shot.phase,
-                light: shot.light,
-                file,
-                bytes: bytes.len() as u64,
-                sha256: layerwise::fsutil::sha256_hex(&bytes),
-                event_at: now,
-                captured_at: now,
+            let frame = Frame {
+                data: frame(view),
+                extension: extension.into(),
                 capture_ms: 0.0,
                 download_ms: 0.0,
-                attempts: 1,
-                camera: Default::default(),
             };
-            std::fs::write(&path, bytes).expect("frame");
-            let sidecar = serde_json::to_vec(&sidecar).expect("sidecar");
-            std::fs::write(path.with_extension("json"), sidecar).expect("sidecar");
-            (shot, path)
+            let now = chrono::Utc::now();
+            let sidecar = storage
+                .store_frame(&shot, 1, &frame, now, now, 1, &Default::default())
+                .expect("original");
+            (shot, build_dir.join(sidecar.file))
         })
         .collect()
 }

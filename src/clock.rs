@@ -11,6 +11,12 @@ use crossbeam_channel::Receiver;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+/// Milliseconds since `started` on the monotonic clock: for timings that are reported (a
+/// frame's steps, a download), never for decisions, which take a [`Clock`].
+pub fn ms_since(started: Instant) -> f64 {
+    started.elapsed().as_secs_f64() * 1e3
+}
+
 /// A source of time.
 pub trait Clock: Send + Sync {
     /// Wall-clock time (UTC): for records and file contents.

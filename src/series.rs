@@ -3,6 +3,7 @@
 //! calibration and written as the slice of its layer in its view's series.
 
 use crate::build_dir::BuildManifest;
+use crate::clock::ms_since;
 use crate::config::Config;
 use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, SliceSource, Study};
 use crate::fsutil::TomlFileError;
@@ -433,11 +434,6 @@ impl StepTimes {
             "frame processed"
         );
     }
-}
-
-/// Milliseconds since `started`.
-pub fn ms_since(started: Instant) -> f64 {
-    started.elapsed().as_secs_f64() * 1e3
 }
 
 /// How a slice names its original: relative to the build directory (`raw/L00003_post_front.jpg`).

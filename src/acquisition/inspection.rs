@@ -6,11 +6,12 @@
 
 use super::alarm::{Alarm, AlarmThread};
 use crate::build_dir::inspection::{InspectionLog, InspectionRecord, Severity};
+use crate::clock::ms_since;
 use crate::clock::SharedClock;
 use crate::config::Config;
 use crate::inspect::{Inspector, Reducer};
 use crate::logging::Chain;
-use crate::series::{ms_since, FrameProcessor, LiveSeries, ProcessError, StepTimes};
+use crate::series::{FrameProcessor, LiveSeries, ProcessError, StepTimes};
 use crate::shot::Shot;
 use std::path::Path;
 use std::sync::Mutex;

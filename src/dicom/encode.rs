@@ -2,6 +2,7 @@
 //! writing it.
 
 use std::path::Path;
+use std::time::Instant;
 
 use dicom_core::{Tag, VR};
 use dicom_dictionary_std::tags;
@@ -15,6 +16,7 @@ use super::iod::{
     instance_uid_of_take, put, put_pixel_data, slice_object, Series, Slice, SliceSource, Study,
 };
 use super::{CT_IMAGE_STORAGE, IMPLEMENTATION_CLASS_UID};
+use crate::clock::ms_since;
 use crate::fsutil::write_atomic_with;
 
 const EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1";
@@ -304,7 +306,7 @@ pub fn write_slice_from(
     compression: Compression,
     source: Option<SliceSource>,
 ) -> Result<WriteTimes, DicomError> {
-    let started = std::time::Instant::now();
+    let started = Instant::now();
     let encoded =
         EncodedSlice::new(study, series, slice, compression, source).map_err(|source| {
             DicomError::Encode {
@@ -312,8 +314,8 @@ pub fn write_slice_from(
                 source,
             }
         })?;
-    let encode_ms = started.elapsed().as_secs_f64() * 1e3;
-    let started = std::time::Instant::now();
+    let encode_ms = ms_since(started);
+    let started = Instant::now();
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| crate::fsutil::WriteError {
             path: dir.to_path_buf(),
@@ -325,7 +327,7 @@ pub fn write_slice_from(
     })?;
     Ok(WriteTimes {
         encode_ms,
-        write_ms: started.elapsed().as_secs_f64() * 1e3,
+        write_ms: ms_since(started),
     })
 }
 

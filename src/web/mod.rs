@@ -230,10 +230,8 @@ async fn watch_build(shared: Arc<PageState>) {
     let mut tick = tokio::time::interval(WATCH_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let stop = shared.stop.clone();
-    let mut seen: Option<(u64, Option<SystemTime>)> = None;
-    // The inspection and alarm logs' lengths: what the operator must see without delay.
-    let mut seen_urgent: Option<u64> = None;
-    let mut urgent = false;
+    // The journal's length, the inspection and alarm logs' lengths, status.json's time.
+    let mut seen: Option<(u64, u64, Option<SystemTime>)> = None;
     let mut status_at: Option<Instant> = None;
     let mut pending = true;
     let mut warned = false;
@@ -250,7 +248,7 @@ async fn watch_build(shared: Arc<PageState>) {
             // the banner of every open page.
             let logs = stamp(crate::build_dir::INSPECTION).map_or(0, |m| m.len())
                 + stamp(crate::build_dir::ALARM).map_or(0, |m| m.len());
-            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len()) + logs;
+            let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len());
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
             let changed = s
                 .timeline
@@ -270,21 +268,17 @@ async fn watch_build(shared: Arc<PageState>) {
             }
             _ => {}
         }
-        if seen != Some((journal, status_time))
-            || status_at.is_some_and(|t| t.elapsed() >= STATUS_STALE)
-        {
-            seen = Some((journal, status_time));
+        let looks = (journal, logs, status_time);
+        // A grown inspection or alarm log is what the operator must see without delay.
+        let urgent = seen.is_some_and(|(_, before, _)| before != logs);
+        if seen != Some(looks) || status_at.is_some_and(|t| t.elapsed() >= STATUS_STALE) {
+            seen = Some(looks);
             pending = true;
         }
-        if seen_urgent.is_some_and(|n| n != logs) {
-            urgent = true;
-        }
-        seen_urgent = Some(logs);
         if !pending || (!urgent && status_at.is_some_and(|t| t.elapsed() < STATUS_PERIOD)) {
             continue;
         }
         pending = false;
-        urgent = false;
         status_at = Some(Instant::now());
         let s = shared.clone();
         let _ = tokio::task::spawn_blocking(move || s.refresh_status()).await;
