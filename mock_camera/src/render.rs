@@ -80,6 +80,9 @@ pub struct Defect {
     pub clip: Option<(f64, f64, f64, f64)>,
     /// Bare (speckled) metal instead of powder.
     pub metal: bool,
+    /// Powder even where the layer fused, coarser than fresh powder (partly sintered grains in a
+    /// shadowed hollow): a lack-of-fusion spot in a post-scan frame. Wins over `metal`.
+    pub unfused: bool,
     /// Grey levels added.
     pub delta: f64,
     /// Seen only under this light (`None`: every light).
@@ -182,6 +185,10 @@ impl Look {
     }
 }
 
+/// Unfused powder in a scanned layer is this many times as grainy as fresh powder (partly
+/// sintered grains and balls), still far below fused metal's speckle.
+const UNFUSED_GRAIN: f64 = 3.0;
+
 /// (x_min, y_min, x_max, y_max) in mm, as from [`Shape::bbox`].
 type BBox = (f64, f64, f64, f64);
 
@@ -273,12 +280,17 @@ impl Renderer {
                             let (nx, ny) = (x / half, y / half);
                             let gain =
                                 1.0 + look.gx * nx + look.gy * ny + look.gr * (nx * nx + ny * ny);
-                            let (mut delta, mut bare) = (0.0, false);
+                            let (mut delta, mut bare, mut unfused) = (0.0, false, false);
                             for d in row_defects.iter().filter(|d| d.contains(x, y)) {
                                 delta += d.delta;
                                 bare |= d.metal;
+                                unfused |= d.unfused;
                             }
-                            if bare || candidates.iter().any(|s| s.contains(x, y)) {
+                            if unfused {
+                                gain * look.powder
+                                    + UNFUSED_GRAIN * look.powder_amp * unit(h, 0)
+                                    + delta
+                            } else if bare || candidates.iter().any(|s| s.contains(x, y)) {
                                 let hm = splitmix64(h ^ metal_salt);
                                 if (hm & 0xFF) < look.glint_per_256 {
                                     look.glint + 5.0 * unit(hm, 8)
@@ -402,6 +414,57 @@ mod tests {
         };
         let top = std_of(Illumination::Top);
         assert!(top > std_of(Illumination::Front) && top > std_of(Illumination::Side));
+    }
+
+    #[test]
+    fn an_unfused_spot_in_fused_metal_is_darker_coarser_powder() {
+        let mut r = renderer();
+        let disc = Shape::Circle {
+            cx: 0.0,
+            cy: 0.0,
+            r: 40.0,
+        };
+        let spot = Shape::Circle {
+            cx: 0.0,
+            cy: 0.0,
+            r: 15.0,
+        };
+        r.defects = vec![Defect {
+            region: spot.clone(),
+            clip: None,
+            metal: false,
+            unfused: true,
+            delta: -25.0,
+            light: None,
+        }];
+        let fused = [disc.clone()];
+        let in_spot = |x: f64, y: f64| spot.contains(x, y);
+        let in_metal = |x: f64, y: f64| disc.contains(x, y) && !spot.contains(x, y);
+        let in_powder = |x: f64, y: f64| !disc.contains(x, y) && x.abs() < 137.5;
+        let img = r.render(&scene(&fused, true, Illumination::Top));
+        let patch_mean = |x: f64, y: f64| {
+            let inv = r.homography.inverse().unwrap();
+            let (u, v) = inv.apply(x, y).unwrap();
+            let mut sum = 0.0;
+            for dv in -3..=3 {
+                for du in -3..=3 {
+                    let p = img.get_pixel(
+                        (u.round() as i64 + du) as u32,
+                        (v.round() as i64 + dv) as u32,
+                    );
+                    sum += f64::from(p[0]);
+                }
+            }
+            sum / 49.0
+        };
+        let unfused = patch_std(&r, &img, 0.0, 0.0, in_spot);
+        let metal = patch_std(&r, &img, 28.0, 0.0, in_metal);
+        let powder = patch_std(&r, &img, 60.0, -60.0, in_powder);
+        assert!(
+            unfused > 2.0 * powder && unfused < 0.7 * metal,
+            "unfused {unfused}, powder {powder}, metal {metal}"
+        );
+        assert!(patch_mean(0.0, 0.0) < patch_mean(60.0, -60.0) - 15.0);
     }
 
     #[test]

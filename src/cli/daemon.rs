@@ -426,6 +426,15 @@ pub struct DemoArgs {
     /// ramps to c over the layers); e.g. `streak@40,short-feed@75,elevation@90..95,drift@100..110`.
     #[arg(long, default_value = "")]
     inject: String,
+    /// Lack-of-fusion pores in the box's CT in place of its two small ones (1 to 500; 20 layers
+    /// or more): flat voids 1.1 to 1.9 mm across spread over the box's layers and positions (from
+    /// --pore-seed), each seen by the camera as unfused powder in the post-scan frames of the
+    /// layers it spans: CT-labelled patches to train on (`flaws`, then `learn train`).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=500))]
+    pores: Option<u32>,
+    /// Seed of the places and sizes of the --pores pores.
+    #[arg(long, default_value_t = 1, requires = "pores")]
+    pore_seed: u64,
 }
 
 impl DemoArgs {
@@ -433,7 +442,14 @@ impl DemoArgs {
         let (layers, out) = (self.layers, self.out.as_path());
         let inject =
             layerwise::config::inspection::parse_injections(&self.inject).context("--inject")?;
-        let mut config = demo_config(layers, out)?;
+        let pores = self.pores.map(|n| (n, self.pore_seed));
+        if pores.is_some() && layers < layerwise::sim::demo::DEMO_CT_MIN_LAYERS {
+            anyhow::bail!(
+                "--pores needs --layers {} or more: the box must be tall enough for pores with material around them",
+                layerwise::sim::demo::DEMO_CT_MIN_LAYERS
+            );
+        }
+        let mut config = demo_config(layers, out, pores)?;
         if let CameraConfig::Mock(mock) = &mut config.camera {
             mock.inject = inject;
         }
@@ -526,14 +542,14 @@ fn own_command(command: &str) -> String {
 /// true homography written as the calibration, so the demo writes rectified DICOM series like a
 /// calibrated machine does. The build directory also gets the parts' vector file (the build's
 /// `vectors`) and a points file of four clicks, to try `register images` on (docs/tutorial.md).
-fn demo_config(layers: u32, out: &Path) -> Result<Config> {
+fn demo_config(layers: u32, out: &Path, pores: Option<(u32, u64)>) -> Result<Config> {
     let mut config = Config::parse(DEMO_CONFIG, Path::new("<embedded demo.toml>"))?;
     config.build.output_dir = out.to_path_buf();
     config.build.layers = Some(layers);
     if let TriggerConfig::Mock(mock) = &mut config.trigger {
         mock.layers = layers;
     }
-    if let CameraConfig::Mock(mock) = &config.camera {
+    if let CameraConfig::Mock(mock) = &mut config.camera {
         use layerwise::sim::demo;
         std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
         // The parts the mock camera prints, as the build's vector file: the inspection checks
@@ -549,12 +565,19 @@ fn demo_config(layers: u32, out: &Path) -> Result<Config> {
             demo::demo_points(mock.width, mock.height).as_bytes(),
             true,
         )?;
-        // A CT of the box with two pores, for `register ct`, `flaws` and `locate --ct`.
-        if demo::write_demo_ct(out, layers)?.is_none() {
-            tracing::info!(
+        // A CT of the box with two pores (or --pores), for `register ct`, `flaws` and
+        // `locate --ct`; the camera sees the --pores ones.
+        match demo::write_demo_ct(out, layers, pores)? {
+            Some(ct) if pores.is_some() => mock.unfused = ct.unfused_spots(),
+            Some(_) => {}
+            None if pores.is_some() => anyhow::bail!(
+                "--pores {}: that many pores do not fit apart in the box of {layers} layers; give more layers or fewer pores",
+                pores.map_or(0, |p| p.0)
+            ),
+            None => tracing::info!(
                 "no demo CT: it needs at least {} layers (the box must be tall enough for pores)",
                 demo::DEMO_CT_MIN_LAYERS
-            );
+            ),
         }
         let truth = mock_camera::Homography::oblique_view(mock.width, mock.height);
         let mut fit = toml::Table::new();

@@ -44,6 +44,11 @@ pub struct FlawsArgs {
     /// Patch side in pixels of the build's rectified grid (odd: the flaw is the centre pixel).
     #[arg(long, default_value_t = 65, value_parser = super::values::patch_px)]
     patch_px: usize,
+    /// Patches of the views of this phase only (pre or post; default: every view). A flaw in a
+    /// layer shows in its post-scan views, while the pre-scan views show the fresh powder over
+    /// it: `--phase post` is the training set of a model that looks at post-scan views.
+    #[arg(long)]
+    phase: Option<layerwise::shot::Phase>,
     #[command(flatten)]
     layout: super::register::RawLayoutArgs,
 }
@@ -74,6 +79,7 @@ impl FlawsArgs {
             params,
             patches: PatchOptions {
                 patch_px: self.patch_px,
+                phase: self.phase,
                 ..PatchOptions::default()
             },
         };

@@ -59,6 +59,21 @@ pub struct MockCameraConfig {
     /// Anomalies to render, e.g. `["streak@40", "no-fusion@120/part=1"]` (inspection tests).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub inject: Vec<MockInjection>,
+    /// Lack-of-fusion spots to render in the post-scan frames: `layerwise demo --pores` sets them
+    /// from its CT's pores (each pore cut by each layer it spans); never read from a file.
+    #[serde(skip)]
+    pub unfused: Vec<UnfusedSpot>,
+}
+
+/// A pore cut by one printer layer as the camera sees it after the scan: unfused powder where
+/// the layer should have fused, `radius_mm` across around `center_mm` (build x, y), its outline
+/// made irregular by `shape_seed`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct UnfusedSpot {
+    pub layer: u32,
+    pub center_mm: [f64; 2],
+    pub radius_mm: f64,
+    pub shape_seed: u64,
 }
 
 fn default_mock_width() -> u32 {

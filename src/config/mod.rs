@@ -28,7 +28,8 @@ pub mod web;
 pub use build::BuildConfig;
 pub use calibration::CalibrationConfig;
 pub use camera::{
-    CameraConfig, Gphoto2Config, MockCameraConfig, MockFaultConfig, MockFrameFormat, MAX_MOCK_SIDE,
+    CameraConfig, Gphoto2Config, MockCameraConfig, MockFaultConfig, MockFrameFormat, UnfusedSpot,
+    MAX_MOCK_SIDE,
 };
 pub use capture::CaptureConfig;
 pub use error::{Cause, ConfigError, Invalid};

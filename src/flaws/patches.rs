@@ -1,6 +1,7 @@
 //! Patches of the build's views at the flaws: for every flaw and every layer it spans, a square
 //! of the rectified view of every view (16-bit PNG) centred on the flaw's section, on the
-//! build's rectified grid lattice (docs/frames.md: the patch's pixels are pixels of the series);
+//! build's rectified grid lattice (docs/frames.md: the patch's pixels are pixels of the series),
+//! or of the views of one phase only (`PatchOptions::phase`);
 //! flaw-free controls from the same part and layers; labels.json (COCO), labels.csv and a
 //! contact sheet (the CT section beside each view of the layer, the paper's Fig. 9).
 
@@ -17,7 +18,7 @@ use crate::geometry::Grid;
 use crate::raster::sheet;
 use crate::rectify::{FrameLuma, Gray16Image, Rectifier};
 use crate::series::BuildRecord;
-use crate::shot::{Shot, View};
+use crate::shot::{Phase, Shot, View};
 
 pub const LABELS_JSON: &str = "labels.json";
 pub const LABELS_CSV: &str = "labels.csv";
@@ -34,6 +35,9 @@ pub struct PatchOptions {
     pub controls: bool,
     /// Rows (flaw x layer) on the contact sheet at most.
     pub sheet_rows: usize,
+    /// Only the views of this phase (`None`: every view of the build). A flaw of a layer shows
+    /// in its post-scan views; the pre-scan views show the fresh powder that covers it.
+    pub phase: Option<Phase>,
 }
 
 impl Default for PatchOptions {
@@ -42,6 +46,7 @@ impl Default for PatchOptions {
             patch_px: 65,
             controls: true,
             sheet_rows: 48,
+            phase: None,
         }
     }
 }
@@ -179,7 +184,14 @@ fn control_offsets() -> impl Iterator<Item = (i64, i64)> {
 /// A rectified patch and its [`CocoImage::value_scale`].
 type Patch = (Gray16Image, u16);
 
-fn cut(record: &BuildRecord, jobs: &[Job]) -> Result<Vec<Vec<Option<Patch>>>> {
+/// The build's views the patches are cut from.
+fn views_of(record: &BuildRecord, phase: Option<Phase>) -> Vec<View> {
+    let mut views = record.config.views.all();
+    views.retain(|v| phase.is_none_or(|p| v.phase == p));
+    views
+}
+
+fn cut(record: &BuildRecord, jobs: &[Job], views: &[View]) -> Result<Vec<Vec<Option<Patch>>>> {
     let calibration = record.calibration.as_ref().ok_or_else(|| {
         FlawsError::Invalid(format!(
             "{}: the build has no calibration.toml, so its frames cannot be rectified",
@@ -187,7 +199,6 @@ fn cut(record: &BuildRecord, jobs: &[Job]) -> Result<Vec<Vec<Option<Patch>>>> {
         ))
     })?;
     let camera = calibration.camera();
-    let views = record.config.views.all();
     let mut by_layer: BTreeMap<u32, Vec<usize>> = BTreeMap::new();
     for (i, j) in jobs.iter().enumerate() {
         by_layer.entry(j.layer).or_default().push(i);
@@ -339,8 +350,15 @@ pub fn cut_patches(
         )));
     }
     let (jobs, not_found) = plan(record, &table.flaws, &table.flaws, options, ct);
-    let patches = cut(record, &jobs)?;
-    let views = record.config.views.all();
+    let views = views_of(record, options.phase);
+    if views.is_empty() {
+        return Err(FlawsError::Invalid(format!(
+            "{}: the build captures no {} views (its [views] phases)",
+            record.dir.display(),
+            options.phase.map_or(String::new(), |p| p.to_string())
+        )));
+    }
+    let patches = cut(record, &jobs, &views)?;
     let mut summary = PatchSummary {
         controls_not_found: not_found,
         ..PatchSummary::default()
@@ -448,7 +466,7 @@ pub fn cut_patches(
         .take(options.sheet_rows)
         .collect();
     if !flaw_jobs.is_empty() {
-        let sheet = draw_sheet(record, &flaw_jobs, &patches, &table.flaws, ct);
+        let sheet = draw_sheet(record, &views, &flaw_jobs, &patches, &table.flaws, ct);
         let path = out.join(CONTACT_SHEET);
         save_png(&path, image::DynamicImage::ImageRgb8(sheet))?;
         summary.sheet = Some(path);
@@ -463,6 +481,7 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
         patch_px,
         controls: false,
         sheet_rows: usize::MAX,
+        phase: None,
     };
     let (jobs, _) = plan(
         record,
@@ -477,9 +496,17 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
             flaw.id
         )));
     }
-    let patches = cut(record, &jobs)?;
+    let views = views_of(record, None);
+    let patches = cut(record, &jobs, &views)?;
     let rows: Vec<(usize, &Job)> = jobs.iter().enumerate().collect();
-    let sheet = draw_sheet(record, &rows, &patches, std::slice::from_ref(flaw), None);
+    let sheet = draw_sheet(
+        record,
+        &views,
+        &rows,
+        &patches,
+        std::slice::from_ref(flaw),
+        None,
+    );
     save_png(out, image::DynamicImage::ImageRgb8(sheet))
 }
 
@@ -488,6 +515,7 @@ pub fn flaw_sheet(record: &BuildRecord, flaw: &Flaw, patch_px: usize, out: &Path
 /// frame are grey.
 fn draw_sheet(
     record: &BuildRecord,
+    views: &[View],
     rows: &[(usize, &Job)],
     patches: &[Vec<Option<Patch>>],
     flaws: &[Flaw],
@@ -496,7 +524,6 @@ fn draw_sheet(
     let px = rows[0].1.grid.columns() as u32;
     let scale = (128 / px).max(1);
     let tile = px * scale;
-    let views = record.config.views.all();
     // Flaw and layer lead each row, on a line of their own when the tiles are too narrow.
     let widest_view = views.iter().map(|v| v.to_string().len()).max().unwrap_or(2);
     let longest = rows
@@ -519,7 +546,7 @@ fn draw_sheet(
             tiles.extend(
                 patches[*j]
                     .iter()
-                    .zip(&views)
+                    .zip(views)
                     .map(|(p, view)| (p.as_ref().map(|p| display8(&p.0)), view.to_string())),
             );
             let boxes = annotations_in(&job.grid, job.layer, flaws);

@@ -101,7 +101,8 @@ impl Camera for MockCameraBody {
             ),
             _ => (Illumination::Top, "several".to_string()),
         };
-        let (fused, defects) = super::inject::scene(&self.config.inject, layer, phase);
+        let (fused, mut defects) = super::inject::scene(&self.config.inject, layer, phase);
+        defects.extend(super::inject::unfused(&self.config.unfused, layer, phase));
         self.body.set_defects(defects);
         let scene = Scene {
             layer,

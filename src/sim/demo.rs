@@ -1,13 +1,15 @@
 //! The files a demo build ships so that a new user can try every offline step on it: the vector
 //! file of the parts the mock camera photographs (`sim::inject::demo_vectors`), a points file
 //! of four clicks (part corners in the frame, as a user would click them: a few pixels off), and
-//! a synthetic CT of the box (part 3) with two pores, in the CT's own frame.
+//! a synthetic CT of the box (part 3) with two pores (or the lack-of-fusion pores of `--pores`,
+//! which the camera then sees in the post-scan frames), in the CT's own frame.
 
 use std::path::Path;
 
 use mock_camera::{demo_parts, Homography, DEMO_LAYER_THICKNESS_MM};
 use nalgebra::{Matrix3, Rotation3, Unit, Vector3};
 
+use crate::config::UnfusedSpot;
 use crate::ct::phantom::{self, ScanSpec};
 use crate::ct::{CtError, Volume};
 use crate::geometry::Rigid3;
@@ -56,14 +58,63 @@ pub const DEMO_CT_PART: i64 = 3;
 /// The CT needs this many layers (0.6 mm of part) to hold pores with material all around.
 pub const DEMO_CT_MIN_LAYERS: u32 = 20;
 
-/// A pore of the demo CT: a sphere of missing material.
+/// A pore of the demo CT: a sphere (or, from `--pores`, a lens flat in the layer plane) of
+/// missing material.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DemoPore {
     /// Centre in build mm.
     pub center_mm: [f64; 3],
+    /// Radius in the layer plane.
     pub radius_mm: f64,
+    /// Half its height (along build z): `radius_mm` for a sphere.
+    pub half_height_mm: f64,
     /// The printer layer holding the centre.
     pub layer: u32,
+}
+
+impl DemoPore {
+    fn new(center_mm: [f64; 3], radius_mm: f64, half_height_mm: f64) -> DemoPore {
+        DemoPore {
+            center_mm,
+            radius_mm,
+            half_height_mm,
+            layer: (center_mm[2] / DEMO_LAYER_THICKNESS_MM).ceil() as u32,
+        }
+    }
+
+    /// Signed distance to the pore's surface (negative inside; the ellipsoid bound
+    /// k0 (k0 − 1) / k1, exact for a sphere and close to the surface of a lens).
+    fn distance(&self, p: [f64; 3]) -> f64 {
+        let c = self.center_mm;
+        let r = [self.radius_mm, self.radius_mm, self.half_height_mm];
+        let (mut k0, mut k1) = (0.0f64, 0.0f64);
+        for a in 0..3 {
+            let d = p[a] - c[a];
+            k0 += (d / r[a]).powi(2);
+            k1 += (d / (r[a] * r[a])).powi(2);
+        }
+        let (k0, k1) = (k0.sqrt(), k1.sqrt());
+        if k1 == 0.0 {
+            return -self.half_height_mm.min(self.radius_mm);
+        }
+        k0 * (k0 - 1.0) / k1
+    }
+
+    /// The pore's radius in layer `layer`'s slab (its widest cut there), if the slab meets it.
+    pub fn radius_in_layer(&self, layer: u32) -> Option<f64> {
+        let top = f64::from(layer) * DEMO_LAYER_THICKNESS_MM;
+        let bottom = top - DEMO_LAYER_THICKNESS_MM;
+        let z = self.center_mm[2];
+        let dz = if z < bottom {
+            bottom - z
+        } else if z > top {
+            z - top
+        } else {
+            0.0
+        };
+        let f = 1.0 - (dz / self.half_height_mm).powi(2);
+        (f > 0.0).then(|| self.radius_mm * f.sqrt())
+    }
 }
 
 /// The demo's CT of the box and its ground truth.
@@ -87,20 +138,84 @@ pub fn demo_ct(layers: u32) -> Option<DemoCt> {
         return None;
     }
     let height = f64::from(layers) * DEMO_LAYER_THICKNESS_MM;
-    let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
     let voxel_mm = (height / 12.0).max(0.05);
     let radius_mm = 2.0 * voxel_mm;
     let pores: Vec<DemoPore> = [(45.3, 48.1, 0.475), (54.6, 52.4, 0.525)]
         .into_iter()
-        .map(|(x, y, f)| {
-            let z = f * height;
-            DemoPore {
-                center_mm: [x, y, z],
-                radius_mm,
-                layer: (z / DEMO_LAYER_THICKNESS_MM).ceil() as u32,
-            }
-        })
+        .map(|(x, y, f)| DemoPore::new([x, y, f * height], radius_mm, radius_mm))
         .collect();
+    Some(scan_box(height, voxel_mm, pores))
+}
+
+/// Radii (in the layer plane) of the `--pores` pores, mm: wide enough for the camera's 0.25 mm
+/// pixels to see them (2 to 3 pixels across at the least).
+pub const LACK_OF_FUSION_RADIUS_MM: (f64, f64) = (0.55, 0.95);
+
+/// The CT of the demo's box with `count` lack-of-fusion pores (`layerwise demo --pores`): lenses
+/// flat in the layer plane, 1.1 to 1.9 mm across and 0.15 mm (3 voxels) high, so each spans a
+/// handful of layers; their centres spread over the box's layers (one in each of `count` equal
+/// slices of the height, drawn within it) and over the box (2 mm from its sides, never touching
+/// each other), all drawn from `seed`. 50 µm voxels (up to 1/60 of the height for tall builds).
+/// None below [`DEMO_CT_MIN_LAYERS`] layers, or when `count` lenses do not fit.
+pub fn demo_ct_with_pores(layers: u32, count: u32, seed: u64) -> Option<DemoCt> {
+    let pores = lack_of_fusion_pores(layers, count, seed)?;
+    let height = f64::from(layers) * DEMO_LAYER_THICKNESS_MM;
+    Some(scan_box(height, voxel_with_pores(height), pores))
+}
+
+fn voxel_with_pores(height: f64) -> f64 {
+    (height / 60.0).max(0.05)
+}
+
+/// Where [`demo_ct_with_pores`] puts its pores.
+pub fn lack_of_fusion_pores(layers: u32, count: u32, seed: u64) -> Option<Vec<DemoPore>> {
+    if layers < DEMO_CT_MIN_LAYERS {
+        return None;
+    }
+    let height = f64::from(layers) * DEMO_LAYER_THICKNESS_MM;
+    let voxel = voxel_with_pores(height);
+    let half_height = 1.5 * voxel;
+    // Material above and below: the flaw finder's clearance (3 voxels) and the scanner's blur.
+    let (z0, z1) = (
+        half_height + 5.0 * voxel,
+        height - half_height - 5.0 * voxel,
+    );
+    let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
+    let margin = 2.0;
+    let mut rng = crate::learn::rng::Rng::new(seed);
+    let mut pores: Vec<DemoPore> = Vec::new();
+    for i in 0..count {
+        let slice = (z1 - z0) / f64::from(count);
+        let placed = (0..200).find_map(|_| {
+            let z = z0 + slice * (f64::from(i) + rng.unit());
+            let (lo, hi) = LACK_OF_FUSION_RADIUS_MM;
+            let pore = DemoPore::new(
+                [
+                    rng.range(x0 + margin, x1 - margin),
+                    rng.range(y0 + margin, y1 - margin),
+                    z,
+                ],
+                rng.range(lo, hi),
+                half_height,
+            );
+            // Apart from every other pore by 0.3 mm of material at least, across or above.
+            let apart = pores.iter().all(|q| {
+                let across =
+                    (pore.center_mm[0] - q.center_mm[0]).hypot(pore.center_mm[1] - q.center_mm[1]);
+                let above = (pore.center_mm[2] - q.center_mm[2]).abs();
+                across > pore.radius_mm + q.radius_mm + 0.3
+                    || above > pore.half_height_mm + q.half_height_mm + 0.3
+            });
+            apart.then_some(pore)
+        })?;
+        pores.push(placed);
+    }
+    Some(pores)
+}
+
+/// The box `height` mm tall with `pores`, scanned at `voxel_mm`.
+fn scan_box(height: f64, voxel_mm: f64, pores: Vec<DemoPore>) -> DemoCt {
+    let (x0, y0, x1, y1) = demo_parts(1)[DEMO_CT_PART as usize - 1].bbox();
     let sdf = |p: [f64; 3]| {
         let (lo, hi) = ([x0, y0, 0.0], [x1, y1, height]);
         let (mut outside, mut inside) = (0.0f64, f64::NEG_INFINITY);
@@ -112,8 +227,15 @@ pub fn demo_ct(layers: u32) -> Option<DemoCt> {
         let mut d = outside.sqrt() + inside.min(0.0);
         for pore in &pores {
             let c = pore.center_mm;
-            let r = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
-            d = d.max(pore.radius_mm - r);
+            // Far from a pore (beyond the partial-volume band) it changes nothing.
+            let reach = pore.radius_mm.max(pore.half_height_mm) + 4.0 * voxel_mm;
+            if (p[0] - c[0]).abs() > reach
+                || (p[1] - c[1]).abs() > reach
+                || (p[2] - c[2]).abs() > reach
+            {
+                continue;
+            }
+            d = d.max(-pore.distance(p));
         }
         d
     };
@@ -128,15 +250,36 @@ pub fn demo_ct(layers: u32) -> Option<DemoCt> {
         seed: 18,
     };
     let (volume, m) = phantom::render(&sdf, ([x0, y0, 0.0], [x1, y1, height]), &rotation, &spec);
-    Some(DemoCt {
+    DemoCt {
         volume,
         build_from_ct: Rigid3::from_matrix_unchecked(m),
         pores,
         height_mm: height,
-    })
+    }
 }
 
 impl DemoCt {
+    /// Every pore cut by every layer it spans, as the camera sees it after that layer's scan:
+    /// unfused powder as wide as the pore's widest cut in the layer's slab.
+    pub fn unfused_spots(&self) -> Vec<UnfusedSpot> {
+        let t = DEMO_LAYER_THICKNESS_MM;
+        let mut spots = Vec::new();
+        for (k, pore) in self.pores.iter().enumerate() {
+            let [x, y, z] = pore.center_mm;
+            let first = ((z - pore.half_height_mm) / t).ceil().max(1.0) as u32;
+            let last = ((z + pore.half_height_mm) / t).ceil() as u32;
+            spots.extend((first..=last).filter_map(|layer| {
+                pore.radius_in_layer(layer).map(|radius_mm| UnfusedSpot {
+                    layer,
+                    center_mm: [x, y],
+                    radius_mm,
+                    shape_seed: k as u64,
+                })
+            }));
+        }
+        spots
+    }
+
     /// The box's top corners in CT mm and build mm, each CT point moved up to 0.1 mm (a user's
     /// clicks), as `register ct --init` reads them.
     pub fn points(&self) -> String {
@@ -189,15 +332,27 @@ impl DemoCt {
                 "\n[[pores]]\ncenter_mm = [{x}, {y}, {z}]\nradius_mm = {}\nlayer = {}\n",
                 p.radius_mm, p.layer
             );
+            if p.half_height_mm != p.radius_mm {
+                text += &format!("half_height_mm = {}\n", p.half_height_mm);
+            }
         }
         text
     }
 }
 
 /// Writes the demo's CT into `build` (`ct/box.pcr`, `.vol`, the points and the truth) when the
-/// build has enough layers for it; returns it.
-pub fn write_demo_ct(build: &Path, layers: u32) -> Result<Option<DemoCt>, CtError> {
-    let Some(ct) = demo_ct(layers) else {
+/// build has enough layers for it; returns it. `pores`: `(count, seed)` of
+/// [`demo_ct_with_pores`] in place of the two pores of [`demo_ct`].
+pub fn write_demo_ct(
+    build: &Path,
+    layers: u32,
+    pores: Option<(u32, u64)>,
+) -> Result<Option<DemoCt>, CtError> {
+    let ct = match pores {
+        Some((count, seed)) => demo_ct_with_pores(layers, count, seed),
+        None => demo_ct(layers),
+    };
+    let Some(ct) = ct else {
         return Ok(None);
     };
     let dir = build.join(DEMO_CT_DIR);
@@ -272,6 +427,70 @@ mod tests {
             let c = pore.center_mm;
             assert!(value(c) < 12000.0, "pore at {c:?}: {}", value(c));
             assert!(value([c[0] + 1.0, c[1], c[2]]) > 28000.0);
+        }
+    }
+
+    #[test]
+    fn pores_spread_over_the_layers_and_the_box_are_void_in_the_ct_and_cut_into_spots() {
+        assert!(demo_ct_with_pores(DEMO_CT_MIN_LAYERS - 1, 3, 1).is_none());
+        assert!(
+            lack_of_fusion_pores(20, 400, 1).is_none(),
+            "400 pores do not fit apart"
+        );
+        let pores = lack_of_fusion_pores(40, 8, 5).unwrap();
+        assert_eq!(pores, lack_of_fusion_pores(40, 8, 5).unwrap());
+        assert_ne!(pores, lack_of_fusion_pores(40, 8, 6).unwrap());
+        let mut layers: Vec<u32> = pores.iter().map(|p| p.layer).collect();
+        layers.dedup();
+        assert!(
+            layers.len() >= 6 && layers.windows(2).all(|w| w[0] < w[1]),
+            "{layers:?}"
+        );
+        assert!(
+            layers[0] <= 14 && layers[layers.len() - 1] >= 27,
+            "{layers:?}"
+        );
+        let xs: Vec<f64> = pores.iter().map(|p| p.center_mm[0]).collect();
+        let spread = xs.iter().cloned().fold(f64::MIN, f64::max)
+            - xs.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(spread > 6.0, "{xs:?}");
+        for p in &pores {
+            let [x, y, _] = p.center_mm;
+            assert!(
+                (42.0..=58.0).contains(&x) && (46.0..=54.0).contains(&y),
+                "{p:?}"
+            );
+        }
+
+        let ct = demo_ct_with_pores(30, 4, 2).unwrap();
+        assert_eq!(ct.volume.voxel_mm, [0.05; 3]);
+        assert!(ct.truth_toml().contains("half_height_mm = 0.075"));
+        let index = crate::ct::resample::index_from_ct(&ct.volume).unwrap();
+        let inverse = ct.build_from_ct.inverse();
+        let value = |p: [f64; 3]| {
+            let [i, j, k] = index.apply(inverse.apply(p)).map(|v| v.round() as usize);
+            let [nx, ny, _] = ct.volume.dims;
+            ct.volume.value(i + nx * (j + ny * k))
+        };
+        let spots = ct.unfused_spots();
+        for pore in &ct.pores {
+            let c = pore.center_mm;
+            assert!(value(c) < 12000.0, "pore at {c:?}: {}", value(c));
+            // Flat: material 0.15 mm above and below the centre.
+            assert!(value([c[0], c[1], c[2] + 0.15]) > 28000.0, "{pore:?}");
+            assert!(value([c[0], c[1], c[2] - 0.15]) > 28000.0, "{pore:?}");
+            // Seen in the layers it spans (a handful), widest in its own.
+            let seen: Vec<&UnfusedSpot> = spots
+                .iter()
+                .filter(|s| s.center_mm == [c[0], c[1]])
+                .collect();
+            assert!((5..=7).contains(&seen.len()), "{seen:?}");
+            let widest = seen
+                .iter()
+                .max_by(|a, b| a.radius_mm.total_cmp(&b.radius_mm))
+                .unwrap();
+            assert_eq!(widest.layer, pore.layer);
+            assert_eq!(widest.radius_mm, pore.radius_mm);
         }
     }
 }

@@ -3,6 +3,7 @@
 //! (part `k` of the vectors is `mock_camera::demo_parts(layer)[k - 1]`).
 
 use crate::config::inspection::{InjectKind, MockInjection};
+use crate::config::UnfusedSpot;
 use crate::shot::Phase;
 use crate::vectors::{Direction, Format, Header, Layer, Polyline, VectorFile};
 use mock_camera::{demo_parts, Defect, Illumination, Shape, DEMO_LAYER_THICKNESS_MM};
@@ -31,6 +32,7 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                     },
                     clip: None,
                     metal: false,
+                    unfused: false,
                     delta: inj.get("c"),
                     light: None,
                 });
@@ -47,6 +49,7 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                     },
                     clip: None,
                     metal: false,
+                    unfused: false,
                     delta: -inj.get("c"),
                     light: None,
                 });
@@ -55,6 +58,7 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                     region: s.clone(),
                     clip: Some(band),
                     metal: true,
+                    unfused: false,
                     delta: 0.0,
                     light: None,
                 }));
@@ -66,6 +70,7 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                         region: s,
                         clip: Some((x0, y0, x0 + inj.get("w"), y1)),
                         metal: true,
+                        unfused: false,
                         delta: inj.get("c"),
                         light: Some(Illumination::Side),
                     });
@@ -103,6 +108,7 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
                         region: s,
                         clip: None,
                         metal: false,
+                        unfused: false,
                         delta: inj.get("c") * step / steps,
                         light: None,
                     });
@@ -112,6 +118,57 @@ pub fn scene(injections: &[MockInjection], layer: u32, phase: Phase) -> (Vec<Sha
         }
     }
     (fused, defects)
+}
+
+/// Grey levels a lack-of-fusion spot is darker than fresh powder: its hollow is shadowed.
+const UNFUSED_DARKER: f64 = 25.0;
+
+/// The lack-of-fusion spots of `layer` as the camera sees them after the scan: coarse, shadowed
+/// powder in an irregular outline where the layer should have fused. None before the scan: the
+/// fresh powder covers the layer.
+pub fn unfused(spots: &[UnfusedSpot], layer: u32, phase: Phase) -> Vec<Defect> {
+    if phase != Phase::Post {
+        return Vec::new();
+    }
+    spots
+        .iter()
+        .filter(|s| s.layer == layer)
+        .map(|s| Defect {
+            region: ragged(s),
+            clip: None,
+            metal: false,
+            unfused: true,
+            delta: -UNFUSED_DARKER,
+            light: None,
+        })
+        .collect()
+}
+
+/// A spot's outline: within the pore's cut (the CT's void), pulled in by up to 30 % by three low
+/// harmonics, their amplitudes and phases drawn from its seed (melt-pool gaps are never round).
+fn ragged(spot: &UnfusedSpot) -> Shape {
+    let mut rng = crate::learn::rng::Rng::new(spot.shape_seed);
+    let waves: Vec<(f64, f64, f64)> = (2..=4)
+        .map(|n| {
+            let amplitude = rng.range(0.0, 0.05);
+            (
+                f64::from(n),
+                amplitude,
+                rng.range(0.0, std::f64::consts::TAU),
+            )
+        })
+        .collect();
+    let most: f64 = waves.iter().map(|w| w.1).sum();
+    let [cx, cy] = spot.center_mm;
+    let ring = (0..48)
+        .map(|k| {
+            let a = std::f64::consts::TAU * f64::from(k) / 48.0;
+            let f: f64 = waves.iter().map(|(n, w, p)| w * (n * a + p).cos()).sum();
+            let r = spot.radius_mm * (1.0 - most + f);
+            (cx + r * a.cos(), cy + r * a.sin())
+        })
+        .collect();
+    Shape::Polygon { rings: vec![ring] }
 }
 
 /// `shape` grown by `d` mm on every side.
@@ -238,5 +295,41 @@ mod tests {
         assert!((file.layers[2].z_mm - 0.09).abs() < 1e-9);
         assert_eq!(file.layers[0].polylines.len(), 4);
         assert_eq!(file.layers[0].polylines[2].part, 3);
+    }
+
+    #[test]
+    fn an_unfused_spot_shows_after_its_layer_scan_only_ragged_around_its_centre() {
+        let spot = UnfusedSpot {
+            layer: 12,
+            center_mm: [50.0, 50.0],
+            radius_mm: 0.6,
+            shape_seed: 3,
+        };
+        let spots = [spot.clone()];
+        assert!(unfused(&spots, 12, Phase::Pre).is_empty());
+        assert!(unfused(&spots, 11, Phase::Post).is_empty());
+        let seen = unfused(&spots, 12, Phase::Post);
+        assert_eq!(seen.len(), 1);
+        let d = &seen[0];
+        assert!(d.unfused && !d.metal && d.delta < 0.0);
+        // Inside the pore's cut, never past it.
+        for k in 0..48 {
+            let a = std::f64::consts::TAU * f64::from(k) / 48.0;
+            let at = |r: f64| d.region.contains(50.0 + r * a.cos(), 50.0 + r * a.sin());
+            assert!(at(0.0) && at(0.6 * 0.69) && !at(0.6 * 1.01), "{a}");
+        }
+        // Not a circle: its radius varies around it.
+        let radii: Vec<f64> = (0..48)
+            .filter_map(|k| {
+                let a = std::f64::consts::TAU * f64::from(k) / 48.0;
+                (40..80)
+                    .map(|i| f64::from(i) * 0.01)
+                    .find(|r| !d.region.contains(50.0 + r * a.cos(), 50.0 + r * a.sin()))
+            })
+            .collect();
+        let (lo, hi) = radii
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), r| (a.min(*r), b.max(*r)));
+        assert!(hi - lo > 0.05, "{lo}..{hi}");
     }
 }
