@@ -9,6 +9,9 @@ mod bench_views;
 #[path = "support/manifest.rs"]
 mod manifest;
 
+#[path = "support/memory.rs"]
+mod memory;
+
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::acquisition::storage::Storage;
 use layerwise::build_dir::BuildManifest;
@@ -142,6 +145,7 @@ fn main() {
     let _ = rectifier.rectify_gray8(&gray);
     let rectify_ms = t.elapsed().as_secs_f64() * 1e3;
     println!("one frame: colour decode {decode_ms:.0} ms + luma {luma_ms:.0} ms, or luma-only decode {luma_decode_ms:.0} ms (used); rectify {rectify_ms:.0} ms");
+    drop((decoded, gray, bytes));
     for compression in compressions {
         let settings = SeriesSettings {
             grid,
@@ -151,6 +155,10 @@ fn main() {
             fill: 0,
         };
         let live = LiveSeries::new(&manifest, &views, &calibration, settings).expect("series");
+        // The peak of this transfer syntax's processing alone, from the process's resident
+        // memory before it (the rendered frames, the renderer).
+        let before_kib = memory::current_rss_kib();
+        memory::reset_peak();
         let (per_frame, layer_totals) =
             time_frames(&live, dir.path(), &originals, if full { 3 } else { 1 });
         let size = std::fs::metadata(dir.path().join("dicom/post_top/L00001.dcm"))
@@ -162,6 +170,11 @@ fn main() {
             median(layer_totals),
             size as f64 / 1e6,
             6.0 * size as f64 / 1e6
+        );
+        println!(
+            "{compression:?}: peak resident memory while processing {:.0} MiB ({:.0} MiB before it)",
+            memory::peak_rss_kib() as f64 / 1024.0,
+            before_kib as f64 / 1024.0
         );
     }
     #[cfg(feature = "nef")]

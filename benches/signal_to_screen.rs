@@ -27,6 +27,8 @@
 mod bench_views;
 #[path = "support/builds.rs"]
 mod builds;
+#[path = "support/memory.rs"]
+mod memory;
 #[path = "support/prerecorded.rs"]
 mod prerecorded;
 
@@ -132,17 +134,6 @@ fn watch_page(
 fn inspection_bytes(event: &serde_json::Value) -> u64 {
     event["status"]["bytes_by_kind"]["inspection"]
         .as_u64()
-        .unwrap_or(0)
-}
-
-/// This process's peak resident memory (VmHWM), KiB.
-fn peak_rss_kib() -> u64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
         .unwrap_or(0)
 }
 
@@ -342,7 +333,7 @@ fn main() {
         .recv_timeout(Duration::from_secs(30))
         .expect("first event")];
     // The peak from here on: the daemon's run, not the frames' rendering.
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    memory::reset_peak();
     let started = std::time::Instant::now();
     // Every frame processed and every layer inspected before the run returns.
     let mut options = layerwise::acquisition::RunOptions::new();
@@ -359,7 +350,7 @@ fn main() {
             break;
         }
     }
-    let peak_kib = peak_rss_kib();
+    let peak_kib = memory::peak_rss_kib();
     done.store(true, Ordering::SeqCst);
     let _ = client.join();
     stop.request(layerwise::shutdown::StopReason::TriggerEnded);

@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
 """Side-by-side: layerwise's JPEG decode to luma vs libjpeg-turbo through OpenCV and PIL.
 
-Runs inside benches/peers/.venv (opencv-python-headless, numpy; shared with rectify_vs_opencv.py;
-PIL is used when that venv has it). examples/peer_steps.rs renders a D810-size mock frame
+Runs inside benches/peers/.venv (opencv-python-headless, numpy, pillow; shared with
+rectify_vs_opencv.py). examples/peer_steps.rs renders a D810-size mock frame
 (7360 x 4912, quality 95, as the camera serves); each side decodes the same file to 8-bit luma:
 
 - ours: `decode_jpeg_luma` (what the views use), on all cores;
 - OpenCV: `cv2.imdecode(buf, IMREAD_GRAYSCALE)` (libjpeg-turbo, decoding the Y channel only);
 - OpenCV colour: `cv2.imdecode(buf, IMREAD_COLOR)` for reference;
-- PIL: `Image.open(...).convert("L")` when available.
+- PIL: `Image.open(...).convert("L")`.
 
 Each timing is the median of 5 runs; the comparison is repeated (--rounds, default 3). The two
 lumas are compared pixel by pixel.
@@ -26,7 +26,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 CRATE = os.path.dirname(os.path.dirname(HERE))
 VENV = os.path.join(HERE, ".venv")
 
-ensure_venv(VENV, ["opencv-python-headless", "numpy"])
+ensure_venv(VENV, ["opencv-python-headless", "numpy", "pillow"])
 
 import io  # noqa: E402
 import statistics  # noqa: E402
