@@ -57,12 +57,20 @@ pub struct TrainingInfo {
     pub epochs: usize,
     pub epochs_run: usize,
     pub best_epoch: usize,
+    /// What chose the best epoch and the plateau ([`super::select`]); files written before it
+    /// was recorded were chosen on the plain mean validation loss.
+    #[serde(default = "old_selection")]
+    pub selection: String,
     /// `plateau`, `epochs` or `time budget`.
     pub stopped: String,
     pub seconds: f64,
     pub augmentation: String,
     pub layerwise: String,
     pub candle: String,
+}
+
+fn old_selection() -> String {
+    super::select::OLD_CRITERION.into()
 }
 
 /// The JSON header of a model file.
