@@ -262,7 +262,10 @@ fn a_model_file_says_how_its_epoch_was_chosen_and_files_from_before_still_load()
     let h = header_of(&bytes);
     assert_eq!(h["arch"]["kind"], "cnn-cam-lme");
     let said = h["training"]["selection"].as_str().unwrap();
-    assert!(said.starts_with("balanced validation accuracy, then"), "{h}");
+    assert!(
+        said.starts_with("balanced validation accuracy, then"),
+        "{h}"
+    );
     let image = data.join("Spots/frame_0000.png");
 
     // Written before: no selection recorded, class maps pooled by their mean.
