@@ -118,9 +118,9 @@ impl TrainArgs {
             count(Part::Dropped)
         );
         let (net, mut header) = learn::train(&data, &opts, |e| {
-            let val = match (&e.val_loss, &e.val) {
-                (Some(l), Some(m)) => format!(
-                    "  val loss {l:.3}  val acc {:.3}  macro recall {:.3}",
+            let val = match (&e.val_loss, &e.val_balanced_loss, &e.val) {
+                (Some(l), Some(b), Some(m)) => format!(
+                    "  val loss {l:.3}  balanced {b:.3}  val acc {:.3}  macro recall {:.3}",
                     m.accuracy, m.macro_recall
                 ),
                 _ => String::new(),
@@ -133,8 +133,8 @@ impl TrainArgs {
         Model::save(&self.out, &net, &mut header)?;
         let t = &header.training;
         eprintln!(
-            "stopped: {} after {} epochs (best {}), {:.0} s",
-            t.stopped, t.epochs_run, t.best_epoch, t.seconds
+            "stopped: {} after {} epochs (best {} by the {}), {:.0} s",
+            t.stopped, t.epochs_run, t.best_epoch, t.selection, t.seconds
         );
         println!("validation ({}):", t.split.rule);
         print!("{}", header.validation);
@@ -307,8 +307,8 @@ impl InfoArgs {
             h.input.normalisation
         );
         println!(
-            "trained on {} ({}, data sha256 {}), split {} (validation {:?}), seed {}, {} epochs (best {}, stopped: {}), {:.0} s",
-            t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.stopped, t.seconds
+            "trained on {} ({}, data sha256 {}), split {} (validation {:?}), seed {}, {} epochs (best {} by the {}, stopped: {}), {:.0} s",
+            t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.selection, t.stopped, t.seconds
         );
         print!("{}", h.validation);
         Ok(())

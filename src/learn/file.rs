@@ -11,7 +11,7 @@
 use super::error::ModelError;
 use super::input::InputSpec;
 use super::metrics::Metrics;
-use super::net::{Arch, Net, ARCH_KIND};
+use super::net::{Arch, Net, ARCH_KINDS};
 use candle_core::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -57,12 +57,20 @@ pub struct TrainingInfo {
     pub epochs: usize,
     pub epochs_run: usize,
     pub best_epoch: usize,
+    /// What chose the best epoch and the plateau ([`super::select`]); files written before it
+    /// was recorded were chosen on the plain mean validation loss.
+    #[serde(default = "old_selection")]
+    pub selection: String,
     /// `plateau`, `epochs` or `time budget`.
     pub stopped: String,
     pub seconds: f64,
     pub augmentation: String,
     pub layerwise: String,
     pub candle: String,
+}
+
+fn old_selection() -> String {
+    super::select::OLD_CRITERION.into()
 }
 
 /// The JSON header of a model file.
@@ -209,7 +217,7 @@ impl Model {
             return Err(ModelError::Checksum { path: p() });
         }
         let arch_error = |detail: String| ModelError::Architecture { path: p(), detail };
-        if header.arch.kind != ARCH_KIND
+        if !ARCH_KINDS.contains(&header.arch.kind.as_str())
             || header.arch.channels.is_empty()
             || header.arch.channels.len() != header.arch.pool_after.len()
             || header.arch.in_channels != header.input.channels.len()

@@ -14,6 +14,7 @@ pub mod metrics;
 pub mod net;
 pub mod predict;
 pub mod rng;
+pub mod select;
 pub mod source;
 pub mod train;
 pub mod verdicts;

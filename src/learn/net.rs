@@ -1,8 +1,16 @@
 //! The network: a small fully convolutional classifier with a class map (CAM). Blocks of
 //! conv 3x3 (padding 1) + bias + ReLU, a 2x2 max-pool after the blocks `pool_after` says, then a
-//! 1x1 convolution to one map per class. A frame's logits are the mean of the class maps, so the
-//! same forward pass gives the frame's class and every tile's class (the heat map), and a view
-//! of any size is scanned in one pass.
+//! 1x1 convolution to one map per class. A frame's logits pool the class maps, so the same
+//! forward pass gives the frame's class and every tile's class (the heat map), and a view of any
+//! size is scanned in one pass.
+//!
+//! The pooling is the log of the mean of the tiles' exponentiated scores (`cnn-cam-lme`): a
+//! frame's odds for a class are the mean of its tiles' odds, so a few tiles that show a defect
+//! clearly decide the frame, while the clean powder around them, which every class's frames
+//! show, need not be called that defect. With the plain mean of the scores (`cnn-cam`, the
+//! models written before) every clean tile of a defect frame had to lean to the defect, and a
+//! good layer, nothing but clean tiles, had no evidence of its own: the defect-free class was
+//! the one learnt last and worst. Models of either kind load and run.
 //!
 //! Weights start from the trainer's seeded generator (He normal), never candle's.
 
@@ -23,7 +31,12 @@ pub struct Arch {
     pub pool_after: Vec<bool>,
 }
 
-pub const ARCH_KIND: &str = "cnn-cam";
+/// Class maps pooled by their mean (models written before the log-mean-exp pooling).
+pub const ARCH_KIND_MEAN: &str = "cnn-cam";
+/// Class maps pooled by the log of the mean of their exponentials: what training builds.
+pub const ARCH_KIND: &str = "cnn-cam-lme";
+/// The kinds this layerwise runs.
+pub const ARCH_KINDS: [&str; 2] = [ARCH_KIND, ARCH_KIND_MEAN];
 
 impl Arch {
     pub fn cnn(in_channels: usize, channels: &[usize], pools: usize) -> Arch {
@@ -117,9 +130,19 @@ impl Net {
             .broadcast_add(&b.reshape((1, (), 1, 1))?)
     }
 
-    /// Frame logits `[n, classes]`: the mean of the class maps.
+    /// Frame logits `[n, classes]` of inputs `[n, channels, h, w]`.
     pub fn logits(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        self.cam(x)?.mean((2, 3))
+        self.pool(&self.cam(x)?)
+    }
+
+    /// Frame logits `[n, classes]` of class maps `[n, classes, h, w]`: `ln(mean(exp(map)))`
+    /// (`cnn-cam-lme`) or `mean(map)` (`cnn-cam`).
+    pub fn pool(&self, cam: &Tensor) -> candle_core::Result<Tensor> {
+        if self.arch.kind == ARCH_KIND_MEAN {
+            return cam.mean((2, 3));
+        }
+        let (_, _, h, w) = cam.dims4()?;
+        cam.log_sum_exp((2, 3))? - ((h * w) as f64).ln()
     }
 }
 
@@ -156,6 +179,24 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_few_clear_tiles_decide_the_frame_under_the_log_mean_exp_pooling() {
+        let arch = Arch::cnn(2, &[4], 0);
+        let (net, _) = Net::init(&arch, 2, &mut Rng::new(1)).unwrap();
+        // 16 tiles: class 0 scores 1 everywhere; class 1 scores 0 but 6 on one tile.
+        let mut maps = vec![1f32; 16];
+        maps.extend((0..16).map(|i| if i == 5 { 6.0 } else { 0.0 }));
+        let cam = Tensor::from_vec(maps, (1, 2, 4, 4), &Device::Cpu).unwrap();
+        let lme: Vec<Vec<f32>> = net.pool(&cam).unwrap().to_vec2().unwrap();
+        let expected = ((15.0 + 6f64.exp()) / 16.0).ln() as f32;
+        assert!((lme[0][1] - expected).abs() < 1e-5, "{lme:?}");
+        assert!(lme[0][1] > lme[0][0], "the one clear tile decides: {lme:?}");
+        let mut mean = net.clone();
+        mean.arch.kind = ARCH_KIND_MEAN.into();
+        let m: Vec<Vec<f32>> = mean.pool(&cam).unwrap().to_vec2().unwrap();
+        assert!(m[0][1] < m[0][0], "the mean drowns it: {m:?}");
+    }
+
+    #[test]
     fn the_class_map_has_the_stride_and_the_logits_are_its_mean() {
         let arch = Arch::cnn(2, &[4, 8], 2);
         assert_eq!(arch.stride(), 4);
@@ -166,6 +207,15 @@ mod tests {
         assert_eq!(cam.dims(), &[2, 3, 4, 3]);
         let l = net.logits(&x).unwrap();
         assert_eq!(l.dims(), &[2, 3]);
+        // A constant map pools to its value, under either pooling.
+        assert_eq!(arch.kind, ARCH_KIND);
+        let flat = cam.ones_like().unwrap().affine(0.0, 2.5).unwrap();
+        let mut mean = net.clone();
+        mean.arch.kind = ARCH_KIND_MEAN.into();
+        for n in [&net, &mean] {
+            let v: Vec<Vec<f32>> = n.pool(&flat).unwrap().to_vec2().unwrap();
+            assert!(v.iter().flatten().all(|x| (x - 2.5).abs() < 1e-5), "{v:?}");
+        }
         let (again, _) = Net::init(&arch, 3, &mut Rng::new(1)).unwrap();
         let a: Vec<f32> = net.params[0].flatten_all().unwrap().to_vec1().unwrap();
         let b: Vec<f32> = again.params[0].flatten_all().unwrap().to_vec1().unwrap();

@@ -35,7 +35,7 @@ impl Model {
     pub fn classify(&self, input: &Input) -> Result<Prediction, LearnError> {
         let x = net::tensor(input, CHANNELS.len())?;
         let cam = self.net.cam(&x)?;
-        let p = net::softmax(&cam.mean((2, 3))?)?.remove(0);
+        let p = net::softmax(&self.net.pool(&cam)?)?.remove(0);
         let tiles = net::tile_probabilities(&cam)?;
         let best = (0..p.len())
             .max_by(|&a, &b| p[a].total_cmp(&p[b]))

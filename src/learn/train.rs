@@ -1,8 +1,9 @@
-//! Training: class-balanced batches of augmented pictures, AdamW with a plain cross-entropy, the
-//! learning rate cut by 0.3 after 3 epochs without a better validation loss, an early stop after
-//! `patience` such epochs, and a time budget that ends training cleanly after the epoch that
-//! would overrun it. The weights of the best validation epoch are the ones kept. Deterministic
-//! for a seed: one generator drives the weights, the batches and every augmentation.
+//! Training: class-balanced batches of augmented pictures, AdamW with a plain cross-entropy, and
+//! the epoch chosen on the balanced validation accuracy, then the balanced validation loss
+//! ([`super::select`]): the learning rate cut by 0.3 after 3 epochs without a better one, an early
+//! stop after `patience` such epochs, and a time budget that ends training cleanly after the epoch
+//! that would overrun it. The weights of the best epoch are the ones kept. Deterministic for a
+//! seed: one generator drives the weights, the batches and every augmentation.
 
 use super::augment::Augment;
 use super::data::{read_item, DataKind, Dataset, Part};
@@ -12,6 +13,7 @@ use super::input::{self, Gray, Input, InputSpec, CHANNELS, NORMALISATION};
 use super::metrics::Metrics;
 use super::net::{self, Arch, Net};
 use super::rng::Rng;
+use super::select::{self, Score, Selection, Step};
 use candle_core::{Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use rayon::prelude::*;
@@ -64,6 +66,8 @@ pub struct Epoch {
     pub epochs: usize,
     pub loss: f64,
     pub val_loss: Option<f64>,
+    /// The mean over classes of each class's mean validation loss: the criterion.
+    pub val_balanced_loss: Option<f64>,
     pub val: Option<Metrics>,
     pub seconds: f64,
     /// Of which preparing the augmented inputs.
@@ -139,31 +143,25 @@ pub fn input_of(spec: &InputSpec, canonical: &Gray) -> Input {
     input::cells(canonical, spec.cell_px)
 }
 
-/// Mean loss and predictions over inputs, in batches.
+/// Each input's loss and predicted class, in batches.
 fn evaluate(
     net: &Net,
     inputs: &[(Input, usize)],
     batch: usize,
-) -> Result<(f64, Vec<usize>), LearnError> {
-    let mut loss = 0.0;
+) -> Result<(Vec<f64>, Vec<usize>), LearnError> {
+    let mut losses = Vec::with_capacity(inputs.len());
     let mut predicted = Vec::with_capacity(inputs.len());
     for chunk in inputs.chunks(batch.max(1)) {
         let refs: Vec<&Input> = chunk.iter().map(|(i, _)| i).collect();
         let x = net::batch(&refs, CHANNELS.len())?;
-        let targets: Vec<u32> = chunk.iter().map(|(_, c)| *c as u32).collect();
-        let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
-        let logits = net.logits(&x)?;
-        let l = candle_nn::loss::cross_entropy(&logits, &y)?.to_scalar::<f32>()?;
-        loss += f64::from(l) * chunk.len() as f64;
-        predicted.extend(
-            logits
-                .argmax(1)?
-                .to_vec1::<u32>()?
-                .into_iter()
-                .map(|p| p as usize),
-        );
+        let logits = net.logits(&x)?.to_vec2::<f32>()?;
+        for (row, (_, class)) in logits.iter().zip(chunk) {
+            losses.push(select::cross_entropy(row, *class));
+            let best = (0..row.len()).fold(0, |b, k| if row[k] > row[b] { k } else { b });
+            predicted.push(best);
+        }
     }
-    Ok((loss / inputs.len().max(1) as f64, predicted))
+    Ok((losses, predicted))
 }
 
 /// Trains a model on `data`; `progress` sees every epoch. Returns the network (the best
@@ -240,8 +238,8 @@ pub fn train(
         })
         .collect();
     let per_epoch = train_idx.len().max(opts.batch);
-    let mut best: Option<(f64, usize, Vec<Tensor>, Option<Metrics>)> = None;
-    let mut since_best = 0;
+    let mut best: Option<(Vec<Tensor>, Option<Metrics>)> = None;
+    let mut selection = Selection::new(opts.patience);
     let mut stopped = "epochs";
     let mut epochs_run = 0;
     for epoch in 1..=opts.epochs.max(1) {
@@ -278,13 +276,17 @@ pub fn train(
         }
         epochs_run = epoch;
         let loss = loss_sum / draws.len() as f64;
-        let (val_loss, val) = if val_inputs.is_empty() {
-            (None, None)
+        let (val_loss, val_balanced_loss, val) = if val_inputs.is_empty() {
+            (None, None, None)
         } else {
-            let (l, predicted) = evaluate(&net, &val_inputs, opts.batch)?;
-            let pairs: Vec<(usize, usize)> =
-                val_inputs.iter().map(|(_, c)| *c).zip(predicted).collect();
-            (Some(l), Some(Metrics::new(&data.classes, &pairs)))
+            let (losses, predicted) = evaluate(&net, &val_inputs, opts.batch)?;
+            let truth: Vec<usize> = val_inputs.iter().map(|(_, c)| *c).collect();
+            let pairs: Vec<(usize, usize)> = truth.iter().copied().zip(predicted).collect();
+            (
+                Some(losses.iter().sum::<f64>() / losses.len() as f64),
+                Some(select::balanced_loss(&losses, &truth, data.classes.len())),
+                Some(Metrics::new(&data.classes, &pairs)),
+            )
         };
         let seconds = t0.elapsed().as_secs_f64();
         progress(&Epoch {
@@ -292,27 +294,33 @@ pub fn train(
             epochs: opts.epochs,
             loss,
             val_loss,
+            val_balanced_loss,
             val: val.clone(),
             seconds,
             prepare_seconds,
         });
-        let score = val_loss.unwrap_or(loss);
-        if best.as_ref().is_none_or(|(b, ..)| score < b - 1e-3) {
-            let copy = net
-                .params
-                .iter()
-                .map(|t| t.copy())
-                .collect::<Result<_, _>>()?;
-            best = Some((score, epoch, copy, val));
-            since_best = 0;
-        } else {
-            since_best += 1;
-            if since_best % 3 == 0 {
-                opt.set_learning_rate(opt.learning_rate() * 0.3);
+        // Without a validation part, the training loss (its draws are class-balanced too).
+        let score = Score {
+            balanced_accuracy: val.as_ref().map_or(0.0, |m| m.macro_recall),
+            balanced_loss: val_balanced_loss.unwrap_or(loss),
+        };
+        match selection.offer(epoch, score) {
+            Step::Best => {
+                let copy = net
+                    .params
+                    .iter()
+                    .map(|t| t.copy())
+                    .collect::<Result<_, _>>()?;
+                best = Some((copy, val));
             }
-            if since_best >= opts.patience {
-                stopped = "plateau";
-                break;
+            Step::NotBetter { cut, stop } => {
+                if cut {
+                    opt.set_learning_rate(opt.learning_rate() * 0.3);
+                }
+                if stop {
+                    stopped = "plateau";
+                    break;
+                }
             }
         }
         let elapsed = started.elapsed().as_secs_f64();
@@ -321,8 +329,9 @@ pub fn train(
             break;
         }
     }
-    let (_, best_epoch, params, val) =
-        best.ok_or_else(|| LearnError::data(&data.root, "no epoch ran"))?;
+    let ((params, val), (best_epoch, _)) = best
+        .zip(selection.best())
+        .ok_or_else(|| LearnError::data(&data.root, "no epoch ran"))?;
     net.params = params;
     let split = SplitInfo {
         rule: data.rule().into(),
@@ -350,6 +359,7 @@ pub fn train(
             epochs: opts.epochs,
             epochs_run,
             best_epoch,
+            selection: select::CRITERION.into(),
             stopped: stopped.into(),
             seconds: started.elapsed().as_secs_f64(),
             augmentation: augment.describe(),

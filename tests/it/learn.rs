@@ -65,6 +65,16 @@ fn learn_on(args: &[&str], model: &Path, data: &Path) -> std::process::Command {
     c
 }
 
+/// A small model of `tmp/data` (5 frames a class) in `tmp/m.safetensors`, trained `epochs`
+/// epochs: the data, the model and `learn train`'s output.
+fn small_model(tmp: &Path, epochs: &str) -> (PathBuf, PathBuf, std::process::Output) {
+    let data = tmp.join("data");
+    class_folders(&data, 5);
+    let model = tmp.join("m.safetensors");
+    let out = train_small(&data, &model, &["--channels", "4,8", "--epochs", epochs]).succeeds();
+    (data, model, out)
+}
+
 fn predict_fails(model: &Path, image: &Path) -> String {
     layerwise()
         .args(["learn", "predict", "--model"])
@@ -157,10 +167,7 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
 #[test]
 fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    class_folders(&data, 5);
-    let model = tmp.path().join("m.safetensors");
-    train_small(&data, &model, &["--channels", "4,8", "--epochs", "1"]).succeeds();
+    let (data, model, _) = small_model(tmp.path(), "1");
     let bytes = std::fs::read(&model).unwrap();
     let image = data.join("Spots/frame_0000.png");
     let bad = |name: &str, content: &[u8]| -> PathBuf {
@@ -244,6 +251,57 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
     assert!(fine.contains("runs on every layer"), "{fine}");
     let stderr = run_command(&config_for(&cases[2].0, "cell_mm = 2.0")).fails();
     assert!(stderr.contains("checksum"), "{stderr}");
+}
+
+#[test]
+fn a_model_file_says_how_its_epoch_was_chosen_and_files_from_before_still_load() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, model, out) = small_model(tmp.path(), "2");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("  balanced "), "{stderr}");
+    let bytes = std::fs::read(&model).unwrap();
+    let h = header_of(&bytes);
+    assert_eq!(h["arch"]["kind"], "cnn-cam-lme");
+    let said = h["training"]["selection"].as_str().unwrap();
+    assert!(
+        said.starts_with("balanced validation accuracy, then"),
+        "{h}"
+    );
+    let image = data.join("Spots/frame_0000.png");
+
+    // Written before: no selection recorded, class maps pooled by their mean.
+    let old = tmp.path().join("old.safetensors");
+    let before = with_header(&bytes, |h| {
+        h["training"].as_object_mut().unwrap().remove("selection");
+        h["arch"]["kind"] = "cnn-cam".into();
+    });
+    std::fs::write(&old, before).unwrap();
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&old)
+        .stdout_ok();
+    assert!(info.contains("by the mean validation loss"), "{info}");
+    let predicted = layerwise()
+        .args(["learn", "predict", "--json", "--model"])
+        .arg(&old)
+        .arg(&image)
+        .stdout_ok();
+    let p: serde_json::Value = serde_json::from_str(predicted.trim()).unwrap();
+    let total: f64 = p["probabilities"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v[1].as_f64().unwrap())
+        .sum();
+    assert!((total - 1.0).abs() < 1e-3, "{p}");
+
+    let foreign = tmp.path().join("foreign.safetensors");
+    std::fs::write(
+        &foreign,
+        with_header(&bytes, |h| h["arch"]["kind"] = "cnn-other".into()),
+    )
+    .unwrap();
+    assert!(predict_fails(&foreign, &image).contains("is not a cnn-cam this layerwise builds"));
 }
 
 #[test]
