@@ -194,7 +194,11 @@ try:
             {"type": "pointerMove", "origin": "viewport", "x": int(rect[0] + cx * rect[2]), "y": int(rect[1] + cy * rect[3])},
             {"type": "pointerDown", "button": 0}, {"type": "pointerUp", "button": 0}]}]}
         call("POST", s + "/actions", actions)
-        crop = wait_for("the outline in the crop", lambda: js(boxes, "#zoom-crop-frame", "#zoom-crop-flags"))
+        # The crop halves or doubles itself as its picture loads until it fits the room; the
+        # scale label is written once it has settled, and only then are its outline and its
+        # picture's place final.
+        crop = wait_for("the crop settled, with its outline", lambda: js("return document.getElementById('zoom-scale').textContent")
+                        and js(boxes, "#zoom-crop-frame", "#zoom-crop-flags"))
         src = js("return document.getElementById('zoom-crop').getAttribute('src')")
         q = dict(kv.split("=") for kv in src.split("?")[1].split("&"))
         x, y, w, h = (float(q[k]) for k in "xywh")
