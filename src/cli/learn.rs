@@ -77,6 +77,11 @@ pub struct TrainArgs {
     /// Output channels of the convolution blocks, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,64")]
     channels: Vec<usize>,
+    /// Once the epoch is chosen on the held-out part, train afresh on every picture (both
+    /// parts and the frames between them) for that many epochs and write that model; the file
+    /// keeps the selection run's held-out metrics.
+    #[arg(long)]
+    refit: bool,
 }
 
 impl TrainArgs {
@@ -104,6 +109,7 @@ impl TrainArgs {
             learning_rate: 2e-3,
             patience: self.patience.max(1),
             max_seconds: self.max_seconds,
+            refit: self.refit,
         };
         let parts = data.split(opts.val_fraction);
         let count = |p: Part| parts.iter().filter(|x| **x == p).count();
@@ -125,8 +131,9 @@ impl TrainArgs {
                 ),
                 _ => String::new(),
             };
+            let what = if e.refit { "refit epoch" } else { "epoch" };
             eprintln!(
-                "epoch {}/{}  loss {:.3}{val}  {:.1} s ({:.1} s preparing pictures)",
+                "{what} {}/{}  loss {:.3}{val}  {:.1} s ({:.1} s preparing pictures)",
                 e.epoch, e.epochs, e.loss, e.seconds, e.prepare_seconds
             );
         })?;
@@ -138,6 +145,9 @@ impl TrainArgs {
         );
         println!("validation ({}):", t.split.rule);
         print!("{}", header.validation);
+        if let Some(r) = &t.refit {
+            println!("{}", refit_line(r));
+        }
         println!(
             "wrote {} (weights {})",
             self.out.display(),
@@ -311,6 +321,21 @@ impl InfoArgs {
             t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.selection, t.stopped, t.seconds
         );
         print!("{}", h.validation);
+        if let Some(r) = &t.refit {
+            println!("{}", refit_line(r));
+        }
         Ok(())
     }
+}
+
+/// What a refit model's file says of the refit.
+fn refit_line(r: &learn::RefitInfo) -> String {
+    format!(
+        "then refit on every picture ({} in all: {:?}) for {} epochs (learning rate cut after epochs {:?}), {:.0} s: the weights are the refit's, the figures above the selection run's",
+        r.counts.values().sum::<usize>(),
+        r.counts,
+        r.epochs,
+        r.lr_cuts,
+        r.seconds
+    )
 }

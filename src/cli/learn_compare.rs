@@ -68,6 +68,7 @@ impl CompareArgs {
             Which::Train => Some(Part::Train),
             Which::Val => Some(Part::Val),
         };
+        model.check_part(want)?;
         let spec = &model.header.input;
         let side = spec.frame_px.unwrap_or(512);
         let grid = Grid {

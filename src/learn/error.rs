@@ -88,6 +88,8 @@ pub enum LearnError {
     },
     #[error("{path}: {detail}")]
     Data { path: PathBuf, detail: String },
+    #[error("{path}: the model was refit on every picture after its epoch was chosen (`learn train --refit`), so its {part} part is not held out; the held-out figures are the selection run's (`layerwise learn info`); evaluate it on pictures it never saw (`--part all` on other data)")]
+    RefitPart { path: PathBuf, part: &'static str },
     #[error("{path}: cannot write")]
     Write {
         path: PathBuf,

@@ -67,6 +67,21 @@ pub struct TrainingInfo {
     pub augmentation: String,
     pub layerwise: String,
     pub candle: String,
+    /// The refit on every picture after the epoch was chosen (`learn train --refit`): the
+    /// weights are the refit's, the validation metrics the selection run's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refit: Option<RefitInfo>,
+}
+
+/// `learn train --refit`: trained afresh on every picture for the chosen number of epochs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefitInfo {
+    pub epochs: usize,
+    /// The epochs after which the learning rate was cut (the selection run's, before its best).
+    pub lr_cuts: Vec<usize>,
+    /// Pictures per class it was trained on.
+    pub counts: BTreeMap<String, usize>,
+    pub seconds: f64,
 }
 
 fn old_selection() -> String {

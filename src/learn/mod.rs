@@ -21,7 +21,7 @@ pub mod verdicts;
 
 pub use data::{Dataset, Part};
 pub use error::{LearnError, ModelError};
-pub use file::{Header, Model, Use};
+pub use file::{Header, Model, RefitInfo, Use};
 pub use metrics::Metrics;
 pub use predict::{heatmap, Prediction};
 pub use train::{train, Epoch, TrainOptions};

@@ -78,6 +78,21 @@ impl Model {
 
     /// Evaluates on a labelled folder (its classes must be the model's); `part` limits it to the
     /// training or the validation part of the split the model was trained with.
+    /// A part of the split is held out only if the model was not refit on every picture.
+    pub fn check_part(&self, part: Option<Part>) -> Result<(), LearnError> {
+        match part {
+            Some(p) if self.header.training.refit.is_some() => Err(LearnError::RefitPart {
+                path: self.path.clone(),
+                part: match p {
+                    Part::Train => "training",
+                    Part::Val => "validation",
+                    Part::Dropped => "left-out",
+                },
+            }),
+            _ => Ok(()),
+        }
+    }
+
     pub fn evaluate(&self, data: &Dataset, part: Option<Part>) -> Result<Metrics, LearnError> {
         let classes = &self.header.classes;
         if let Some(unknown) = data.classes.iter().find(|c| !classes.contains(c)) {
@@ -86,6 +101,7 @@ impl Model {
                 format!("class {unknown} is not one the model knows ({classes:?})"),
             ));
         }
+        self.check_part(part)?;
         let parts = data.split(self.header.training.split.val_fraction);
         let items: Vec<_> = data
             .items

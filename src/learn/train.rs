@@ -8,7 +8,7 @@
 use super::augment::Augment;
 use super::data::{read_item, DataKind, Dataset, Part};
 use super::error::LearnError;
-use super::file::{DataInfo, Header, SplitInfo, TrainingInfo, FORMAT, VERSION};
+use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT, VERSION};
 use super::input::{self, Gray, Input, InputSpec, CHANNELS, NORMALISATION};
 use super::metrics::Metrics;
 use super::net::{self, Arch, Net};
@@ -38,6 +38,9 @@ pub struct TrainOptions {
     pub learning_rate: f64,
     pub patience: usize,
     pub max_seconds: f64,
+    /// After the epoch is chosen, train afresh on every picture (the validation part and the
+    /// guard frames too) for that many epochs, with the same learning-rate cuts, and keep that.
+    pub refit: bool,
 }
 
 impl Default for TrainOptions {
@@ -55,6 +58,7 @@ impl Default for TrainOptions {
             learning_rate: 2e-3,
             patience: 6,
             max_seconds: 540.0,
+            refit: false,
         }
     }
 }
@@ -72,6 +76,102 @@ pub struct Epoch {
     pub seconds: f64,
     /// Of which preparing the augmented inputs.
     pub prepare_seconds: f64,
+    /// An epoch of the refit on every picture (no validation part).
+    pub refit: bool,
+}
+
+/// The refit's generator stream (`learn train --refit`).
+const REFIT_STREAM: u64 = 0x7265_6669_7400;
+
+/// AdamW at the options' learning rate.
+fn adam(vars: Vec<candle_core::Var>, opts: &TrainOptions) -> Result<AdamW, LearnError> {
+    Ok(AdamW::new(
+        vars,
+        ParamsAdamW {
+            lr: opts.learning_rate,
+            weight_decay: 1e-4,
+            ..ParamsAdamW::default()
+        },
+    )?)
+}
+
+/// What every epoch of a training uses: the decoded pictures and how they are fed.
+struct Pass<'a> {
+    data: &'a Dataset,
+    spec: &'a InputSpec,
+    augment: Augment,
+    /// Canonical pictures by item (those the training uses).
+    pictures: Vec<Option<Gray>>,
+    batch: usize,
+}
+
+impl Pass<'_> {
+    fn picture(&self, i: usize) -> &Gray {
+        // Every item a part uses was decoded; the first one stands in otherwise.
+        self.pictures[i]
+            .as_ref()
+            .or_else(|| self.pictures.iter().flatten().next())
+            .expect("the training decodes its pictures before any pass")
+    }
+
+    /// The items of `idx` by class.
+    fn by_class(&self, idx: &[usize]) -> Vec<Vec<usize>> {
+        (0..self.data.classes.len())
+            .map(|c| {
+                idx.iter()
+                    .copied()
+                    .filter(|&i| self.data.items[i].class == c)
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// One epoch of `per_epoch` class-balanced draws (equal shares per class, each a fresh
+    /// augmentation); the mean loss and the seconds spent preparing the inputs.
+    fn epoch(
+        &self,
+        net: &Net,
+        opt: &mut AdamW,
+        by_class: &[Vec<usize>],
+        per_epoch: usize,
+        rng: &mut Rng,
+        epoch: usize,
+    ) -> Result<(f64, f64), LearnError> {
+        let classes: Vec<&Vec<usize>> = by_class.iter().filter(|c| !c.is_empty()).collect();
+        let mut draws: Vec<usize> = (0..per_epoch)
+            .map(|k| {
+                let class = classes[k % classes.len()];
+                class[rng.below(class.len())]
+            })
+            .collect();
+        rng.shuffle(&mut draws);
+        let stream = rng.fork(epoch as u64);
+        let mut loss_sum = 0.0;
+        let mut prepare_seconds = 0.0;
+        for (b, chunk) in draws.chunks(self.batch).enumerate() {
+            let t1 = Instant::now();
+            let inputs: Vec<Input> = chunk
+                .par_iter()
+                .enumerate()
+                .map(|(k, &i)| {
+                    let mut r = stream.fork((b * self.batch + k) as u64);
+                    input_of(self.spec, &self.augment.apply(self.picture(i), &mut r))
+                })
+                .collect();
+            prepare_seconds += t1.elapsed().as_secs_f64();
+            let refs: Vec<&Input> = inputs.iter().collect();
+            let x = net::batch(&refs, CHANNELS.len())?;
+            let targets: Vec<u32> = chunk
+                .iter()
+                .map(|&i| self.data.items[i].class as u32)
+                .collect();
+            let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
+            let loss = candle_nn::loss::cross_entropy(&net.logits(&x)?, &y)?;
+            opt.backward_step(&loss)?;
+            loss_sum += f64::from(loss.to_scalar::<f32>()?) * chunk.len() as f64;
+        }
+        Ok((loss_sum / draws.len() as f64, prepare_seconds))
+    }
 }
 
 /// The input recipe and the network for a data set.
@@ -189,9 +289,14 @@ pub fn train(
     }
     let first = read_item(&data.items[train_idx[0]])?;
     let (spec, arch) = design(data, opts, &first)?;
-    // The canonical pictures, decoded once (frames: 512 px squares, 1 MB each as f32).
-    let wanted: Vec<usize> = train_idx.iter().chain(&val_idx).copied().collect();
-    let pictures: Vec<(usize, Gray)> = wanted
+    // The canonical pictures, decoded once (frames: 512 px squares, 1 MB each as f32): those of
+    // both parts, and for a refit the guard frames between them too.
+    let wanted: Vec<usize> = if opts.refit {
+        (0..data.items.len()).collect()
+    } else {
+        train_idx.iter().chain(&val_idx).copied().collect()
+    };
+    let decoded: Vec<(usize, Gray)> = wanted
         .par_iter()
         .map(|&i| {
             let item = &data.items[i];
@@ -210,72 +315,38 @@ pub fn train(
             Ok((i, canonical))
         })
         .collect::<Result<_, LearnError>>()?;
-    let picture = |i: usize| &pictures[wanted.iter().position(|&w| w == i).unwrap_or(0)].1;
+    let mut pictures: Vec<Option<Gray>> = vec![None; data.items.len()];
+    for (i, g) in decoded {
+        pictures[i] = Some(g);
+    }
+    let pass = Pass {
+        data,
+        spec: &spec,
+        augment: Augment {
+            isotropic: data.kind != DataKind::ClassFolders,
+        },
+        pictures,
+        batch: opts.batch.max(1),
+    };
     let val_inputs: Vec<(Input, usize)> = val_idx
         .par_iter()
-        .map(|&i| (input_of(&spec, picture(i)), data.items[i].class))
+        .map(|&i| (input_of(&spec, pass.picture(i)), data.items[i].class))
         .collect();
-    let augment = Augment {
-        isotropic: data.kind != DataKind::ClassFolders,
-    };
     let mut rng = Rng::new(opts.seed);
     let (mut net, vars) = Net::init(&arch, data.classes.len(), &mut rng)?;
-    let mut opt = AdamW::new(
-        vars,
-        ParamsAdamW {
-            lr: opts.learning_rate,
-            weight_decay: 1e-4,
-            ..ParamsAdamW::default()
-        },
-    )?;
-    let by_class: Vec<Vec<usize>> = (0..data.classes.len())
-        .map(|c| {
-            train_idx
-                .iter()
-                .copied()
-                .filter(|&i| data.items[i].class == c)
-                .collect()
-        })
-        .collect();
+    let mut opt = adam(vars, opts)?;
+    let by_class = pass.by_class(&train_idx);
     let per_epoch = train_idx.len().max(opts.batch);
     let mut best: Option<(Vec<Tensor>, Option<Metrics>)> = None;
     let mut selection = Selection::new(opts.patience);
     let mut stopped = "epochs";
     let mut epochs_run = 0;
+    let mut cuts = Vec::new();
     for epoch in 1..=opts.epochs.max(1) {
         let t0 = Instant::now();
-        // Class-balanced draws: equal shares per class, each a fresh augmentation.
-        let mut draws: Vec<usize> = (0..per_epoch)
-            .map(|k| {
-                let class = &by_class[k % by_class.len()];
-                class[rng.below(class.len())]
-            })
-            .collect();
-        rng.shuffle(&mut draws);
-        let stream = rng.fork(epoch as u64);
-        let mut loss_sum = 0.0;
-        let mut prepare_seconds = 0.0;
-        for (b, chunk) in draws.chunks(opts.batch.max(1)).enumerate() {
-            let t1 = Instant::now();
-            let inputs: Vec<Input> = chunk
-                .par_iter()
-                .enumerate()
-                .map(|(k, &i)| {
-                    let mut r = stream.fork((b * opts.batch + k) as u64);
-                    input_of(&spec, &augment.apply(picture(i), &mut r))
-                })
-                .collect();
-            prepare_seconds += t1.elapsed().as_secs_f64();
-            let refs: Vec<&Input> = inputs.iter().collect();
-            let x = net::batch(&refs, CHANNELS.len())?;
-            let targets: Vec<u32> = chunk.iter().map(|&i| data.items[i].class as u32).collect();
-            let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
-            let loss = candle_nn::loss::cross_entropy(&net.logits(&x)?, &y)?;
-            opt.backward_step(&loss)?;
-            loss_sum += f64::from(loss.to_scalar::<f32>()?) * chunk.len() as f64;
-        }
+        let (loss, prepare_seconds) =
+            pass.epoch(&net, &mut opt, &by_class, per_epoch, &mut rng, epoch)?;
         epochs_run = epoch;
-        let loss = loss_sum / draws.len() as f64;
         let (val_loss, val_balanced_loss, val) = if val_inputs.is_empty() {
             (None, None, None)
         } else {
@@ -298,6 +369,7 @@ pub fn train(
             val: val.clone(),
             seconds,
             prepare_seconds,
+            refit: false,
         });
         // Without a validation part, the training loss (its draws are class-balanced too).
         let score = Score {
@@ -316,6 +388,7 @@ pub fn train(
             Step::NotBetter { cut, stop } => {
                 if cut {
                     opt.set_learning_rate(opt.learning_rate() * 0.3);
+                    cuts.push(epoch);
                 }
                 if stop {
                     stopped = "plateau";
@@ -333,6 +406,45 @@ pub fn train(
         .zip(selection.best())
         .ok_or_else(|| LearnError::data(&data.root, "no epoch ran"))?;
     net.params = params;
+    let refit = if opts.refit {
+        cuts.retain(|&e| e < best_epoch);
+        let all: Vec<usize> = (0..data.items.len()).collect();
+        let t0 = Instant::now();
+        // The selection run's initial weights (the same seed), then draws of its own stream.
+        let mut rng = Rng::new(opts.seed);
+        let (fresh, vars) = Net::init(&arch, data.classes.len(), &mut rng)?;
+        let mut rng = rng.fork(REFIT_STREAM);
+        let mut opt = adam(vars, opts)?;
+        let by_class = pass.by_class(&all);
+        for epoch in 1..=best_epoch {
+            let t1 = Instant::now();
+            let (loss, prepare_seconds) =
+                pass.epoch(&fresh, &mut opt, &by_class, per_epoch, &mut rng, epoch)?;
+            progress(&Epoch {
+                epoch,
+                epochs: best_epoch,
+                loss,
+                val_loss: None,
+                val_balanced_loss: None,
+                val: None,
+                seconds: t1.elapsed().as_secs_f64(),
+                prepare_seconds,
+                refit: true,
+            });
+            if cuts.contains(&epoch) {
+                opt.set_learning_rate(opt.learning_rate() * 0.3);
+            }
+        }
+        net = fresh;
+        Some(RefitInfo {
+            epochs: best_epoch,
+            lr_cuts: cuts,
+            counts: data.counts(None),
+            seconds: t0.elapsed().as_secs_f64(),
+        })
+    } else {
+        None
+    };
     let split = SplitInfo {
         rule: data.rule().into(),
         val_fraction: opts.val_fraction,
@@ -340,6 +452,8 @@ pub fn train(
         val: data.counts(Some((&parts, Part::Val))),
         dropped: parts.iter().filter(|p| **p == Part::Dropped).count(),
     };
+    let augmentation = pass.augment.describe();
+    drop(pass);
     let header = Header {
         format: FORMAT.into(),
         version: VERSION,
@@ -362,9 +476,10 @@ pub fn train(
             selection: select::CRITERION.into(),
             stopped: stopped.into(),
             seconds: started.elapsed().as_secs_f64(),
-            augmentation: augment.describe(),
+            augmentation,
             layerwise: env!("CARGO_PKG_VERSION").into(),
             candle: "0.11.1".into(),
+            refit,
         },
         validation: val.unwrap_or_else(|| Metrics::new(&data.classes, &[])),
         weights_sha256: String::new(),
