@@ -1,13 +1,14 @@
-//! AVX2 kernels (x86-64, selected at run time).
+//! The SIMD row kernels, picked at run time: AVX-512 (`simd/avx512.rs`) where the CPU has
+//! it, else AVX2 (`simd/avx2.rs`), else the scalar ones.
 //!
 //! The arithmetic is the same exact integer bilinear as
 //! `bilinear_run` (`kernel.rs`), so results are bit-identical
-//! to the scalar path (a unit test checks this).
+//! to the scalar path (unit tests check each kernel).
 
-use std::arch::x86_64::*;
+use super::kernel::{Coords, Job, Sample};
 
-use super::kernel::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
-use super::positions::map_run;
+mod avx2;
+mod avx512;
 
 /// Whether the AVX2 kernels can run here (cached by std after the first call).
 #[inline]
@@ -37,20 +38,10 @@ pub(crate) fn row_generic<T: Sample, const CN: usize, const CUBIC: bool>(
 ) {
     if available() {
         // SAFETY: AVX2 is present (checked above).
-        unsafe { row_generic_avx2::<T, CN, CUBIC>(job, row, out, co) }
+        unsafe { avx2::row_generic_avx2::<T, CN, CUBIC>(job, row, out, co) }
     } else {
         super::row::row_generic::<T, CN, CUBIC>(job, row, out, co)
     }
-}
-
-#[target_feature(enable = "avx2")]
-fn row_generic_avx2<T: Sample, const CN: usize, const CUBIC: bool>(
-    job: &Job<'_, T>,
-    row: usize,
-    out: &mut [T],
-    co: &mut Coords,
-) {
-    super::row::row_generic::<T, CN, CUBIC>(job, row, out, co)
 }
 
 /// Bilinear 8-bit grey row kernel.
@@ -58,10 +49,10 @@ pub(crate) fn row_gray8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut 
     if available() && job.src.data.len() <= MAX_I32_LEN {
         if avx512() {
             // SAFETY: AVX-512 F/BW/VL/DQ/VBMI are present (checked).
-            unsafe { row_gray8_avx512(job, row, out, co) }
+            unsafe { avx512::row_gray8(job, row, out, co) }
         } else {
             // SAFETY: AVX2 is present (checked above).
-            unsafe { row_gray8_avx2(job, row, out, co) }
+            unsafe { avx2::row_gray8_avx2(job, row, out, co) }
         }
     } else {
         super::row::row_generic::<u8, 1, false>(job, row, out, co)
@@ -73,453 +64,30 @@ pub(crate) fn row_rgb8(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut C
     if available() && job.src.data.len() <= MAX_I32_LEN {
         if avx512() {
             // SAFETY: AVX-512 F/BW/VL/DQ/VBMI are present (checked).
-            unsafe { row_rgb8_avx512(job, row, out, co) }
+            unsafe { avx512::row_rgb8(job, row, out, co) }
         } else {
             // SAFETY: AVX2 is present (checked above).
-            unsafe { row_rgb8_avx2(job, row, out, co) }
+            unsafe { avx2::row_rgb8_avx2(job, row, out, co) }
         }
     } else {
         super::row::row_generic::<u8, 3, false>(job, row, out, co)
     }
 }
 
-/// Phase 1 then `run` (a phase-2 kernel), chunk by chunk along one row of `CN`-sample pixels.
-#[inline(always)]
-fn row_8bit<const CN: usize>(
-    job: &Job<'_, u8>,
-    row: usize,
-    out: &mut [u8],
-    co: &mut Coords,
-    run: impl Fn(&Job<'_, u8>, &Coords, &mut [u8]),
-) {
-    let mut col0 = 0;
-    for chunk in out.chunks_mut(CHUNK * CN) {
-        let n = chunk.len() / CN;
-        map_run(job, row, col0, n, co);
-        run(job, co, chunk);
-        col0 += n;
-    }
-}
-
-#[target_feature(enable = "avx2")]
-fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run(j, c, o))
-}
-
-#[target_feature(enable = "avx2")]
-fn row_rgb8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    row_8bit::<3>(job, row, out, co, |j, c, o| rgb8_run(j, c, o))
-}
-
-/// [`row_gray8_avx2`] in AVX-512: phase 1 compiled 16 lanes wide, phase 2 [`gray8_run16`].
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
-fn row_gray8_avx512(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run16(j, c, o))
-}
-
-/// [`row_rgb8_avx2`] with phase 1 compiled for AVX-512.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
-fn row_rgb8_avx512(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    row_8bit::<3>(job, row, out, co, |j, c, o| rgb8_run(j, c, o))
-}
-
-/// Loads 8 i32 from `v[i..i + 8]`.
-#[inline(always)]
-fn load8(v: &[i32], i: usize) -> __m256i {
-    let s = &v[i..i + 8];
-    // SAFETY: `s` holds exactly 8 i32 (bounds-checked slice); unaligned load.
-    unsafe { _mm256_loadu_si256(s.as_ptr().cast()) }
-}
-
-/// Grey: 8 pixels per step.
-///
-/// Pairs (p00, p01) and (p10, p11) come from byte shuffles of 16-byte row
-/// windows when the 8 samples sit in two or three consecutive source rows
-/// within 15 columns (the usual case: a grid row maps to a nearly horizontal
-/// image line), and from two dword gathers otherwise. Gathers are the
-/// slowest part of this loop, so the shuffle path roughly halves its cost.
-#[target_feature(enable = "avx2")]
-fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
-    let n = out.len();
-    let base = data.as_ptr();
-    // Byte pairs → i16 pairs for madd: top (p00, p01) are bytes 0,1 of the
-    // dword gathered at the pixel, bottom (p10, p11) bytes 2,3 of the dword
-    // gathered 2 bytes before it (so the read never passes the buffer end).
-    const Z: i8 = -128;
-    #[rustfmt::skip]
-    let shuf_top = _mm256_setr_epi8(
-        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
-        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
-    );
-    #[rustfmt::skip]
-    let shuf_bot = _mm256_setr_epi8(
-        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
-        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
-    );
-    let stride_v = _mm256_set1_epi32(stride as i32);
-    let one = _mm256_set1_epi32(ONE);
-    let round = _mm256_set1_epi32(ROUND2 as i32);
-    let fillv = _mm256_set1_epi32(i32::from(job.fill));
-    let minus1 = _mm256_set1_epi32(-1);
-    let zero = _mm256_setzero_si256();
-    let max_dx = _mm256_set1_epi32(14);
-    let max_dy = _mm256_set1_epi32(1);
-    // Shuffle index per dword: [dx, zero, dx + 1, zero].
-    let idx_bias = _mm256_set1_epi32(0x8001_8000_u32 as i32);
-    // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
-    let base_bot = unsafe { base.add(stride - 2) };
-    let mut i = 0;
-    while i + 8 <= n {
-        let ix = load8(&co.ix, i);
-        let iy = load8(&co.iy, i);
-        let fx = load8(&co.fx, i);
-        let fy = load8(&co.fy, i);
-        let valid = _mm256_cmpgt_epi32(ix, minus1);
-
-        // Window origin: the smaller end of the run (runs are monotonic in
-        // practice; every lane is checked below anyway).
-        let bx = co.ix[i].min(co.ix[i + 7]);
-        let by = co.iy[i].min(co.iy[i + 7]);
-        let mut pairs = None;
-        // Rows by..=by+2 from column bx, 16 bytes each, must be in the buffer.
-        if bx >= 0 && (by as usize + 2) * stride + bx as usize + 16 <= data.len() {
-            let dx = _mm256_sub_epi32(ix, _mm256_set1_epi32(bx));
-            let dy = _mm256_sub_epi32(iy, _mm256_set1_epi32(by));
-            let fits = _mm256_and_si256(
-                _mm256_cmpeq_epi32(_mm256_min_epu32(dx, max_dx), dx),
-                _mm256_cmpeq_epi32(_mm256_min_epu32(dy, max_dy), dy),
-            );
-            if _mm256_movemask_epi8(fits) == -1 {
-                let at = by as usize * stride + bx as usize;
-                let w = &data[at..at + 2 * stride + 16];
-                // The row after next is needed by the next grid rows; fetch
-                // it now, as curved (distorted) source paths defeat the
-                // hardware prefetcher.
-                if let Some(ahead) = data.get(at + 3 * stride) {
-                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
-                }
-                // SAFETY: each 16-byte window lies inside `w` (bounds-checked).
-                let (r0, r1, r2) = unsafe {
-                    (
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(w.as_ptr().cast())),
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(w[stride..].as_ptr().cast())),
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(
-                            w[2 * stride..].as_ptr().cast(),
-                        )),
-                    )
-                };
-                let idx =
-                    _mm256_add_epi32(_mm256_add_epi32(dx, _mm256_slli_epi32::<16>(dx)), idx_bias);
-                let (t0, t1, t2) = (
-                    _mm256_shuffle_epi8(r0, idx),
-                    _mm256_shuffle_epi8(r1, idx),
-                    _mm256_shuffle_epi8(r2, idx),
-                );
-                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2).
-                let first = _mm256_cmpeq_epi32(dy, zero);
-                pairs = Some((
-                    _mm256_blendv_epi8(t1, t0, first),
-                    _mm256_blendv_epi8(t2, t1, first),
-                ));
-            }
-        }
-        let (pt, pb) = match pairs {
-            Some(p) => p,
-            None => {
-                // Outside samples read offset 0 (in bounds) and become fill.
-                let off = _mm256_and_si256(
-                    _mm256_add_epi32(_mm256_mullo_epi32(iy, stride_v), ix),
-                    valid,
-                );
-                // SAFETY: inside samples have ix ≤ W−2, iy ≤ H−2, so the top
-                // dword [off, off+3] ends at ≤ (H−1)·W + 1 < W·H and the bottom
-                // dword [off+W−2, off+W+1] ends at ≤ H·W − 1; offset 0 is in
-                // bounds since W, H ≥ 2. The driver caps the buffer below
-                // i32::MAX.
-                let (gt, gb) = unsafe {
-                    (
-                        _mm256_i32gather_epi32::<1>(base.cast(), off),
-                        _mm256_i32gather_epi32::<1>(base_bot.cast(), off),
-                    )
-                };
-                (
-                    _mm256_shuffle_epi8(gt, shuf_top),
-                    _mm256_shuffle_epi8(gb, shuf_bot),
-                )
-            }
-        };
-        // (ONE − fx, fx) as i16 pairs.
-        let wx = _mm256_or_si256(_mm256_sub_epi32(one, fx), _mm256_slli_epi32::<16>(fx));
-        let top = _mm256_madd_epi16(pt, wx);
-        let bot = _mm256_madd_epi16(pb, wx);
-        // top·(ONE − fy) + bot·fy = top·ONE + (bot − top)·fy
-        let val = _mm256_add_epi32(
-            _mm256_slli_epi32::<{ FRAC_BITS as i32 }>(top),
-            _mm256_mullo_epi32(_mm256_sub_epi32(bot, top), fy),
-        );
-        let val = _mm256_srai_epi32::<{ 2 * FRAC_BITS as i32 }>(_mm256_add_epi32(val, round));
-        let val = _mm256_blendv_epi8(fillv, val, valid);
-        let p16 = _mm256_packus_epi32(val, val);
-        let p8 = _mm256_packus_epi16(p16, p16);
-        let px = _mm_unpacklo_epi32(
-            _mm256_castsi256_si128(p8),
-            _mm256_extracti128_si256::<1>(p8),
-        );
-        let dst = &mut out[i..i + 8];
-        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
-        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
-        i += 8;
-    }
-    bilinear_run::<u8, 1>(job, co, out, i);
-}
-
-/// Grey, AVX-512: [`gray8_run`] 16 pixels per step, the row windows 64 bytes wide (any 16
-/// samples within 62 columns and two source rows) picked from with `vpermb`. Same integer
-/// arithmetic, so bit-identical.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vbmi")]
-fn gray8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
-    let n = out.len();
-    let base = data.as_ptr();
-    const Z: i8 = -128;
-    #[rustfmt::skip]
-    let shuf_top = _mm512_broadcast_i32x4(_mm_setr_epi8(
-        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
-    ));
-    #[rustfmt::skip]
-    let shuf_bot = _mm512_broadcast_i32x4(_mm_setr_epi8(
-        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
-    ));
-    let stride_v = _mm512_set1_epi32(stride as i32);
-    let one = _mm512_set1_epi32(ONE);
-    let round = _mm512_set1_epi32(ROUND2 as i32);
-    let fillv = _mm512_set1_epi32(i32::from(job.fill));
-    let max_dx = _mm512_set1_epi32(62);
-    let max_dy = _mm512_set1_epi32(1);
-    // Even bytes of each dword: the sample pairs, odd bytes zero (i16 lanes for madd).
-    let even: __mmask64 = 0x5555_5555_5555_5555;
-    // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
-    let base_bot = unsafe { base.add(stride - 2) };
-    let mut i = 0;
-    while i + 16 <= n {
-        let ix = load16(&co.ix, i);
-        let iy = load16(&co.iy, i);
-        let fx = load16(&co.fx, i);
-        let fy = load16(&co.fy, i);
-        let valid = _mm512_cmpgt_epi32_mask(ix, _mm512_set1_epi32(-1));
-        let bx = co.ix[i].min(co.ix[i + 15]);
-        let by = co.iy[i].min(co.iy[i + 15]);
-        let mut pairs = None;
-        // Rows by..=by+2 from column bx, 64 bytes each, must be in the buffer.
-        if bx >= 0 && (by as usize + 2) * stride + bx as usize + 64 <= data.len() {
-            let dx = _mm512_sub_epi32(ix, _mm512_set1_epi32(bx));
-            let dy = _mm512_sub_epi32(iy, _mm512_set1_epi32(by));
-            let fits = _mm512_cmple_epu32_mask(dx, max_dx) & _mm512_cmple_epu32_mask(dy, max_dy);
-            if fits == 0xffff {
-                let at = by as usize * stride + bx as usize;
-                let w = &data[at..at + 2 * stride + 64];
-                if let Some(ahead) = data.get(at + 3 * stride) {
-                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
-                }
-                // SAFETY: each 64-byte window lies inside `w` (bounds-checked).
-                let (r0, r1, r2) = unsafe {
-                    (
-                        _mm512_loadu_si512(w.as_ptr().cast()),
-                        _mm512_loadu_si512(w[stride..].as_ptr().cast()),
-                        _mm512_loadu_si512(w[2 * stride..].as_ptr().cast()),
-                    )
-                };
-                // Byte index per dword: [dx, ·, dx + 1, ·].
-                let idx = _mm512_add_epi32(
-                    _mm512_add_epi32(dx, _mm512_slli_epi32::<16>(dx)),
-                    _mm512_set1_epi32(0x1_0000),
-                );
-                let (t0, t1, t2) = (
-                    _mm512_maskz_permutexvar_epi8(even, idx, r0),
-                    _mm512_maskz_permutexvar_epi8(even, idx, r1),
-                    _mm512_maskz_permutexvar_epi8(even, idx, r2),
-                );
-                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2).
-                let first = _mm512_cmpeq_epi32_mask(dy, _mm512_setzero_si512());
-                pairs = Some((
-                    _mm512_mask_blend_epi32(first, t1, t0),
-                    _mm512_mask_blend_epi32(first, t2, t1),
-                ));
-            }
-        }
-        let (pt, pb) = match pairs {
-            Some(p) => p,
-            None => {
-                // Outside samples read offset 0 (in bounds) and become fill.
-                let off = _mm512_maskz_add_epi32(valid, _mm512_mullo_epi32(iy, stride_v), ix);
-                // SAFETY: as in gray8_run: inside samples have ix ≤ W−2, iy ≤ H−2, so the top
-                // dword [off, off+3] ends at ≤ (H−1)·W + 1 < W·H and the bottom dword
-                // [off+W−2, off+W+1] ends at ≤ H·W − 1; offset 0 is in bounds since W, H ≥ 2.
-                // The driver caps the buffer below i32::MAX.
-                let (gt, gb) = unsafe {
-                    (
-                        _mm512_i32gather_epi32::<1>(off, base.cast()),
-                        _mm512_i32gather_epi32::<1>(off, base_bot.cast()),
-                    )
-                };
-                (
-                    _mm512_shuffle_epi8(gt, shuf_top),
-                    _mm512_shuffle_epi8(gb, shuf_bot),
-                )
-            }
-        };
-        let wx = _mm512_or_si512(_mm512_sub_epi32(one, fx), _mm512_slli_epi32::<16>(fx));
-        let top = _mm512_madd_epi16(pt, wx);
-        let bot = _mm512_madd_epi16(pb, wx);
-        let val = _mm512_add_epi32(
-            _mm512_slli_epi32::<{ FRAC_BITS }>(top),
-            _mm512_mullo_epi32(_mm512_sub_epi32(bot, top), fy),
-        );
-        let val = _mm512_srai_epi32::<{ 2 * FRAC_BITS }>(_mm512_add_epi32(val, round));
-        // Values are 0..=255 (a convex blend of bytes, fill clamped), so truncation is exact.
-        let px = _mm512_cvtepi32_epi8(_mm512_mask_blend_epi32(valid, fillv, val));
-        let dst = &mut out[i..i + 16];
-        // SAFETY: `dst` is exactly 16 bytes; unaligned store.
-        unsafe { _mm_storeu_si128(dst.as_mut_ptr().cast(), px) };
-        i += 16;
-    }
-    bilinear_run::<u8, 1>(job, co, out, i);
-}
-
-/// Loads 16 i32 from `v[i..i + 16]`.
-#[inline(always)]
-fn load16(v: &[i32], i: usize) -> __m512i {
-    let s = &v[i..i + 16];
-    // SAFETY: `s` holds exactly 16 i32 (bounds-checked slice); unaligned load.
-    unsafe { _mm512_loadu_si512(s.as_ptr().cast()) }
-}
-
-/// RGB: 8 pixels per step. Per pixel one 8-byte load from each of the two
-/// rows; a pair of pixels shares a 256-bit register (one per 128-bit lane).
-#[target_feature(enable = "avx2")]
-fn rgb8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
-    const Z: i8 = -128;
-    // From [top 8 bytes | bottom 8 bytes]: top pairs (r0,r1) (g0,g1) (b0,b1),
-    // with the bottom row loaded 2 bytes early (its pixel starts at byte 10).
-    #[rustfmt::skip]
-    let shuf_top = _mm256_setr_epi8(
-        0, Z, 3, Z, 1, Z, 4, Z, 2, Z, 5, Z, Z, Z, Z, Z,
-        0, Z, 3, Z, 1, Z, 4, Z, 2, Z, 5, Z, Z, Z, Z, Z,
-    );
-    #[rustfmt::skip]
-    let shuf_bot = _mm256_setr_epi8(
-        10, Z, 13, Z, 11, Z, 14, Z, 12, Z, 15, Z, Z, Z, Z, Z,
-        10, Z, 13, Z, 11, Z, 14, Z, 12, Z, 15, Z, Z, Z, Z, Z,
-    );
-    // [r g b 0] x 4 → 12 packed bytes.
-    #[rustfmt::skip]
-    let pack = _mm_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, Z, Z, Z, Z);
-    let stride_v = _mm256_set1_epi32(stride as i32);
-    let three = _mm256_set1_epi32(3);
-    let one = _mm256_set1_epi32(ONE);
-    let round = _mm256_set1_epi32(ROUND2 as i32);
-    let fillv = _mm256_set1_epi32(i32::from(job.fill));
-    let minus1 = _mm256_set1_epi32(-1);
-    let base = data.as_ptr();
-    let mut offs = [0i32; 8];
-    let mut i = 0;
-    // Each 4-pixel store writes 16 bytes (12 used), so keep 4 bytes of slack.
-    while 3 * i + 28 <= out.len() {
-        let ix = load8(&co.ix, i);
-        let iy = load8(&co.iy, i);
-        let fx = load8(&co.fx, i);
-        let fy = load8(&co.fy, i);
-        let valid = _mm256_cmpgt_epi32(ix, minus1);
-        let off = _mm256_and_si256(
-            _mm256_add_epi32(
-                _mm256_mullo_epi32(iy, stride_v),
-                _mm256_mullo_epi32(ix, three),
-            ),
-            valid,
-        );
-        // SAFETY: `offs` is 8 i32; unaligned store.
-        unsafe { _mm256_storeu_si256(offs.as_mut_ptr().cast(), off) };
-        // Fetch the row after next early (see gray8_run).
-        if let Some(ahead) = data.get(offs[4] as usize + 3 * stride) {
-            _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
-        }
-        let wx = _mm256_or_si256(_mm256_sub_epi32(one, fx), _mm256_slli_epi32::<16>(fx));
-        let mut res = [_mm256_setzero_si256(); 4];
-        for (k, r) in res.iter_mut().enumerate() {
-            let (a, b) = (offs[2 * k] as usize, offs[2 * k + 1] as usize);
-            // SAFETY: inside samples have ix ≤ W−2, iy ≤ H−2, so the 8 bytes
-            // at `off` end at ≤ (H−1)·3W + 1 and the 8 bytes at
-            // `off + 3W − 2` end at ≤ 3W·H − 1, both in bounds; outside
-            // samples use offset 0 (in bounds since W, H ≥ 2).
-            let (ta, ba, tb, bb) = unsafe {
-                (
-                    _mm_loadl_epi64(base.add(a).cast()),
-                    _mm_loadl_epi64(base.add(a + stride - 2).cast()),
-                    _mm_loadl_epi64(base.add(b).cast()),
-                    _mm_loadl_epi64(base.add(b + stride - 2).cast()),
-                )
-            };
-            let v = _mm256_inserti128_si256::<1>(
-                _mm256_castsi128_si256(_mm_unpacklo_epi64(ta, ba)),
-                _mm_unpacklo_epi64(tb, bb),
-            );
-            let lanes = _mm256_setr_epi32(
-                2 * k as i32,
-                2 * k as i32,
-                2 * k as i32,
-                2 * k as i32,
-                2 * k as i32 + 1,
-                2 * k as i32 + 1,
-                2 * k as i32 + 1,
-                2 * k as i32 + 1,
-            );
-            let wxk = _mm256_permutevar8x32_epi32(wx, lanes);
-            let fyk = _mm256_permutevar8x32_epi32(fy, lanes);
-            let vk = _mm256_permutevar8x32_epi32(valid, lanes);
-            let top = _mm256_madd_epi16(_mm256_shuffle_epi8(v, shuf_top), wxk);
-            let bot = _mm256_madd_epi16(_mm256_shuffle_epi8(v, shuf_bot), wxk);
-            let val = _mm256_add_epi32(
-                _mm256_slli_epi32::<{ FRAC_BITS as i32 }>(top),
-                _mm256_mullo_epi32(_mm256_sub_epi32(bot, top), fyk),
-            );
-            let val = _mm256_srai_epi32::<{ 2 * FRAC_BITS as i32 }>(_mm256_add_epi32(val, round));
-            *r = _mm256_blendv_epi8(fillv, val, vk);
-        }
-        // res[k] = [pixel 2k | pixel 2k+1], each [r g b 0] as i32.
-        for (h, pair) in res.chunks_exact(2).enumerate() {
-            let w16 = _mm256_packus_epi32(pair[0], pair[1]); // [p0 p2 | p1 p3]
-            let w8 = _mm256_packus_epi16(w16, w16);
-            let px = _mm_unpacklo_epi32(
-                _mm256_castsi256_si128(w8),
-                _mm256_extracti128_si256::<1>(w8),
-            ); // p0 p1 p2 p3 as [r g b 0]
-            let px = _mm_shuffle_epi8(px, pack);
-            let at = 3 * (i + 4 * h);
-            let dst = &mut out[at..at + 16];
-            // SAFETY: `dst` is exactly 16 bytes (loop condition); the last 4
-            // are rewritten by the next store or the scalar tail.
-            unsafe { _mm_storeu_si128(dst.as_mut_ptr().cast(), px) };
-        }
-        i += 8;
-    }
-    bilinear_run::<u8, 3>(job, co, out, i);
-}
-
 #[cfg(test)]
 mod tests {
+    use super::avx2::{gray8_run, rgb8_run};
     use super::*;
-    use crate::rectify::kernel::CHUNK;
+    use crate::rectify::kernel::{bilinear_run, CHUNK, ONE};
 
-    /// The AVX2 and AVX-512 grey kernels give exactly the scalar kernel's output, on runs that
-    /// take their window paths (nearby samples in two rows) and their gather paths (scattered
-    /// samples, outside ones, the last column and row).
-    #[test]
-    fn gray8_kernels_match_scalar() {
+    /// The AVX2 and AVX-512 kernels (`run8`, `run16`) of `CN`-sample pixels give exactly the
+    /// scalar kernel's output, on runs that take their window paths (nearby samples in two rows, some steps
+    /// crossing to the next row), their other paths (steep runs, scattered samples, outside
+    /// ones), and the last column and row.
+    fn kernels_match_scalar<const CN: usize>(
+        run8: fn(&Job<'_, u8>, &Coords, &mut [u8]),
+        run16: fn(&Job<'_, u8>, &Coords, &mut [u8]),
+    ) {
         let (w, h) = (300usize, 70usize);
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
         let mut next = move |m: u64| {
@@ -528,51 +96,70 @@ mod tests {
             state ^= state << 17;
             (state % m) as i32
         };
-        let data: Vec<u8> = (0..w * h).map(|_| next(256) as u8).collect();
+        let data: Vec<u8> = (0..w * h * CN).map(|_| next(256) as u8).collect();
         let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        let job = Job::for_test(&data, w, h, identity, None);
+        let job = Job {
+            src: crate::rectify::kernel::Source {
+                data: &data,
+                width: w,
+                height: h,
+                stride: w * CN,
+            },
+            ..Job::for_test(&data, w, h, identity, None)
+        };
         let mut co = Coords::new();
-        let (mut windows, mut scattered) = (0, 0);
-        for trial in 0..400 {
+        let mut kinds = [0; 3];
+        for trial in 0..600 {
             let n = CHUNK - trial % 37;
             let (x0, y0) = (next(w as u64 - 1), next(h as u64 - 1));
+            // 0: nearly horizontal (windows), 1: scattered, 2: steep (3 columns per pixel).
+            let kind = trial % 3;
             for j in 0..n {
-                let (x, y) = if trial % 2 == 0 {
-                    // Along a nearly horizontal line: the window paths.
-                    let x = x0 + (j as i32 * 3) / 4;
-                    (
-                        x.min(w as i32 - 2),
-                        (y0 + (j as i32 / 200)).min(h as i32 - 2),
-                    )
-                } else {
-                    (next(w as u64 - 1), next(h as u64 - 1))
+                let (x, y) = match kind {
+                    0 => (x0 + (j as i32 * 3) / 4, y0 + j as i32 / 200),
+                    1 => (next(w as u64 - 1), next(h as u64 - 1)),
+                    _ => ((x0 / 8 + 3 * j as i32) % (w as i32), y0 + j as i32 / 300),
                 };
-                let outside = trial % 3 == 1 && next(5) == 0;
-                co.ix[j] = if outside { -1 } else { x };
-                co.iy[j] = y;
+                let outside = trial % 4 == 1 && next(5) == 0;
+                co.ix[j] = if outside { -1 } else { x.min(w as i32 - 2) };
+                co.iy[j] = y.min(h as i32 - 2);
                 co.fx[j] = next(ONE as u64 + 1);
                 co.fy[j] = next(ONE as u64 + 1);
             }
-            if trial % 2 == 0 {
-                windows += 1;
-            } else {
-                scattered += 1;
-            }
-            let mut want = vec![0u8; n];
-            bilinear_run::<u8, 1>(&job, &co, &mut want, 0);
+            kinds[kind] += 1;
+            let mut want = vec![0u8; n * CN];
+            bilinear_run::<u8, CN>(&job, &co, &mut want, 0);
             if available() {
-                let mut got = vec![1u8; n];
-                // SAFETY: AVX2 is present (checked).
-                unsafe { gray8_run(&job, &co, &mut got) };
+                let mut got = vec![1u8; n * CN];
+                run8(&job, &co, &mut got);
                 assert_eq!(got, want, "AVX2, trial {trial}");
             }
             if avx512() {
-                let mut got = vec![1u8; n];
-                // SAFETY: AVX-512 F/BW/VL/VBMI are present (checked).
-                unsafe { gray8_run16(&job, &co, &mut got) };
+                let mut got = vec![1u8; n * CN];
+                run16(&job, &co, &mut got);
                 assert_eq!(got, want, "AVX-512, trial {trial}");
             }
         }
-        assert!(windows > 100 && scattered > 100);
+        assert!(kinds.iter().all(|&k| k == 200));
+    }
+
+    #[test]
+    fn gray8_kernels_match_scalar() {
+        kernels_match_scalar::<1>(
+            // SAFETY: called only when AVX2 is present (checked by the caller).
+            |j, c, o| unsafe { gray8_run(j, c, o) },
+            // SAFETY: called only when AVX-512 F/BW/VL/DQ/VBMI are present (checked).
+            |j, c, o| unsafe { avx512::gray8_run16(j, c, o) },
+        );
+    }
+
+    #[test]
+    fn rgb8_kernels_match_scalar() {
+        kernels_match_scalar::<3>(
+            // SAFETY: called only when AVX2 is present (checked by the caller).
+            |j, c, o| unsafe { rgb8_run(j, c, o, 0) },
+            // SAFETY: called only when AVX-512 F/BW/VL/DQ/VBMI are present (checked).
+            |j, c, o| unsafe { avx512::rgb8_run16(j, c, o) },
+        );
     }
 }
