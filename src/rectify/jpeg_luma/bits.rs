@@ -292,7 +292,7 @@ impl<'a> BitReader<'a> {
                 k += ((fast >> 8) & 0xFF) as usize;
                 self.consume((fast & 0xFF) as u32);
                 if KEEP {
-                    block[usize::from(ZIGZAG[k])] = (fast >> 16) as i16;
+                    block[usize::from(ZIGZAG[k & 127] & 63)] = (fast >> 16) as i16;
                 }
                 k += 1;
                 continue;
@@ -309,7 +309,7 @@ impl<'a> BitReader<'a> {
             k += run;
             if KEEP {
                 let value = self.receive_extend(size);
-                block[usize::from(ZIGZAG[k])] = value as i16;
+                block[usize::from(ZIGZAG[k & 127] & 63)] = value as i16;
             } else {
                 self.consume(size);
             }

@@ -7,9 +7,24 @@
 
 use std::ops::{Add, Mul, Sub};
 
-/// Eight lanes of i32.
+/// Eight lanes of i32, as the 1-D IDCT needs them: wrapping add, subtract, multiply by a
+/// constant, shift left by `CONST_BITS`.
+pub(super) trait Lanes:
+    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<i32, Output = Self>
+{
+    fn shl_const_bits(self) -> Self;
+}
+
+/// Eight lanes of i32 in an array (LLVM vectorises what it can).
 #[derive(Clone, Copy, Default)]
 struct V([i32; 8]);
+
+impl Lanes for V {
+    #[inline(always)]
+    fn shl_const_bits(self) -> V {
+        self.shl(CONST_BITS)
+    }
+}
 
 impl Add for V {
     type Output = V;
@@ -48,19 +63,19 @@ impl V {
     }
 }
 
-const CONST_BITS: u32 = 13;
-const PASS1_BITS: u32 = 2;
+pub(super) const CONST_BITS: u32 = 13;
+pub(super) const PASS1_BITS: u32 = 2;
 
 /// One 1-D pass of jidctint on eight lanes: `s[k]` is frequency k; returns the eight samples
 /// before descaling.
 #[inline(always)]
-fn idct_1d(s: &[V; 8]) -> [V; 8] {
+pub(super) fn idct_1d<T: Lanes>(s: &[T; 8]) -> [T; 8] {
     // Even part.
     let z1 = (s[2] + s[6]) * 4433;
     let tmp2 = z1 + s[6] * -15137;
     let tmp3 = z1 + s[2] * 6270;
-    let tmp0 = (s[0] + s[4]).shl(CONST_BITS);
-    let tmp1 = (s[0] - s[4]).shl(CONST_BITS);
+    let tmp0 = (s[0] + s[4]).shl_const_bits();
+    let tmp1 = (s[0] - s[4]).shl_const_bits();
     let tmp10 = tmp0 + tmp3;
     let tmp13 = tmp0 - tmp3;
     let tmp11 = tmp1 + tmp2;
@@ -101,15 +116,23 @@ fn transpose(m: &[V; 8]) -> [V; 8] {
     std::array::from_fn(|c| V(std::array::from_fn(|r| m[r].0[c])))
 }
 
+/// The pixels of a block whose AC coefficients are all zero (`None` for any other): the two
+/// passes reduce to one value, exactly as jidctint's shortcuts.
+#[inline(always)]
+pub(super) fn dc_only(coefs: &[i16; 64], quant: &[i32; 64]) -> Option<[[u8; 8]; 8]> {
+    if coefs[1..].iter().fold(0i16, |a, &c| a | c) != 0 {
+        return None;
+    }
+    let dc = i32::from(coefs[0]).wrapping_mul(quant[0]);
+    let v = (dc.wrapping_shl(PASS1_BITS).wrapping_add(16) >> 5).wrapping_add(128);
+    Some([[v.clamp(0, 255) as u8; 8]; 8])
+}
+
 /// The 8x8 pixels of one block (natural-order coefficients, natural-order quantisation).
 #[inline(always)]
-fn idct_block(coefs: &[i16; 64], quant: &[i32; 64]) -> [[u8; 8]; 8] {
-    let ac = coefs[1..].iter().fold(0i16, |a, &c| a | c);
-    if ac == 0 {
-        // All AC zero: the two passes reduce to one value (exactly, as jidctint's shortcuts).
-        let dc = i32::from(coefs[0]).wrapping_mul(quant[0]);
-        let v = (dc.wrapping_shl(PASS1_BITS).wrapping_add(16) >> 5).wrapping_add(128);
-        return [[v.clamp(0, 255) as u8; 8]; 8];
+pub(super) fn idct_block(coefs: &[i16; 64], quant: &[i32; 64]) -> [[u8; 8]; 8] {
+    if let Some(flat) = dc_only(coefs, quant) {
+        return flat;
     }
     // Pass 1: columns (lanes) over the rows.
     let rows: [V; 8] = std::array::from_fn(|r| {
@@ -117,12 +140,15 @@ fn idct_block(coefs: &[i16; 64], quant: &[i32; 64]) -> [[u8; 8]; 8] {
             i32::from(coefs[r * 8 + c]).wrapping_mul(quant[r * 8 + c])
         }))
     });
-    let ws = idct_1d(&rows)
-        .map(|v| v.descale(1 << (CONST_BITS - PASS1_BITS - 1), CONST_BITS - PASS1_BITS));
+    let ws = idct_1d(&rows);
+    let ws: [V; 8] = std::array::from_fn(|r| {
+        ws[r].descale(1 << (CONST_BITS - PASS1_BITS - 1), CONST_BITS - PASS1_BITS)
+    });
     // Pass 2: rows (lanes) over the columns; the rounding of the final descale added to the DC.
     let mut cols = transpose(&ws);
     cols[0] = cols[0] + V([1 << (PASS1_BITS + 2); 8]);
-    let out = idct_1d(&cols).map(|v| v.descale(0, CONST_BITS + PASS1_BITS + 3));
+    let out = idct_1d(&cols);
+    let out: [V; 8] = std::array::from_fn(|c| out[c].descale(0, CONST_BITS + PASS1_BITS + 3));
     // out[c] holds column c for every row.
     std::array::from_fn(|r| {
         std::array::from_fn(|c| out[c].0[r].wrapping_add(128).clamp(0, 255) as u8)
@@ -145,20 +171,19 @@ pub(super) fn band_to_pixels(band: Band<'_>, quant: &[i32; 64]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked just above).
-        unsafe { band_avx2(band, quant) };
+        unsafe { super::idct_avx2::band(band, quant) };
         return;
     }
-    band_plain(band, quant);
+    band_with(band, quant, idct_block);
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn band_avx2(band: Band<'_>, quant: &[i32; 64]) {
-    band_plain(band, quant);
-}
-
+/// `band` to pixels, each block by `idct`.
 #[inline(always)]
-fn band_plain(band: Band<'_>, quant: &[i32; 64]) {
+pub(super) fn band_with(
+    band: Band<'_>,
+    quant: &[i32; 64],
+    idct: impl Fn(&[i16; 64], &[i32; 64]) -> [[u8; 8]; 8],
+) {
     let Band {
         coefs,
         blocks_per_row,
@@ -183,10 +208,16 @@ fn band_plain(band: Band<'_>, quant: &[i32; 64]) {
                 continue;
             };
             if x0 < width {
-                let px = idct_block(block, quant);
+                let px = idct(block, quant);
                 let w = (width - x0).min(8);
                 for (r, line) in px.iter().enumerate().take(h) {
-                    band_out[r * width + x0..r * width + x0 + w].copy_from_slice(&line[..w]);
+                    let dst = &mut band_out[r * width + x0..r * width + x0 + w];
+                    if let Ok(dst) = <&mut [u8; 8]>::try_from(&mut *dst) {
+                        // A whole row: one 8-byte store, not a call to memcpy.
+                        *dst = *line;
+                    } else {
+                        dst.copy_from_slice(&line[..w]);
+                    }
                 }
             }
             *block = [0; 64];
@@ -195,7 +226,7 @@ fn band_plain(band: Band<'_>, quant: &[i32; 64]) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// jidctint with libjpeg's column and row shortcuts, scalar, as written in jidctint.c.
@@ -256,28 +287,37 @@ mod tests {
         })
     }
 
-    #[test]
-    fn the_vector_idct_is_jidctint() {
-        let mut seed = 0x1234_5678u32;
+    /// Random blocks and tables: sparse, every tenth block DC only; dequantised values within
+    /// what 8-bit JPEGs hold (jidctint's 32-bit arithmetic then never wraps).
+    pub(in crate::rectify::jpeg_luma) fn random_blocks(
+        count: usize,
+        mut seed: u32,
+    ) -> impl Iterator<Item = ([i16; 64], [i32; 64])> {
         let mut next = move || {
             seed ^= seed << 13;
             seed ^= seed >> 17;
             seed ^= seed << 5;
             seed
         };
-        for case in 0..2000 {
+        (0..count).map(move |case| {
             let quant: [i32; 64] = std::array::from_fn(|_| 1 + (next() % 60) as i32);
             let coefs: [i16; 64] = std::array::from_fn(|k| {
                 let r = next();
-                // Mostly sparse, large low frequencies; every tenth block DC only.
                 if k == 0 {
-                    (r % 255) as i16 - 127
-                } else if case % 10 == 0 || r % 4 != 0 {
+                    (r % 511) as i16 - 255
+                } else if case % 10 == 0 || r % 3 != 0 {
                     0
                 } else {
                     ((r >> 8) % 81) as i16 - 40
                 }
             });
+            (coefs, quant)
+        })
+    }
+
+    #[test]
+    fn the_vector_idct_is_jidctint() {
+        for (case, (coefs, quant)) in random_blocks(3000, 0x1234_5678).enumerate() {
             assert_eq!(
                 idct_block(&coefs, &quant),
                 reference(&coefs, &quant),

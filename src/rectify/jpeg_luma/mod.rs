@@ -13,6 +13,8 @@
 mod bits;
 mod header;
 mod idct;
+#[cfg(target_arch = "x86_64")]
+mod idct_avx2;
 mod zigzag;
 
 use image::GrayImage;
