@@ -166,14 +166,8 @@ pub(super) struct Band<'a> {
     pub(super) width: usize,
 }
 
-/// Dequantises and IDCTs `band`, on AVX2 when the CPU has it.
-pub(super) fn band_to_pixels(band: Band<'_>, quant: &[i32; 64]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        unsafe { super::idct_avx2::band(band, quant) };
-        return;
-    }
+/// Dequantises and IDCTs `band` without AVX2 (`idct_avx2::band` with).
+pub(super) fn band(band: Band<'_>, quant: &[i32; 64]) {
     band_with(band, quant, idct_block);
 }
 

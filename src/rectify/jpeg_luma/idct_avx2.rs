@@ -124,7 +124,7 @@ fn idct_block(coefs: &[i16; 64], quant: &[i32; 64]) -> [[u8; 8]; 8] {
     px
 }
 
-/// `idct::band_to_pixels` on AVX2.
+/// `idct::band` on AVX2.
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn band(band: Band<'_>, quant: &[i32; 64]) {
     // A closure in an AVX2 function has AVX2 too.

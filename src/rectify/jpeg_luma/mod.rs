@@ -103,16 +103,21 @@ fn decode(bytes: &[u8], h: &Header, threaded: bool) -> Result<GrayImage, Rectify
         .ok_or_else(|| RectifyError::Jpeg("decoder returned a wrong-sized buffer".into()))
 }
 
+/// Dequantises and IDCTs a band, on AVX2 when the CPU has it.
 fn to_pixels(layout: &Layout, coefs: &mut [i16], out: &mut [u8], width: usize, quant: &[i32; 64]) {
-    idct::band_to_pixels(
-        Band {
-            coefs,
-            blocks_per_row: layout.blocks_per_row(),
-            out,
-            width,
-        },
-        quant,
-    );
+    let band = Band {
+        coefs,
+        blocks_per_row: layout.blocks_per_row(),
+        out,
+        width,
+    };
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { idct_avx2::band(band, quant) };
+        return;
+    }
+    idct::band(band, quant);
 }
 
 /// Huffman decoding on this thread, IDCT on another; bands go there full and come back zeroed.
