@@ -105,37 +105,12 @@ pub(super) fn gray8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
     ));
     let stride_v = _mm512_set1_epi32(stride as i32);
     let fillv = _mm512_set1_epi32(i32::from(job.fill));
+    let max_dx = _mm512_set1_epi32(62);
+    let max_dy = _mm512_set1_epi32(1);
     // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
     let base_bot = unsafe { base.add(stride - 2) };
     let mut i = 0;
     while i + 16 <= n {
-        // 32 samples in one window: one origin, bounds check and prefetch for both halves.
-        if i + 32 <= n {
-            let (bx, by) = (co.ix[i].min(co.ix[i + 31]), co.iy[i].min(co.iy[i + 31]));
-            if let Some(w) = gray_window(data, stride, bx, by) {
-                let (bxv, byv) = (_mm512_set1_epi32(bx), _mm512_set1_epi32(by));
-                let d = [i, i + 16].map(|j| {
-                    (
-                        _mm512_sub_epi32(load16(&co.ix, j), bxv),
-                        _mm512_sub_epi32(load16(&co.iy, j), byv),
-                    )
-                });
-                if d.iter().all(|&(dx, dy)| gray_fits(dx, dy)) {
-                    for (h, (dx, dy)) in d.into_iter().enumerate() {
-                        let j = i + 16 * h;
-                        let (pt, pb) = gray_pairs(w, stride, dx, dy);
-                        let val = lerp(pt, pb, load16(&co.fx, j), load16(&co.fy, j));
-                        let dst = &mut out[j..j + 16];
-                        // SAFETY: `dst` is exactly 16 bytes; unaligned store.
-                        unsafe {
-                            _mm_storeu_si128(dst.as_mut_ptr().cast(), _mm512_cvtepi32_epi8(val))
-                        };
-                    }
-                    i += 32;
-                    continue;
-                }
-            }
-        }
         let Step16 {
             fx,
             fy,
@@ -147,10 +122,38 @@ pub(super) fn gray8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
             ix,
             iy,
         } = step16(co, i);
-        let pairs = match gray_window(data, stride, bx, by) {
-            Some(w) if gray_fits(dx, dy) => Some(gray_pairs(w, stride, dx, dy)),
-            _ => None,
-        };
+        let mut pairs = None;
+        // Rows by..=by+2 from column bx, 64 bytes each, must be in the buffer.
+        if bx >= 0 && (by as usize + 2) * stride + bx as usize + 64 <= data.len() {
+            let fits = _mm512_cmple_epu32_mask(dx, max_dx) & _mm512_cmple_epu32_mask(dy, max_dy);
+            if fits == 0xffff {
+                let at = by as usize * stride + bx as usize;
+                let w = &data[at..at + 2 * stride + 64];
+                if let Some(ahead) = data.get(at + 3 * stride) {
+                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
+                }
+                // SAFETY: each 64-byte window lies inside `w` (bounds-checked slice).
+                let row = |k: usize| unsafe { _mm512_loadu_si512(w[k * stride..].as_ptr().cast()) };
+                // Byte index per dword: [dx, ·, dx + 1, ·].
+                let idx = _mm512_add_epi32(
+                    _mm512_add_epi32(dx, _mm512_slli_epi32::<16>(dx)),
+                    _mm512_set1_epi32(0x1_0000),
+                );
+                let pick = |r: __m512i| _mm512_maskz_permutexvar_epi8(EVEN, idx, r);
+                let (t0, t1) = (pick(row(0)), pick(row(1)));
+                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2).
+                let first = _mm512_cmpeq_epi32_mask(dy, _mm512_setzero_si512());
+                pairs = Some(if first == u16::MAX {
+                    (t0, t1)
+                } else {
+                    let t2 = pick(row(2));
+                    (
+                        _mm512_mask_blend_epi32(first, t1, t0),
+                        _mm512_mask_blend_epi32(first, t2, t1),
+                    )
+                });
+            }
+        }
         let (pt, pb) = match pairs {
             Some(p) => p,
             None => {
@@ -181,57 +184,6 @@ pub(super) fn gray8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
         i += 16;
     }
     bilinear_run::<u8, 1>(job, co, out, i);
-}
-
-/// The grey window from pixel (`bx`, `by`): rows `by..=by + 2`, 64 bytes each, if they are in
-/// the image (`w[..2·stride + 64]`); the row after them is prefetched, as the next grid rows need
-/// it and curved (distorted) source paths defeat the hardware prefetcher.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
-fn gray_window(data: &[u8], stride: usize, bx: i32, by: i32) -> Option<&[u8]> {
-    if bx < 0 || by < 0 {
-        return None;
-    }
-    let at = by as usize * stride + bx as usize;
-    let w = data.get(at..at + 2 * stride + 64)?;
-    if let Some(ahead) = data.get(at + 3 * stride) {
-        _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
-    }
-    Some(w)
-}
-
-/// Whether 16 samples at offsets (`dx`, `dy`) from a grey window's origin are all in it:
-/// dx ≤ 62 (the pair dx, dx + 1 in 64 bytes) and dy ≤ 1 (rows dy, dy + 1 of three).
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
-fn gray_fits(dx: __m512i, dy: __m512i) -> bool {
-    _mm512_cmple_epu32_mask(dx, _mm512_set1_epi32(62))
-        & _mm512_cmple_epu32_mask(dy, _mm512_set1_epi32(1))
-        == u16::MAX
-}
-
-/// The (top, bottom) sample pairs of 16 grey samples that [`gray_fits`] in window `w`
-/// ([`gray_window`]), picked with `vpermb`: i16 pairs per dword, for [`lerp`].
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq,avx512vbmi")]
-fn gray_pairs(w: &[u8], stride: usize, dx: __m512i, dy: __m512i) -> (__m512i, __m512i) {
-    let w = &w[..2 * stride + 64];
-    // SAFETY: each 64-byte row window lies inside `w` (bounds-checked slice).
-    let row = |k: usize| unsafe { _mm512_loadu_si512(w[k * stride..].as_ptr().cast()) };
-    // Byte index per dword: [dx, ·, dx + 1, ·].
-    let idx = _mm512_add_epi32(
-        _mm512_add_epi32(dx, _mm512_slli_epi32::<16>(dx)),
-        _mm512_set1_epi32(0x1_0000),
-    );
-    let pick = |r: __m512i| _mm512_maskz_permutexvar_epi8(EVEN, idx, r);
-    let (t0, t1) = (pick(row(0)), pick(row(1)));
-    // Lanes with dy = 0 use rows (0, 1), the others (1, 2).
-    let first = _mm512_cmpeq_epi32_mask(dy, _mm512_setzero_si512());
-    if first == u16::MAX {
-        return (t0, t1);
-    }
-    let t2 = pick(row(2));
-    (
-        _mm512_mask_blend_epi32(first, t1, t0),
-        _mm512_mask_blend_epi32(first, t2, t1),
-    )
 }
 
 /// RGB: 16 pixels per step. Where all 16 are inside and lie within 40 columns and two
