@@ -76,8 +76,6 @@ impl Model {
         }
     }
 
-    /// Evaluates on a labelled folder (its classes must be the model's); `part` limits it to the
-    /// training or the validation part of the split the model was trained with.
     /// A part of the split is held out only if the model was not refit on every picture.
     pub fn check_part(&self, part: Option<Part>) -> Result<(), LearnError> {
         match part {
@@ -93,6 +91,8 @@ impl Model {
         }
     }
 
+    /// Evaluates on a labelled folder (its classes must be the model's); `part` limits it to the
+    /// training or the validation part of the split the model was trained with.
     pub fn evaluate(&self, data: &Dataset, part: Option<Part>) -> Result<Metrics, LearnError> {
         let classes = &self.header.classes;
         if let Some(unknown) = data.classes.iter().find(|c| !classes.contains(c)) {
