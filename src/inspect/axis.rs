@@ -1,9 +1,13 @@
 //! The recoater axis, found from the build's own frames: the blade drags grains, scratches and
 //! marks along its travel, so the fresh powder's thin structure runs along one axis and the
 //! profile of line means across that axis is rougher than across the other. Each layer adds its
-//! evidence (the log of the ratio of the two roughnesses, bounded); streaks found along one axis
-//! only add more. The axis is decided once the sum reaches ±`DECIDE` after `MIN_LAYERS` layers,
-//! and kept.
+//! evidence (the log of the ratio of the two roughnesses, bounded, faded out near zero); the
+//! streaks found add their own vote, by how much of their length runs along each axis. The axis is
+//! decided once the sum reaches ±`DECIDE` after `MIN_LAYERS` layers, and kept.
+//!
+//! Every step is continuous in the frames' grey levels: a statistic at a tenth of a grey level
+//! moves by a few hundredths between two JPEG decoders (one grey level in a few pixels per
+//! thousand), so a hard cut on a layer's evidence would let the decoder decide the axis.
 
 use super::mask::Mask;
 use super::stats::{median, Lines};
@@ -13,10 +17,10 @@ use crate::config::inspection::{Axis, RecoatAxis};
 
 /// Evidence at which the axis is decided (each layer adds at most 1 in size).
 pub const DECIDE: f64 = 3.0;
-/// A layer's evidence smaller than this counts as none.
-const DEAD_ZONE: f64 = 0.2;
-/// Below this a layer's own evidence says little, and streaks found along one axis vote.
-const QUIET: f64 = 0.25;
+/// A layer's evidence smaller than this counts as none ...
+const DEAD_ZONE: f64 = 0.1;
+/// ... and from there it counts more and more, fully from this size on.
+const FULL: f64 = 0.2;
 /// Layers seen before a decision.
 const MIN_LAYERS: usize = 3;
 
@@ -59,6 +63,28 @@ pub fn layer_evidence(values: &[f32], bed: &Mask, cell_noise: f64) -> f64 {
         .clamp(-1.0, 1.0)
 }
 
+/// A layer's evidence with the little it says faded out: a layer whose marks barely lean one way
+/// tells nothing (the grain's own texture, or the resampling of an oblique view, can lean a
+/// little, the same way every layer); between `DEAD_ZONE` and `FULL` it counts in proportion, so
+/// a small change in the frames makes a small change in the sum.
+fn faded(evidence: f64) -> f64 {
+    let weight = ((evidence.abs() - DEAD_ZONE) / (FULL - DEAD_ZONE)).clamp(0.0, 1.0);
+    evidence * weight
+}
+
+/// The streaks' vote, in [-1, 1]: positive when more of their length runs along y. A blade's
+/// scratch and a grain it drags run along its travel, the most direct mark of the axis there is,
+/// so the vote counts on every layer (the texture can lean across the travel on the same layer:
+/// chatter and uneven spreading leave bands across it).
+fn streak_vote(along_x: f64, along_y: f64) -> f64 {
+    let total = along_x + along_y;
+    if total > 0.0 {
+        (along_y - along_x) / total
+    } else {
+        0.0
+    }
+}
+
 /// The axis as configured and as the frames say.
 #[derive(Clone, Debug)]
 pub struct AxisFinder {
@@ -94,25 +120,13 @@ impl AxisFinder {
         }
     }
 
-    /// Adds a layer's evidence (and, when the powder's marks say little, ±1 for streaks found
-    /// along only one axis); returns what a log should say about it.
-    pub fn push(&mut self, evidence: f64, streaks_x: usize, streaks_y: usize) -> Option<AxisNews> {
+    /// Adds a layer's evidence and the vote of its streaks (`along_x`, `along_y`: their summed
+    /// lengths along each axis, in cells); returns what a log should say about it.
+    pub fn push(&mut self, evidence: f64, along_x: f64, along_y: f64) -> Option<AxisNews> {
         self.layers += 1;
-        let streak_vote = match (streaks_x, streaks_y) {
-            _ if evidence.abs() >= QUIET => 0.0,
-            (0, n) if n > 0 => 1.0,
-            (n, 0) if n > 0 => -1.0,
-            _ => 0.0,
-        };
-        // A layer whose marks barely lean one way tells nothing: the grain's own texture, or
-        // the resampling of an oblique view, can lean a little, the same way every layer.
-        let evidence = if evidence.abs() < DEAD_ZONE {
-            0.0
-        } else {
-            evidence
-        };
+        let evidence = faded(evidence) + streak_vote(along_x, along_y);
         if self.found.is_none() {
-            self.evidence += evidence + streak_vote;
+            self.evidence += evidence;
             if self.layers >= MIN_LAYERS && self.evidence.abs() >= DECIDE {
                 let axis = if self.evidence > 0.0 {
                     Axis::Y
@@ -186,14 +200,14 @@ mod tests {
         assert!(e > 0.3, "{e}");
         let mut auto = AxisFinder::new(RecoatAxis::Auto);
         assert_eq!(auto.axes(), vec![Axis::X, Axis::Y]);
-        assert_eq!(auto.push(e, 0, 0), None, "not before 3 layers");
-        assert_eq!(auto.push(e, 0, 0), None);
-        let news = (0..20).find_map(|_| auto.push(e, 0, 0));
+        assert_eq!(auto.push(e, 0.0, 0.0), None, "not before 3 layers");
+        assert_eq!(auto.push(e, 0.0, 0.0), None);
+        let news = (0..20).find_map(|_| auto.push(e, 0.0, 0.0));
         assert_eq!(news, Some(AxisNews::Found(Axis::Y)));
         assert_eq!(auto.axes(), vec![Axis::Y]);
         assert_eq!(auto.record().source, "found");
         let mut set = AxisFinder::new(RecoatAxis::X);
-        let news = (0..20).find_map(|_| set.push(e, 0, 0));
+        let news = (0..20).find_map(|_| set.push(e, 0.0, 0.0));
         assert_eq!(
             news,
             Some(AxisNews::Disagrees {
@@ -202,5 +216,28 @@ mod tests {
             })
         );
         assert_eq!(set.axes(), vec![Axis::X], "the configured axis is honoured");
+    }
+
+    /// A small change in a layer's evidence makes a small change in the sum (no cut a decoder's
+    /// rounding can tip), and streaks vote by their length along each axis, on every layer.
+    #[test]
+    fn the_sum_moves_smoothly_and_streaks_vote_by_length() {
+        let mut last = 0.0;
+        for i in 0..=400 {
+            let e = i as f64 * 0.001;
+            let f = faded(e);
+            assert!(f >= last && f - last <= 0.0031, "{e}: {last} -> {f}");
+            assert_eq!(faded(-e), -f);
+            last = f;
+        }
+        assert_eq!(faded(0.09), 0.0);
+        assert_eq!(faded(0.3), 0.3);
+        assert_eq!(streak_vote(0.0, 0.0), 0.0);
+        assert_eq!(streak_vote(0.0, 12.0), 1.0);
+        assert_eq!(streak_vote(30.0, 10.0), -0.5);
+        // Texture leaning across the travel does not outvote the scratches along it.
+        let mut finder = AxisFinder::new(RecoatAxis::Auto);
+        let news = (0..10).find_map(|_| finder.push(-0.4, 5.0, 40.0));
+        assert_eq!(news, Some(AxisNews::Found(Axis::Y)));
     }
 }

@@ -7,7 +7,7 @@ use super::axis::{self, AxisFinder, AxisNews};
 use super::bed::{self, BedFinder};
 use super::cells::Cells;
 use super::detect::{self, Profile};
-use super::mask::Mask;
+use super::mask::{CellBox, Mask};
 use super::powder::{self, Reference};
 use super::stats::{cells_of, Found};
 use crate::build_dir::inspection::{AxisRecord, BedRecord, FlagKind, InspectionRecord, Note};
@@ -31,6 +31,14 @@ pub struct PlateChecks {
     reference: Reference,
     /// The short-feed reference profiles along x and along y.
     profiles: [VecDeque<Profile>; 2],
+}
+
+/// How many cells a box spans along `axis`.
+fn length_along(b: CellBox, axis: Axis) -> f64 {
+    match axis {
+        Axis::X => (b.c1 - b.c0 + 1) as f64,
+        Axis::Y => (b.r1 - b.r0 + 1) as f64,
+    }
 }
 
 fn slot(axis: Axis) -> usize {
@@ -104,17 +112,17 @@ impl PlateChecks {
         metrics.insert("axis_evidence".into(), evidence);
 
         let mut found = Vec::new();
-        let mut counts = [0usize; 2];
+        let mut lengths = [0f64; 2];
         let mut best_streak = 0f64;
         // The first layers are the bed's baseline: what is there from the start is the bed.
         for a in self.axis.axes().into_iter().filter(|_| flat.relative) {
             let (streaks, z) = super::streak::streaks(grid, &flat.values, &powder, a, cfg);
             best_streak = best_streak.max(z);
-            counts[slot(a)] = streaks.len();
+            lengths[slot(a)] = streaks.iter().map(|s| length_along(s.cells, a)).sum();
             found.extend(streaks);
         }
         metrics.insert("streak_z".into(), best_streak);
-        if let Some(news) = self.axis.push(evidence, counts[0], counts[1]) {
+        if let Some(news) = self.axis.push(evidence, lengths[0], lengths[1]) {
             notes.push(match news {
                 AxisNews::Found(a) => Note {
                     level: "info".into(),
