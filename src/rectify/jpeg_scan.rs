@@ -99,19 +99,24 @@ fn walk(bytes: &[u8]) -> Option<Walk> {
     }
 }
 
+/// The code of the marker at `pos` (0xFF, any fill 0xFFs, its code) and the offset after it;
+/// `None` if there is none.
+pub(super) fn marker_at(bytes: &[u8], mut pos: usize) -> Option<(u8, usize)> {
+    if *bytes.get(pos)? != 0xFF {
+        return None;
+    }
+    while bytes.get(pos) == Some(&0xFF) {
+        pos += 1;
+    }
+    Some((*bytes.get(pos)?, pos + 1))
+}
+
 /// The markers from the one after SOI to the EOI; `None` where the data ends or stops parsing.
 fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
     let mut pos = 2;
     loop {
-        // A marker: 0xFF, any fill 0xFFs, its code.
-        if *bytes.get(pos)? != 0xFF {
-            return None;
-        }
-        while bytes.get(pos) == Some(&0xFF) {
-            pos += 1;
-        }
-        let code = *bytes.get(pos)?;
-        pos += 1;
+        let code;
+        (code, pos) = marker_at(bytes, pos)?;
         match code {
             0xD9 => {
                 w.ends_with_eoi = pos == bytes.len();

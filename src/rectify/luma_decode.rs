@@ -5,8 +5,12 @@ use super::decode::{zune_decode, Decoded};
 use super::RectifyError;
 use image::GrayImage;
 
-/// Decodes only the luma of a JPEG (grey JPEGs as they are).
+/// Decodes only the luma of a JPEG (grey JPEGs as they are): baseline and extended sequential
+/// 8-bit frames with our own decoder (`jpeg_luma`), every other JPEG with zune-jpeg.
 pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
+    if let Some(decoded) = super::jpeg_luma::decode_luma(bytes) {
+        return decoded;
+    }
     let Decoded {
         width,
         height,

@@ -36,6 +36,7 @@ pub mod calibration;
 mod decode;
 mod file;
 mod frame;
+mod jpeg_luma;
 mod jpeg_scan;
 mod kernel;
 mod luma_decode;

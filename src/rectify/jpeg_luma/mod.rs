@@ -1,0 +1,320 @@
+//! Our own decoder of a JPEG's luma for the common case: a baseline or extended sequential 8-bit
+//! frame, grey or three components in one interleaved scan (any sampling factors, the luma's
+//! the largest), restart intervals or none. Every other JPEG goes to zune-jpeg (`decode.rs`).
+//!
+//! Only the luma blocks are kept: chroma blocks are Huffman-decoded (the data is sequential, so
+//! they must be read) and dropped. With two cores or more the Huffman decoding (this thread) and
+//! the dequantisation and IDCT (a second thread) run side by side on bands of a few MCU rows, a
+//! small fixed number of bands in flight.
+//!
+//! Entropy-coded data that ends, or meets a marker other than the next restart marker, before the
+//! last MCU is an error (the file was cut short), as is a bit sequence that is no Huffman code.
+
+mod bits;
+mod header;
+mod idct;
+#[cfg(target_arch = "x86_64")]
+mod idct_avx2;
+mod zigzag;
+
+use image::GrayImage;
+
+use super::RectifyError;
+use bits::{BitReader, DataError, HuffTable};
+use header::{Component, Header};
+use idct::Band;
+
+/// MCU rows per band, and bands in flight between the two threads.
+const BAND_MCU_ROWS: usize = 4;
+const BANDS_IN_FLIGHT: usize = 4;
+
+/// The luma of `bytes`, or `None` if the frame is not one this decoder handles.
+pub(super) fn decode_luma(bytes: &[u8]) -> Option<Result<GrayImage, RectifyError>> {
+    let header = header::parse(bytes)?;
+    Some(decode(bytes, &header, threaded()))
+}
+
+/// Whether to run the IDCT on a second thread.
+fn threaded() -> bool {
+    std::thread::available_parallelism().is_ok_and(|n| n.get() > 1)
+}
+
+/// The MCU layout of the scan.
+struct Layout {
+    mcus_x: usize,
+    mcus_y: usize,
+    /// Luma blocks per MCU across and down.
+    luma_h: usize,
+    luma_v: usize,
+}
+
+impl Layout {
+    fn new(h: &Header) -> Layout {
+        let (hmax, vmax) = if h.components.len() == 1 {
+            (1, 1)
+        } else {
+            (
+                h.components.iter().map(|c| c.h).max().unwrap_or(1),
+                h.components.iter().map(|c| c.v).max().unwrap_or(1),
+            )
+        };
+        Layout {
+            mcus_x: h.width.div_ceil(8 * hmax),
+            mcus_y: h.height.div_ceil(8 * vmax),
+            luma_h: h.components[0].h,
+            luma_v: h.components[0].v,
+        }
+    }
+
+    fn blocks_per_row(&self) -> usize {
+        self.mcus_x * self.luma_h
+    }
+
+    /// Coefficients of one band (`BAND_MCU_ROWS` MCU rows of luma blocks).
+    fn band_len(&self) -> usize {
+        BAND_MCU_ROWS * self.luma_v * self.blocks_per_row() * 64
+    }
+
+    /// Pixel rows per band.
+    fn band_rows(&self) -> usize {
+        BAND_MCU_ROWS * self.luma_v * 8
+    }
+}
+
+fn decode(bytes: &[u8], h: &Header, threaded: bool) -> Result<GrayImage, RectifyError> {
+    super::check_frame_size(h.width as u64, h.height as u64)?;
+    let layout = Layout::new(h);
+    let quant: [i32; 64] = h.luma_quant.map(i32::from);
+    let mut pixels = vec![0u8; h.width * h.height];
+    let bands = layout.mcus_y.div_ceil(BAND_MCU_ROWS);
+    let band_bytes = layout.band_rows() * h.width;
+    let mut scan = Scan::new(bytes, h)?;
+    if !threaded || bands < 3 {
+        let mut coefs = vec![0i16; layout.band_len()];
+        for (band, out) in pixels.chunks_mut(band_bytes).enumerate() {
+            scan.band(&layout, band, &mut coefs)?;
+            to_pixels(&layout, &mut coefs, out, h.width, &quant);
+        }
+    } else {
+        pipelined(&mut scan, &layout, &mut pixels, band_bytes, h.width, &quant)?;
+    }
+    scan.finish()?;
+    GrayImage::from_raw(h.width as u32, h.height as u32, pixels)
+        .ok_or_else(|| RectifyError::Jpeg("decoder returned a wrong-sized buffer".into()))
+}
+
+/// Dequantises and IDCTs a band, on AVX2 when the CPU has it.
+fn to_pixels(layout: &Layout, coefs: &mut [i16], out: &mut [u8], width: usize, quant: &[i32; 64]) {
+    let band = Band {
+        coefs,
+        blocks_per_row: layout.blocks_per_row(),
+        out,
+        width,
+    };
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { idct_avx2::band(band, quant) };
+        return;
+    }
+    idct::band(band, quant);
+}
+
+/// Huffman decoding on this thread, IDCT on another; bands go there full and come back zeroed.
+fn pipelined(
+    scan: &mut Scan<'_>,
+    layout: &Layout,
+    pixels: &mut [u8],
+    band_bytes: usize,
+    width: usize,
+    quant: &[i32; 64],
+) -> Result<(), RectifyError> {
+    let (full_tx, full_rx) = crossbeam_channel::bounded::<Vec<i16>>(BANDS_IN_FLIGHT);
+    let (free_tx, free_rx) = crossbeam_channel::bounded::<Vec<i16>>(BANDS_IN_FLIGHT);
+    for _ in 0..BANDS_IN_FLIGHT {
+        // The channel has room for every band.
+        let _ = free_tx.send(vec![0i16; layout.band_len()]);
+    }
+    std::thread::scope(|s| {
+        s.spawn(move || {
+            // Bands come in order, one for each chunk of rows.
+            for (mut coefs, out) in full_rx.into_iter().zip(pixels.chunks_mut(band_bytes)) {
+                to_pixels(layout, &mut coefs, out, width, quant);
+                if free_tx.send(coefs).is_err() {
+                    break;
+                }
+            }
+        });
+        let bands = layout.mcus_y.div_ceil(BAND_MCU_ROWS);
+        for band in 0..bands {
+            let stopped = || RectifyError::Jpeg("the IDCT thread stopped".into());
+            let mut coefs = free_rx.recv().map_err(|_| stopped())?;
+            scan.band(layout, band, &mut coefs)?;
+            full_tx.send(coefs).map_err(|_| stopped())?;
+        }
+        drop(full_tx);
+        Ok(())
+    })
+}
+
+/// The state of the scan's Huffman decoding.
+struct Scan<'a> {
+    reader: BitReader<'a>,
+    components: Vec<(Component, &'a HuffTable, &'a HuffTable)>,
+    preds: [i32; 3],
+    restart_interval: usize,
+    /// MCUs decoded so far, and restart markers passed.
+    mcus: usize,
+    restarts: usize,
+    total_mcus: usize,
+}
+
+impl<'a> Scan<'a> {
+    fn new(bytes: &'a [u8], h: &'a Header) -> Result<Scan<'a>, RectifyError> {
+        let components = h
+            .components
+            .iter()
+            .map(|c| {
+                // parse_sos checked both tables are defined.
+                match (&h.dc_tables[c.dc], &h.ac_tables[c.ac]) {
+                    (Some(dc), Some(ac)) => Ok((*c, dc, ac)),
+                    _ => Err(RectifyError::Jpeg(
+                        "a scan uses an undefined Huffman table".into(),
+                    )),
+                }
+            })
+            .collect::<Result<_, _>>()?;
+        let layout = Layout::new(h);
+        Ok(Scan {
+            reader: BitReader::new(bytes, h.data_start),
+            components,
+            preds: [0; 3],
+            restart_interval: h.restart_interval,
+            mcus: 0,
+            restarts: 0,
+            total_mcus: layout.mcus_x * layout.mcus_y,
+        })
+    }
+
+    /// The MCU rows of band `band` into `coefs` (zero on entry).
+    fn band(
+        &mut self,
+        layout: &Layout,
+        band: usize,
+        coefs: &mut [i16],
+    ) -> Result<(), RectifyError> {
+        let first = band * BAND_MCU_ROWS;
+        let last = (first + BAND_MCU_ROWS).min(layout.mcus_y);
+        let per_row = layout.blocks_per_row();
+        for (i, _) in (first..last).enumerate() {
+            for mx in 0..layout.mcus_x {
+                if self.restart_interval > 0
+                    && self.mcus > 0
+                    && self.mcus.is_multiple_of(self.restart_interval)
+                {
+                    self.restart()?;
+                }
+                self.mcu(layout, coefs, i * layout.luma_v, per_row, mx)
+                    .map_err(|e| {
+                        // Zero bits after the end that are no code are the end's fault.
+                        if self.reader.overran() {
+                            cut_short()
+                        } else {
+                            data_error(e)
+                        }
+                    })?;
+                self.mcus += 1;
+            }
+            if self.reader.overran() {
+                return Err(cut_short());
+            }
+        }
+        Ok(())
+    }
+
+    #[inline(always)]
+    fn mcu(
+        &mut self,
+        layout: &Layout,
+        coefs: &mut [i16],
+        block_row: usize,
+        per_row: usize,
+        mx: usize,
+    ) -> Result<(), DataError> {
+        let (luma, dc, ac) = self.components[0];
+        for by in 0..luma.v {
+            for bx in 0..luma.h {
+                let index = (block_row + by) * per_row + mx * layout.luma_h + bx;
+                let Some(block) = coefs
+                    .get_mut(index * 64..index * 64 + 64)
+                    .and_then(|b| <&mut [i16; 64]>::try_from(b).ok())
+                else {
+                    return Err(DataError::BadCode);
+                };
+                self.reader
+                    .block::<true>(dc, ac, &mut self.preds[0], block)?;
+            }
+        }
+        for c in 1..self.components.len() {
+            let (comp, dc, ac) = self.components[c];
+            for _ in 0..comp.h * comp.v {
+                // Never written: chroma coefficients are dropped.
+                let mut unused = [0i16; 64];
+                self.reader
+                    .block::<false>(dc, ac, &mut self.preds[c], &mut unused)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn restart(&mut self) -> Result<(), RectifyError> {
+        if self.reader.overran() {
+            return Err(cut_short());
+        }
+        match self.reader.restart(self.restarts as u8) {
+            Ok(()) => {}
+            Err(true) => return Err(cut_short()),
+            Err(false) => {
+                return Err(RectifyError::Jpeg(
+                    "a restart marker out of sequence: the entropy-coded data is corrupt".into(),
+                ))
+            }
+        }
+        self.restarts += 1;
+        self.preds = [0; 3];
+        Ok(())
+    }
+
+    /// Checks that the last MCU was decoded from the data itself.
+    fn finish(&self) -> Result<(), RectifyError> {
+        if self.mcus != self.total_mcus || self.reader.overran() {
+            return Err(cut_short());
+        }
+        Ok(())
+    }
+}
+
+fn cut_short() -> RectifyError {
+    RectifyError::Jpeg(
+        "the entropy-coded data ends before the last MCU: the file was cut short (an interrupted \
+         transfer or a full disk); take the frame again"
+            .into(),
+    )
+}
+
+fn data_error(e: DataError) -> RectifyError {
+    RectifyError::Jpeg(
+        match e {
+            DataError::BadCode => {
+                "a bit sequence that is no Huffman code: the entropy-coded data is corrupt"
+            }
+            DataError::BadDc => {
+                "a DC difference wider than 11 bits: the entropy-coded data is corrupt"
+            }
+        }
+        .into(),
+    )
+}
+
+#[cfg(test)]
+mod tests;
