@@ -18,9 +18,9 @@ use crate::config::inspection::{Axis, RecoatAxis};
 /// Evidence at which the axis is decided (each layer adds at most 1 in size).
 pub const DECIDE: f64 = 3.0;
 /// A layer's evidence smaller than this counts as none ...
-const DEAD_ZONE: f64 = 0.1;
+const DEAD_ZONE: f64 = 0.2;
 /// ... and from there it counts more and more, fully from this size on.
-const FULL: f64 = 0.2;
+const FULL: f64 = 0.3;
 /// Layers seen before a decision.
 const MIN_LAYERS: usize = 3;
 
@@ -65,8 +65,9 @@ pub fn layer_evidence(values: &[f32], bed: &Mask, cell_noise: f64) -> f64 {
 
 /// A layer's evidence with the little it says faded out: a layer whose marks barely lean one way
 /// tells nothing (the grain's own texture, or the resampling of an oblique view, can lean a
-/// little, the same way every layer); between `DEAD_ZONE` and `FULL` it counts in proportion, so
-/// a small change in the frames makes a small change in the sum.
+/// little, the same way every layer: up to 0.24 on the mock camera's oblique views, which have no
+/// recoating marks at all); between `DEAD_ZONE` and `FULL` it counts in proportion, so a small
+/// change in the frames makes a small change in the sum.
 fn faded(evidence: f64) -> f64 {
     let weight = ((evidence.abs() - DEAD_ZONE) / (FULL - DEAD_ZONE)).clamp(0.0, 1.0);
     evidence * weight
@@ -226,11 +227,11 @@ mod tests {
         for i in 0..=400 {
             let e = i as f64 * 0.001;
             let f = faded(e);
-            assert!(f >= last && f - last <= 0.0031, "{e}: {last} -> {f}");
+            assert!(f >= last && f - last <= 0.0041, "{e}: {last} -> {f}");
             assert_eq!(faded(-e), -f);
             last = f;
         }
-        assert_eq!(faded(0.09), 0.0);
+        assert_eq!(faded(0.19), 0.0);
         assert_eq!(faded(0.3), 0.3);
         assert_eq!(streak_vote(0.0, 0.0), 0.0);
         assert_eq!(streak_vote(0.0, 12.0), 1.0);

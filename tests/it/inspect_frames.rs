@@ -46,7 +46,11 @@ fn perturbed(dir: &Path, to: &Path) {
                 _ => *v,
             };
         }
-        let name = path.file_stem().expect("name").to_string_lossy().into_owned();
+        let name = path
+            .file_stem()
+            .expect("name")
+            .to_string_lossy()
+            .into_owned();
         luma.save(to.join(format!("{name}.png"))).expect("png");
     }
 }
