@@ -131,7 +131,7 @@ pub struct AxisRecord {
     /// `configured`, `found` (from the frames), or `undetermined`.
     pub source: String,
     /// The frames' evidence so far: positive for y (lines run along the image's columns),
-    /// negative for x; a decision at ±3.
+    /// negative for x; a decision at ±2 (±3 before 2026-12-04).
     pub evidence: f64,
 }
 

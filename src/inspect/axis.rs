@@ -15,8 +15,9 @@ use super::streak::segments;
 use crate::build_dir::inspection::AxisRecord;
 use crate::config::inspection::{Axis, RecoatAxis};
 
-/// Evidence at which the axis is decided (each layer adds at most 1 in size).
-pub const DECIDE: f64 = 3.0;
+/// Evidence at which the axis is decided (each layer's texture adds at most 1 in size, its
+/// streaks at most 1 more).
+pub const DECIDE: f64 = 2.0;
 /// A layer's evidence smaller than this counts as none ...
 const DEAD_ZONE: f64 = 0.2;
 /// ... and from there it counts more and more, fully from this size on.

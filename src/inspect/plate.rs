@@ -33,57 +33,6 @@ pub struct PlateChecks {
     profiles: [VecDeque<Profile>; 2],
 }
 
-/// The streaks, less those that are the edges of a band more than twice as wide as a streak can be
-/// and as the streak itself: uneven spreading leaves a band along the travel whose two edges look
-/// like lines to the streak search. The band's coverage flag says it (one cause, one flag: the
-/// larger explanation wins), where otherwise its edges' streaks would hide it from the coverage
-/// check.
-fn without_band_edges(
-    grid: &Grid,
-    flat: &powder::Flattened,
-    powder: &Mask,
-    sets: Vec<(Axis, Vec<Found>)>,
-    cfg: &InspectionConfig,
-) -> Vec<Found> {
-    if sets.iter().all(|(_, s)| s.is_empty()) {
-        return Vec::new();
-    }
-    let (bands, _) = powder::coverage(
-        grid,
-        flat,
-        powder,
-        &Mask::new(powder.rows, powder.cols),
-        cfg,
-    );
-    let widest = cfg.streak_max_width_mm / grid.pixel_mm;
-    let bands = &bands;
-    sets.into_iter()
-        .flat_map(|(a, streaks)| {
-            let across = move |b: CellBox| match a {
-                Axis::X => length_along(b, Axis::Y),
-                Axis::Y => length_along(b, Axis::X),
-            };
-            streaks.into_iter().filter(move |s| {
-                !bands.iter().any(|band| {
-                    across(band.cells) > 2.0 * across(s.cells).max(widest)
-                        && 2.0 * overlap(band.cells, s.cells) >= area(s.cells)
-                })
-            })
-        })
-        .collect()
-}
-
-/// Cells two boxes share.
-fn overlap(a: CellBox, b: CellBox) -> f64 {
-    let rows = (a.r1.min(b.r1) + 1).saturating_sub(a.r0.max(b.r0));
-    let cols = (a.c1.min(b.c1) + 1).saturating_sub(a.c0.max(b.c0));
-    (rows * cols) as f64
-}
-
-fn area(b: CellBox) -> f64 {
-    length_along(b, Axis::X) * length_along(b, Axis::Y)
-}
-
 /// How many cells a box spans along `axis`.
 fn length_along(b: CellBox, axis: Axis) -> f64 {
     match axis {
@@ -162,17 +111,16 @@ impl PlateChecks {
         let evidence = axis::layer_evidence(&own.values, &powder, own.cell_noise);
         metrics.insert("axis_evidence".into(), evidence);
 
+        let mut found = Vec::new();
         let mut lengths = [0f64; 2];
         let mut best_streak = 0f64;
-        let mut streak_sets = Vec::new();
         // The first layers are the bed's baseline: what is there from the start is the bed.
         for a in self.axis.axes().into_iter().filter(|_| flat.relative) {
             let (streaks, z) = super::streak::streaks(grid, &flat.values, &powder, a, cfg);
             best_streak = best_streak.max(z);
             lengths[slot(a)] = streaks.iter().map(|s| length_along(s.cells, a)).sum();
-            streak_sets.push((a, streaks));
+            found.extend(streaks);
         }
-        let mut found = without_band_edges(grid, &flat, &powder, streak_sets, cfg);
         metrics.insert("streak_z".into(), best_streak);
         if let Some(news) = self.axis.push(evidence, lengths[0], lengths[1]) {
             notes.push(match news {

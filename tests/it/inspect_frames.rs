@@ -179,8 +179,8 @@ fn a_configured_recoater_axis_is_honoured_and_a_disagreement_is_warned_about() {
     let tmp = tempfile::tempdir().expect("tmp");
     let (dir, good, _) = camera_folder(tmp.path(), None);
     // Twice over, as a build twice as long: the good frames' recoating marks are faint (each
-    // layer's evidence 0.15-0.37 of the 3 needed), and the decision must not sit on the last
-    // frame, where a decoder's rounding could tip it.
+    // layer's evidence 0.15-0.37 of the 2 needed, the weaker layers faded out), and the decision
+    // must not sit on the last frame, where a decoder's rounding could tip it.
     let frames = common::shared_pblm("No_Defect");
     for (i, from) in frames.iter().enumerate() {
         std::fs::copy(from, dir.join(format!("img {:03}.JPG", good + i + 1))).expect("copy");
