@@ -170,7 +170,7 @@ impl<'a> EncodedSlice<'a> {
             }
             Compression::Deflate => {
                 // The data set up to the samples, deflated and flushed to a byte boundary; the
-                // samples follow as the rest of the one deflate stream (`deflate.rs`).
+                // samples follow as the rest of the one deflate stream (`deflate/`).
                 file.meta_mut().set_transfer_syntax(
                     &dicom_transfer_syntax_registry::entries::DEFLATED_EXPLICIT_VR_LITTLE_ENDIAN,
                 );

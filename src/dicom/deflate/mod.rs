@@ -3,14 +3,19 @@
 //! at distance 2 (a sample is two bytes). No other string matching: on rectified camera frames
 //! matches beyond runs are rare, and the literal codes are what makes the file small (on a
 //! rectified D810 frame 12% larger than zlib's level 1 and 8% smaller than the miniz level 1
-//! used before, at over three times zlib's speed; benches/peers/deflate_vs_zlib.py,
+//! used before, in 0.15 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
+//! Each segment is read twice, once to count its symbols and once to write them; both passes
+//! take 16 samples at a time where none of them starts a run ([`scan`]).
 //!
 //! Segments of [`SEGMENT`] samples are coded in parallel, each ending on a byte boundary with an
 //! empty stored block (as zlib's sync flush and pigz do), so their concatenation is one stream;
 //! the last one ends the stream.
 
+mod huffman;
+
+use huffman::{canonical_codes, code_lengths, reverse, write_dynamic_header, BitWriter};
 use rayon::prelude::*;
 
 /// Samples per segment (2 MiB of pixel data): one dynamic block each.
@@ -110,103 +115,277 @@ struct Segment<'a> {
     samples: Samples<'a>,
 }
 
+/// The sample types a segment's scan is compiled for.
+trait Sample: Copy + PartialEq + Into<u16> {
+    /// Samples one [`Sample::run_free`] check covers.
+    const CHUNK: usize;
+    /// Whether no run starts at any of `s[i..i + CHUNK]`: no `p` there with
+    /// `s[p] == s[p + 1] == s[p + 2]`. Needs `i + CHUNK + 2 <= s.len()`.
+    fn run_free(s: &[Self], i: usize) -> bool;
+}
+
+/// The portable check: every window of three.
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+fn run_free_scalar<T: PartialEq>(s: &[T], i: usize, chunk: usize) -> bool {
+    !s[i..i + chunk + 2]
+        .windows(3)
+        .any(|t| t[0] == t[1] && t[1] == t[2])
+}
+
+/// [`Sample::run_free`] in SSE2 (part of every x86_64 target): three unaligned 16-byte loads at
+/// samples 0, 1 and 2, compared for equal neighbours, 8-bit or (`WIDE`) 16-bit.
+///
+/// # Safety
+/// `p` must be readable for 16 bytes plus two samples.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn sse2_run_free<const WIDE: bool>(p: *const u8) -> bool {
+    use std::arch::x86_64::{
+        __m128i, _mm_and_si128, _mm_cmpeq_epi16, _mm_cmpeq_epi8, _mm_loadu_si128, _mm_movemask_epi8,
+    };
+    let step = if WIDE { 2 } else { 1 };
+    // SAFETY: the caller's promise covers the three loads.
+    let (a, b, c) = unsafe {
+        (
+            _mm_loadu_si128(p.cast::<__m128i>()),
+            _mm_loadu_si128(p.add(step).cast::<__m128i>()),
+            _mm_loadu_si128(p.add(2 * step).cast::<__m128i>()),
+        )
+    };
+    let (ab, bc) = if WIDE {
+        (_mm_cmpeq_epi16(a, b), _mm_cmpeq_epi16(b, c))
+    } else {
+        (_mm_cmpeq_epi8(a, b), _mm_cmpeq_epi8(b, c))
+    };
+    _mm_movemask_epi8(_mm_and_si128(ab, bc)) == 0
+}
+
+impl Sample for u8 {
+    const CHUNK: usize = 16;
+
+    #[inline(always)]
+    fn run_free(s: &[u8], i: usize) -> bool {
+        let w = &s[i..i + Self::CHUNK + 2];
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: `w` holds 16 bytes and two more samples.
+            unsafe { sse2_run_free::<false>(w.as_ptr()) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            run_free_scalar(w, 0, Self::CHUNK)
+        }
+    }
+}
+
+impl Sample for u16 {
+    const CHUNK: usize = 8;
+
+    #[inline(always)]
+    fn run_free(s: &[u16], i: usize) -> bool {
+        let w = &s[i..i + Self::CHUNK + 2];
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: `w` holds 16 bytes and two more samples.
+            unsafe { sse2_run_free::<true>(w.as_ptr().cast()) }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            run_free_scalar(w, 0, Self::CHUNK)
+        }
+    }
+}
+
 /// What a segment's scan is told: its tokens, in order.
 trait Sink {
     /// A sample's two bytes as literals.
     fn literal(&mut self, v: u16);
+    /// Consecutive samples as literals, none of them starting a run.
+    #[inline(always)]
+    fn literals<T: Sample>(&mut self, samples: &[T]) {
+        for &v in samples {
+            self.literal(v.into());
+        }
+    }
     /// The next `k` samples repeat the one before: a match of `2k` bytes at distance 2.
     fn run(&mut self, k: usize);
 }
 
 /// Walks a segment's tokens: a literal sample, then, when the next two or more samples repeat
-/// it, a run. Generic over the sample type so that each loop is compiled for it.
+/// it, a run. Most of a frame holds no run: a vector compare finds [`Sample::CHUNK`] samples
+/// in a row that start none, and they go to the sink as literals at once; elsewhere the samples
+/// are walked one by one to the end of the chunk. Generic over the sample type so that each loop
+/// is compiled for it.
 #[inline(always)]
-fn scan<T: Copy + PartialEq + Into<u16>, S: Sink>(samples: &[T], sink: &mut S) {
+fn scan<T: Sample, S: Sink>(samples: &[T], sink: &mut S) {
     let n = samples.len();
     let mut i = 0;
     while i < n {
-        let v = samples[i];
-        sink.literal(v.into());
-        i += 1;
-        // Most samples differ from the one before: one compare rejects a run.
-        if i + 1 < n && samples[i] == v && samples[i + 1] == v {
-            let mut k = 2;
-            while i + k < n && k < MAX_RUN && samples[i + k] == v {
-                k += 1;
+        if i + T::CHUNK + 2 <= n && T::run_free(samples, i) {
+            sink.literals(&samples[i..i + T::CHUNK]);
+            i += T::CHUNK;
+            continue;
+        }
+        let end = (i + T::CHUNK).min(n);
+        while i < end {
+            let v = samples[i];
+            sink.literal(v.into());
+            i += 1;
+            // Most samples differ from the one before: one compare rejects a run.
+            if i + 1 < n && samples[i] == v && samples[i + 1] == v {
+                let mut k = 2;
+                while i + k < n && k < MAX_RUN && samples[i + k] == v {
+                    k += 1;
+                }
+                sink.run(k);
+                i += k;
             }
-            sink.run(k);
-            i += k;
         }
     }
 }
 
-/// Counts the symbols of a segment's block.
+/// Counts the symbols of a segment's block: four tables, so that equal neighbouring samples
+/// (powder is nearly uniform) do not wait on each other's increments.
 struct Histogram<const GRAY8: bool> {
-    freq: [u32; LITLEN],
+    freq: [[u32; LITLEN]; 4],
     /// 8-bit samples seen as literals: each also codes its zero high byte.
     literals: u32,
 }
 
 impl<const GRAY8: bool> Histogram<GRAY8> {
     /// The symbol counts of `samples` and how many 8-bit literals they hold.
-    fn of<T: Copy + PartialEq + Into<u16>>(samples: &[T]) -> ([u32; LITLEN], u32) {
+    fn of<T: Sample>(samples: &[T]) -> ([u32; LITLEN], u32) {
         let mut h = Histogram::<GRAY8> {
-            freq: [0; LITLEN],
+            freq: [[0; LITLEN]; 4],
             literals: 0,
         };
         scan(samples, &mut h);
-        (h.freq, h.literals)
+        let mut freq = h.freq[0];
+        for table in &h.freq[1..] {
+            for (f, &g) in freq.iter_mut().zip(table) {
+                *f += g;
+            }
+        }
+        (freq, h.literals)
+    }
+
+    #[inline(always)]
+    fn count(table: &mut [u32; LITLEN], v: u16) {
+        table[usize::from(v & 0xFF)] += 1;
+        if !GRAY8 {
+            table[usize::from(v >> 8)] += 1;
+        }
     }
 }
 
 impl<const GRAY8: bool> Sink for Histogram<GRAY8> {
     #[inline(always)]
     fn literal(&mut self, v: u16) {
+        Self::count(&mut self.freq[0], v);
+        self.literals += u32::from(GRAY8);
+    }
+
+    #[inline(always)]
+    fn literals<T: Sample>(&mut self, samples: &[T]) {
+        let [f0, f1, f2, f3] = &mut self.freq;
+        for q in samples.chunks_exact(4) {
+            Self::count(f0, q[0].into());
+            Self::count(f1, q[1].into());
+            Self::count(f2, q[2].into());
+            Self::count(f3, q[3].into());
+        }
+        for &v in samples.chunks_exact(4).remainder() {
+            Self::count(f0, v.into());
+        }
         if GRAY8 {
-            self.freq[usize::from(v & 0xFF)] += 1;
-            self.literals += 1;
-        } else {
-            self.freq[usize::from(v & 0xFF)] += 1;
-            self.freq[usize::from(v >> 8)] += 1;
+            self.literals += samples.len() as u32;
         }
     }
 
     #[inline(always)]
     fn run(&mut self, k: usize) {
-        self.freq[length_code(2 * k).0] += 1;
+        self.freq[0][length_code(2 * k).0] += 1;
     }
 }
 
-/// Writes a segment's tokens with its codes.
-struct Emit<'c> {
-    w: BitWriter,
-    /// Per sample value (8-bit samples), its low byte's code followed by its high byte's.
-    pairs: Vec<(u64, u32)>,
-    codes: &'c [(u32, u32)],
-    dist_bits: u64,
+/// A code and its length in one word: the bits in the low half, the length in the high half.
+fn packed(bits: u64, len: u32) -> u64 {
+    bits | (u64::from(len) << 32)
 }
 
-impl Sink for Emit<'_> {
+/// Writes a segment's tokens with its codes.
+struct Emit<const GRAY8: bool> {
+    w: BitWriter,
+    /// 8-bit samples: per value, its low byte's code followed by its high (zero) byte's;
+    /// 16-bit samples: the code of each literal/length symbol. Both [`packed`].
+    table: [u64; LITLEN],
+    /// The length symbols' codes and the distance code, per run length.
+    runs: Vec<u64>,
+}
+
+impl<const GRAY8: bool> Emit<GRAY8> {
+    fn new(w: BitWriter, codes: &[(u32, u32)]) -> Self {
+        let code = |s: usize| (u64::from(codes[s].0), codes[s].1);
+        let mut table = [0u64; LITLEN];
+        for (s, t) in table.iter_mut().enumerate() {
+            let (c, l) = code(s);
+            *t = if GRAY8 && s < 256 {
+                let (c0, l0) = code(0);
+                packed(c | (c0 << l), l + l0)
+            } else {
+                packed(c, l)
+            };
+        }
+        let dist = u64::from(reverse(DIST_CODE, 1));
+        let runs = (0..=MAX_RUN)
+            .map(|k| {
+                if k < 2 {
+                    return 0;
+                }
+                let (sym, extra_len, extra) = length_code(2 * k);
+                let (c, l) = code(sym);
+                let bits = c | (u64::from(extra) << l) | (dist << (l + extra_len));
+                packed(bits, l + extra_len + 1)
+            })
+            .collect();
+        Emit { w, table, runs }
+    }
+}
+
+impl<const GRAY8: bool> Sink for Emit<GRAY8> {
     #[inline(always)]
     fn literal(&mut self, v: u16) {
-        let (bits, len) = match self.pairs.get(usize::from(v)) {
-            Some(&pair) => pair,
-            None => {
-                let (c0, l0) = self.codes[usize::from(v & 0xFF)];
-                let (c1, l1) = self.codes[usize::from(v >> 8)];
-                (u64::from(c0) | (u64::from(c1) << l0), l0 + l1)
+        if GRAY8 {
+            self.w.put_packed(self.table[usize::from(v as u8)]);
+        } else {
+            let lo = self.table[usize::from(v & 0xFF)];
+            let hi = self.table[usize::from(v >> 8)];
+            let (l0, l1) = ((lo >> 32) as u32, (hi >> 32) as u32);
+            self.w
+                .put((lo & 0xFFFF_FFFF) | ((hi & 0xFFFF_FFFF) << l0), l0 + l1);
+        }
+    }
+
+    #[inline(always)]
+    fn literals<T: Sample>(&mut self, samples: &[T]) {
+        if GRAY8 {
+            let mut codes = [0u64; 16];
+            for part in samples.chunks(codes.len()) {
+                for (c, &v) in codes.iter_mut().zip(part) {
+                    *c = self.table[usize::from(v.into() as u8)];
+                }
+                self.w.put_all(&codes[..part.len()]);
             }
-        };
-        self.w.put(bits, len);
+        } else {
+            for &v in samples {
+                self.literal(v.into());
+            }
+        }
     }
 
     #[inline(always)]
     fn run(&mut self, k: usize) {
-        let (sym, extra_len, extra) = length_code(2 * k);
-        let (c, l) = self.codes[sym];
-        self.w
-            .put(u64::from(c) | (u64::from(extra) << l), l + extra_len);
-        self.w.put(self.dist_bits, 1);
+        self.w.put_packed(self.runs[k]);
     }
 }
 
@@ -231,30 +410,23 @@ impl<'a> Segment<'a> {
     fn encode(&self, last: bool) -> Vec<u8> {
         let lengths = code_lengths(&self.frequencies(), 15);
         let codes = canonical_codes(&lengths);
-        // At most 30 bits per sample, and the header.
-        let mut w = BitWriter::with_capacity(4 * self.samples.len() + 1024);
+        // About one byte a sample on camera frames; the vector grows where it is not enough.
+        let mut w = BitWriter::with_capacity(self.samples.len() + 1024);
         w.put(u64::from(last), 1);
         w.put(2, 2);
         write_dynamic_header(&mut w, &lengths);
-        let pair = |v: usize| {
-            let (c0, l0) = codes[v];
-            let (c1, l1) = codes[0];
-            (u64::from(c0) | (u64::from(c1) << l0), l0 + l1)
+        let mut w = match self.samples {
+            Samples::Gray8(s) => {
+                let mut emit = Emit::<true>::new(w, &codes);
+                scan(s, &mut emit);
+                emit.w
+            }
+            Samples::Gray16(s) => {
+                let mut emit = Emit::<false>::new(w, &codes);
+                scan(s, &mut emit);
+                emit.w
+            }
         };
-        let mut emit = Emit {
-            w,
-            pairs: match self.samples {
-                Samples::Gray8(_) => (0..256).map(pair).collect(),
-                Samples::Gray16(_) => Vec::new(),
-            },
-            codes: &codes,
-            dist_bits: u64::from(reverse(DIST_CODE, 1)),
-        };
-        match self.samples {
-            Samples::Gray8(s) => scan(s, &mut emit),
-            Samples::Gray16(s) => scan(s, &mut emit),
-        }
-        let mut w = emit.w;
         let (c, l) = codes[EOB];
         w.put(u64::from(c), l);
         if !last {
@@ -264,274 +436,6 @@ impl<'a> Segment<'a> {
         }
         w.align();
         w.into_bytes()
-    }
-}
-
-/// LSB-first bit packing, 32 bits flushed at a time.
-struct BitWriter {
-    out: Vec<u8>,
-    acc: u64,
-    n: u32,
-}
-
-impl BitWriter {
-    fn with_capacity(bytes: usize) -> Self {
-        BitWriter {
-            out: Vec::with_capacity(bytes),
-            acc: 0,
-            n: 0,
-        }
-    }
-
-    /// Appends the `len` (≤ 32) low bits of `bits`, first bit first.
-    #[inline(always)]
-    fn put(&mut self, bits: u64, len: u32) {
-        self.acc |= bits << self.n;
-        self.n += len;
-        if self.n >= 32 {
-            self.out.extend_from_slice(&(self.acc as u32).to_le_bytes());
-            self.acc >>= 32;
-            self.n -= 32;
-        }
-    }
-
-    /// Pads with zero bits to a byte boundary and flushes.
-    fn align(&mut self) {
-        while self.n > 0 {
-            self.out.push(self.acc as u8);
-            self.acc >>= 8;
-            self.n = self.n.saturating_sub(8);
-        }
-        self.acc = 0;
-    }
-
-    /// Byte-aligned bytes (after [`BitWriter::align`]).
-    fn bytes(&mut self, b: &[u8]) {
-        self.out.extend_from_slice(b);
-    }
-
-    fn into_bytes(self) -> Vec<u8> {
-        self.out
-    }
-}
-
-/// `code` (`len` bits) reversed: deflate sends Huffman codes most significant bit first into an
-/// LSB-first stream.
-fn reverse(code: u32, len: u32) -> u32 {
-    code.reverse_bits() >> (32 - len.max(1))
-}
-
-/// Canonical codes (RFC 1951 3.2.2) of `lengths`, reversed for LSB-first packing, as (code,
-/// length).
-fn canonical_codes(lengths: &[u8]) -> Vec<(u32, u32)> {
-    let mut count = [0u32; 16];
-    for &l in lengths {
-        count[usize::from(l)] += 1;
-    }
-    count[0] = 0;
-    let mut next = [0u32; 16];
-    let mut code = 0;
-    for bits in 1..16 {
-        code = (code + count[bits - 1]) << 1;
-        next[bits] = code;
-    }
-    lengths
-        .iter()
-        .map(|&l| {
-            let l = u32::from(l);
-            if l == 0 {
-                return (0, 0);
-            }
-            let c = next[l as usize];
-            next[l as usize] += 1;
-            (reverse(c, l), l)
-        })
-        .collect()
-}
-
-/// Huffman code lengths for `freq`, none over `max_bits`: optimal lengths (Moffat-Katajainen,
-/// in place on the sorted frequencies), then lengths over the limit folded in as miniz and
-/// zlib do (the codes stay complete), shortest codes to the most frequent symbols. Symbols with
-/// no count get no code; a lone symbol gets a 1-bit code.
-fn code_lengths(freq: &[u32], max_bits: u32) -> Vec<u8> {
-    let mut used: Vec<(u32, usize)> = freq
-        .iter()
-        .enumerate()
-        .filter(|(_, &f)| f > 0)
-        .map(|(s, &f)| (f, s))
-        .collect();
-    let mut lengths = vec![0u8; freq.len()];
-    match used.len() {
-        0 => return lengths,
-        1 => {
-            lengths[used[0].1] = 1;
-            return lengths;
-        }
-        _ => {}
-    }
-    used.sort_unstable();
-    let mut a: Vec<u64> = used.iter().map(|&(f, _)| u64::from(f)).collect();
-    minimum_redundancy(&mut a);
-    // Code lengths, longest first (a[i] is the length of the i-th least frequent symbol).
-    let max = max_bits as usize;
-    let mut per_length = [0u32; 64];
-    for &l in &a {
-        per_length[(l as usize).min(63)] += 1;
-    }
-    let over: u32 = per_length[max + 1..].iter().sum();
-    if over > 0 {
-        per_length[max] += over;
-        for c in per_length[max + 1..].iter_mut() {
-            *c = 0;
-        }
-        let mut total: u64 = (1..=max)
-            .map(|i| u64::from(per_length[i]) << (max - i))
-            .sum();
-        while total > 1 << max {
-            per_length[max] -= 1;
-            for i in (1..max).rev() {
-                if per_length[i] != 0 {
-                    per_length[i] -= 1;
-                    per_length[i + 1] += 2;
-                    break;
-                }
-            }
-            total -= 1;
-        }
-    }
-    // The most frequent symbols (end of `used`) get the shortest lengths.
-    let mut symbols = used.iter().rev();
-    for (len, &count) in per_length.iter().enumerate().take(max + 1).skip(1) {
-        for _ in 0..count {
-            if let Some(&(_, s)) = symbols.next() {
-                lengths[s] = len as u8;
-            }
-        }
-    }
-    lengths
-}
-
-/// Moffat & Katajainen's in-place minimum-redundancy code: `a` holds frequencies in increasing
-/// order and becomes the code lengths.
-fn minimum_redundancy(a: &mut [u64]) {
-    let n = a.len();
-    // Phase 1: internal node weights, with parent pointers overwriting the leaves.
-    a[0] += a[1];
-    let (mut root, mut leaf) = (0usize, 2usize);
-    for next in 1..n - 1 {
-        // First child.
-        if leaf >= n || a[root] < a[leaf] {
-            a[next] = a[root];
-            a[root] = next as u64;
-            root += 1;
-        } else {
-            a[next] = a[leaf];
-            leaf += 1;
-        }
-        // Second child.
-        if leaf >= n || (root < next && a[root] < a[leaf]) {
-            a[next] += a[root];
-            a[root] = next as u64;
-            root += 1;
-        } else {
-            a[next] += a[leaf];
-            leaf += 1;
-        }
-    }
-    // Phase 2: depths of the internal nodes.
-    a[n - 2] = 0;
-    for next in (0..n.saturating_sub(2)).rev() {
-        a[next] = a[a[next] as usize] + 1;
-    }
-    // Phase 3: depths of the leaves.
-    let (mut avail, mut used, mut depth) = (1i64, 0i64, 0u64);
-    let (mut root, mut next) = (n as i64 - 2, n as i64 - 1);
-    while avail > 0 {
-        while root >= 0 && a[root as usize] == depth {
-            used += 1;
-            root -= 1;
-        }
-        while avail > used {
-            a[next as usize] = depth;
-            next -= 1;
-            avail -= 1;
-        }
-        avail = 2 * used;
-        depth += 1;
-        used = 0;
-    }
-}
-
-/// The dynamic block header after BFINAL/BTYPE: HLIT, HDIST, HCLEN, the code-length code and
-/// the run-length-coded literal/length and distance code lengths.
-fn write_dynamic_header(w: &mut BitWriter, litlen: &[u8]) {
-    const ORDER: [usize; 19] = [
-        16, 17, 18, 0, 8, 7, 9, 6, 10, 5, 11, 4, 12, 3, 13, 2, 14, 1, 15,
-    ];
-    let hlit = litlen
-        .iter()
-        .rposition(|&l| l > 0)
-        .map_or(257, |i| i + 1)
-        .max(257);
-    let mut all: Vec<u8> = litlen[..hlit].to_vec();
-    all.extend_from_slice(&[1, 1]);
-    // Run-length coding of the lengths: (symbol, extra bits, extra value).
-    let mut rle: Vec<(usize, u32, u32)> = Vec::new();
-    let mut i = 0;
-    while i < all.len() {
-        let l = all[i];
-        let mut run = 1;
-        while i + run < all.len() && all[i + run] == l {
-            run += 1;
-        }
-        let mut left = run;
-        if l == 0 {
-            while left >= 11 {
-                let r = left.min(138);
-                rle.push((18, 7, (r - 11) as u32));
-                left -= r;
-            }
-            if left >= 3 {
-                rle.push((17, 3, (left - 3) as u32));
-                left = 0;
-            }
-        } else {
-            rle.push((usize::from(l), 0, 0));
-            left -= 1;
-            while left >= 3 {
-                let r = left.min(6);
-                rle.push((16, 2, (r - 3) as u32));
-                left -= r;
-            }
-        }
-        for _ in 0..left {
-            rle.push((usize::from(l), 0, 0));
-        }
-        i += run;
-    }
-    let mut freq = [0u32; 19];
-    for &(s, _, _) in &rle {
-        freq[s] += 1;
-    }
-    let cl_lengths = code_lengths(&freq, 7);
-    let cl_codes = canonical_codes(&cl_lengths);
-    let hclen = ORDER
-        .iter()
-        .rposition(|&s| cl_lengths[s] > 0)
-        .map_or(4, |i| i + 1)
-        .max(4);
-    w.put((hlit - 257) as u64, 5);
-    w.put(1, 5); // HDIST: two distance codes
-    w.put((hclen - 4) as u64, 4);
-    for &s in &ORDER[..hclen] {
-        w.put(u64::from(cl_lengths[s]), 3);
-    }
-    for (s, extra_len, extra) in rle {
-        let (c, l) = cl_codes[s];
-        w.put(u64::from(c), l);
-        if extra_len > 0 {
-            w.put(u64::from(extra), extra_len);
-        }
     }
 }
 
@@ -586,21 +490,73 @@ mod tests {
         }
     }
 
-    #[test]
-    fn lengths_are_limited_and_complete() {
-        // Fibonacci frequencies force lengths far beyond 15 without the limit.
-        let mut freq = vec![0u32; 40];
-        let (mut a, mut b) = (1u32, 1u32);
-        for f in freq.iter_mut() {
-            *f = a;
-            (a, b) = (b, a.saturating_add(b));
+    /// The tokens of a scan, as a sink records them.
+    #[derive(Default)]
+    struct Tokens(Vec<(bool, usize)>);
+
+    impl Sink for Tokens {
+        fn literal(&mut self, v: u16) {
+            self.0.push((true, usize::from(v)));
         }
-        let lengths = code_lengths(&freq, 15);
-        assert!(lengths.iter().all(|&l| (1..=15).contains(&l)));
-        let kraft: f64 = lengths.iter().map(|&l| 0.5f64.powi(i32::from(l))).sum();
-        assert!((kraft - 1.0).abs() < 1e-12, "Kraft sum {kraft}");
-        // Unlimited lengths are optimal: the expected length of a known case.
-        let lengths = code_lengths(&[1, 1, 2, 4], 15);
-        assert_eq!(lengths, vec![3, 3, 2, 1]);
+        fn run(&mut self, k: usize) {
+            self.0.push((false, k));
+        }
+    }
+
+    /// The scan sample by sample, without the chunks.
+    fn reference_scan<T: Sample>(samples: &[T]) -> Vec<(bool, usize)> {
+        let mut t = Tokens::default();
+        let (n, mut i) = (samples.len(), 0);
+        while i < n {
+            let v = samples[i];
+            t.literal(v.into());
+            i += 1;
+            if i + 1 < n && samples[i] == v && samples[i + 1] == v {
+                let mut k = 2;
+                while i + k < n && k < MAX_RUN && samples[i + k] == v {
+                    k += 1;
+                }
+                t.run(k);
+                i += k;
+            }
+        }
+        t.0
+    }
+
+    #[test]
+    fn chunked_scan_gives_the_tokens_of_the_sample_by_sample_scan() {
+        // Few grey levels, so that pairs and runs of every length land at every offset of a
+        // chunk, and the end of the input cuts chunks and runs.
+        let mut x = 99u32;
+        let mut v8 = Vec::new();
+        for i in 0..20_000 {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            let r = (x >> 16) as usize;
+            if r.is_multiple_of(7) {
+                let run = r % 140;
+                v8.extend(std::iter::repeat_n((i % 5) as u8, run));
+            } else {
+                v8.push((r % 3) as u8);
+            }
+        }
+        let v16: Vec<u16> = v8.iter().map(|&v| u16::from(v) * 300).collect();
+        for n in [0, 1, 2, 3, 17, 18, 19, 33, 1000, v8.len()] {
+            let mut t = Tokens::default();
+            scan(&v8[..n], &mut t);
+            assert_eq!(t.0, reference_scan(&v8[..n]), "8-bit, {n} samples");
+            let mut t = Tokens::default();
+            scan(&v16[..n], &mut t);
+            assert_eq!(t.0, reference_scan(&v16[..n]), "16-bit, {n} samples");
+        }
+        for i in 0..v8.len() - 18 {
+            assert_eq!(u8::run_free(&v8, i), run_free_scalar(&v8, i, 16), "at {i}");
+        }
+        for i in 0..v16.len() - 10 {
+            assert_eq!(
+                u16::run_free(&v16, i),
+                run_free_scalar(&v16, i, 8),
+                "at {i}"
+            );
+        }
     }
 }
