@@ -191,7 +191,10 @@ try:
     assert "checking part 3" in history, history
     assert "raised at layer" in history, history
     print("history:", history[:200])
-    result = console.js("return document.getElementById('ack-result').textContent")
+    # The answer to the page's own POST can land after the event stream has
+    # already updated the history: wait for it rather than read it once.
+    result = wait_for("the acknowledgement's answer on the page", lambda: console.js(
+        "return document.getElementById('ack-result').textContent") or None)
     assert result.startswith("alarm acknowledged by ana"), result
     linked.screenshot("console-acknowledged.png")
 finally:
