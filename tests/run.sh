@@ -87,12 +87,14 @@ if [ "$fuzz_seconds" != 0 ]; then export LAYERWISE_FUZZ_SEEDS="$PWD/target/fuzz-
 bash fuzz/run.sh target/fuzz-seeds "$fuzz_seconds" --beside target
 # The binary built without optional features (`--no-default-features`), through the path a user
 # takes: a NEF is refused with the feature to build, and check-config refuses a gphoto2 camera
-# it cannot drive (issue 13). Only layerwise and the crates whose features differ without rawler
-# and the OPC UA stack compile again (with the lib's unit tests too it was 4 min 30 s); the test
+# it cannot drive (issue 13). Only layerwise and the crates whose features differ without rawler,
+# the OPC UA stack and CharLS compile again (about 45, and everything above them); the test
 # binary leaves out its modules that need testkit, nef or gphoto, and runs the four refusals.
-# They run in a fraction of a second, so layerwise is compiled unoptimised here: 43 s instead of
-# 157 s on 2 cores (the dependencies keep the test profile, most of them already built).
-cargo test --no-default-features --config 'profile.dev.package.layerwise.opt-level=0' --test it -- without_the_feature
+# Those run in a fraction of a second, so what compiles again compiles unoptimised:
+# tests/no_default_rebuilds.py names it (cargo tree, with and without the features). At the test
+# profile's opt-levels the step took 3 min 4 s on 2 cores, 2 min 20 s of it the dependencies.
+mapfile -t unoptimised < <(python3 tests/no_default_rebuilds.py)
+cargo test --no-default-features "${unoptimised[@]}" --test it -- without_the_feature
 # Benchmarks are run by hand (cargo bench); here they only have to build, in the test profile
 # whose dependencies are built above (a release build of every dependency would add ~8 minutes).
 "${lint[@]}" cargo test --workspace --all-features --benches --no-run
