@@ -19,6 +19,9 @@ pub enum LearnCommand {
     /// The model side by side with the classical inspection on the same labelled frames: per
     /// class, frames found (false alarms for the normal class) by each.
     Compare(super::learn_compare::CompareArgs),
+    /// Block cross-validation: every picture held out once, by blocks of its sequence (or of
+    /// the layers), a model trained on the rest for each block; per-class recall pooled.
+    Cv(CvArgs),
 }
 
 impl LearnCommand {
@@ -29,6 +32,7 @@ impl LearnCommand {
             LearnCommand::Predict(a) => a.run(),
             LearnCommand::Info(a) => a.run(),
             LearnCommand::Compare(a) => a.run(),
+            LearnCommand::Cv(a) => a.run(),
         }
     }
 }
@@ -42,11 +46,23 @@ pub struct TrainArgs {
     /// The model file to write (.safetensors).
     #[arg(long)]
     out: PathBuf,
+    #[command(flatten)]
+    training: TrainingArgs,
+    /// Once the epoch is chosen on the held-out part, train afresh on every picture (both
+    /// parts and the frames between them) for that many epochs and write that model; the file
+    /// keeps the selection run's held-out metrics.
+    #[arg(long)]
+    refit: bool,
+}
+
+/// How a model is trained: `learn train` and each fold of `learn cv`.
+#[derive(Args)]
+pub struct TrainingArgs {
     /// Most epochs (training stops earlier on a plateau of the validation loss).
     #[arg(long, default_value_t = 40)]
     epochs: usize,
     /// Share of every sequence (its last frames) or of the layers (the last ones) held out for
-    /// validation.
+    /// validation (`learn cv`: of what each fold's model is given, to choose its epoch).
     #[arg(long, default_value_t = 0.2)]
     val_fraction: f64,
     /// Seed of the weights, batches and augmentations (the same seed, the same model).
@@ -77,15 +93,10 @@ pub struct TrainArgs {
     /// Output channels of the convolution blocks, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,64")]
     channels: Vec<usize>,
-    /// Once the epoch is chosen on the held-out part, train afresh on every picture (both
-    /// parts and the frames between them) for that many epochs and write that model; the file
-    /// keeps the selection run's held-out metrics.
-    #[arg(long)]
-    refit: bool,
 }
 
-impl TrainArgs {
-    fn run(self) -> Result<()> {
+impl TrainingArgs {
+    fn options(&self, refit: bool) -> Result<TrainOptions> {
         if !(0.0..0.9).contains(&self.val_fraction) {
             bail!(
                 "--val-fraction {} must be at least 0 and below 0.9",
@@ -95,8 +106,7 @@ impl TrainArgs {
         if self.channels.is_empty() || self.channels.iter().any(|&c| c == 0 || c > 512) {
             bail!("--channels must be 1 to 512 each");
         }
-        let data = learn::source::open(&self.data, self.normal.as_deref())?;
-        let opts = TrainOptions {
+        Ok(TrainOptions {
             epochs: self.epochs.max(1),
             val_fraction: self.val_fraction,
             seed: self.seed,
@@ -109,8 +119,31 @@ impl TrainArgs {
             learning_rate: 2e-3,
             patience: self.patience.max(1),
             max_seconds: self.max_seconds,
-            refit: self.refit,
-        };
+            refit,
+        })
+    }
+}
+
+/// The progress line of an epoch.
+fn epoch_line(e: &learn::Epoch) -> String {
+    let val = match (&e.val_loss, &e.val_balanced_loss, &e.val) {
+        (Some(l), Some(b), Some(m)) => format!(
+            "  val loss {l:.3}  balanced {b:.3}  val acc {:.3}  macro recall {:.3}",
+            m.accuracy, m.macro_recall
+        ),
+        _ => String::new(),
+    };
+    let what = if e.refit { "refit epoch" } else { "epoch" };
+    format!(
+        "{what} {}/{}  loss {:.3}{val}  {:.1} s ({:.1} s preparing pictures)",
+        e.epoch, e.epochs, e.loss, e.seconds, e.prepare_seconds
+    )
+}
+
+impl TrainArgs {
+    fn run(self) -> Result<()> {
+        let opts = self.training.options(self.refit)?;
+        let data = learn::source::open(&self.data, opts.normal.as_deref())?;
         let parts = data.split(opts.val_fraction);
         let count = |p: Part| parts.iter().filter(|x| **x == p).count();
         eprintln!(
@@ -123,20 +156,7 @@ impl TrainArgs {
             count(Part::Val),
             count(Part::Dropped)
         );
-        let (net, mut header) = learn::train(&data, &opts, |e| {
-            let val = match (&e.val_loss, &e.val_balanced_loss, &e.val) {
-                (Some(l), Some(b), Some(m)) => format!(
-                    "  val loss {l:.3}  balanced {b:.3}  val acc {:.3}  macro recall {:.3}",
-                    m.accuracy, m.macro_recall
-                ),
-                _ => String::new(),
-            };
-            let what = if e.refit { "refit epoch" } else { "epoch" };
-            eprintln!(
-                "{what} {}/{}  loss {:.3}{val}  {:.1} s ({:.1} s preparing pictures)",
-                e.epoch, e.epochs, e.loss, e.seconds, e.prepare_seconds
-            );
-        })?;
+        let (net, mut header) = learn::train(&data, &opts, |e| eprintln!("{}", epoch_line(e)))?;
         Model::save(&self.out, &net, &mut header)?;
         let t = &header.training;
         eprintln!(
@@ -338,4 +358,70 @@ fn refit_line(r: &learn::RefitInfo) -> String {
         r.lr_cuts,
         r.seconds
     )
+}
+
+#[derive(Args)]
+pub struct CvArgs {
+    /// Labelled pictures, as for `learn train --data`.
+    #[arg(long)]
+    data: PathBuf,
+    /// Blocks every sequence (or the run of layers) is cut into; one model is trained per block.
+    #[arg(long, default_value_t = 4)]
+    folds: usize,
+    /// One JSON object: rule, seed, folds (each: fold, given, held_out, left_out, epochs_run,
+    /// best_epoch, stopped, seconds, metrics) and pooled (accuracy, macro_recall, classes,
+    /// per_class, confusion), never_held_out.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    training: TrainingArgs,
+}
+
+impl CvArgs {
+    fn run(self) -> Result<()> {
+        let opts = self.training.options(false)?;
+        let data = learn::source::open(&self.data, opts.normal.as_deref())?;
+        eprintln!(
+            "{} ({}): {} pictures in {} classes, {} folds by {}",
+            self.data.display(),
+            data.kind.name(),
+            data.items.len(),
+            data.classes.len(),
+            self.folds,
+            learn::crossval::RULE
+        );
+        let json = self.json;
+        let cv = learn::cross_validate(
+            &data,
+            &opts,
+            self.folds,
+            |fold, e| eprintln!("fold {fold}: {}", epoch_line(e)),
+            |f| {
+                let line = format!(
+                    "fold {}/{}: given {}, held out {}, left out {}; epoch {} of {} ({}), {:.0} s: accuracy {:.3}, macro recall {:.3}",
+                    f.fold, self.folds, f.given, f.held_out, f.left_out, f.best_epoch, f.epochs_run,
+                    f.stopped, f.seconds, f.metrics.accuracy, f.metrics.macro_recall
+                );
+                if json {
+                    eprintln!("{line}");
+                } else {
+                    println!("{line}");
+                }
+            },
+        )?;
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&cv)?);
+            return Ok(());
+        }
+        println!(
+            "pooled over {} folds (every picture classified by the model that did not see it{}):",
+            cv.folds.len(),
+            match cv.never_held_out {
+                0 => String::new(),
+                n => format!("; {n} never held out"),
+            }
+        );
+        print!("{}", cv.pooled);
+        Ok(())
+    }
 }

@@ -339,21 +339,27 @@ impl Dataset {
                         parts[i] = Part::Dropped;
                     }
                 }
-                let seen: BTreeSet<u32> = self
-                    .items
-                    .iter()
-                    .zip(&parts)
-                    .filter(|(_, p)| **p == Part::Val)
-                    .filter_map(|(i, _)| i.flaw)
-                    .collect();
-                for (i, it) in self.items.iter().enumerate() {
-                    if parts[i] == Part::Train && it.flaw.is_some_and(|f| seen.contains(&f)) {
-                        parts[i] = Part::Dropped;
-                    }
-                }
+                self.leave_out_held_flaws(&mut parts);
             }
         }
         parts
+    }
+
+    /// No flaw on both sides: the training patches of a flaw that has held-out patches are
+    /// left out.
+    pub(crate) fn leave_out_held_flaws(&self, parts: &mut [Part]) {
+        let seen: BTreeSet<u32> = self
+            .items
+            .iter()
+            .zip(parts.iter())
+            .filter(|(_, p)| **p == Part::Val)
+            .filter_map(|(i, _)| i.flaw)
+            .collect();
+        for (it, part) in self.items.iter().zip(parts.iter_mut()) {
+            if *part == Part::Train && it.flaw.is_some_and(|f| seen.contains(&f)) {
+                *part = Part::Dropped;
+            }
+        }
     }
 
     /// SHA-256 over the sorted lines `relative-path TAB sha256(file)` (verdict windows add

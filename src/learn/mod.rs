@@ -5,6 +5,7 @@
 //! classical inspection ([`live`]). See docs/learning.md.
 
 pub mod augment;
+pub mod crossval;
 pub mod data;
 pub mod error;
 pub mod file;
@@ -19,6 +20,7 @@ pub mod source;
 pub mod train;
 pub mod verdicts;
 
+pub use crossval::{cross_validate, CrossValidation, FoldReport};
 pub use data::{Dataset, Part};
 pub use error::{LearnError, ModelError};
 pub use file::{Header, Model, RefitInfo, Use};

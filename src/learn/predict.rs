@@ -1,7 +1,7 @@
 //! Running a model: a picture's class with every class's probability and the per-tile
 //! probabilities (the class map), an evaluation over a labelled folder, and the heat map.
 
-use super::data::{read_item, Dataset, Part};
+use super::data::{read_item, Dataset, Item, Part};
 use super::error::LearnError;
 use super::file::{Model, Use};
 use super::input::{self, Gray, Input, CHANNELS};
@@ -110,7 +110,18 @@ impl Model {
             .filter(|(_, p)| part.is_none_or(|want| **p == want))
             .map(|(i, _)| i)
             .collect();
-        let pairs: Vec<(usize, usize)> = items
+        let pairs = self.classify_items(data, &items)?;
+        Ok(Metrics::new(classes, &pairs))
+    }
+
+    /// (true, predicted) class indices, in the model's class order, of `items` of `data`.
+    pub fn classify_items(
+        &self,
+        data: &Dataset,
+        items: &[&Item],
+    ) -> Result<Vec<(usize, usize)>, LearnError> {
+        let classes = &self.header.classes;
+        items
             .par_iter()
             .map(|item| {
                 let img = read_item(item)?;
@@ -126,8 +137,7 @@ impl Model {
                 let predicted = classes.iter().position(|c| *c == p.class).unwrap_or(0);
                 Ok((truth, predicted))
             })
-            .collect::<Result<_, LearnError>>()?;
-        Ok(Metrics::new(classes, &pairs))
+            .collect()
     }
 }
 

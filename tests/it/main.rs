@@ -35,6 +35,7 @@ mod health;
 mod inspect_frames;
 mod inspection;
 mod learn;
+mod learn_cv;
 mod lifecycle;
 mod pacs;
 mod pacs_push;
