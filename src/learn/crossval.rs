@@ -11,13 +11,13 @@
 //! held-out block). Each fold's model classifies its held-out block; the pooled confusion matrix
 //! covers every picture once.
 
-use super::data::{DataKind, Dataset, Item, Part};
+use super::data::{guard_frames, DataKind, Dataset, Item, Part};
 use super::error::LearnError;
 use super::file::{Model, TrainingInfo};
 use super::metrics::Metrics;
 use super::train::{train, Epoch, TrainOptions};
 use serde::Serialize;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -59,18 +59,13 @@ pub fn fold_parts(data: &Dataset, folds: usize, k: usize) -> Vec<Part> {
     let mut parts = vec![Part::Train; data.items.len()];
     match data.kind {
         DataKind::ClassFolders => {
-            let mut seqs: BTreeMap<(usize, &str), Vec<usize>> = BTreeMap::new();
-            for (i, it) in data.items.iter().enumerate() {
-                seqs.entry((it.class, &it.seq)).or_default().push(i);
-            }
-            for idx in seqs.values_mut() {
-                idx.sort_by_key(|&i| (data.items[i].order, data.items[i].rel.clone()));
+            for idx in data.sequences() {
                 let n = idx.len();
                 let (start, end) = (k * n / folds, (k + 1) * n / folds);
                 if start == end {
                     continue;
                 }
-                let guard = if n >= 20 { 2 } else { 1 };
+                let guard = guard_frames(n);
                 for (pos, &i) in idx.iter().enumerate() {
                     if (start..end).contains(&pos) {
                         parts[i] = Part::Val;
@@ -81,13 +76,7 @@ pub fn fold_parts(data: &Dataset, folds: usize, k: usize) -> Vec<Part> {
             }
         }
         DataKind::Flaws | DataKind::Verdicts => {
-            let layers: Vec<i64> = data
-                .items
-                .iter()
-                .map(|i| i.order)
-                .collect::<BTreeSet<_>>()
-                .into_iter()
-                .collect();
+            let layers = data.layers();
             let n = layers.len();
             let (start, end) = (k * n / folds, (k + 1) * n / folds);
             if start == end {
@@ -127,23 +116,8 @@ pub fn cross_validate(
     mut fold_done: impl FnMut(&FoldReport),
 ) -> Result<CrossValidation, LearnError> {
     let units = match data.kind {
-        DataKind::ClassFolders => data
-            .items
-            .iter()
-            .map(|i| (i.class, i.seq.as_str()))
-            .fold(BTreeMap::new(), |mut m, key| {
-                *m.entry(key).or_insert(0usize) += 1;
-                m
-            })
-            .into_values()
-            .max()
-            .unwrap_or(0),
-        DataKind::Flaws | DataKind::Verdicts => data
-            .items
-            .iter()
-            .map(|i| i.order)
-            .collect::<BTreeSet<_>>()
-            .len(),
+        DataKind::ClassFolders => data.sequences().iter().map(Vec::len).max().unwrap_or(0),
+        DataKind::Flaws | DataKind::Verdicts => data.layers().len(),
     };
     if folds < 2 || folds > units {
         let what = match data.kind {

@@ -93,6 +93,16 @@ fn is_image(p: &Path) -> bool {
         .is_some_and(|e| IMAGE_EXT.contains(&e.to_ascii_lowercase().as_str()))
 }
 
+/// Frames left out on either side of a held-out run of a sequence of `n`: near-twins of their
+/// neighbours.
+pub(crate) fn guard_frames(n: usize) -> usize {
+    if n >= 20 {
+        2
+    } else {
+        1
+    }
+}
+
 /// `converted__0033` → (`converted__`, 33).
 pub fn sequence_key(stem: &str) -> (String, i64) {
     let digits = stem.len() - stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
@@ -301,18 +311,13 @@ impl Dataset {
         }
         match self.kind {
             DataKind::ClassFolders => {
-                let mut seqs: BTreeMap<(usize, &str), Vec<usize>> = BTreeMap::new();
-                for (i, it) in self.items.iter().enumerate() {
-                    seqs.entry((it.class, &it.seq)).or_default().push(i);
-                }
-                for idx in seqs.values_mut() {
-                    idx.sort_by_key(|&i| (self.items[i].order, self.items[i].rel.clone()));
+                for idx in self.sequences() {
                     let n = idx.len();
                     if n < 4 {
                         continue;
                     }
                     let val = ((f * n as f64).ceil() as usize).clamp(1, n - 2);
-                    let guard = if n >= 20 { 2 } else { 1 };
+                    let guard = guard_frames(n);
                     for (k, &i) in idx.iter().enumerate() {
                         if k >= n - val {
                             parts[i] = Part::Val;
@@ -323,8 +328,7 @@ impl Dataset {
                 }
             }
             DataKind::Flaws | DataKind::Verdicts => {
-                let layers: BTreeSet<i64> = self.items.iter().map(|i| i.order).collect();
-                let layers: Vec<i64> = layers.into_iter().collect();
+                let layers = self.layers();
                 let n = layers.len();
                 if n < 3 {
                     return parts;
@@ -343,6 +347,25 @@ impl Dataset {
             }
         }
         parts
+    }
+
+    /// The item indices of every sequence (one class's frames sharing a stem), in frame order.
+    pub(crate) fn sequences(&self) -> Vec<Vec<usize>> {
+        let mut seqs: BTreeMap<(usize, &str), Vec<usize>> = BTreeMap::new();
+        for (i, it) in self.items.iter().enumerate() {
+            seqs.entry((it.class, &it.seq)).or_default().push(i);
+        }
+        let mut seqs: Vec<Vec<usize>> = seqs.into_values().collect();
+        for idx in &mut seqs {
+            idx.sort_by_key(|&i| (self.items[i].order, self.items[i].rel.clone()));
+        }
+        seqs
+    }
+
+    /// The layers of the patches or verdicts, ascending.
+    pub(crate) fn layers(&self) -> Vec<i64> {
+        let layers: BTreeSet<i64> = self.items.iter().map(|i| i.order).collect();
+        layers.into_iter().collect()
     }
 
     /// No flaw on both sides: the training patches of a flaw that has held-out patches are
