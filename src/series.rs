@@ -266,7 +266,7 @@ impl LiveSeries {
         steps: &mut StepTimes,
     ) -> Result<FrameLuma, SeriesError> {
         let started = Instant::now();
-        let luma = rectify::decode_frame_luma(original)?;
+        let luma = rectify::decode_frame_luma_for(original, &self.rectifier)?;
         steps.decode_ms = ms_since(started);
         let started = Instant::now();
         let rectified = luma.rectified(&self.rectifier);

@@ -9,7 +9,9 @@ cv2.warpPerspective(INTER_LINEAR | WARP_INVERSE_MAP, BORDER_CONSTANT) and
 with examples/rectify_file.rs, and compares time and output.
 
 Both sides run with their default threads (all cores). Each timing is the
-median of 5 runs; the machine may be shared, so the whole comparison is
+median of 5 runs after 2 untimed ones (both sides: a fresh process's first
+large outputs are fresh pages from the kernel, a long-running one reuses
+what it freed); the machine may be shared, so the whole comparison is
 repeated (--rounds, default 3) alternating the two tools, and the round
 with the lowest figures (least outside load) is also reported.
 
@@ -78,14 +80,19 @@ def valid_mask(m, w, h, border=2):
     return cv2.erode(ok.astype(np.uint8), k, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
 
 
+# Untimed runs before the 5 timed ones, on both sides (examples/rectify_file.rs: WARM_UP).
+WARM_UP = 2
+
+
 def time_opencv(src, m, reuse):
     times, out, dst = [], None, None
-    for _ in range(5):
+    for run in range(WARM_UP + 5):
         t = time.perf_counter()
         res = cv2.warpPerspective(src, m, (N_GRID, N_GRID), dst=dst,
                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        times.append((time.perf_counter() - t) * 1e3)
+        if run >= WARM_UP:
+            times.append((time.perf_counter() - t) * 1e3)
         out = res  # the previous output is released here, outside the timing
         if reuse:
             dst = res

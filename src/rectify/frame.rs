@@ -1,6 +1,7 @@
 //! A camera frame as the body delivered it: a JPEG (zune-jpeg), a camera raw frame (a NEF,
 //! developed by rawler, see [`super::raw`]) or any picture the image crate reads (PNG, TIFF).
 
+use super::luma_decode::decode_jpeg_luma_for;
 use super::srgb::srgb_encode;
 use super::{decode_jpeg, decode_jpeg_luma, Gray16Image, Rectifier, RectifyError};
 use image::{DynamicImage, GrayImage};
@@ -88,6 +89,18 @@ pub fn decode_frame_luma(bytes: &[u8]) -> Result<FrameLuma, RectifyError> {
         return raw.luminance().map(FrameLuma::Linear16);
     }
     Ok(FrameLuma::Gamma8(decode_picture(bytes)?.to_luma8()))
+}
+
+/// [`decode_frame_luma`] for `rectifier`: of a JPEG, only the pixels it reads are decoded (the
+/// rest are 0), so the result is for that rectifier alone.
+pub fn decode_frame_luma_for(
+    bytes: &[u8],
+    rectifier: &Rectifier,
+) -> Result<FrameLuma, RectifyError> {
+    if bytes.starts_with(&[0xFF, 0xD8]) {
+        return decode_jpeg_luma_for(bytes, rectifier).map(FrameLuma::Gamma8);
+    }
+    decode_frame_luma(bytes)
 }
 
 /// The frame in colour, for pictures and for registration (raw frames: sRGB-encoded, 16 bits).

@@ -2,13 +2,29 @@
 //! so the views' luma needs neither chroma upsampling nor colour conversion.
 
 use super::decode::{zune_decode, Decoded};
-use super::RectifyError;
+use super::{Rectifier, RectifyError};
 use image::GrayImage;
 
 /// Decodes only the luma of a JPEG (grey JPEGs as they are): baseline and extended sequential
 /// 8-bit frames with our own decoder (`jpeg_luma`), every other JPEG with zune-jpeg.
 pub fn decode_jpeg_luma(bytes: &[u8]) -> Result<GrayImage, RectifyError> {
-    if let Some(decoded) = super::jpeg_luma::decode_luma(bytes) {
+    decode_jpeg_luma_within(bytes, None)
+}
+
+/// [`decode_jpeg_luma`] of the pixels `rectifier` reads (its footprint): with our decoder the
+/// other blocks are not turned into pixels and are 0; zune-jpeg decodes all of them.
+pub fn decode_jpeg_luma_for(
+    bytes: &[u8],
+    rectifier: &Rectifier,
+) -> Result<GrayImage, RectifyError> {
+    decode_jpeg_luma_within(bytes, Some(rectifier))
+}
+
+fn decode_jpeg_luma_within(
+    bytes: &[u8],
+    rectifier: Option<&Rectifier>,
+) -> Result<GrayImage, RectifyError> {
+    if let Some(decoded) = super::jpeg_luma::decode_luma(bytes, rectifier) {
         return decoded;
     }
     let Decoded {

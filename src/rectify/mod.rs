@@ -35,6 +35,7 @@
 pub mod calibration;
 mod decode;
 mod file;
+mod footprint;
 mod frame;
 mod jpeg_luma;
 mod jpeg_scan;
@@ -59,8 +60,8 @@ pub use crate::geometry::{CameraModel, Grid, RadialDistortion};
 pub use calibration::{Calibration, CalibrationError};
 pub use decode::{decode_jpeg, luma};
 pub use file::{rectify_file, RectifyFileError};
-pub use frame::{decode_frame, decode_frame_luma, FrameLuma};
-pub use luma_decode::decode_jpeg_luma;
+pub use frame::{decode_frame, decode_frame_luma, decode_frame_luma_for, FrameLuma};
+pub use luma_decode::{decode_jpeg_luma, decode_jpeg_luma_for};
 pub use warp::{Rectifier, MAX_SOURCE_SIDE};
 
 /// 16-bit single-channel image.

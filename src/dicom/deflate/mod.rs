@@ -2,12 +2,13 @@
 //! literals with one dynamic Huffman code per segment, plus runs of a repeated sample as matches
 //! at distance 2 (a sample is two bytes). No other string matching: on rectified camera frames
 //! matches beyond runs are rare, and the literal codes are what makes the file small (on a
-//! rectified D810 frame 12% larger than zlib's level 1 and 8% smaller than the miniz level 1
+//! rectified D810 frame 13% larger than zlib's level 1 and 8% smaller than the miniz level 1
 //! used before, in 0.15 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
-//! Each segment is read twice, once to count its symbols and once to write them; both passes
-//! take 16 samples at a time where none of them starts a run ([`scan`]).
+//! Each segment is read twice: once to count its byte values (a plain histogram, no run scan:
+//! [`Segment::frequencies`]), once to write its tokens, taking 16 samples at a time where none
+//! of them starts a run ([`scan`]).
 //!
 //! Segments of [`SEGMENT`] samples are coded in parallel, each ending on a byte boundary with an
 //! empty stored block (as zlib's sync flush and pigz do), so their concatenation is one stream;
@@ -117,6 +118,8 @@ struct Segment<'a> {
 
 /// The sample types a segment's scan is compiled for.
 trait Sample: Copy + PartialEq + Into<u16> {
+    /// Whether a sample's high byte can be other than 0 (16-bit samples).
+    const WIDE: bool;
     /// Samples one [`Sample::run_free`] check covers.
     const CHUNK: usize;
     /// Whether no run starts at any of `s[i..i + CHUNK]`: no `p` there with
@@ -161,6 +164,7 @@ unsafe fn sse2_run_free<const WIDE: bool>(p: *const u8) -> bool {
 }
 
 impl Sample for u8 {
+    const WIDE: bool = false;
     const CHUNK: usize = 16;
 
     #[inline(always)]
@@ -179,6 +183,7 @@ impl Sample for u8 {
 }
 
 impl Sample for u16 {
+    const WIDE: bool = true;
     const CHUNK: usize = 8;
 
     #[inline(always)]
@@ -244,68 +249,35 @@ fn scan<T: Sample, S: Sink>(samples: &[T], sink: &mut S) {
     }
 }
 
-/// Counts the symbols of a segment's block: four tables, so that equal neighbouring samples
-/// (powder is nearly uniform) do not wait on each other's increments.
-struct Histogram<const GRAY8: bool> {
-    freq: [[u32; LITLEN]; 4],
-    /// 8-bit samples seen as literals: each also codes its zero high byte.
-    literals: u32,
-}
-
-impl<const GRAY8: bool> Histogram<GRAY8> {
-    /// The symbol counts of `samples` and how many 8-bit literals they hold.
-    fn of<T: Sample>(samples: &[T]) -> ([u32; LITLEN], u32) {
-        let mut h = Histogram::<GRAY8> {
-            freq: [[0; LITLEN]; 4],
-            literals: 0,
-        };
-        scan(samples, &mut h);
-        let mut freq = h.freq[0];
-        for table in &h.freq[1..] {
-            for (f, &g) in freq.iter_mut().zip(table) {
-                *f += g;
-            }
-        }
-        (freq, h.literals)
-    }
-
-    #[inline(always)]
-    fn count(table: &mut [u32; LITLEN], v: u16) {
+/// The byte values of `samples` counted as literals (16-bit samples: both bytes; 8-bit samples:
+/// the value, their zero high bytes are added by the caller), in four tables so that equal
+/// neighbouring samples (powder is nearly uniform) do not wait on each other's increments.
+fn byte_counts<T: Sample>(samples: &[T]) -> [u32; LITLEN] {
+    let mut tables = [[0u32; 256]; 4];
+    let count = |table: &mut [u32; 256], v: u16| {
         table[usize::from(v & 0xFF)] += 1;
-        if !GRAY8 {
+        if T::WIDE {
             table[usize::from(v >> 8)] += 1;
         }
+    };
+    let [t0, t1, t2, t3] = &mut tables;
+    let quads = samples.chunks_exact(4);
+    for &v in quads.remainder() {
+        count(t0, v.into());
     }
-}
-
-impl<const GRAY8: bool> Sink for Histogram<GRAY8> {
-    #[inline(always)]
-    fn literal(&mut self, v: u16) {
-        Self::count(&mut self.freq[0], v);
-        self.literals += u32::from(GRAY8);
+    for q in quads {
+        count(t0, q[0].into());
+        count(t1, q[1].into());
+        count(t2, q[2].into());
+        count(t3, q[3].into());
     }
-
-    #[inline(always)]
-    fn literals<T: Sample>(&mut self, samples: &[T]) {
-        let [f0, f1, f2, f3] = &mut self.freq;
-        for q in samples.chunks_exact(4) {
-            Self::count(f0, q[0].into());
-            Self::count(f1, q[1].into());
-            Self::count(f2, q[2].into());
-            Self::count(f3, q[3].into());
-        }
-        for &v in samples.chunks_exact(4).remainder() {
-            Self::count(f0, v.into());
-        }
-        if GRAY8 {
-            self.literals += samples.len() as u32;
+    let mut freq = [0u32; LITLEN];
+    for table in &tables {
+        for (f, &g) in freq.iter_mut().zip(table) {
+            *f += g;
         }
     }
-
-    #[inline(always)]
-    fn run(&mut self, k: usize) {
-        self.freq[0][length_code(2 * k).0] += 1;
-    }
+    freq
 }
 
 /// A code and its length in one word: the bits in the low half, the length in the high half.
@@ -394,15 +366,24 @@ impl<'a> Segment<'a> {
         Segment { samples }
     }
 
-    /// Symbol counts of the segment's block (its end-of-block included).
+    /// The symbol counts the segment's code is built from, in one pass without the run scan:
+    /// every sample counted as a literal (a sample inside a run too, which can only lengthen
+    /// its run's code a little: runs are rare in camera frames, and a run of 129 samples costs
+    /// a few bits whatever its code), every length symbol and the end of block at least once,
+    /// so that every token the scan then writes has a code.
     fn frequencies(&self) -> [u32; LITLEN] {
-        let (mut freq, literals) = match self.samples {
-            Samples::Gray8(s) => Histogram::<true>::of(s),
-            Samples::Gray16(s) => Histogram::<false>::of(s),
+        let mut freq = match self.samples {
+            Samples::Gray8(s) => {
+                let mut freq = byte_counts(s);
+                // Every 8-bit sample's high byte is 0.
+                freq[0] = freq[0].saturating_add(s.len() as u32);
+                freq
+            }
+            Samples::Gray16(s) => byte_counts(s),
         };
-        // Every 8-bit sample's high byte is 0.
-        freq[0] += literals;
-        freq[EOB] = 1;
+        for f in &mut freq[EOB..] {
+            *f = (*f).max(1);
+        }
         freq
     }
 

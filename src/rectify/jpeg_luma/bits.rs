@@ -8,7 +8,7 @@
 use super::zigzag::ZIGZAG;
 
 /// Bits looked up at once.
-const FAST_BITS: u32 = 10;
+const FAST_BITS: u32 = 12;
 const FAST_SIZE: usize = 1 << FAST_BITS;
 
 /// A Huffman table: a `FAST_BITS` lookup for short codes, the canonical code bounds for the

@@ -164,6 +164,9 @@ pub(super) struct Band<'a> {
     /// Rows of `width` pixels from the band's top (fewer than the blocks cover at the bottom).
     pub(super) out: &'a mut [u8],
     pub(super) width: usize,
+    /// Per block row, the blocks to turn into pixels (all if `None`); the others hold zeros
+    /// (they were never written) and their pixels are left as they are.
+    pub(super) needed: Option<&'a [std::ops::Range<usize>]>,
 }
 
 /// Dequantises and IDCTs `band` without AVX2 (`idct_avx2::band` with).
@@ -183,6 +186,7 @@ pub(super) fn band_with(
         blocks_per_row,
         out,
         width,
+        needed,
     } = band;
     if width == 0 || blocks_per_row == 0 {
         return;
@@ -196,7 +200,9 @@ pub(super) fn band_with(
         }
         let h = (rows - y0).min(8);
         let band_out = &mut out[y0 * width..(y0 + h) * width];
-        for (bc, block) in row_coefs.chunks_exact_mut(64).enumerate() {
+        let columns = needed.map_or(0..blocks_per_row, |n| n.get(br).cloned().unwrap_or(0..0));
+        let blocks = row_coefs.chunks_exact_mut(64).enumerate();
+        for (bc, block) in blocks.skip(columns.start).take(columns.len()) {
             let x0 = bc * 8;
             let Ok(block) = <&mut [i16; 64]>::try_from(block) else {
                 continue;

@@ -48,7 +48,7 @@ fn encode(
 /// Our luma (which must be ours, not the fallback's), single-thread or pipelined.
 fn ours(jpeg: &[u8], threaded: bool) -> Result<GrayImage, RectifyError> {
     let header = header::parse(jpeg).expect("a frame this decoder handles");
-    decode(jpeg, &header, threaded)
+    decode(jpeg, &header, threaded, None)
 }
 
 fn worst_difference(a: &[u8], b: &[u8]) -> i32 {
@@ -283,5 +283,50 @@ fn libjpeg_turbo_files_decode_to_its_luma() {
             0,
             "{args:?}"
         );
+    }
+}
+
+#[test]
+fn decoding_only_what_the_rectifier_reads_changes_no_rectified_pixel() {
+    use crate::geometry::{CameraModel, Grid, Homography, Interpolation};
+    let (w, h) = (736u16, 491u16);
+    let truth = mock_camera::Homography::oblique_view(u32::from(w), u32::from(h));
+    let camera = CameraModel::pinhole(Homography::from_matrix(truth.m));
+    let grid = Grid {
+        pixel_mm: 0.5,
+        ..Grid::plate()
+    };
+    for sampling in [
+        SamplingFactor::F_1_1,
+        SamplingFactor::F_2_1,
+        SamplingFactor::F_1_2,
+        SamplingFactor::F_2_2,
+    ] {
+        for restart in [0, 7] {
+            let jpeg = encode(w, h, false, sampling, restart, 90);
+            let header = header::parse(&jpeg).expect("a frame this decoder handles");
+            let full = ours(&jpeg, false).unwrap();
+            for interpolation in [Interpolation::Bilinear, Interpolation::Bicubic] {
+                let r = Rectifier::new(&camera, grid, interpolation, 0).unwrap();
+                for threaded in [false, true] {
+                    let part = decode(&jpeg, &header, threaded, Some(&r)).unwrap();
+                    let case = format!(
+                        "{sampling:?}, restart {restart}, {interpolation:?}, threaded {threaded}"
+                    );
+                    assert_eq!(r.rectify_gray8(&part), r.rectify_gray8(&full), "{case}");
+                    // Pixels beside the plate were left out (0), the others are the frame's.
+                    let left_out = part.as_raw().iter().filter(|&&v| v == 0).count();
+                    let share = left_out as f64 / part.as_raw().len() as f64;
+                    assert!((0.2..0.7).contains(&share), "{case}: {share:.2} left out");
+                    let kept_differ = part
+                        .as_raw()
+                        .iter()
+                        .zip(full.as_raw())
+                        .filter(|(&p, &f)| p != 0 && p != f)
+                        .count();
+                    assert_eq!(kept_differ, 0, "{case}");
+                }
+            }
+        }
     }
 }
