@@ -124,6 +124,17 @@ impl TrainingArgs {
     }
 }
 
+/// What was read from `--data`: the folder, its kind, pictures and classes.
+fn data_line(dir: &Path, data: &learn::Dataset) -> String {
+    format!(
+        "{} ({}): {} pictures in {} classes",
+        dir.display(),
+        data.kind.name(),
+        data.items.len(),
+        data.classes.len()
+    )
+}
+
 /// The progress line of an epoch.
 fn epoch_line(e: &learn::Epoch) -> String {
     let val = match (&e.val_loss, &e.val_balanced_loss, &e.val) {
@@ -147,11 +158,8 @@ impl TrainArgs {
         let parts = data.split(opts.val_fraction);
         let count = |p: Part| parts.iter().filter(|x| **x == p).count();
         eprintln!(
-            "{} ({}): {} pictures in {} classes; {} for training, {} for validation, {} left out between them",
-            self.data.display(),
-            data.kind.name(),
-            data.items.len(),
-            data.classes.len(),
+            "{}; {} for training, {} for validation, {} left out between them",
+            data_line(&self.data, &data),
             count(Part::Train),
             count(Part::Val),
             count(Part::Dropped)
@@ -382,11 +390,8 @@ impl CvArgs {
         let opts = self.training.options(false)?;
         let data = learn::source::open(&self.data, opts.normal.as_deref())?;
         eprintln!(
-            "{} ({}): {} pictures in {} classes, {} folds by {}",
-            self.data.display(),
-            data.kind.name(),
-            data.items.len(),
-            data.classes.len(),
+            "{}, {} folds by {}",
+            data_line(&self.data, &data),
             self.folds,
             learn::crossval::RULE
         );

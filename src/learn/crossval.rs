@@ -162,7 +162,7 @@ pub fn cross_validate(
             best_epoch,
             stopped,
             ..
-        } = model.header.training.clone();
+        } = model.header.training;
         let report = FoldReport {
             fold: k + 1,
             given: train_set.items.len(),

@@ -12,8 +12,9 @@
 //! walking the boundary densely, every row's extent is found; a margin covers the interpolation
 //! neighbourhoods, the fixed-point rounding of the positions and the walk's steps.
 
-use super::Rectifier;
-use crate::geometry::BuildPoint;
+use std::sync::{Arc, Mutex};
+
+use crate::geometry::{BuildPoint, CameraModel, Grid};
 
 /// Columns beyond a boundary sample's integer position taken on each side, and rows above and
 /// below: bicubic reads from one pixel before to two after, positions are rounded to 1/2048 px
@@ -48,105 +49,165 @@ impl Footprint {
     }
 }
 
-impl Rectifier {
-    /// What the rectifier reads of a `width` x `height` frame, or `None` when it cannot be
-    /// bounded (part of the grid beyond the horizon or past the distortion's fold: then the
-    /// whole frame is decoded).
-    pub(crate) fn footprint(&self, width: usize, height: usize) -> Option<Footprint> {
-        let grid = self.grid();
-        let (cols, rows) = (grid.columns(), grid.rows());
-        if width == 0 || height == 0 || cols == 0 || rows == 0 {
+/// A rectifier's footprint for the last frame size asked (a camera's frames have one size), so
+/// that it is walked once, not for every frame; shared by the rectifier's clones.
+#[derive(Clone, Default)]
+pub(crate) struct FootprintCache(Arc<Mutex<Option<FootprintOfSize>>>);
+
+type FootprintOfSize = ((usize, usize), Option<Arc<Footprint>>);
+
+impl std::fmt::Debug for FootprintCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FootprintCache")
+    }
+}
+
+impl FootprintCache {
+    /// The footprint of a `width` x `height` frame, walked by `walk` unless the last one asked
+    /// was for that size. A poisoned lock (a thread panicked while storing) only means walking
+    /// it again.
+    pub(crate) fn get(
+        &self,
+        width: usize,
+        height: usize,
+        walk: impl FnOnce() -> Option<Footprint>,
+    ) -> Option<Arc<Footprint>> {
+        let size = (width, height);
+        if let Ok(cached) = self.0.lock() {
+            if let Some((_, found)) = cached.as_ref().filter(|(s, _)| *s == size) {
+                return found.clone();
+            }
+        }
+        let found = walk().map(Arc::new);
+        if let Ok(mut cached) = self.0.lock() {
+            *cached = Some((size, found.clone()));
+        }
+        found
+    }
+}
+
+/// What a rectifier for `camera` onto `grid` reads of a `width` x `height` frame (see the
+/// module docs), or `None` when it cannot be bounded (part of the grid beyond the horizon or
+/// past the distortion's fold: then the whole frame is decoded).
+pub(crate) fn walk(
+    camera: &CameraModel,
+    grid: Grid,
+    width: usize,
+    height: usize,
+) -> Option<Footprint> {
+    let (cols, rows) = (grid.columns(), grid.rows());
+    if width == 0 || height == 0 || cols == 0 || rows == 0 {
+        return None;
+    }
+    let (last_c, last_r) = ((cols - 1) as f64, (rows - 1) as f64);
+    // The boundary of the rectangle of pixel centres, once around, as (row, col) at t in [0, 1).
+    let perimeter = 2.0 * (last_c + last_r);
+    let at = |t: f64| -> (f64, f64) {
+        let d = t * perimeter;
+        if d < last_c {
+            (0.0, d)
+        } else if d < last_c + last_r {
+            (d - last_c, last_c)
+        } else if d < 2.0 * last_c + last_r {
+            (last_r, last_c - (d - last_c - last_r))
+        } else {
+            (last_r - (d - 2.0 * last_c - last_r), 0.0)
+        }
+    };
+    let image_at = |t: f64| {
+        let (r, c) = at(t);
+        let (x, y) = grid.center_of(r, c);
+        camera
+            .image_point(BuildPoint { x, y })
+            .filter(|p| p.u.is_finite() && p.v.is_finite())
+    };
+    let mut samples = ((perimeter.ceil() as usize) * 2).max(4);
+    let points = loop {
+        let points: Option<Vec<(f64, f64)>> = (0..=samples)
+            .map(|k| image_at(k as f64 / samples as f64).map(|p| (p.u, p.v)))
+            .collect();
+        let points = points?;
+        let step = points
+            .windows(2)
+            .map(|w| (w[1].0 - w[0].0).hypot(w[1].1 - w[0].1))
+            .fold(0.0f64, f64::max);
+        if step <= MAX_STEP {
+            break points;
+        }
+        let finer = (samples as f64 * step / MAX_STEP * 1.5).ceil();
+        if !finer.is_finite() || finer > MAX_SAMPLES as f64 {
             return None;
         }
-        let (last_c, last_r) = ((cols - 1) as f64, (rows - 1) as f64);
-        // The boundary of the rectangle of pixel centres, once around, as (row, col) at t in [0, 1).
-        let perimeter = 2.0 * (last_c + last_r);
-        let at = |t: f64| -> (f64, f64) {
-            let d = t * perimeter;
-            if d < last_c {
-                (0.0, d)
-            } else if d < last_c + last_r {
-                (d - last_c, last_c)
-            } else if d < 2.0 * last_c + last_r {
-                (last_r, last_c - (d - last_c - last_r))
-            } else {
-                (last_r - (d - 2.0 * last_c - last_r), 0.0)
-            }
-        };
-        let image_at = |t: f64| {
-            let (r, c) = at(t);
-            let (x, y) = grid.center_of(r, c);
-            self.image_point(BuildPoint { x, y })
-                .filter(|p| p.u.is_finite() && p.v.is_finite())
-        };
-        let mut samples = ((perimeter.ceil() as usize) * 2).max(4);
-        let points = loop {
-            let points: Option<Vec<(f64, f64)>> = (0..=samples)
-                .map(|k| image_at(k as f64 / samples as f64).map(|p| (p.u, p.v)))
-                .collect();
-            let points = points?;
-            let step = points
-                .windows(2)
-                .map(|w| (w[1].0 - w[0].0).hypot(w[1].1 - w[0].1))
-                .fold(0.0f64, f64::max);
-            if step <= MAX_STEP {
-                break points;
-            }
-            let finer = (samples as f64 * step / MAX_STEP * 1.5).ceil();
-            if !finer.is_finite() || finer > MAX_SAMPLES as f64 {
-                return None;
-            }
-            samples = finer as usize;
-        };
-        let mut spans: Vec<Option<(i64, i64)>> = vec![None; height];
-        let (w_max, h_max) = (width as i64 - 1, height as i64 - 1);
-        for (u, v) in points {
-            // Far outside the frame a sample only says "up to the edge": clamp before converting.
-            let (u, v) = (
-                u.clamp(-1e9, 1e9).floor() as i64,
-                v.clamp(-1e9, 1e9).floor() as i64,
-            );
-            let (c0, c1) = (
-                (u - MARGIN).clamp(0, w_max),
-                (u + MARGIN + 1).clamp(0, w_max),
-            );
-            let (r0, r1) = ((v - MARGIN).max(0), (v + MARGIN + 1).min(h_max));
-            for span in spans
-                .iter_mut()
-                .take((r1 + 1).max(0) as usize)
-                .skip(r0 as usize)
-            {
-                *span = Some(match *span {
-                    None => (c0, c1),
-                    Some((a, b)) => (a.min(c0), b.max(c1)),
-                });
-            }
+        samples = finer as usize;
+    };
+    let mut spans: Vec<Option<(i64, i64)>> = vec![None; height];
+    let (w_max, h_max) = (width as i64 - 1, height as i64 - 1);
+    for (u, v) in points {
+        // Far outside the frame a sample only says "up to the edge": clamp before converting.
+        let (u, v) = (
+            u.clamp(-1e9, 1e9).floor() as i64,
+            v.clamp(-1e9, 1e9).floor() as i64,
+        );
+        let (c0, c1) = (
+            (u - MARGIN).clamp(0, w_max),
+            (u + MARGIN + 1).clamp(0, w_max),
+        );
+        let (r0, r1) = ((v - MARGIN).max(0), (v + MARGIN + 1).min(h_max));
+        for span in spans
+            .iter_mut()
+            .take((r1 + 1).max(0) as usize)
+            .skip(r0 as usize)
+        {
+            *span = Some(match *span {
+                None => (c0, c1),
+                Some((a, b)) => (a.min(c0), b.max(c1)),
+            });
         }
-        // Rows between two rows the boundary crosses are inside the region's vertical extent
-        // only where the boundary crosses them too (it is a closed curve walked densely), so a row
-        // left empty here lies above or below the region: nothing of it is read.
-        Some(Footprint {
-            rows: spans
-                .into_iter()
-                .map(|s| s.map(|(a, b)| (a as u32, b as u32)))
-                .collect(),
-        })
     }
+    // Rows between two rows the boundary crosses are inside the region's vertical extent
+    // only where the boundary crosses them too (it is a closed curve walked densely), so a row
+    // left empty here lies above or below the region: nothing of it is read.
+    Some(Footprint {
+        rows: spans
+            .into_iter()
+            .map(|s| s.map(|(a, b)| (a as u32, b as u32)))
+            .collect(),
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{CameraModel, Grid, Homography, Interpolation, RadialDistortion};
+    use crate::geometry::{Homography, ImagePoint, RadialDistortion};
 
-    fn oblique(w: u32, h: u32, grid: Grid, distortion: Option<RadialDistortion>) -> Rectifier {
+    /// The camera of the oblique view and the grid.
+    struct Oblique {
+        camera: CameraModel,
+        grid: Grid,
+    }
+
+    impl Oblique {
+        fn footprint(&self, w: usize, h: usize) -> Option<Footprint> {
+            walk(&self.camera, self.grid, w, h)
+        }
+
+        fn grid(&self) -> Grid {
+            self.grid
+        }
+
+        fn image_point(&self, p: BuildPoint) -> Option<ImagePoint> {
+            self.camera.image_point(p)
+        }
+    }
+
+    fn oblique(w: u32, h: u32, grid: Grid, distortion: Option<RadialDistortion>) -> Oblique {
         let truth = mock_camera::Homography::oblique_view(w, h);
         let camera = CameraModel::new(Homography::from_matrix(truth.m), distortion);
-        Rectifier::new(&camera, grid, Interpolation::Bicubic, 0).unwrap()
+        Oblique { camera, grid }
     }
 
     /// Every position the rectifier samples, and its 4x4 neighbourhood, is in the footprint.
-    fn check_covers(r: &Rectifier, w: usize, h: usize) -> usize {
+    fn check_covers(r: &Oblique, w: usize, h: usize) -> usize {
         let f = r.footprint(w, h).expect("bounded");
         let g = r.grid();
         let mut read = 0;
@@ -194,6 +255,17 @@ mod tests {
             .map(|&(a, b)| u64::from(b - a + 1))
             .sum();
         let share = covered as f64 / f64::from(w * h);
+        // Walked once per frame size: the same again, another for another size.
+        let cache = FootprintCache::default();
+        let walked = |hh| r.footprint(w as usize, hh);
+        let first = cache
+            .get(w as usize, h as usize, || walked(h as usize))
+            .unwrap();
+        assert_eq!(*first, f);
+        let again = cache.get(w as usize, h as usize, || panic!("walked again"));
+        assert!(Arc::ptr_eq(&first, &again.unwrap()));
+        let other = cache.get(w as usize, 300, || walked(300)).unwrap();
+        assert_eq!(other.rows.len(), 300);
         // The plate's trapezoid in the oblique view: well inside the frame, far from all of it.
         assert!(
             (0.3..0.8).contains(&share),

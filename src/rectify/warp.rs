@@ -36,6 +36,7 @@ use std::sync::{Arc, OnceLock};
 use image::{DynamicImage, GrayImage, ImageBuffer, RgbImage};
 use rayon::prelude::*;
 
+use super::footprint::{self, Footprint, FootprintCache};
 use super::kernel::{Coords, DistParams, Job, RowFn, Sample, Source, CHUNK, FRAC_BITS};
 use super::positions::map_run;
 use super::row::row_plain;
@@ -69,6 +70,8 @@ pub struct Rectifier {
     /// With distortion: cached fixed-point source positions of every grid
     /// pixel, built on first use and shared by clones.
     map: PositionMap,
+    /// What it reads of a frame, for the frame size last asked ([`Rectifier::footprint`]).
+    footprint: FootprintCache,
 }
 
 /// Row-major `[X, Y]` fixed-point source position per grid pixel
@@ -125,6 +128,7 @@ impl Rectifier {
             m: mat3::mul(&h_inv, &mat3::grid_matrix(&grid)),
             allow_simd: true,
             map: Default::default(),
+            footprint: Default::default(),
         })
     }
 
@@ -238,6 +242,14 @@ impl Rectifier {
         // `Vec<T>`, whose ownership moves here (the `ManuallyDrop` never frees it).
         let buf = unsafe { Vec::from_raw_parts(buf.as_mut_ptr().cast::<T>(), len, buf.capacity()) };
         *dst = ImageBuffer::from_raw(cols, rows, buf).expect("the buffer is the grid's size");
+    }
+
+    /// What the rectifier reads of a `width` x `height` frame (`footprint.rs`), walked once per
+    /// frame size; `None` when it cannot be bounded (then the whole frame is decoded).
+    pub(crate) fn footprint(&self, width: usize, height: usize) -> Option<Arc<Footprint>> {
+        self.footprint.get(width, height, || {
+            footprint::walk(&self.camera, self.grid, width, height)
+        })
     }
 
     /// The cached position map (built on first call; see [`PositionMap`]).

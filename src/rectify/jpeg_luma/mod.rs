@@ -128,20 +128,19 @@ fn decode(
     let bands = layout.mcus_y.div_ceil(BAND_MCU_ROWS);
     let band_bytes = layout.band_rows() * h.width;
     let mut scan = Scan::new(bytes, h, needed)?;
+    let job = Pixels {
+        layout: &layout,
+        width: h.width,
+        quant: &quant,
+        needed,
+    };
     if !threaded || bands < 3 {
         let mut coefs = vec![0i16; layout.band_len()];
         for (band, out) in pixels.chunks_mut(band_bytes).enumerate() {
             scan.band(&layout, band, &mut coefs)?;
-            let needed = band_needed(needed, &layout, band);
-            to_pixels(&layout, &mut coefs, out, h.width, &quant, needed);
+            job.band(band, &mut coefs, out);
         }
     } else {
-        let job = Pixels {
-            layout: &layout,
-            width: h.width,
-            quant: &quant,
-            needed,
-        };
         pipelined(&mut scan, &job, &mut pixels, band_bytes)?;
     }
     scan.finish()?;
@@ -149,48 +148,37 @@ fn decode(
         .ok_or_else(|| RectifyError::Jpeg("decoder returned a wrong-sized buffer".into()))
 }
 
-/// The needed block columns of band `band`'s block rows.
-fn band_needed<'a>(
-    needed: Option<&'a [Range<usize>]>,
-    layout: &Layout,
-    band: usize,
-) -> Option<&'a [Range<usize>]> {
-    let n = layout.band_block_rows();
-    needed.map(|all| &all[(band * n).min(all.len())..((band + 1) * n).min(all.len())])
-}
-
 /// What turns a band's coefficients into pixels.
 struct Pixels<'a> {
     layout: &'a Layout,
     width: usize,
     quant: &'a [i32; 64],
+    /// Per luma block row of the frame, the block columns to transform (all if `None`).
     needed: Option<&'a [Range<usize>]>,
 }
 
-/// Dequantises and IDCTs a band (its `needed` blocks only, if given), on AVX2 when the CPU has
-/// it.
-fn to_pixels(
-    layout: &Layout,
-    coefs: &mut [i16],
-    out: &mut [u8],
-    width: usize,
-    quant: &[i32; 64],
-    needed: Option<&[Range<usize>]>,
-) {
-    let band = Band {
-        coefs,
-        blocks_per_row: layout.blocks_per_row(),
-        out,
-        width,
-        needed,
-    };
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        unsafe { idct_avx2::band(band, quant) };
-        return;
+impl Pixels<'_> {
+    /// Dequantises and IDCTs band `band` (its needed blocks only), on AVX2 when the CPU has it.
+    fn band(&self, band: usize, coefs: &mut [i16], out: &mut [u8]) {
+        let rows = self.layout.band_block_rows();
+        let needed = self
+            .needed
+            .map(|all| &all[(band * rows).min(all.len())..((band + 1) * rows).min(all.len())]);
+        let band = Band {
+            coefs,
+            blocks_per_row: self.layout.blocks_per_row(),
+            out,
+            width: self.width,
+            needed,
+        };
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked just above).
+            unsafe { idct_avx2::band(band, self.quant) };
+            return;
+        }
+        idct::band(band, self.quant);
     }
-    idct::band(band, quant);
 }
 
 /// Huffman decoding on this thread, IDCT on another; bands go there full and come back zeroed.
@@ -212,8 +200,7 @@ fn pipelined(
             // Bands come in order, one for each chunk of rows.
             let bands = full_rx.into_iter().zip(pixels.chunks_mut(band_bytes));
             for (band, (mut coefs, out)) in bands.enumerate() {
-                let needed = band_needed(job.needed, layout, band);
-                to_pixels(layout, &mut coefs, out, job.width, job.quant, needed);
+                job.band(band, &mut coefs, out);
                 if free_tx.send(coefs).is_err() {
                     break;
                 }
