@@ -2,6 +2,8 @@
 //! 4400 x 4400 plate grid: decode, luma, rectify, DICOM encode and atomic write, for each transfer
 //! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
+//! LAYERWISE_BENCH_ROUNDS sets the rounds (each: every frame alone, then one layer; default 3
+//! with `--bench`, else 1); the layer line gives the median, fastest and slowest layer.
 
 #[path = "support/views.rs"]
 mod bench_views;
@@ -18,7 +20,7 @@ use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
 use layerwise::hardware::camera::Frame;
 use layerwise::rectify::{Calibration, Interpolation};
-use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings};
+use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings, StepTimes};
 use layerwise::shot::{Light, Phase, Shot, View};
 use manifest::bench_manifest;
 use rayon::prelude::*;
@@ -29,16 +31,18 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Per-frame times (ms, each frame alone) and per-layer times (s, the six frames one per core at
-/// a time, as the processing worker runs them) over `rounds` rounds.
+/// Per-frame times (ms, each frame alone), per-layer times (s, the six frames one per core at
+/// a time, as the processing worker runs them) and the steps of the layers' frames, over
+/// `rounds` rounds.
 fn time_frames(
     live: &LiveSeries,
     build_dir: &std::path::Path,
     originals: &[(Shot, std::path::PathBuf)],
     rounds: usize,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f64>, Vec<StepTimes>) {
     let mut per_frame = Vec::new();
     let mut layer_totals = Vec::new();
+    let steps = std::sync::Mutex::new(Vec::new());
     for _ in 0..rounds {
         for (shot, path) in originals {
             let t = Instant::now();
@@ -46,12 +50,30 @@ fn time_frames(
             per_frame.push(t.elapsed().as_secs_f64() * 1e3);
         }
         let layer = Instant::now();
-        originals
-            .par_iter()
-            .for_each(|(shot, path)| live.process(build_dir, *shot, path).expect("process"));
+        originals.par_iter().for_each(|(shot, path)| {
+            // What `FrameProcessor::process` runs, with its step times kept.
+            let mut frame = StepTimes::default();
+            live.write_original_timed(build_dir, *shot, 1, path, &mut frame)
+                .expect("process");
+            steps.lock().expect("steps").push(frame);
+        });
         layer_totals.push(layer.elapsed().as_secs_f64());
     }
-    (per_frame, layer_totals)
+    let steps = steps.into_inner().expect("steps");
+    (per_frame, layer_totals, steps)
+}
+
+/// The medians of the steps of the layers' frames, ms.
+fn steps_line(steps: &[StepTimes]) -> String {
+    let of = |f: fn(&StepTimes) -> f64| median(steps.iter().map(f).collect());
+    format!(
+        "read {:.0}, decode {:.0}, rectify {:.0}, encode {:.0}, write {:.0}",
+        of(|s| s.read_ms),
+        of(|s| s.decode_ms),
+        of(|s| s.rectify_ms),
+        of(|s| s.encode_ms),
+        of(|s| s.write_ms)
+    )
 }
 
 /// One original per view of layer 1 in `build_dir/raw/`, as `frame` encodes it, stored as the
@@ -89,6 +111,11 @@ fn write_originals(
 fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let (w, h, grid) = bench_views::bench_scale(full);
+    let rounds = std::env::var("LAYERWISE_BENCH_ROUNDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&n: &usize| n > 0)
+        .unwrap_or(if full { 3 } else { 1 });
     let truth = mock_camera::Homography::oblique_view(w, h);
     let renderer = mock_camera::Renderer::new(w, h, truth);
     let parts = mock_camera::demo_parts(1);
@@ -159,17 +186,25 @@ fn main() {
         // memory before it (the rendered frames, the renderer).
         let before_kib = memory::current_rss_kib();
         memory::reset_peak();
-        let (per_frame, layer_totals) =
-            time_frames(&live, dir.path(), &originals, if full { 3 } else { 1 });
+        let (per_frame, layer_totals, steps) = time_frames(&live, dir.path(), &originals, rounds);
         let size = std::fs::metadata(dir.path().join("dicom/post_top/L00001.dcm"))
             .map(|m| m.len())
             .unwrap_or(0);
+        let layers = layer_totals.len();
+        let (fastest, slowest) = layer_totals
+            .iter()
+            .fold((f64::MAX, 0f64), |(lo, hi), &t| (lo.min(t), hi.max(t)));
         println!(
-            "{compression:?}: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s (target < 2 s); {:.1} MB per slice, {:.0} MB per layer",
+            "{compression:?}: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s (target < 2 s; {} layers, fastest {fastest:.2} s, slowest {slowest:.2} s); {:.1} MB per slice, {:.0} MB per layer",
             median(per_frame),
             median(layer_totals),
+            layers,
             size as f64 / 1e6,
             6.0 * size as f64 / 1e6
+        );
+        println!(
+            "{compression:?}: steps of a frame within the layers (medians, ms, two frames at a time): {}",
+            steps_line(&steps)
         );
         println!(
             "{compression:?}: peak resident memory while processing {:.0} MiB ({:.0} MiB before it)",
@@ -239,7 +274,7 @@ fn raw_frames(
         fill: 0,
     };
     let live = LiveSeries::new(manifest, views, calibration, settings).expect("series");
-    let (per_frame, layer_totals) =
+    let (per_frame, layer_totals, _) =
         time_frames(&live, dir.path(), &originals, if full { 2 } else { 1 });
     println!(
         "NEF, None: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s",

@@ -5,7 +5,7 @@
 //! 1. [`map_run`] (in `positions.rs`): source positions as fixed-point integers (pixel + 11-bit
 //!    fraction), or "outside". Along a grid row the homogeneous position is
 //!    affine in the column, so each pixel costs a few adds/multiplies and
-//!    one division. Blocks of 64 pixels are evaluated relative to the block
+//!    one division. Blocks of 128 pixels are evaluated relative to the block
 //!    start in f32, 8 lanes with AVX2 ([`fast_block`],
 //!    [`fast_block_distorted`]); near the horizon each pixel is evaluated
 //!    in f64 ([`exact_run`]). With lens distortion the positions are instead

@@ -23,9 +23,38 @@ pub(crate) struct HuffTable {
     /// Per code length: symbol index minus code.
     delta: [i32; 17],
     symbols: Vec<u8>,
-    /// AC only: `value << 16 | run << 8 | total bits` for a code and its magnitude bits that fit in
-    /// `FAST_BITS` (0 if not).
-    fast_ac: Box<[i32; FAST_SIZE]>,
+    /// AC only: a code and its magnitude bits that fit in `FAST_BITS`, and the symbol after it
+    /// when that fits too ([`AcEntry`]; 0 if the first does not fit).
+    fast_ac: Box<[u64; FAST_SIZE]>,
+}
+
+/// One `fast_ac` entry, packed in a `u64`: byte 0 the bits of the first coefficient (code and
+/// magnitude), byte 1 those of both symbols, byte 2 the first's run of zeros, byte 3 the second's
+/// run (low 4 bits) with [`SECOND`] or [`SECOND_EOB`], then the first value and the second as i16.
+/// Byte 1 equals byte 0 when only the first fits.
+struct AcEntry;
+
+impl AcEntry {
+    /// The second symbol is a coefficient.
+    const SECOND: u64 = 0x10 << 24;
+    /// The second symbol is the end of the block.
+    const SECOND_EOB: u64 = 0x20 << 24;
+
+    fn pack(first: (u32, u32, i32), second: Option<(u32, u32, i32)>, eob_bits: Option<u32>) -> u64 {
+        let (bits1, run1, value1) = first;
+        let (both, run2, value2, flag) = match (second, eob_bits) {
+            (Some((bits2, run2, value2)), _) => (bits1 + bits2, run2, value2, Self::SECOND),
+            (None, Some(bits2)) => (bits1 + bits2, 0, 0, Self::SECOND_EOB),
+            (None, None) => (bits1, 0, 0, 0),
+        };
+        u64::from(bits1)
+            | u64::from(both) << 8
+            | u64::from(run1) << 16
+            | u64::from(run2) << 24
+            | flag
+            | u64::from(value1 as u16) << 32
+            | u64::from(value2 as u16) << 48
+    }
 }
 
 impl Default for HuffTable {
@@ -81,20 +110,42 @@ impl HuffTable {
         Some(t)
     }
 
+    /// The coefficient (bits, run, value) whose code starts the `FAST_BITS` window `i` when it
+    /// and its magnitude bits fit within the window's first `room` bits; `Err(Some(bits))` for
+    /// an end of block that fits, `Err(None)` otherwise.
+    fn coefficient_at(&self, i: usize, room: u32) -> Result<(u32, u32, i32), Option<u32>> {
+        let entry = self.fast[i];
+        if entry == 0 {
+            return Err(None);
+        }
+        let (len, sym) = (u32::from(entry >> 8), entry & 0xFF);
+        let (run, size) = (u32::from(sym >> 4), u32::from(sym & 15));
+        if len > room {
+            return Err(None);
+        }
+        if size == 0 {
+            // End of block, or a run of 16 zeros (left to the slow path).
+            return Err((sym == 0).then_some(len));
+        }
+        if len + size > room {
+            return Err(None);
+        }
+        let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
+        Ok((len + size, run, extend(bits, size)))
+    }
+
     fn build_fast_ac(&mut self) {
         for i in 0..FAST_SIZE {
-            let entry = self.fast[i];
-            if entry == 0 {
+            let Ok(first) = self.coefficient_at(i, FAST_BITS) else {
                 continue;
-            }
-            let (len, sym) = (u32::from(entry >> 8), entry & 0xFF);
-            let (run, size) = (u32::from(sym >> 4), u32::from(sym & 15));
-            if size == 0 || len + size > FAST_BITS {
-                continue;
-            }
-            let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
-            let value = extend(bits, size);
-            self.fast_ac[i] = value << 16 | (run << 8) as i32 | (len + size) as i32;
+            };
+            // The window's bits after the first coefficient, left-aligned (zeros after them).
+            let rest = (i << first.0) & (FAST_SIZE - 1);
+            let entry = match self.coefficient_at(rest, FAST_BITS - first.0) {
+                Ok(second) => AcEntry::pack(first, Some(second), None),
+                Err(eob) => AcEntry::pack(first, None, eob),
+            };
+            self.fast_ac[i] = entry;
         }
     }
 }
@@ -111,6 +162,22 @@ fn extend(bits: u32, size: u32) -> i32 {
     }
 }
 
+/// The symbol of `t` whose code, longer than `FAST_BITS`, starts `code16`, and its length.
+#[inline(never)]
+fn long_symbol(code16: u32, t: &HuffTable) -> Result<(u8, u32), DataError> {
+    let mut len = FAST_BITS + 1;
+    while code16 >= t.maxcode[len as usize] {
+        len += 1;
+    }
+    if len > 16 {
+        return Err(DataError::BadCode);
+    }
+    let code = (code16 >> (16 - len)) as i32;
+    let index = usize::try_from(code + t.delta[len as usize]).map_err(|_| DataError::BadCode)?;
+    let sym = *t.symbols.get(index).ok_or(DataError::BadCode)?;
+    Ok((sym, len))
+}
+
 /// Why the entropy-coded data could not be decoded.
 #[derive(Debug, PartialEq, Eq)]
 pub(super) enum DataError {
@@ -121,6 +188,11 @@ pub(super) enum DataError {
 }
 
 /// The bit reader over one scan's entropy-coded data (and what follows it).
+///
+/// `Copy`, so that [`BitReader::block`] decodes on a copy in local variables: the compiler keeps
+/// those in registers only if their address never escapes, which is why the slow paths take the
+/// reader by value and return it.
+#[derive(Clone, Copy)]
 pub(super) struct BitReader<'a> {
     data: &'a [u8],
     /// The next byte not in `buf`.
@@ -164,12 +236,12 @@ impl<'a> BitReader<'a> {
                 return;
             }
         }
-        self.refill_slow();
+        *self = self.refilled_slow();
     }
 
     #[cold]
     #[inline(never)]
-    fn refill_slow(&mut self) {
+    fn refilled_slow(mut self) -> Self {
         // Drop the copies below the valid bits: the bytes come one by one now.
         self.buf &= if self.nbits == 0 {
             0
@@ -200,6 +272,7 @@ impl<'a> BitReader<'a> {
             self.buf |= u64::from(byte) << (56 - self.nbits);
             self.nbits += 8;
         }
+        self
     }
 
     /// Whether the decoding has read into the zero bits that follow a marker or the end.
@@ -234,23 +307,7 @@ impl<'a> BitReader<'a> {
             self.consume(u32::from(entry >> 8));
             return Ok(entry as u8);
         }
-        self.symbol_slow(t)
-    }
-
-    #[inline(never)]
-    fn symbol_slow(&mut self, t: &HuffTable) -> Result<u8, DataError> {
-        let code16 = self.peek(16);
-        let mut len = FAST_BITS + 1;
-        while code16 >= t.maxcode[len as usize] {
-            len += 1;
-        }
-        if len > 16 {
-            return Err(DataError::BadCode);
-        }
-        let code = (code16 >> (16 - len)) as i32;
-        let index =
-            usize::try_from(code + t.delta[len as usize]).map_err(|_| DataError::BadCode)?;
-        let sym = *t.symbols.get(index).ok_or(DataError::BadCode)?;
+        let (sym, len) = long_symbol(self.peek(16), t)?;
         self.consume(len);
         Ok(sym)
     }
@@ -280,6 +337,21 @@ impl<'a> BitReader<'a> {
         pred: &mut i32,
         block: &mut [i16; 64],
     ) -> Result<(), DataError> {
+        // On a copy in locals (registers), written back whatever the outcome.
+        let mut reader = *self;
+        let result = reader.block_in_locals::<KEEP>(dc, ac, pred, block);
+        *self = reader;
+        result
+    }
+
+    #[inline(always)]
+    fn block_in_locals<const KEEP: bool>(
+        &mut self,
+        dc: &HuffTable,
+        ac: &HuffTable,
+        pred: &mut i32,
+        block: &mut [i16; 64],
+    ) -> Result<(), DataError> {
         *pred = (*pred + self.dc_diff(dc)?).clamp(-2047, 2047);
         if KEEP {
             block[0] = *pred as i16;
@@ -289,12 +361,26 @@ impl<'a> BitReader<'a> {
             self.refill();
             let fast = ac.fast_ac[self.peek(FAST_BITS) as usize];
             if fast != 0 {
-                k += ((fast >> 8) & 0xFF) as usize;
-                self.consume((fast & 0xFF) as u32);
+                // The first coefficient; then the second symbol, when it fits in the window and
+                // the block is not full (after its last coefficient comes the next block's DC).
+                k += ((fast >> 16) & 0xFF) as usize;
                 if KEEP {
-                    block[usize::from(ZIGZAG[k & 127] & 63)] = (fast >> 16) as i16;
+                    block[usize::from(ZIGZAG[k & 127] & 63)] = (fast >> 32) as i16;
                 }
                 k += 1;
+                if fast & (AcEntry::SECOND | AcEntry::SECOND_EOB) != 0 && k < 64 {
+                    self.consume(((fast >> 8) & 0xFF) as u32);
+                    if fast & AcEntry::SECOND_EOB != 0 {
+                        break;
+                    }
+                    k += ((fast >> 24) & 0x0F) as usize;
+                    if KEEP {
+                        block[usize::from(ZIGZAG[k & 127] & 63)] = (fast >> 48) as i16;
+                    }
+                    k += 1;
+                } else {
+                    self.consume((fast & 0xFF) as u32);
+                }
                 continue;
             }
             let sym = self.symbol(ac)?;
