@@ -23,18 +23,20 @@ pub(crate) struct HuffTable {
     /// Per code length: symbol index minus code.
     delta: [i32; 17],
     symbols: Vec<u8>,
-    /// AC only: a code and its magnitude bits that fit in `FAST_BITS`, and the symbol after it
-    /// when that fits too ([`AcEntry`]; 0 if the first does not fit).
-    fast_ac: Box<[u64; FAST_SIZE]>,
+    /// A code and its magnitude bits that fit in `FAST_BITS`, as an [`FastEntry`] (0 if they do
+    /// not fit): in an AC table a coefficient and the symbol after it when that fits too, in a
+    /// DC table the difference alone.
+    fast_value: Box<[u64; FAST_SIZE]>,
 }
 
-/// One `fast_ac` entry, packed in a `u64`: byte 0 the bits of the first coefficient (code and
+/// One `fast_value` entry, packed in a `u64`: byte 0 the bits of the first value (code and
 /// magnitude), byte 1 those of both symbols, byte 2 the first's run of zeros, byte 3 the second's
-/// run (low 4 bits) with [`SECOND`] or [`SECOND_EOB`], then the first value and the second as i16.
-/// Byte 1 equals byte 0 when only the first fits.
-struct AcEntry;
+/// run (low 4 bits) with [`SECOND`](Self::SECOND) or [`SECOND_EOB`](Self::SECOND_EOB), then the
+/// first value and the second as i16. Byte 1 equals byte 0 when only the first fits (always in
+/// a DC table).
+struct FastEntry;
 
-impl AcEntry {
+impl FastEntry {
     /// The second symbol is a coefficient.
     const SECOND: u64 = 0x10 << 24;
     /// The second symbol is the end of the block.
@@ -64,7 +66,7 @@ impl Default for HuffTable {
             maxcode: [0; 18],
             delta: [0; 17],
             symbols: Vec::new(),
-            fast_ac: Box::new([0; FAST_SIZE]),
+            fast_value: Box::new([0; FAST_SIZE]),
         }
     }
 }
@@ -106,6 +108,8 @@ impl HuffTable {
         t.maxcode[17] = u32::MAX;
         if ac {
             t.build_fast_ac();
+        } else {
+            t.build_fast_dc();
         }
         Some(t)
     }
@@ -142,10 +146,23 @@ impl HuffTable {
             // The window's bits after the first coefficient, left-aligned (zeros after them).
             let rest = (i << first.0) & (FAST_SIZE - 1);
             let entry = match self.coefficient_at(rest, FAST_BITS - first.0) {
-                Ok(second) => AcEntry::pack(first, Some(second), None),
-                Err(eob) => AcEntry::pack(first, None, eob),
+                Ok(second) => FastEntry::pack(first, Some(second), None),
+                Err(eob) => FastEntry::pack(first, None, eob),
             };
-            self.fast_ac[i] = entry;
+            self.fast_value[i] = entry;
+        }
+    }
+
+    fn build_fast_dc(&mut self) {
+        for i in 0..FAST_SIZE {
+            let entry = self.fast[i];
+            let (len, size) = (u32::from(entry >> 8), u32::from(entry & 0xFF));
+            // Differences wider than 11 bits are left to `dc_diff`'s check.
+            if entry == 0 || size > 11 || len + size > FAST_BITS {
+                continue;
+            }
+            let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
+            self.fast_value[i] = FastEntry::pack((len + size, 0, extend(bits, size)), None, None);
         }
     }
 }
@@ -316,6 +333,11 @@ impl<'a> BitReader<'a> {
     #[inline(always)]
     fn dc_diff(&mut self, t: &HuffTable) -> Result<i32, DataError> {
         self.refill();
+        let fast = t.fast_value[self.peek(FAST_BITS) as usize];
+        if fast != 0 {
+            self.consume((fast & 0xFF) as u32);
+            return Ok(i32::from((fast >> 32) as i16));
+        }
         let size = u32::from(self.symbol(t)?);
         if size > 11 {
             return Err(DataError::BadDc);
@@ -359,7 +381,7 @@ impl<'a> BitReader<'a> {
         let mut k = 1usize;
         while k < 64 {
             self.refill();
-            let fast = ac.fast_ac[self.peek(FAST_BITS) as usize];
+            let fast = ac.fast_value[self.peek(FAST_BITS) as usize];
             if fast != 0 {
                 // The first coefficient; then the second symbol, when it fits in the window and
                 // the block is not full (after its last coefficient comes the next block's DC).
@@ -368,9 +390,9 @@ impl<'a> BitReader<'a> {
                     block[usize::from(ZIGZAG[k & 127] & 63)] = (fast >> 32) as i16;
                 }
                 k += 1;
-                if fast & (AcEntry::SECOND | AcEntry::SECOND_EOB) != 0 && k < 64 {
+                if fast & (FastEntry::SECOND | FastEntry::SECOND_EOB) != 0 && k < 64 {
                     self.consume(((fast >> 8) & 0xFF) as u32);
-                    if fast & AcEntry::SECOND_EOB != 0 {
+                    if fast & FastEntry::SECOND_EOB != 0 {
                         break;
                     }
                     k += ((fast >> 24) & 0x0F) as usize;
