@@ -42,12 +42,15 @@ impl FastEntry {
     /// The second symbol is the end of the block.
     const SECOND_EOB: u64 = 0x20 << 24;
 
-    fn pack(first: (u32, u32, i32), second: Option<(u32, u32, i32)>, eob_bits: Option<u32>) -> u64 {
+    /// `first` (bits, run, value), then what follows it in the window: a coefficient, the end
+    /// of the block (`Err(Some(bits))`) or nothing that fits (`Err(None)`), as
+    /// [`HuffTable::coefficient_at`] tells them.
+    fn pack(first: (u32, u32, i32), next: Result<(u32, u32, i32), Option<u32>>) -> u64 {
         let (bits1, run1, value1) = first;
-        let (both, run2, value2, flag) = match (second, eob_bits) {
-            (Some((bits2, run2, value2)), _) => (bits1 + bits2, run2, value2, Self::SECOND),
-            (None, Some(bits2)) => (bits1 + bits2, 0, 0, Self::SECOND_EOB),
-            (None, None) => (bits1, 0, 0, 0),
+        let (both, run2, value2, flag) = match next {
+            Ok((bits2, run2, value2)) => (bits1 + bits2, run2, value2, Self::SECOND),
+            Err(Some(bits2)) => (bits1 + bits2, 0, 0, Self::SECOND_EOB),
+            Err(None) => (bits1, 0, 0, 0),
         };
         u64::from(bits1)
             | u64::from(both) << 8
@@ -134,8 +137,7 @@ impl HuffTable {
         if len + size > room {
             return Err(None);
         }
-        let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
-        Ok((len + size, run, extend(bits, size)))
+        Ok((len + size, run, value_at(i, len, size)))
     }
 
     fn build_fast_ac(&mut self) {
@@ -145,11 +147,8 @@ impl HuffTable {
             };
             // The window's bits after the first coefficient, left-aligned (zeros after them).
             let rest = (i << first.0) & (FAST_SIZE - 1);
-            let entry = match self.coefficient_at(rest, FAST_BITS - first.0) {
-                Ok(second) => FastEntry::pack(first, Some(second), None),
-                Err(eob) => FastEntry::pack(first, None, eob),
-            };
-            self.fast_value[i] = entry;
+            self.fast_value[i] =
+                FastEntry::pack(first, self.coefficient_at(rest, FAST_BITS - first.0));
         }
     }
 
@@ -161,10 +160,17 @@ impl HuffTable {
             if entry == 0 || size > 11 || len + size > FAST_BITS {
                 continue;
             }
-            let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
-            self.fast_value[i] = FastEntry::pack((len + size, 0, extend(bits, size)), None, None);
+            self.fast_value[i] =
+                FastEntry::pack((len + size, 0, value_at(i, len, size)), Err(None));
         }
     }
+}
+
+/// The signed value of the `size` magnitude bits that follow a code of `len` bits at the start
+/// of the `FAST_BITS` window `i` (`len + size` ≤ `FAST_BITS`).
+fn value_at(i: usize, len: u32, size: u32) -> i32 {
+    let bits = (i as u32 >> (FAST_BITS - len - size)) & ((1 << size) - 1);
+    extend(bits, size)
 }
 
 /// The signed value of `size` magnitude bits.
