@@ -16,6 +16,7 @@ mod memory;
 
 use layerwise::acquisition::processing::FrameProcessor;
 use layerwise::acquisition::storage::Storage;
+#[cfg(feature = "nef")]
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
 use layerwise::hardware::camera::Frame;

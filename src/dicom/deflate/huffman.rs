@@ -68,31 +68,40 @@ impl BitWriter {
         }
     }
 
-    /// [`BitWriter::put`] of each [`super::packed`] code (≤ 32 bits) in turn, two codes at a
-    /// time where together they have at most 56 bits (nearly always: one store for two).
+    /// [`BitWriter::put`] of each [`super::packed`] code (≤ 32 bits) in turn, four codes at a
+    /// time where together they have at most 56 bits (nearly always on camera frames: one store
+    /// for four). The four are joined pairwise first, off the chain of pending bits that every
+    /// store waits on; where they are too long, two at a time, or one.
     #[inline(always)]
     pub(super) fn put_all(&mut self, codes: &[u64]) {
         let mut p = self.bits;
-        let mut pairs = codes.chunks_exact(2);
-        for q in &mut pairs {
-            if p.pos > BIT_BUF - 16 {
+        let mut quads = codes.chunks_exact(4);
+        for q in &mut quads {
+            if p.pos > BIT_BUF - 32 {
                 self.out.extend_from_slice(&self.buf[..p.pos]);
                 p.pos = 0;
             }
-            let (a, b) = (q[0], q[1]);
-            let (la, lb) = ((a >> 32) as u32, (b >> 32) as u32);
-            if la + lb <= 56 {
-                p.put(&mut self.buf, (a & CODE) | ((b & CODE) << la), la + lb);
+            let (ab, lab) = join(q[0], q[1]);
+            let (cd, lcd) = join(q[2], q[3]);
+            if lab + lcd <= 56 {
+                p.put(&mut self.buf, ab | (cd << lab), lab + lcd);
             } else {
-                p.put(&mut self.buf, a & CODE, la);
-                p.put(&mut self.buf, b & CODE, lb);
+                for (pair, (bits, len)) in q.chunks_exact(2).zip([(ab, lab), (cd, lcd)]) {
+                    if len <= 56 {
+                        p.put(&mut self.buf, bits, len);
+                    } else {
+                        for &code in pair {
+                            p.put(&mut self.buf, code & CODE, (code >> 32) as u32);
+                        }
+                    }
+                }
             }
         }
         self.bits = p;
         if self.bits.pos > BIT_BUF - 8 {
             self.spill();
         }
-        for &code in pairs.remainder() {
+        for &code in quads.remainder() {
             self.put_packed(code);
         }
     }
@@ -131,6 +140,14 @@ impl BitWriter {
         self.spill();
         self.out
     }
+}
+
+/// Two [`super::packed`] codes (≤ 30 bits each: a deflate code has at most 15) as one: the
+/// first's bits, then the second's, and their length.
+#[inline(always)]
+fn join(a: u64, b: u64) -> (u64, u32) {
+    let (la, lb) = ((a >> 32) as u32, (b >> 32) as u32);
+    ((a & CODE) | ((b & CODE) << la), la + lb)
 }
 
 /// `code` (`len` bits) reversed: deflate sends Huffman codes most significant bit first into an

@@ -7,8 +7,9 @@
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
 //! Each segment is read twice: once to count its byte values (a plain histogram, no run scan:
-//! [`Segment::frequencies`]), once to write its tokens, taking 16 samples at a time where none
-//! of them starts a run ([`scan`]).
+//! [`Segment::frequencies`]), once to write its tokens, finding
+//! where runs start 16 samples at a time ([`scan`]); the codes go to the bit writer four at a
+//! time ([`huffman::BitWriter::put_all`]).
 //!
 //! Segments of [`SEGMENT`] samples are coded in parallel, each ending on a byte boundary with an
 //! empty stored block (as zlib's sync flush and pigz do), so their concatenation is one stream;
@@ -120,31 +121,35 @@ struct Segment<'a> {
 trait Sample: Copy + PartialEq + Into<u16> {
     /// Whether a sample's high byte can be other than 0 (16-bit samples).
     const WIDE: bool;
-    /// Samples one [`Sample::run_free`] check covers.
+    /// Samples one [`Sample::run_starts`] check covers.
     const CHUNK: usize;
-    /// Whether no run starts at any of `s[i..i + CHUNK]`: no `p` there with
-    /// `s[p] == s[p + 1] == s[p + 2]`. Needs `i + CHUNK + 2 <= s.len()`.
-    fn run_free(s: &[Self], i: usize) -> bool;
+    /// Where runs start in `s[i..i + CHUNK]`: bit `p` is set when `s[i + p] == s[i + p + 1] ==
+    /// s[i + p + 2]`. Needs `i + CHUNK + 2 <= s.len()`.
+    fn run_starts(s: &[Self], i: usize) -> u32;
 }
 
 /// The portable check: every window of three.
 #[cfg_attr(target_arch = "x86_64", allow(dead_code))]
-fn run_free_scalar<T: PartialEq>(s: &[T], i: usize, chunk: usize) -> bool {
-    !s[i..i + chunk + 2]
+fn run_starts_scalar<T: PartialEq>(s: &[T], i: usize, chunk: usize) -> u32 {
+    s[i..i + chunk + 2]
         .windows(3)
-        .any(|t| t[0] == t[1] && t[1] == t[2])
+        .enumerate()
+        .filter(|(_, t)| t[0] == t[1] && t[1] == t[2])
+        .fold(0, |m, (p, _)| m | 1 << p)
 }
 
-/// [`Sample::run_free`] in SSE2 (part of every x86_64 target): three unaligned 16-byte loads at
-/// samples 0, 1 and 2, compared for equal neighbours, 8-bit or (`WIDE`) 16-bit.
+/// [`Sample::run_starts`] in SSE2 (part of every x86_64 target): three unaligned 16-byte loads
+/// at samples 0, 1 and 2, compared for equal neighbours, 8-bit or (`WIDE`) 16-bit, a bit per
+/// sample.
 ///
 /// # Safety
 /// `p` must be readable for 16 bytes plus two samples.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn sse2_run_free<const WIDE: bool>(p: *const u8) -> bool {
+unsafe fn sse2_run_starts<const WIDE: bool>(p: *const u8) -> u32 {
     use std::arch::x86_64::{
-        __m128i, _mm_and_si128, _mm_cmpeq_epi16, _mm_cmpeq_epi8, _mm_loadu_si128, _mm_movemask_epi8,
+        __m128i, _mm_and_si128, _mm_cmpeq_epi16, _mm_cmpeq_epi8, _mm_loadu_si128,
+        _mm_movemask_epi8, _mm_packs_epi16, _mm_setzero_si128,
     };
     let step = if WIDE { 2 } else { 1 };
     // SAFETY: the caller's promise covers the three loads.
@@ -155,12 +160,14 @@ unsafe fn sse2_run_free<const WIDE: bool>(p: *const u8) -> bool {
             _mm_loadu_si128(p.add(2 * step).cast::<__m128i>()),
         )
     };
-    let (ab, bc) = if WIDE {
-        (_mm_cmpeq_epi16(a, b), _mm_cmpeq_epi16(b, c))
+    let starts = if WIDE {
+        // Each 16-bit lane all ones or all zeros, packed to one byte per sample.
+        let wide = _mm_and_si128(_mm_cmpeq_epi16(a, b), _mm_cmpeq_epi16(b, c));
+        _mm_packs_epi16(wide, _mm_setzero_si128())
     } else {
-        (_mm_cmpeq_epi8(a, b), _mm_cmpeq_epi8(b, c))
+        _mm_and_si128(_mm_cmpeq_epi8(a, b), _mm_cmpeq_epi8(b, c))
     };
-    _mm_movemask_epi8(_mm_and_si128(ab, bc)) == 0
+    _mm_movemask_epi8(starts) as u32
 }
 
 impl Sample for u8 {
@@ -168,16 +175,16 @@ impl Sample for u8 {
     const CHUNK: usize = 16;
 
     #[inline(always)]
-    fn run_free(s: &[u8], i: usize) -> bool {
+    fn run_starts(s: &[u8], i: usize) -> u32 {
         let w = &s[i..i + Self::CHUNK + 2];
         #[cfg(target_arch = "x86_64")]
         {
             // SAFETY: `w` holds 16 bytes and two more samples.
-            unsafe { sse2_run_free::<false>(w.as_ptr()) }
+            unsafe { sse2_run_starts::<false>(w.as_ptr()) }
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            run_free_scalar(w, 0, Self::CHUNK)
+            run_starts_scalar(w, 0, Self::CHUNK)
         }
     }
 }
@@ -187,16 +194,16 @@ impl Sample for u16 {
     const CHUNK: usize = 8;
 
     #[inline(always)]
-    fn run_free(s: &[u16], i: usize) -> bool {
+    fn run_starts(s: &[u16], i: usize) -> u32 {
         let w = &s[i..i + Self::CHUNK + 2];
         #[cfg(target_arch = "x86_64")]
         {
             // SAFETY: `w` holds 16 bytes and two more samples.
-            unsafe { sse2_run_free::<true>(w.as_ptr().cast()) }
+            unsafe { sse2_run_starts::<true>(w.as_ptr().cast()) }
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            run_free_scalar(w, 0, Self::CHUNK)
+            run_starts_scalar(w, 0, Self::CHUNK)
         }
     }
 }
@@ -205,7 +212,8 @@ impl Sample for u16 {
 trait Sink {
     /// A sample's two bytes as literals.
     fn literal(&mut self, v: u16);
-    /// Consecutive samples as literals, none of them starting a run.
+    /// Consecutive samples as literals (at most [`Sample::CHUNK`]; only the last may be the
+    /// first sample of a run, which [`Sink::run`] then gives).
     #[inline(always)]
     fn literals<T: Sample>(&mut self, samples: &[T]) {
         for &v in samples {
@@ -217,36 +225,63 @@ trait Sink {
 }
 
 /// Walks a segment's tokens: a literal sample, then, when the next two or more samples repeat
-/// it, a run. Most of a frame holds no run: a vector compare finds [`Sample::CHUNK`] samples
-/// in a row that start none, and they go to the sink as literals at once; elsewhere the samples
-/// are walked one by one to the end of the chunk. Generic over the sample type so that each loop
-/// is compiled for it.
+/// it, a run. A vector compare finds where runs start in [`Sample::CHUNK`] samples at a time;
+/// most chunks of a frame hold none and go to the sink as literals at once, and in the others
+/// the literals up to each run's start go as one slice, so that the walk branches per run, not
+/// per sample. The last samples, too few for a chunk, are walked one by one. Generic over the
+/// sample type so that each loop is compiled for it.
 #[inline(always)]
 fn scan<T: Sample, S: Sink>(samples: &[T], sink: &mut S) {
     let n = samples.len();
     let mut i = 0;
-    while i < n {
-        if i + T::CHUNK + 2 <= n && T::run_free(samples, i) {
-            sink.literals(&samples[i..i + T::CHUNK]);
-            i += T::CHUNK;
+    while i + T::CHUNK + 2 <= n {
+        let start = i;
+        let end = start + T::CHUNK;
+        let mut starts = T::run_starts(samples, start);
+        if starts == 0 {
+            sink.literals(&samples[start..end]);
+            i = end;
             continue;
         }
-        let end = (i + T::CHUNK).min(n);
-        while i < end {
-            let v = samples[i];
-            sink.literal(v.into());
-            i += 1;
-            // Most samples differ from the one before: one compare rejects a run.
-            if i + 1 < n && samples[i] == v && samples[i + 1] == v {
-                let mut k = 2;
-                while i + k < n && k < MAX_RUN && samples[i + k] == v {
-                    k += 1;
-                }
-                sink.run(k);
-                i += k;
+        // `starts`: the runs that start at `i` or later in this chunk.
+        while starts != 0 {
+            let p = start + starts.trailing_zeros() as usize;
+            sink.literals(&samples[i..=p]);
+            let k = run_length(samples, p);
+            sink.run(k);
+            i = p + 1 + k;
+            if i >= end {
+                break;
             }
+            starts &= u32::MAX << (i - start);
+        }
+        if i < end {
+            sink.literals(&samples[i..end]);
+            i = end;
         }
     }
+    while i < n {
+        let v = samples[i];
+        sink.literal(v.into());
+        i += 1;
+        if i + 1 < n && samples[i] == v && samples[i + 1] == v {
+            let k = run_length(samples, i - 1);
+            sink.run(k);
+            i += k;
+        }
+    }
+}
+
+/// How many samples after `p` repeat it, up to [`MAX_RUN`]; at least the two a run starts
+/// with (`s[p] == s[p + 1] == s[p + 2]`).
+#[inline(always)]
+fn run_length<T: Sample>(samples: &[T], p: usize) -> usize {
+    let v = samples[p];
+    let mut k = 2;
+    while p + 1 + k < samples.len() && k < MAX_RUN && samples[p + 1 + k] == v {
+        k += 1;
+    }
+    k
 }
 
 /// The byte values of `samples` counted as literals (16-bit samples: both bytes; 8-bit samples:
@@ -293,7 +328,18 @@ struct Emit<const GRAY8: bool> {
     table: [u64; LITLEN],
     /// The length symbols' codes and the distance code, per run length.
     runs: Vec<u64>,
+    /// 8-bit samples: the codes of the latest tokens, not yet written, `queued` of them. They
+    /// go to [`BitWriter::put_all`] four at a time, whether they came from a chunk of
+    /// literals or from the token-by-token walk around runs, so that the writer's pending bits
+    /// stay in registers there too.
+    queue: [u64; QUEUE],
+    queued: usize,
 }
+
+/// [`Emit::queue`]'s room: up to [`QUEUE_FULL`] codes wait, then a token or a chunk of 16
+/// literals may add to them before they are written.
+const QUEUE: usize = 64;
+const QUEUE_FULL: usize = 32;
 
 impl<const GRAY8: bool> Emit<GRAY8> {
     fn new(w: BitWriter, codes: &[(u32, u32)]) -> Self {
@@ -320,7 +366,37 @@ impl<const GRAY8: bool> Emit<GRAY8> {
                 packed(bits, l + extra_len + 1)
             })
             .collect();
-        Emit { w, table, runs }
+        Emit {
+            w,
+            table,
+            runs,
+            queue: [0; QUEUE],
+            queued: 0,
+        }
+    }
+
+    /// Queues an 8-bit sample's token; writes the queue's whole fours once it is full.
+    #[inline(always)]
+    fn queue(&mut self, code: u64) {
+        self.queue[self.queued] = code;
+        self.queued += 1;
+        self.written_when_full();
+    }
+
+    #[inline(always)]
+    fn written_when_full(&mut self) {
+        if self.queued >= QUEUE_FULL {
+            let whole = self.queued & !3;
+            self.w.put_all(&self.queue[..whole]);
+            self.queue.copy_within(whole..self.queued, 0);
+            self.queued -= whole;
+        }
+    }
+
+    /// The writer, with every queued code written.
+    fn finish(mut self) -> BitWriter {
+        self.w.put_all(&self.queue[..self.queued]);
+        self.w
     }
 }
 
@@ -328,7 +404,7 @@ impl<const GRAY8: bool> Sink for Emit<GRAY8> {
     #[inline(always)]
     fn literal(&mut self, v: u16) {
         if GRAY8 {
-            self.w.put_packed(self.table[usize::from(v as u8)]);
+            self.queue(self.table[usize::from(v as u8)]);
         } else {
             let lo = self.table[usize::from(v & 0xFF)];
             let hi = self.table[usize::from(v >> 8)];
@@ -341,13 +417,13 @@ impl<const GRAY8: bool> Sink for Emit<GRAY8> {
     #[inline(always)]
     fn literals<T: Sample>(&mut self, samples: &[T]) {
         if GRAY8 {
-            let mut codes = [0u64; 16];
-            for part in samples.chunks(codes.len()) {
-                for (c, &v) in codes.iter_mut().zip(part) {
-                    *c = self.table[usize::from(v.into() as u8)];
-                }
-                self.w.put_all(&codes[..part.len()]);
+            // At most QUEUE_FULL - 1 codes wait: a chunk (16) fits behind them.
+            let room = &mut self.queue[self.queued..self.queued + samples.len()];
+            for (c, &v) in room.iter_mut().zip(samples) {
+                *c = self.table[usize::from(v.into() as u8)];
             }
+            self.queued += samples.len();
+            self.written_when_full();
         } else {
             for &v in samples {
                 self.literal(v.into());
@@ -357,7 +433,11 @@ impl<const GRAY8: bool> Sink for Emit<GRAY8> {
 
     #[inline(always)]
     fn run(&mut self, k: usize) {
-        self.w.put_packed(self.runs[k]);
+        if GRAY8 {
+            self.queue(self.runs[k]);
+        } else {
+            self.w.put_packed(self.runs[k]);
+        }
     }
 }
 
@@ -400,12 +480,12 @@ impl<'a> Segment<'a> {
             Samples::Gray8(s) => {
                 let mut emit = Emit::<true>::new(w, &codes);
                 scan(s, &mut emit);
-                emit.w
+                emit.finish()
             }
             Samples::Gray16(s) => {
                 let mut emit = Emit::<false>::new(w, &codes);
                 scan(s, &mut emit);
-                emit.w
+                emit.finish()
             }
         };
         let (c, l) = codes[EOB];
@@ -471,6 +551,27 @@ mod tests {
         }
     }
 
+    #[test]
+    fn long_codes_four_in_a_row_inflate_back() {
+        // A skewed histogram (value k about 2^-(k+1) of the time) and a few rare values in
+        // groups of eight in a row: the rare ones get codes so long that four of them do not fit
+        // one write, at every offset from the start of a chunk, between runs.
+        let mut v8 = Vec::new();
+        let mut x = 7u32;
+        for i in 0..300_000usize {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            let common = ((x >> 8) | 1 << 12).trailing_zeros() as u8;
+            let group = i % 16_001;
+            v8.push(if group < 8 { 20 + group as u8 } else { common });
+        }
+        let s = Samples::Gray8(&v8);
+        assert_eq!(inflate(&deflate_samples(s)), le(s));
+        // Four rare samples' codes (each followed by the zero high byte's) exceed 56 bits.
+        let lengths = code_lengths(&Segment::new(s).frequencies(), 15);
+        let sample_bits = |v: usize| u32::from(lengths[v]) + u32::from(lengths[0]);
+        assert!((20..28).all(|v| 4 * sample_bits(v) > 56), "{lengths:?}");
+    }
+
     /// The tokens of a scan, as a sink records them.
     #[derive(Default)]
     struct Tokens(Vec<(bool, usize)>);
@@ -530,12 +631,16 @@ mod tests {
             assert_eq!(t.0, reference_scan(&v16[..n]), "16-bit, {n} samples");
         }
         for i in 0..v8.len() - 18 {
-            assert_eq!(u8::run_free(&v8, i), run_free_scalar(&v8, i, 16), "at {i}");
+            assert_eq!(
+                u8::run_starts(&v8, i),
+                run_starts_scalar(&v8, i, 16),
+                "at {i}"
+            );
         }
         for i in 0..v16.len() - 10 {
             assert_eq!(
-                u16::run_free(&v16, i),
-                run_free_scalar(&v16, i, 8),
+                u16::run_starts(&v16, i),
+                run_starts_scalar(&v16, i, 8),
                 "at {i}"
             );
         }

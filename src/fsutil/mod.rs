@@ -2,6 +2,10 @@
 //! leaves the whole file or nothing under the final name), SHA-256 of file contents, and TOML
 //! files parsed with errors that name the file, the line and the key.
 
+mod writeback;
+
+pub use writeback::WriteBehind;
+
 use sha2::{Digest, Sha256};
 use std::fs::{File, OpenOptions};
 use std::io::Write;
