@@ -166,10 +166,18 @@ fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
 
 /// Writes files of one directory atomically, renaming them in the order given, with a single
 /// fsync of the directory for all the renames (it is the slowest part of the capture path).
+/// Files to be fsynced are written behind ([`WriteBehind`]): a frame's original goes to disk
+/// while its last MiBs are still being copied.
 pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), WriteError> {
-    let writes = files
-        .iter()
-        .map(|(path, data)| (*path, move |file: &mut File| file.write_all(data)));
+    let writes = files.iter().map(|(path, data)| {
+        (*path, move |file: &mut File| {
+            if fsync {
+                WriteBehind::new(file).write_all(data)
+            } else {
+                file.write_all(data)
+            }
+        })
+    });
     write_atomic_each(writes, fsync)
 }
 

@@ -11,7 +11,8 @@ use std::io::Write;
 const WRITE_BEHIND: u64 = 4 << 20;
 
 /// A [`Write`] into `file` that starts the writeback of every [`WRITE_BEHIND`] bytes written
-/// (Linux; elsewhere it only writes).
+/// (Linux; elsewhere it only writes). A larger write is taken up to the next such boundary
+/// (`write_all` goes on with the rest), so that one large buffer is written behind too.
 pub struct WriteBehind<'a> {
     file: &'a File,
     /// Bytes written so far.
@@ -59,7 +60,9 @@ impl<'a> WriteBehind<'a> {
 
 impl Write for WriteBehind<'_> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.file.write(buf)?;
+        let room = WRITE_BEHIND - (self.written - self.started);
+        let part = &buf[..buf.len().min(usize::try_from(room).unwrap_or(usize::MAX))];
+        let n = self.file.write(part)?;
         self.written += n as u64;
         if self.written - self.started >= WRITE_BEHIND {
             self.start_writeback();
@@ -93,6 +96,14 @@ mod tests {
         assert_eq!(w.written, data.len() as u64);
         assert!(w.started > WRITE_BEHIND && w.written - w.started < WRITE_BEHIND);
         file.sync_data().expect("sync");
+        assert_eq!(std::fs::read(&path).expect("read"), data);
+
+        // One large buffer: written in parts ending on every boundary.
+        let path = dir.path().join("one");
+        let file = File::create(&path).expect("create");
+        let mut w = WriteBehind::new(&file);
+        w.write_all(&data).expect("write");
+        assert_eq!(w.started, 3 * WRITE_BEHIND);
         assert_eq!(std::fs::read(&path).expect("read"), data);
     }
 }
