@@ -142,8 +142,8 @@ impl BitWriter {
     }
 }
 
-/// Two [`super::packed`] codes (≤ 30 bits each: a deflate code has at most 15) as one: the
-/// first's bits, then the second's, and their length.
+/// Two [`super::packed`] codes (≤ 32 bits each, so that both fit one word) as one: the first's
+/// bits, then the second's, and their length.
 #[inline(always)]
 fn join(a: u64, b: u64) -> (u64, u32) {
     let (la, lb) = ((a >> 32) as u32, (b >> 32) as u32);

@@ -7,9 +7,9 @@
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
 //! Each segment is read twice: once to count its byte values (a plain histogram, no run scan:
-//! [`Segment::frequencies`]), once to write its tokens, finding
-//! where runs start 16 samples at a time ([`scan`]); the codes go to the bit writer four at a
-//! time ([`huffman::BitWriter::put_all`]).
+//! [`Segment::frequencies`]), once to write its tokens, finding where runs start 16 samples at
+//! a time ([`scan`]); the codes go to the bit writer four at a time
+//! ([`huffman::BitWriter::put_all`]).
 //!
 //! Segments of [`SEGMENT`] samples are coded in parallel, each ending on a byte boundary with an
 //! empty stored block (as zlib's sync flush and pigz do), so their concatenation is one stream;
