@@ -3,7 +3,7 @@
 //! at distance 2 (a sample is two bytes). No other string matching: on rectified camera frames
 //! matches beyond runs are rare, and the literal codes are what makes the file small (on a
 //! rectified D810 frame 13% larger than zlib's level 1 and 8% smaller than the miniz level 1
-//! used before, in 0.15 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
+//! used before, in 0.08 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
 //! Each segment is read twice: once to count its byte values (a plain histogram, no run scan:
