@@ -32,17 +32,14 @@ impl<'a> WriteBehind<'a> {
     }
 
     /// Starts the writeback of what was written since the last start. Advisory: a failure here
-    /// would show again at the fsync, so it is not reported.
+    /// would show again at the fsync, so it is not reported, and the range counts as started
+    /// whatever happens (the next boundary is [`WRITE_BEHIND`] bytes on).
     fn start_writeback(&mut self) {
+        let (from, len) = (self.started, self.written - self.started);
+        self.started = self.written;
         #[cfg(target_os = "linux")]
-        {
+        if let (Ok(offset), Ok(len)) = (i64::try_from(from), i64::try_from(len)) {
             use std::os::fd::AsRawFd;
-            let (Ok(offset), Ok(len)) = (
-                i64::try_from(self.started),
-                i64::try_from(self.written - self.started),
-            ) else {
-                return;
-            };
             // SAFETY: a valid open descriptor and a range of it; the call reads no memory of
             // ours.
             let _ = unsafe {
@@ -54,7 +51,8 @@ impl<'a> WriteBehind<'a> {
                 )
             };
         }
-        self.started = self.written;
+        #[cfg(not(target_os = "linux"))]
+        let _ = (from, len);
     }
 }
 
