@@ -323,11 +323,8 @@ pub fn write_slice_from(
         })?;
     }
     // Straight to the file: the parts are large (plain samples go in 128 KiB blocks, deflated
-    // ones in segments of about 1 MB), and a buffer would only copy them once more. The disk
-    // gets the first MiBs while the rest is written, so the fsync waits for the tail only.
-    write_atomic_with(path, true, |file| {
-        encoded.write_to(&mut crate::fsutil::WriteBehind::new(file))
-    })?;
+    // ones in segments of about 1 MB), and a buffer would only copy them once more.
+    write_atomic_with(path, true, |file| encoded.write_to(file))?;
     Ok(WriteTimes {
         encode_ms,
         write_ms: ms_since(started),

@@ -166,18 +166,10 @@ fn create_temporary(path: &Path) -> std::io::Result<(PathBuf, File)> {
 
 /// Writes files of one directory atomically, renaming them in the order given, with a single
 /// fsync of the directory for all the renames (it is the slowest part of the capture path).
-/// Files to be fsynced are written behind ([`WriteBehind`]): a frame's original goes to disk
-/// while its last MiBs are still being copied.
 pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), WriteError> {
-    let writes = files.iter().map(|(path, data)| {
-        (*path, move |file: &mut File| {
-            if fsync {
-                WriteBehind::new(file).write_all(data)
-            } else {
-                file.write_all(data)
-            }
-        })
-    });
+    let writes = files
+        .iter()
+        .map(|(path, data)| (*path, move |w: &mut WriteBehind<'_>| w.write_all(data)));
     write_atomic_each(writes, fsync)
 }
 
@@ -186,13 +178,15 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
 pub fn write_atomic_with(
     path: &Path,
     fsync: bool,
-    write: impl FnOnce(&mut File) -> std::io::Result<()>,
+    write: impl FnOnce(&mut WriteBehind<'_>) -> std::io::Result<()>,
 ) -> Result<(), WriteError> {
     write_atomic_each(std::iter::once((path, write)), fsync)
 }
 
-/// [`write_atomic_all`] with each file's content written by its function.
-fn write_atomic_each<'p, W: FnOnce(&mut File) -> std::io::Result<()>>(
+/// [`write_atomic_all`] with each file's content written by its function. Files to be fsynced
+/// are written behind ([`WriteBehind`]): a frame's original or a slice goes to disk while its
+/// last MiBs are still being written, so the fsync waits for the tail only.
+fn write_atomic_each<'p, W: FnOnce(&mut WriteBehind<'_>) -> std::io::Result<()>>(
     files: impl ExactSizeIterator<Item = (&'p Path, W)>,
     fsync: bool,
 ) -> Result<(), WriteError> {
@@ -207,9 +201,14 @@ fn write_atomic_each<'p, W: FnOnce(&mut File) -> std::io::Result<()>>(
             path: path.to_path_buf(),
             source,
         };
-        let written = create_temporary(path).and_then(|(tmp, mut file)| {
-            let result =
-                write(&mut file).and_then(|()| if fsync { file.sync_data() } else { Ok(()) });
+        let written = create_temporary(path).and_then(|(tmp, file)| {
+            let result = write(&mut WriteBehind::new(&file, fsync)).and_then(|()| {
+                if fsync {
+                    file.sync_data()
+                } else {
+                    Ok(())
+                }
+            });
             match result {
                 Ok(()) => Ok(tmp),
                 Err(e) => {

@@ -15,6 +15,8 @@ const WRITE_BEHIND: u64 = 4 << 20;
 /// (`write_all` goes on with the rest), so that one large buffer is written behind too.
 pub struct WriteBehind<'a> {
     file: &'a File,
+    /// Bytes between two starts of writeback (`u64::MAX`: never).
+    every: u64,
     /// Bytes written so far.
     written: u64,
     /// Bytes whose writeback has been started.
@@ -22,10 +24,12 @@ pub struct WriteBehind<'a> {
 }
 
 impl<'a> WriteBehind<'a> {
-    /// Writes into `file` from its current end (a fresh file: offset 0).
-    pub fn new(file: &'a File) -> Self {
+    /// Writes into `file`, fresh and empty (the ranges it starts count from offset 0); written
+    /// behind when `behind` (a file that will be fsynced), else plainly.
+    pub fn new(file: &'a File, behind: bool) -> Self {
         WriteBehind {
             file,
+            every: if behind { WRITE_BEHIND } else { u64::MAX },
             written: 0,
             started: 0,
         }
@@ -58,11 +62,11 @@ impl<'a> WriteBehind<'a> {
 
 impl Write for WriteBehind<'_> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let room = WRITE_BEHIND - (self.written - self.started);
+        let room = self.every - (self.written - self.started);
         let part = &buf[..buf.len().min(usize::try_from(room).unwrap_or(usize::MAX))];
         let n = self.file.write(part)?;
         self.written += n as u64;
-        if self.written - self.started >= WRITE_BEHIND {
+        if self.written - self.started >= self.every {
             self.start_writeback();
         }
         Ok(n)
@@ -85,7 +89,7 @@ mod tests {
         let data: Vec<u8> = (0..(3 * WRITE_BEHIND as usize + 12345))
             .map(|i| (i * 7 + i / 4099) as u8)
             .collect();
-        let mut w = WriteBehind::new(&file);
+        let mut w = WriteBehind::new(&file, true);
         for part in data.chunks(1_000_003) {
             w.write_all(part).expect("write");
         }
@@ -99,9 +103,17 @@ mod tests {
         // One large buffer: written in parts ending on every boundary.
         let path = dir.path().join("one");
         let file = File::create(&path).expect("create");
-        let mut w = WriteBehind::new(&file);
+        let mut w = WriteBehind::new(&file, true);
         w.write_all(&data).expect("write");
         assert_eq!(w.started, 3 * WRITE_BEHIND);
+        assert_eq!(std::fs::read(&path).expect("read"), data);
+
+        // Not behind: the same bytes, no writeback started.
+        let path = dir.path().join("plain");
+        let file = File::create(&path).expect("create");
+        let mut w = WriteBehind::new(&file, false);
+        w.write_all(&data).expect("write");
+        assert_eq!((w.written, w.started), (data.len() as u64, 0));
         assert_eq!(std::fs::read(&path).expect("read"), data);
     }
 }

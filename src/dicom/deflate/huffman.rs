@@ -71,7 +71,7 @@ impl BitWriter {
     /// [`BitWriter::put`] of each [`super::packed`] code (≤ 32 bits) in turn, four codes at a
     /// time where together they have at most 56 bits (nearly always on camera frames: one store
     /// for four). The four are joined pairwise first, off the chain of pending bits that every
-    /// store waits on; where they are too long, two at a time, or one.
+    /// store waits on; where they are too long, they go one at a time.
     #[inline(always)]
     pub(super) fn put_all(&mut self, codes: &[u64]) {
         let mut p = self.bits;
@@ -86,14 +86,8 @@ impl BitWriter {
             if lab + lcd <= 56 {
                 p.put(&mut self.buf, ab | (cd << lab), lab + lcd);
             } else {
-                for (pair, (bits, len)) in q.chunks_exact(2).zip([(ab, lab), (cd, lcd)]) {
-                    if len <= 56 {
-                        p.put(&mut self.buf, bits, len);
-                    } else {
-                        for &code in pair {
-                            p.put(&mut self.buf, code & CODE, (code >> 32) as u32);
-                        }
-                    }
+                for &code in q {
+                    p.put(&mut self.buf, code & CODE, (code >> 32) as u32);
                 }
             }
         }
