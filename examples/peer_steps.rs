@@ -5,6 +5,8 @@
 //!   plate grid, 8 bits a pixel, rows in order), the same data every peer gets.
 //! - `peer_steps luma IN.jpg OUT.raw`: JPEG decode straight to luma (`decode_jpeg_luma`, what
 //!   the views use); prints `decode_ms_median=` (5 runs) and `size=WxH`.
+//! - `peer_steps colour IN.jpg OUT.raw`: JPEG decode to 8-bit RGB (`decode_jpeg`, zune-jpeg, what
+//!   colour images go through); prints `decode_ms_median=` (5 runs) and `size=WxH`.
 //! - `peer_steps deflate IN.raw ROWS COLUMNS OUT.dcm`: the slice's DICOM file with the deflated
 //!   transfer syntax, from 8-bit samples (stored in 16 bits); prints `encode_ms_median=` (5 runs,
 //!   the whole file in memory, not written) and `bytes=`.
@@ -26,8 +28,9 @@ fn main() -> ExitCode {
     let result = match args.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
         ["frames", dir] => frames(Path::new(dir)),
         ["luma", input, output] => luma(Path::new(input), Path::new(output)),
+        ["colour", input, output] => colour(Path::new(input), Path::new(output)),
         ["deflate", input, rows, columns, output] => deflate(input, rows, columns, output),
-        _ => Err("usage: peer_steps frames DIR | luma IN.jpg OUT.raw | deflate IN.raw ROWS COLUMNS OUT.dcm".into()),
+        _ => Err("usage: peer_steps frames DIR | luma IN.jpg OUT.raw | colour IN.jpg OUT.raw | deflate IN.raw ROWS COLUMNS OUT.dcm".into()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -85,6 +88,16 @@ fn luma(input: &Path, output: &Path) -> Result<(), Error> {
     std::fs::write(output, gray.as_raw())?;
     println!("decode_ms_median={ms:.2}");
     println!("size={}x{}", gray.width(), gray.height());
+    Ok(())
+}
+
+fn colour(input: &Path, output: &Path) -> Result<(), Error> {
+    let bytes = std::fs::read(input)?;
+    let (ms, image) = median_of_5(|| Ok(layerwise::rectify::decode_jpeg(&bytes)?))?;
+    let rgb = image.into_rgb8();
+    std::fs::write(output, rgb.as_raw())?;
+    println!("decode_ms_median={ms:.2}");
+    println!("size={}x{}", rgb.width(), rgb.height());
     Ok(())
 }
 

@@ -87,7 +87,7 @@ pub struct TrainingArgs {
     /// Pictures per batch.
     #[arg(long, default_value_t = 16)]
     batch: usize,
-    /// Epochs without a better validation loss before stopping.
+    /// Epochs without progress (a better epoch or a lower balanced validation loss) before stopping.
     #[arg(long, default_value_t = 6)]
     patience: usize,
     /// Output channels of the convolution blocks, comma-separated.
@@ -168,8 +168,8 @@ impl TrainArgs {
         Model::save(&self.out, &net, &mut header)?;
         let t = &header.training;
         eprintln!(
-            "stopped: {} after {} epochs (best {} by the {}), {:.0} s",
-            t.stopped, t.epochs_run, t.best_epoch, t.selection, t.seconds
+            "stopped: {} after {} epochs (best {} by the {}; cuts and stop counting {}), {:.0} s",
+            t.stopped, t.epochs_run, t.best_epoch, t.selection, t.plateau, t.seconds
         );
         println!("validation ({}):", t.split.rule);
         print!("{}", header.validation);
@@ -206,8 +206,9 @@ pub struct EvalArgs {
     /// Which pictures: all (default), or the training or validation part of the split.
     #[arg(long, value_enum, default_value = "all")]
     part: Which,
-    /// One JSON object: accuracy, macro_recall, classes, per_class {precision, recall, support},
-    /// confusion (rows: true class, columns: predicted).
+    /// One JSON object: accuracy, macro_recall, classes, per_class {precision, recall, support,
+    /// recall_ci95 (the recall's 95% Wilson interval)}, confusion (rows: true class, columns:
+    /// predicted).
     #[arg(long)]
     json: bool,
 }
@@ -345,8 +346,8 @@ impl InfoArgs {
             h.input.normalisation
         );
         println!(
-            "trained on {} ({}, data sha256 {}), split {} (validation {:?}), seed {}, {} epochs (best {} by the {}, stopped: {}), {:.0} s",
-            t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.selection, t.stopped, t.seconds
+            "trained on {} ({}, data sha256 {}), split {} (validation {:?}), seed {}, {} epochs (best {} by the {}; cuts and stop counting {}; stopped: {}), {:.0} s",
+            t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.selection, t.plateau, t.stopped, t.seconds
         );
         print!("{}", h.validation);
         if let Some(r) = &t.refit {

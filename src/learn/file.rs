@@ -61,6 +61,10 @@ pub struct TrainingInfo {
     /// was recorded were chosen on the plain mean validation loss.
     #[serde(default = "old_selection")]
     pub selection: String,
+    /// What the learning-rate cuts and the early stop counted; files written before it was
+    /// recorded counted epochs without a better epoch.
+    #[serde(default = "old_plateau")]
+    pub plateau: String,
     /// `plateau`, `epochs` or `time budget`.
     pub stopped: String,
     pub seconds: f64,
@@ -86,6 +90,10 @@ pub struct RefitInfo {
 
 fn old_selection() -> String {
     super::select::OLD_CRITERION.into()
+}
+
+fn old_plateau() -> String {
+    super::select::OLD_PLATEAU.into()
 }
 
 /// The JSON header of a model file.

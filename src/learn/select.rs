@@ -7,19 +7,30 @@
 //! epoch that gets every large-class picture a little more right and every picture of a small
 //! class wrong would win; here each class weighs the same. The balanced loss alone is not enough
 //! either: a class of 2 validation frames makes it the loss of one frame, and an epoch that
-//! makes one confidently wrong frame less wrong while others turn wrong would win. The
-//! learning-rate cut and the early stop count epochs without a better criterion: one criterion
-//! for all three.
+//! makes one confidently wrong frame less wrong while others turn wrong would win.
+//!
+//! The learning-rate cut and the early stop count epochs without *progress*: neither a better
+//! criterion nor a lower balanced loss than any epoch before. On a small validation part an early
+//! epoch can reach a balanced accuracy that later ones only equal by luck (2 frames of a class
+//! give it three values); counting from that epoch alone would cut and stop while the loss is
+//! still falling, and freeze the model at the lucky epoch. Training goes on while either measure
+//! improves; which epoch is kept is still decided by the criterion alone.
 
 /// The criterion's name, recorded in the model file (`training.selection`).
 pub const CRITERION: &str = "balanced validation accuracy, then the balanced validation loss (mean over classes of each class's mean cross-entropy)";
 /// What model files written before the criterion was recorded were selected on.
 pub const OLD_CRITERION: &str = "mean validation loss";
+/// What the learning-rate cuts and the early stop count, recorded in the model file
+/// (`training.plateau`).
+pub const PLATEAU: &str =
+    "epochs without progress (a better epoch, or a balanced validation loss lower than any before)";
+/// What they counted in model files written before `training.plateau` was recorded.
+pub const OLD_PLATEAU: &str = "epochs without a better epoch";
 /// An epoch's balanced loss must beat the best by this much to count as better.
 const MIN_GAIN: f64 = 1e-3;
 /// Balanced accuracies closer than this are the same.
 const SAME: f64 = 1e-9;
-/// Epochs without a better criterion before each learning-rate cut.
+/// Epochs without progress before each learning-rate cut.
 pub const CUT_AFTER: usize = 3;
 
 /// An epoch's criterion.
@@ -75,15 +86,17 @@ pub enum Step {
     /// The best so far: keep its weights.
     Best,
     /// Not better; `cut`: lower the learning rate now; `stop`: the plateau is long enough.
+    /// Both false while the balanced loss still falls.
     NotBetter { cut: bool, stop: bool },
 }
 
-/// The best epoch so far and the epochs since it.
+/// The best epoch so far, the lowest balanced loss so far and the epochs without progress.
 #[derive(Clone, Debug)]
 pub struct Selection {
     patience: usize,
     best: Option<(Score, usize)>,
-    since_best: usize,
+    lowest_loss: f64,
+    since_progress: usize,
 }
 
 impl Selection {
@@ -91,21 +104,28 @@ impl Selection {
         Selection {
             patience: patience.max(1),
             best: None,
-            since_best: 0,
+            lowest_loss: f64::INFINITY,
+            since_progress: 0,
         }
     }
 
     /// Takes epoch `epoch`'s criterion.
     pub fn offer(&mut self, epoch: usize, score: Score) -> Step {
-        if self.best.is_none_or(|(b, _)| score.beats(&b)) {
+        let lower_loss = score.balanced_loss < self.lowest_loss - MIN_GAIN;
+        self.lowest_loss = self.lowest_loss.min(score.balanced_loss);
+        let best = self.best.is_none_or(|(b, _)| score.beats(&b));
+        if best || lower_loss {
+            self.since_progress = 0;
+        } else {
+            self.since_progress += 1;
+        }
+        if best {
             self.best = Some((score, epoch));
-            self.since_best = 0;
             return Step::Best;
         }
-        self.since_best += 1;
         Step::NotBetter {
-            cut: self.since_best.is_multiple_of(CUT_AFTER),
-            stop: self.since_best >= self.patience,
+            cut: self.since_progress > 0 && self.since_progress.is_multiple_of(CUT_AFTER),
+            stop: self.since_progress >= self.patience,
         }
     }
 
@@ -124,6 +144,14 @@ mod tests {
             balanced_accuracy,
             balanced_loss,
         }
+    }
+
+    /// Which of `steps` cut the learning rate.
+    fn cuts(steps: &[Step]) -> Vec<bool> {
+        steps
+            .iter()
+            .map(|s| matches!(s, Step::NotBetter { cut: true, .. }))
+            .collect()
     }
 
     #[test]
@@ -179,11 +207,7 @@ mod tests {
         assert_eq!(s.offer(1, score(0.5, 1.0)), Step::Best);
         // Better by less than the minimum gain: not better.
         let steps: Vec<Step> = (2..=7).map(|e| s.offer(e, score(0.5, 0.9995))).collect();
-        let cuts: Vec<bool> = steps
-            .iter()
-            .map(|s| matches!(s, Step::NotBetter { cut: true, .. }))
-            .collect();
-        assert_eq!(cuts, [false, false, true, false, false, true]);
+        assert_eq!(cuts(&steps), [false, false, true, false, false, true]);
         assert_eq!(
             steps[5],
             Step::NotBetter {
@@ -193,6 +217,35 @@ mod tests {
         );
         assert_eq!(s.best(), Some((1, score(0.5, 1.0))));
         assert_eq!(s.offer(8, score(0.5, 0.5)), Step::Best);
+    }
+
+    #[test]
+    fn a_falling_balanced_loss_holds_off_the_cut_and_the_stop_but_not_the_choice() {
+        let mut s = Selection::new(6);
+        // A lucky early epoch: every validation frame right, by a small margin.
+        let lucky = score(1.0, 0.60);
+        assert_eq!(s.offer(1, lucky), Step::Best);
+        // Nine epochs of a lower balanced accuracy and a falling loss: training goes on.
+        let on = Step::NotBetter {
+            cut: false,
+            stop: false,
+        };
+        for e in 2..=10 {
+            assert_eq!(
+                s.offer(e, score(0.9, 0.60 - 0.05 * e as f64)),
+                on,
+                "epoch {e}"
+            );
+        }
+        assert_eq!(s.best(), Some((1, lucky)));
+        // Then the loss stops falling: cuts at 3 and 6 epochs without progress, the stop at 6.
+        let steps: Vec<Step> = (11..=16).map(|e| s.offer(e, score(0.9, 0.2))).collect();
+        assert_eq!(cuts(&steps), [false, false, true, false, false, true]);
+        assert!(matches!(steps[5], Step::NotBetter { stop: true, .. }));
+        // An epoch that equals the lucky one's accuracy with a lower loss is kept.
+        let mut s2 = s.clone();
+        assert_eq!(s2.offer(17, score(1.0, 0.3)), Step::Best);
+        assert_eq!(s.best(), Some((1, lucky)));
     }
 
     #[test]

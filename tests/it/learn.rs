@@ -131,6 +131,19 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
         assert_eq!(m["support"], 10, "{eval}");
         assert!(m["recall"].as_f64().unwrap() >= 0.7, "{c}: {eval}");
         assert!(m["precision"].as_f64().is_some(), "{eval}");
+        // The recall's 95 % interval holds the recall and is wide on 10 pictures.
+        let recall = m["recall"].as_f64().unwrap();
+        let ci: Vec<f64> = m["recall_ci95"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{c}: no recall_ci95 in {eval}"))
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert!(
+            ci.len() == 2 && ci[0] <= recall && recall <= ci[1],
+            "{c}: {eval}"
+        );
+        assert!(ci[1] - ci[0] > 0.15, "{c}: {eval}");
     }
     assert!(eval["accuracy"].as_f64().unwrap() >= 0.8, "{eval}");
     let confusion = eval["confusion"].as_array().unwrap();
@@ -269,12 +282,15 @@ fn a_model_file_says_how_its_epoch_was_chosen_and_files_from_before_still_load()
         said.starts_with("balanced validation accuracy, then"),
         "{h}"
     );
+    let plateau = h["training"]["plateau"].as_str().unwrap();
+    assert!(plateau.starts_with("epochs without progress"), "{h}");
     let image = data.join("Spots/frame_0000.png");
 
     // Written before: no selection recorded, class maps pooled by their mean.
     let old = tmp.path().join("old.safetensors");
     let before = with_header(&bytes, |h| {
         h["training"].as_object_mut().unwrap().remove("selection");
+        h["training"].as_object_mut().unwrap().remove("plateau");
         h["arch"]["kind"] = "cnn-cam".into();
     });
     std::fs::write(&old, before).unwrap();
@@ -283,6 +299,10 @@ fn a_model_file_says_how_its_epoch_was_chosen_and_files_from_before_still_load()
         .arg(&old)
         .stdout_ok();
     assert!(info.contains("by the mean validation loss"), "{info}");
+    assert!(
+        info.contains("cuts and stop counting epochs without a better epoch;"),
+        "{info}"
+    );
     let predicted = layerwise()
         .args(["learn", "predict", "--json", "--model"])
         .arg(&old)
