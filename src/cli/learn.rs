@@ -58,7 +58,7 @@ pub struct TrainArgs {
 /// How a model is trained: `learn train` and each fold of `learn cv`.
 #[derive(Args)]
 pub struct TrainingArgs {
-    /// Most epochs (training stops earlier on a plateau of the validation loss).
+    /// Most epochs (training stops earlier after `--patience` epochs without progress).
     #[arg(long, default_value_t = 40)]
     epochs: usize,
     /// Share of every sequence (its last frames) or of the layers (the last ones) held out for

@@ -31,7 +31,18 @@ pub fn wilson95(k: usize, n: usize) -> Option<[f64; 2]> {
     let z2 = Z * Z;
     let centre = (p + z2 / (2.0 * n)) / (1.0 + z2 / n);
     let half = Z / (1.0 + z2 / n) * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
-    Some([(centre - half).max(0.0), (centre + half).min(1.0)])
+    // At 0 and at n of n the bound is exactly 0 or 1; rounding would leave it a hair inside.
+    let low = if k == 0.0 {
+        0.0
+    } else {
+        (centre - half).max(0.0)
+    };
+    let high = if k == n {
+        1.0
+    } else {
+        (centre + half).min(1.0)
+    };
+    Some([low, high])
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -182,6 +193,11 @@ mod tests {
             "{l} {h}"
         );
         assert_eq!(wilson95(0, 0), None);
+        // Every one right or none right: the bound is the recall itself, for every n.
+        for n in 1..=300 {
+            assert_eq!(wilson95(n, n).unwrap()[1], 1.0, "{n} of {n}");
+            assert_eq!(wilson95(0, n).unwrap()[0], 0.0, "0 of {n}");
+        }
     }
 
     #[test]

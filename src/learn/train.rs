@@ -1,9 +1,10 @@
 //! Training: class-balanced batches of augmented pictures, AdamW with a plain cross-entropy, and
 //! the epoch chosen on the balanced validation accuracy, then the balanced validation loss
 //! ([`super::select`]): the learning rate cut by 0.3 after 3 epochs without progress (neither a
-//! better epoch nor a lower balanced loss), an early stop after `patience` such epochs, and a time
-//! budget that ends training cleanly after the epoch that would overrun it. The weights of the best epoch are the ones kept. Deterministic for a
-//! seed: one generator drives the weights, the batches and every augmentation.
+//! better epoch nor a lower balanced loss), an early stop after `patience` such epochs, and a
+//! time budget that ends training cleanly after the epoch that would overrun it. The weights of
+//! the best epoch are the ones kept. Deterministic for a seed: one generator drives the weights,
+//! the batches and every augmentation.
 
 use super::augment::Augment;
 use super::data::{read_item, DataKind, Dataset, Part};
