@@ -93,6 +93,10 @@ pub struct TrainingArgs {
     /// Output channels of the convolution blocks, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,64")]
     channels: Vec<usize>,
+    /// Validate and keep the moving average of the weights, with this decay per step
+    /// (0: the last step's weights).
+    #[arg(long, default_value_t = 0.0)]
+    average: f64,
 }
 
 impl TrainingArgs {
@@ -105,6 +109,12 @@ impl TrainingArgs {
         }
         if self.channels.is_empty() || self.channels.iter().any(|&c| c == 0 || c > 512) {
             bail!("--channels must be 1 to 512 each");
+        }
+        if !(0.0..1.0).contains(&self.average) {
+            bail!(
+                "--average {} must be at least 0 (off) and below 1",
+                self.average
+            );
         }
         Ok(TrainOptions {
             epochs: self.epochs.max(1),
@@ -120,6 +130,7 @@ impl TrainingArgs {
             patience: self.patience.max(1),
             max_seconds: self.max_seconds,
             refit,
+            average: (self.average > 0.0).then_some(self.average),
         })
     }
 }
@@ -173,6 +184,9 @@ impl TrainArgs {
         );
         println!("validation ({}):", t.split.rule);
         print!("{}", header.validation);
+        if let Some(d) = t.average {
+            println!("{}", average_line(d));
+        }
         if let Some(r) = &t.refit {
             println!("{}", refit_line(r));
         }
@@ -350,11 +364,19 @@ impl InfoArgs {
             t.data.root, t.data.kind, &t.data.sha256[..16.min(t.data.sha256.len())], t.split.rule, t.split.val, t.seed, t.epochs_run, t.best_epoch, t.selection, t.plateau, t.stopped, t.seconds
         );
         print!("{}", h.validation);
+        if let Some(d) = t.average {
+            println!("{}", average_line(d));
+        }
         if let Some(r) = &t.refit {
             println!("{}", refit_line(r));
         }
         Ok(())
     }
+}
+
+/// What a file of averaged weights says of them.
+fn average_line(decay: f64) -> String {
+    format!("the weights are the moving average of the steps' weights (decay {decay} a step)")
 }
 
 /// What a refit model's file says of the refit.

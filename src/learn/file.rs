@@ -65,6 +65,10 @@ pub struct TrainingInfo {
     /// recorded counted epochs without a better epoch.
     #[serde(default = "old_plateau")]
     pub plateau: String,
+    /// The weights are the moving average of the steps' weights with this decay per step
+    /// (`learn train --average`); absent: the last step's weights of the kept epoch.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub average: Option<f64>,
     /// `plateau`, `epochs` or `time budget`.
     pub stopped: String,
     pub seconds: f64,

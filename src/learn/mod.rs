@@ -5,6 +5,7 @@
 //! classical inspection ([`live`]). See docs/learning.md.
 
 pub mod augment;
+pub mod average;
 pub mod crossval;
 pub mod data;
 pub mod error;

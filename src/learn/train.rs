@@ -7,6 +7,7 @@
 //! the batches and every augmentation.
 
 use super::augment::Augment;
+use super::average::Average;
 use super::data::{read_item, DataKind, Dataset, Part};
 use super::error::LearnError;
 use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT, VERSION};
@@ -42,6 +43,9 @@ pub struct TrainOptions {
     /// After the epoch is chosen, train afresh on every picture (the validation part and the
     /// guard frames too) for that many epochs, with the same learning-rate cuts, and keep that.
     pub refit: bool,
+    /// Validate and keep the moving average of the weights with this decay per step
+    /// ([`super::average`]), not the last step's weights.
+    pub average: Option<f64>,
 }
 
 impl Default for TrainOptions {
@@ -60,6 +64,7 @@ impl Default for TrainOptions {
             patience: 6,
             max_seconds: 540.0,
             refit: false,
+            average: None,
         }
     }
 }
@@ -84,16 +89,41 @@ pub struct Epoch {
 /// The refit's generator stream (`learn train --refit`).
 const REFIT_STREAM: u64 = 0x7265_6669_7400;
 
-/// AdamW at the options' learning rate.
-fn adam(vars: Vec<candle_core::Var>, opts: &TrainOptions) -> Result<AdamW, LearnError> {
-    Ok(AdamW::new(
-        vars,
-        ParamsAdamW {
-            lr: opts.learning_rate,
-            weight_decay: 1e-4,
-            ..ParamsAdamW::default()
-        },
-    )?)
+/// What takes the steps: AdamW at the options' learning rate, and the moving average of the
+/// weights when the options ask for it.
+struct Steps {
+    opt: AdamW,
+    average: Option<Average>,
+}
+
+impl Steps {
+    fn new(
+        net: &Net,
+        vars: Vec<candle_core::Var>,
+        opts: &TrainOptions,
+    ) -> Result<Steps, LearnError> {
+        let opt = AdamW::new(
+            vars,
+            ParamsAdamW {
+                lr: opts.learning_rate,
+                weight_decay: 1e-4,
+                ..ParamsAdamW::default()
+            },
+        )?;
+        let average = opts.average.map(|d| Average::new(net, d)).transpose()?;
+        Ok(Steps { opt, average })
+    }
+
+    fn cut_learning_rate(&mut self) {
+        self.opt.set_learning_rate(self.opt.learning_rate() * 0.3);
+    }
+
+    /// The weights to validate and keep: the average's, or the last step's.
+    fn weights(&self, net: &Net) -> Net {
+        self.average
+            .as_ref()
+            .map_or_else(|| net.clone(), |a| a.net(net))
+    }
 }
 
 /// What every epoch of a training uses: the decoded pictures and how they are fed.
@@ -128,11 +158,12 @@ impl Pass<'_> {
     }
 
     /// One epoch of `per_epoch` class-balanced draws (equal shares per class, each a fresh
-    /// augmentation); the mean loss and the seconds spent preparing the inputs.
+    /// augmentation), each step taken into `average`; the mean loss and the seconds spent
+    /// preparing the inputs.
     fn epoch(
         &self,
         net: &Net,
-        opt: &mut AdamW,
+        steps: &mut Steps,
         by_class: &[Vec<usize>],
         per_epoch: usize,
         rng: &mut Rng,
@@ -168,7 +199,10 @@ impl Pass<'_> {
                 .collect();
             let y = Tensor::from_vec(targets, chunk.len(), &Device::Cpu)?;
             let loss = candle_nn::loss::cross_entropy(&net.logits(&x)?, &y)?;
-            opt.backward_step(&loss)?;
+            steps.opt.backward_step(&loss)?;
+            if let Some(a) = &mut steps.average {
+                a.update(net)?;
+            }
             loss_sum += f64::from(loss.to_scalar::<f32>()?) * chunk.len() as f64;
         }
         Ok((loss_sum / draws.len() as f64, prepare_seconds))
@@ -335,7 +369,7 @@ pub fn train(
         .collect();
     let mut rng = Rng::new(opts.seed);
     let (mut net, vars) = Net::init(&arch, data.classes.len(), &mut rng)?;
-    let mut opt = adam(vars, opts)?;
+    let mut steps = Steps::new(&net, vars, opts)?;
     let by_class = pass.by_class(&train_idx);
     let per_epoch = train_idx.len().max(opts.batch);
     let mut best: Option<(Vec<Tensor>, Option<Metrics>)> = None;
@@ -346,12 +380,13 @@ pub fn train(
     for epoch in 1..=opts.epochs.max(1) {
         let t0 = Instant::now();
         let (loss, prepare_seconds) =
-            pass.epoch(&net, &mut opt, &by_class, per_epoch, &mut rng, epoch)?;
+            pass.epoch(&net, &mut steps, &by_class, per_epoch, &mut rng, epoch)?;
         epochs_run = epoch;
+        let offered = steps.weights(&net);
         let (val_loss, val_balanced_loss, val) = if val_inputs.is_empty() {
             (None, None, None)
         } else {
-            let (losses, predicted) = evaluate(&net, &val_inputs, opts.batch)?;
+            let (losses, predicted) = evaluate(&offered, &val_inputs, opts.batch)?;
             let truth: Vec<usize> = val_inputs.iter().map(|(_, c)| *c).collect();
             let pairs: Vec<(usize, usize)> = truth.iter().copied().zip(predicted).collect();
             (
@@ -379,7 +414,7 @@ pub fn train(
         };
         match selection.offer(epoch, score) {
             Step::Best => {
-                let copy = net
+                let copy = offered
                     .params
                     .iter()
                     .map(|t| t.copy())
@@ -388,7 +423,7 @@ pub fn train(
             }
             Step::NotBetter { cut, stop } => {
                 if cut {
-                    opt.set_learning_rate(opt.learning_rate() * 0.3);
+                    steps.cut_learning_rate();
                     cuts.push(epoch);
                 }
                 if stop {
@@ -415,12 +450,12 @@ pub fn train(
         let mut rng = Rng::new(opts.seed);
         let (fresh, vars) = Net::init(&arch, data.classes.len(), &mut rng)?;
         let mut rng = rng.fork(REFIT_STREAM);
-        let mut opt = adam(vars, opts)?;
+        let mut steps = Steps::new(&fresh, vars, opts)?;
         let by_class = pass.by_class(&all);
         for epoch in 1..=best_epoch {
             let t1 = Instant::now();
             let (loss, prepare_seconds) =
-                pass.epoch(&fresh, &mut opt, &by_class, per_epoch, &mut rng, epoch)?;
+                pass.epoch(&fresh, &mut steps, &by_class, per_epoch, &mut rng, epoch)?;
             progress(&Epoch {
                 epoch,
                 epochs: best_epoch,
@@ -433,10 +468,10 @@ pub fn train(
                 refit: true,
             });
             if cuts.contains(&epoch) {
-                opt.set_learning_rate(opt.learning_rate() * 0.3);
+                steps.cut_learning_rate();
             }
         }
-        net = fresh;
+        net = steps.weights(&fresh);
         Some(RefitInfo {
             epochs: best_epoch,
             lr_cuts: cuts,
@@ -476,6 +511,7 @@ pub fn train(
             best_epoch,
             selection: select::CRITERION.into(),
             plateau: select::PLATEAU.into(),
+            average: opts.average,
             stopped: stopped.into(),
             seconds: started.elapsed().as_secs_f64(),
             augmentation,

@@ -4,10 +4,8 @@
 //! CT-labelled patches of `demo --pores` (the pores told from controls on held-out layers); compare
 //! tabulates the model beside the classical inspection; damaged, foreign, newer and mismatched
 //! model files are refused with their own message, by predict and by check-config; verdicts
-//! given on the page train a model of the build; `--refit` trains afresh on every picture for the
-//! chosen epochs and keeps the selection run's held-out figures (and refuses to call its
-//! validation part held out). The
-//! real-data training (../shared/data/real/pblm) is measured in docs/learning.md, not a test.
+//! given on the page train a model of the build (`--refit` and `--average`: learn_options.rs).
+//! The real-data training (../shared/data/real/pblm) is measured in docs/learning.md, not a test.
 
 use crate::common::*;
 use std::path::{Path, PathBuf};
@@ -32,13 +30,6 @@ fn train(data: &Path, out: &Path, seed: u64, threads: &str) -> std::process::Out
     .succeeds()
 }
 
-/// The model file's JSON header (safetensors metadata `layerwise.model`).
-fn header_of(bytes: &[u8]) -> serde_json::Value {
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let st: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    serde_json::from_str(st["__metadata__"]["layerwise.model"].as_str().unwrap()).unwrap()
-}
-
 /// The model file with its header changed by `edit` (lengths and padding redone).
 fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u8> {
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
@@ -54,17 +45,6 @@ fn with_header(bytes: &[u8], edit: impl FnOnce(&mut serde_json::Value)) -> Vec<u
     out.extend(text);
     out.extend_from_slice(&bytes[8 + n..]);
     out
-}
-
-/// `layerwise ARGS --model MODEL --data DATA` (eval, compare).
-fn learn_on(args: &[&str], model: &Path, data: &Path) -> std::process::Command {
-    let mut c = layerwise();
-    c.args(args)
-        .arg("--model")
-        .arg(model)
-        .arg("--data")
-        .arg(data);
-    c
 }
 
 /// A small model of `tmp/data` (5 frames a class) in `tmp/m.safetensors`, trained `epochs`
@@ -687,68 +667,4 @@ fn a_model_trained_on_the_demo_pores_separates_them_from_controls_on_held_out_la
     // not see the pores).
     let pre = eval_of_demo_patches(&build, "pre");
     assert!(pre["accuracy"].as_f64().unwrap() < 0.7, "{pre}");
-}
-
-#[test]
-fn a_refit_model_learns_from_every_picture_and_keeps_the_held_out_figures_of_its_selection() {
-    let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    class_folders(&data, 10);
-    let opts = [
-        "--channels",
-        "6,12",
-        "--epochs",
-        "30",
-        "--patience",
-        "30",
-        "--seed",
-        "2",
-    ];
-    let plain = tmp.path().join("plain.safetensors");
-    train_small(&data, &plain, &opts).succeeds();
-    let model = tmp.path().join("refit.safetensors");
-    let out = train_small(&data, &model, &opts).arg("--refit").succeeds();
-    let (p, h) = (
-        header_of(&std::fs::read(&plain).unwrap()),
-        header_of(&std::fs::read(&model).unwrap()),
-    );
-    // The selection run is the plain training: the same epoch, the same held-out figures.
-    assert_eq!(h["training"]["best_epoch"], p["training"]["best_epoch"]);
-    assert_eq!(h["validation"], p["validation"]);
-    assert!(p["training"].get("refit").is_none(), "{p}");
-    let refit = &h["training"]["refit"];
-    let epochs = refit["epochs"].as_u64().unwrap();
-    assert_eq!(epochs, h["training"]["best_epoch"].as_u64().unwrap());
-    // Every picture, the 3 guard frames between the parts included.
-    let counts = refit["counts"].as_object().unwrap();
-    assert_eq!(
-        counts.values().map(|v| v.as_u64().unwrap()).sum::<u64>(),
-        30
-    );
-    assert_ne!(h["weights_sha256"], p["weights_sha256"]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        stderr.contains(&format!("refit epoch {epochs}/{epochs}")),
-        "{stderr}"
-    );
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        stdout.contains("then refit on every picture (30 in all"),
-        "{stdout}"
-    );
-
-    // It has seen the validation part: evaluating "held-out" figures on it is refused.
-    let refused = learn_on(&["learn", "eval", "--part", "val"], &model, &data).fails();
-    assert!(
-        refused.contains("refit on every picture") && refused.contains("learn info"),
-        "{refused}"
-    );
-    // It learnt: every picture it was trained on, classified.
-    let all = learn_on(&["learn", "eval", "--json"], &model, &data).json_ok();
-    assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
-    let info = layerwise()
-        .args(["learn", "info", "--model"])
-        .arg(&model)
-        .stdout_ok();
-    assert!(info.contains(&format!("for {epochs} epochs")), "{info}");
 }

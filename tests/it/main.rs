@@ -36,6 +36,7 @@ mod inspect_frames;
 mod inspection;
 mod learn;
 mod learn_cv;
+mod learn_options;
 mod lifecycle;
 mod pacs;
 mod pacs_push;

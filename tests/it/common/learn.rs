@@ -142,3 +142,21 @@ pub fn flaws_output(root: &Path, layers: u32) {
     let labels = serde_json::json!({"images": images, "annotations": [], "categories": []});
     std::fs::write(root.join("labels.json"), labels.to_string()).unwrap();
 }
+
+/// The model file's JSON header (safetensors metadata `layerwise.model`).
+pub fn header_of(bytes: &[u8]) -> serde_json::Value {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let st: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    serde_json::from_str(st["__metadata__"]["layerwise.model"].as_str().unwrap()).unwrap()
+}
+
+/// `layerwise ARGS --model MODEL --data DATA` (eval, compare).
+pub fn learn_on(args: &[&str], model: &Path, data: &Path) -> std::process::Command {
+    let mut c = layerwise();
+    c.args(args)
+        .arg("--model")
+        .arg(model)
+        .arg("--data")
+        .arg(data);
+    c
+}

@@ -1,0 +1,118 @@
+//! `layerwise learn train`'s options that change what is kept, through the binary on generated
+//! class folders: `--refit` trains afresh on every picture for the chosen epochs and keeps the
+//! selection run's held-out figures (and refuses to call its validation part held out);
+//! `--average` validates and keeps the moving average of the weights and says so.
+
+use crate::common::*;
+
+/// A small network trained 30 epochs without an early stop, seed 2.
+const THIRTY_EPOCHS: [&str; 8] = [
+    "--channels",
+    "6,12",
+    "--epochs",
+    "30",
+    "--patience",
+    "30",
+    "--seed",
+    "2",
+];
+
+#[test]
+fn averaged_weights_are_recorded_in_the_file_and_still_learn() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 10);
+    let opts = THIRTY_EPOCHS;
+    let (plain, averaged) = (
+        tmp.path().join("plain.safetensors"),
+        tmp.path().join("averaged.safetensors"),
+    );
+    train_small(&data, &plain, &opts)
+        .args(["--average", "0"])
+        .succeeds();
+    let out = train_small(&data, &averaged, &opts)
+        .args(["--average", "0.9"])
+        .succeeds();
+    let (p, h) = (
+        header_of(&std::fs::read(&plain).unwrap()),
+        header_of(&std::fs::read(&averaged).unwrap()),
+    );
+    assert!(p["training"].get("average").is_none(), "{p}");
+    assert_eq!(h["training"]["average"], 0.9, "{h}");
+    // The same seed and draws: only the weights validated and kept differ.
+    assert_ne!(h["weights_sha256"], p["weights_sha256"]);
+    let said = "the moving average of the steps' weights (decay 0.9 a step)";
+    assert!(String::from_utf8_lossy(&out.stdout).contains(said));
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&averaged)
+        .stdout_ok();
+    assert!(info.contains(said), "{info}");
+    // What the file says of its validation part is what its weights do there.
+    let val = learn_on(
+        &["learn", "eval", "--part", "val", "--json"],
+        &averaged,
+        &data,
+    )
+    .json_ok();
+    assert_eq!(val["accuracy"], h["validation"]["accuracy"], "{val}");
+    let all = learn_on(&["learn", "eval", "--json"], &averaged, &data).json_ok();
+    assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
+    let refused = train_small(&data, &averaged, &["--average", "1"]).fails();
+    assert!(refused.contains("--average 1 must be"), "{refused}");
+}
+
+#[test]
+fn a_refit_model_learns_from_every_picture_and_keeps_the_held_out_figures_of_its_selection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    class_folders(&data, 10);
+    let opts = THIRTY_EPOCHS;
+    let plain = tmp.path().join("plain.safetensors");
+    train_small(&data, &plain, &opts).succeeds();
+    let model = tmp.path().join("refit.safetensors");
+    let out = train_small(&data, &model, &opts).arg("--refit").succeeds();
+    let (p, h) = (
+        header_of(&std::fs::read(&plain).unwrap()),
+        header_of(&std::fs::read(&model).unwrap()),
+    );
+    // The selection run is the plain training: the same epoch, the same held-out figures.
+    assert_eq!(h["training"]["best_epoch"], p["training"]["best_epoch"]);
+    assert_eq!(h["validation"], p["validation"]);
+    assert!(p["training"].get("refit").is_none(), "{p}");
+    let refit = &h["training"]["refit"];
+    let epochs = refit["epochs"].as_u64().unwrap();
+    assert_eq!(epochs, h["training"]["best_epoch"].as_u64().unwrap());
+    // Every picture, the 3 guard frames between the parts included.
+    let counts = refit["counts"].as_object().unwrap();
+    assert_eq!(
+        counts.values().map(|v| v.as_u64().unwrap()).sum::<u64>(),
+        30
+    );
+    assert_ne!(h["weights_sha256"], p["weights_sha256"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("refit epoch {epochs}/{epochs}")),
+        "{stderr}"
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("then refit on every picture (30 in all"),
+        "{stdout}"
+    );
+
+    // It has seen the validation part: evaluating "held-out" figures on it is refused.
+    let refused = learn_on(&["learn", "eval", "--part", "val"], &model, &data).fails();
+    assert!(
+        refused.contains("refit on every picture") && refused.contains("learn info"),
+        "{refused}"
+    );
+    // It learnt: every picture it was trained on, classified.
+    let all = learn_on(&["learn", "eval", "--json"], &model, &data).json_ok();
+    assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&model)
+        .stdout_ok();
+    assert!(info.contains(&format!("for {epochs} epochs")), "{info}");
+}
