@@ -16,6 +16,7 @@ Creates benches/peers/.venv (pillow) on first use and re-runs inside it.
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -115,7 +116,7 @@ def main():
     for label, reports in rows:
         print(f"| {label} | " + " | ".join(cell(r, a.normal) for r in reports) + " |")
     if not a.keep:
-        subprocess.run(["rm", "-rf", root], check=False)
+        shutil.rmtree(root, ignore_errors=True)
 
 
 if __name__ == "__main__":

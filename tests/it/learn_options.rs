@@ -22,15 +22,14 @@ fn averaged_weights_are_recorded_in_the_file_and_still_learn() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     class_folders(&data, 10);
-    let opts = THIRTY_EPOCHS;
     let (plain, averaged) = (
         tmp.path().join("plain.safetensors"),
         tmp.path().join("averaged.safetensors"),
     );
-    train_small(&data, &plain, &opts)
+    train_small(&data, &plain, &THIRTY_EPOCHS)
         .args(["--average", "0"])
         .succeeds();
-    let out = train_small(&data, &averaged, &opts)
+    let out = train_small(&data, &averaged, &THIRTY_EPOCHS)
         .args(["--average", "0.9"])
         .succeeds();
     let (p, h) = (
@@ -67,11 +66,12 @@ fn a_refit_model_learns_from_every_picture_and_keeps_the_held_out_figures_of_its
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     class_folders(&data, 10);
-    let opts = THIRTY_EPOCHS;
     let plain = tmp.path().join("plain.safetensors");
-    train_small(&data, &plain, &opts).succeeds();
+    train_small(&data, &plain, &THIRTY_EPOCHS).succeeds();
     let model = tmp.path().join("refit.safetensors");
-    let out = train_small(&data, &model, &opts).arg("--refit").succeeds();
+    let out = train_small(&data, &model, &THIRTY_EPOCHS)
+        .arg("--refit")
+        .succeeds();
     let (p, h) = (
         header_of(&std::fs::read(&plain).unwrap()),
         header_of(&std::fs::read(&model).unwrap()),
