@@ -35,13 +35,26 @@ class Window:
         self.s = "/session/" + call("POST", "/session", caps)["sessionId"]
         call("POST", self.s + "/url", {"url": url})
         wait_for("the page script", lambda: self.js("return window.layerwisePageLoadedAt"))
+        # Where every click lands, for `click` to check and a failed wait to show.
+        self.js("""window.clicks = [];
+            document.addEventListener('click', (e) => clicks.push(e.target), true);""")
 
     def js(self, script, *arguments):
         return call("POST", self.s + "/execute/sync", {"script": script, "args": list(arguments)})
 
     def click(self, selector):
-        element = call("POST", self.s + "/element", {"using": "css selector", "value": selector})
-        call("POST", self.s + f"/element/{list(element.values())[0]}/click", {})
+        """Clicks the element as a user does (WebDriver, at its centre). WebDriver finds the
+        centre, then presses there: should the page move in between (a busy machine), the press
+        lands on something else. That is said, and the click given again, once."""
+        for attempt in range(2):
+            before = self.js("return clicks.length")
+            element = call("POST", self.s + "/element", {"using": "css selector", "value": selector})
+            call("POST", self.s + f"/element/{list(element.values())[0]}/click", {})
+            hit = self.js("return clicks.slice(arguments[0]).map((t) => t === arguments[1] || t.id || t.tagName)", before, element)
+            if True in hit:
+                return
+            print(f"the click on {selector} landed on {hit or 'nothing'}; clicking again", file=sys.stderr)
+        raise AssertionError(f"two clicks on {selector} did not reach it")
 
     def type(self, selector, text):
         element = call("POST", self.s + "/element", {"using": "css selector", "value": selector})
@@ -58,6 +71,22 @@ class Window:
         png = base64.b64decode(call("GET", self.s + "/screenshot"))
         with open(os.path.join(artifacts, name), "wb") as f:
             f.write(png)
+
+    def diagnosis(self):
+        # What the page showed when a wait ran out: the layer and address, the flagged layers
+        # the page knows, and what lies over the next-flag button.
+        try:
+            return "\n" + str(self.js("""
+                const b = document.getElementById('next-flag').getBoundingClientRect();
+                const top = document.elementFromPoint(b.x + b.width / 2, b.y + b.height / 2);
+                return {layer: document.getElementById('layer-number').textContent, hash: location.hash,
+                        current: state.current, follow: state.follow,
+                        flagged: state.layers.filter((l) => l.flags).map((l) => l.layer),
+                        zoom_hidden: document.getElementById('zoom').hidden,
+                        clicks: clicks.map((t) => t.id || t.tagName),
+                        over_button: top && (top.id || top.tagName)};"""))
+        except Exception as e:
+            return f" ({e})"
 
     def close(self):
         call("DELETE", self.s)
@@ -172,7 +201,7 @@ try:
     print(f"link {view} opened the view with flag 1 marked")
     linked.js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape'}))")
     linked.click("#next-flag")
-    wait_for(f"the next flag, layer {second}", lambda: linked.shown() == second)
+    wait_for(f"the next flag, layer {second}", lambda: linked.shown() == second, diagnosis=linked.diagnosis)
     assert linked.js("return location.hash") == f"#layer={second}", linked.js("return location.hash")
     linked.click("#prev-flag")
     wait_for(f"the previous flag, layer {first}", lambda: linked.shown() == first)

@@ -287,7 +287,11 @@ function kind() { return $("raw").checked || !state.rectified ? "raw" : "rectifi
 async function showLayer(n, linked) {
   n = Math.max(1, Math.min(Number($("slider").max), n));
   state.current = n;
-  const want = linked ? { view: hashParam("view"), flag: hashParam("flag") } : {};
+  // Only the newest call draws: one still waiting for an older answer gives up. A link's view
+  // and flag stay wanted when a later call shows the same layer before the link's was drawn.
+  const ticket = state.ticket = (state.ticket || 0) + 1;
+  if (linked) state.want = { n, view: hashParam("view"), flag: hashParam("flag") };
+  else if (state.want && state.want.n !== n) state.want = null;
   if (!linked && location.hash !== "#layer=" + n) history.replaceState(null, "", "#layer=" + n);
   $("layer-number").textContent = n;
   $("slider").value = n;
@@ -296,8 +300,10 @@ async function showLayer(n, linked) {
   if (cell) cell.classList.add("current");
   let detail;
   try { detail = await getJson("/api/layers/" + n); } catch (e) { detail = null; }
-  if (state.current !== n) return;
+  if (ticket !== state.ticket) return;
   const svg = kind() === "rectified" ? await vectorsSvg(n) : "";
+  if (ticket !== state.ticket) return;
+  const want = state.want || {}; state.want = null;
   const tiles = state.views.map((view) => {
     const t = document.createElement("div");
     const v = detail && detail.views[view];
@@ -412,11 +418,14 @@ async function sendVerdict(n, f, verdict, d) {
 // not; one that would fill a quarter of the room is doubled.
 let zoomed = null;
 async function openZoom(n, view, p, flags, bed, selected) {
-  zoomed = { n, view, p, kind: kind(), flags: flags || [], bed, crop: null, scale: 1 };
+  const z = zoomed = { n, view, p, kind: kind(), flags: flags || [], bed, crop: null, scale: 1 };
   $("zoom-title").textContent = "layer " + n + " " + view + " (" + zoomed.kind + ")";
   $("zoom-img").src = p[zoomed.kind];
   $("zoom-original").href = p.original;
-  $("zoom-vectors").innerHTML = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
+  const svg = zoomed.kind === "rectified" ? await vectorsSvg(n) : "";
+  // Closed (Escape) or another view opened while the vectors were on their way: not shown.
+  if (zoomed !== z) return;
+  $("zoom-vectors").innerHTML = svg;
   const boxes = zoomed.kind === "rectified" && flagBoxes(zoomed.flags, view);
   const outline = zoomed.kind === "rectified" && bedOutline(bed, view);
   $("zoom-flags").replaceChildren(...[outline, boxes].filter(Boolean));
