@@ -97,6 +97,17 @@ pub struct TrainingArgs {
     /// (0: the last step's weights).
     #[arg(long, default_value_t = 0.0)]
     average: f64,
+    /// How the cells become the model's input: `equalised` (to first order), so a camera's tone
+    /// curve does not change it; `flatfield`, grey levels (the models before December 2026).
+    #[arg(long, value_enum, default_value_t = Recipe::Equalised)]
+    normalisation: Recipe,
+}
+
+/// `--normalisation` ([`learn::input::Normalisation`]).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum Recipe {
+    Equalised,
+    Flatfield,
 }
 
 impl TrainingArgs {
@@ -131,6 +142,10 @@ impl TrainingArgs {
             max_seconds: self.max_seconds,
             refit,
             average: (self.average > 0.0).then_some(self.average),
+            normalisation: match self.normalisation {
+                Recipe::Equalised => learn::input::Normalisation::Equalised,
+                Recipe::Flatfield => learn::input::Normalisation::Flatfield,
+            },
         })
     }
 }
@@ -357,7 +372,7 @@ impl InfoArgs {
                 .cell_mm
                 .map(|m| format!(", {m} mm a cell"))
                 .unwrap_or_default(),
-            h.input.normalisation
+            h.input.normalisation.name()
         );
         println!(
             "trained on {} ({}, data sha256 {}), split {} (validation {:?}), seed {}, {} epochs (best {} by the {}; cuts and stop counting {}; stopped: {}), {:.0} s",

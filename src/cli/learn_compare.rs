@@ -118,8 +118,7 @@ impl CompareArgs {
                 if want.is_some_and(|w| parts[i] != w) {
                     continue;
                 }
-                let prediction =
-                    model.classify(&layerwise::learn::input::cells(&canonical, spec.cell_px))?;
+                let prediction = model.classify(&spec.input(&canonical))?;
                 let row = rows.entry(truth.clone()).or_default();
                 row.frames += 1;
                 row.model_found += usize::from(prediction.class != model.header.normal_class);

@@ -1,6 +1,7 @@
 //! Augmentation that keeps the defect and takes away what should not decide the class: the
 //! framing (a small rotation, scale and shift), the light (gain, contrast, gamma, a smooth
-//! illumination gradient) and the grain (a blur, added noise). Frames of an oblique camera are
+//! illumination gradient), the grain (a blur, added noise) and the camera's compression (a JPEG
+//! re-compression at a low to middling quality, as another camera's files may have). Frames of an oblique camera are
 //! only flipped left-right (the view, the light and the recoating direction are not symmetric
 //! top to bottom); top-down patches and views also flip and turn by quarter turns.
 
@@ -18,7 +19,7 @@ impl Augment {
     /// The recipe's name for the model file.
     pub fn describe(&self) -> String {
         format!(
-            "{}; rotate ±3°, scale 0.92-1.08, shift ±4 % (reflected); gain 0.8-1.2, contrast 0.8-1.25, gamma 0.8-1.25, gradient ±15 %; blur (p 0.5), noise σ 0-4",
+            "{}; rotate ±3°, scale 0.92-1.08, shift ±4 % (reflected); gain 0.8-1.2, contrast 0.8-1.25, gamma 0.8-1.25, gradient ±15 %; blur (p 0.5), noise σ 0-4; JPEG quality 30-90 (p 0.3)",
             if self.isotropic { "flips and quarter turns" } else { "left-right flip" }
         )
     }
@@ -91,7 +92,40 @@ impl Augment {
                 *v = (*v + (rng.normal() * sigma) as f32).clamp(0.0, 255.0);
             }
         }
+        if rng.chance(0.3) {
+            out = recompress(&out, rng.range(30.0, 90.0).round() as u8);
+        }
         out
+    }
+}
+
+/// `img` through a JPEG of `quality` and back (8-bit grey; unchanged should the codec fail).
+fn recompress(img: &Gray, quality: u8) -> Gray {
+    let bytes: Vec<u8> = img
+        .px
+        .iter()
+        .map(|v| v.round().clamp(0.0, 255.0) as u8)
+        .collect();
+    let mut jpeg = Vec::new();
+    let encoded = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, quality).encode(
+        &bytes,
+        img.width as u32,
+        img.height as u32,
+        image::ExtendedColorType::L8,
+    );
+    let decoded = encoded
+        .ok()
+        .and_then(|()| image::load_from_memory_with_format(&jpeg, image::ImageFormat::Jpeg).ok())
+        .map(|d| d.into_luma8());
+    match decoded {
+        Some(g) if g.width() as usize == img.width && g.height() as usize == img.height => {
+            Gray::new(
+                img.width,
+                img.height,
+                g.as_raw().iter().map(|&v| f32::from(v)).collect(),
+            )
+        }
+        _ => img.clone(),
     }
 }
 
@@ -129,5 +163,32 @@ mod tests {
         assert_eq!((a.width, a.height), (32, 24));
         assert!(a.px.iter().all(|v| (0.0..=255.0).contains(v)));
         assert_ne!(a.px, aug.apply(&img, &mut Rng::new(4)).px);
+    }
+
+    #[test]
+    fn recompression_keeps_the_picture_and_adds_blocks() {
+        let img = Gray::new(
+            64,
+            48,
+            (0..64 * 48)
+                .map(|i| ((i % 64) * 3 + (i / 64) % 7 * 9) as f32)
+                .collect(),
+        );
+        let low = recompress(&img, 30);
+        assert_eq!((low.width, low.height), (64, 48));
+        let diff = |a: &Gray| {
+            a.px.iter()
+                .zip(&img.px)
+                .map(|(x, y)| (x - y).abs())
+                .sum::<f32>()
+                / img.px.len() as f32
+        };
+        let high = recompress(&img, 90);
+        assert!(
+            diff(&low) > diff(&high) && diff(&low) < 20.0 && diff(&high) > 0.0,
+            "{} {}",
+            diff(&low),
+            diff(&high)
+        );
     }
 }

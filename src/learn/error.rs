@@ -37,7 +37,7 @@ pub enum ModelError {
         found: u64,
         reads: u32,
     },
-    #[error("{path}: model format {found} is not read any more (this layerwise reads {reads}); retrain it with `layerwise learn train`")]
+    #[error("{path}: model format {found} is not read any more (the oldest this layerwise reads is {reads}); retrain it with `layerwise learn train`")]
     Older {
         path: PathBuf,
         found: u64,

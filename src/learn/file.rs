@@ -19,7 +19,21 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 pub const FORMAT: &str = "layerwise-model";
-pub const VERSION: u32 = 1;
+/// The newest model format this layerwise reads and writes: 2 for files of the
+/// [`Normalisation::Equalised`](super::input::Normalisation) input, which a layerwise that reads
+/// only 1 must refuse (it would normalise the frames the old way). Files of the old input are
+/// still written as 1 ([`version_for`]).
+pub const VERSION: u32 = 2;
+/// The oldest format read.
+pub const MIN_VERSION: u32 = 1;
+
+/// The format a file of `input` is written in: the oldest that can hold it.
+pub fn version_for(input: &InputSpec) -> u32 {
+    match input.normalisation {
+        super::input::Normalisation::Flatfield => 1,
+        super::input::Normalisation::Equalised => 2,
+    }
+}
 pub const METADATA_KEY: &str = "layerwise.model";
 /// A model is tens of kilobytes; nothing larger is read.
 pub const MAX_BYTES: u64 = 64 << 20;
@@ -227,11 +241,11 @@ impl Model {
                     reads: VERSION,
                 })
             }
-            Some(v) if v < u64::from(VERSION) => {
+            Some(v) if v < u64::from(MIN_VERSION) => {
                 return Err(ModelError::Older {
                     path: p(),
                     found: v,
-                    reads: VERSION,
+                    reads: MIN_VERSION,
                 })
             }
             _ => {}

@@ -3,17 +3,29 @@
 //! nor the overall grain level of a frame can decide its class (on the pblm collection each class
 //! is one session, and those two numbers alone separate them: docs/learning.md).
 //!
-//! The recipe, versioned as [`NORMALISATION`]:
-//! - mean channel: the cell mean less its 15 x 15-cell box mean (a flat field, so vignetting and
-//!   the light's fall-off go), divided by 1.4826 x the median absolute value of that difference
-//!   over the input (at least 0.5 grey levels), clipped to ±6;
-//! - texture channel: ln((t + 0.5) / (median t + 0.5)) of the cell's standard deviation t over the
-//!   cell grown by one pixel each side, clipped to ±6.
+//! Two recipes, named in every model file ([`Normalisation`]):
+//! - [`FLATFIELD`] (files before December 2026): mean channel, the cell mean less its 15 x 15-cell
+//!   box mean (a flat field, so vignetting and the light's fall-off go), divided by 1.4826 x the
+//!   median absolute value of that difference over the input (at least 0.5 grey levels), clipped
+//!   to ±6; texture channel, ln((t + 0.5) / (median t + 0.5)) of the cell's standard deviation t
+//!   over the cell grown by one pixel each side, clipped to ±6.
+//! - [`EQUALISED`] (the default since): both channels freed of the camera's tone curve `g` (any
+//!   order-keeping one: gamma, contrast, another camera's JPEG rendering), to first order. Near a
+//!   grey level v, `g` multiplies differences and textures by g'(v). The mean channel's
+//!   difference is divided by the box mean of the textures over the same 15 x 15 cells (the grain
+//!   there), so it is a contrast against the powder's own grain; the texture is multiplied by the
+//!   density of the picture's cell means at the cell's mean, F'(m) (the slope of the picture's
+//!   equalisation: 255 x (2k / n) over the spread of the sorted means k below and k above m, k =
+//!   n / 16), which `g` divides by g'(m). Then the scaling and clip above. What the model learns
+//!   of one camera's frames carries to another's. (Ranks alone would not do: the darkest cells
+//!   of clean powder rank as low as a streak, and the streak's contrast is lost.)
 
 use serde::{Deserialize, Serialize};
 
-/// The normalisation recipe's name, recorded in every model file.
-pub const NORMALISATION: &str = "flatfield15-mad/log-texture-median/clip6";
+/// The grey-level recipe's name (model files before December 2026).
+pub const FLATFIELD: &str = "flatfield15-mad/log-texture-median/clip6";
+/// The recipe unchanged by a tone curve, to first order.
+pub const EQUALISED: &str = "flatfield15-over-grain15-mad/log-texture-density-median/clip6";
 /// Input channels in order.
 pub const CHANNELS: [&str; 2] = ["mean", "texture"];
 const CLIP: f32 = 6.0;
@@ -111,6 +123,57 @@ impl Gray {
     }
 }
 
+/// How cell means and textures become the model's input; recorded by its name in the model file
+/// (`input.normalisation`), and a file naming a recipe this layerwise does not know is refused.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Normalisation {
+    /// [`FLATFIELD`]: grey levels.
+    #[serde(rename = "flatfield15-mad/log-texture-median/clip6")]
+    Flatfield,
+    /// [`EQUALISED`]: contrast against the grain, texture on the equalised scale.
+    #[default]
+    #[serde(rename = "flatfield15-over-grain15-mad/log-texture-density-median/clip6")]
+    Equalised,
+}
+
+impl Normalisation {
+    /// The name recorded in model files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Normalisation::Flatfield => FLATFIELD,
+            Normalisation::Equalised => EQUALISED,
+        }
+    }
+
+    /// The input of a `rows` x `cols` map of raw cell means and textures.
+    pub fn apply(self, rows: usize, cols: usize, mean: &[f32], texture: &[f32]) -> Input {
+        match self {
+            Normalisation::Flatfield => {
+                let flat = box_mean(rows, cols, mean, FLAT_RADIUS);
+                let diff = mean.iter().zip(&flat).map(|(m, f)| m - f).collect();
+                scaled(rows, cols, diff, texture.to_vec())
+            }
+            Normalisation::Equalised => {
+                let flat = box_mean(rows, cols, mean, FLAT_RADIUS);
+                let grain = box_mean(rows, cols, texture, FLAT_RADIUS);
+                let density = Density::of(mean);
+                let diff = mean
+                    .iter()
+                    .zip(&flat)
+                    .zip(&grain)
+                    .map(|((m, f), g)| (m - f) / g.max(1e-3))
+                    .collect();
+                let texture = mean
+                    .iter()
+                    .zip(texture)
+                    .map(|(m, t)| t * density.slope(*m))
+                    .collect();
+                scaled(rows, cols, diff, texture)
+            }
+        }
+    }
+}
+
 /// How a picture becomes the model's input; recorded in the model file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -129,14 +192,19 @@ pub struct InputSpec {
     pub cell_mm: Option<f64>,
     /// Cells per tile of the class map (the heat map's resolution).
     pub map_stride_cells: usize,
-    /// The normalisation recipe ([`NORMALISATION`]).
-    pub normalisation: String,
+    /// The normalisation recipe.
+    pub normalisation: Normalisation,
 }
 
 impl InputSpec {
     /// The input size in pixels of the canonical picture.
     pub fn input_px(&self) -> [usize; 2] {
         [self.cells[0] * self.cell_px, self.cells[1] * self.cell_px]
+    }
+
+    /// The model's input of a canonical picture ([`InputSpec::canonical`]).
+    pub fn input(&self, canonical: &Gray) -> Input {
+        cells(canonical, self.cell_px, self.normalisation)
     }
 
     /// The canonical picture of a frame or patch: frames are centre-squared and resampled to
@@ -170,8 +238,8 @@ pub struct Input {
 }
 
 /// Cells of `cell_px` pixels over the whole picture (a partial last row or column dropped),
-/// normalised: the model's input.
-pub fn cells(img: &Gray, cell_px: usize) -> Input {
+/// normalised by `recipe`: the model's input.
+pub fn cells(img: &Gray, cell_px: usize, recipe: Normalisation) -> Input {
     let cp = cell_px.max(1);
     let (rows, cols) = ((img.height / cp).max(1), (img.width / cp).max(1));
     let (w, h) = (img.width, img.height);
@@ -207,7 +275,39 @@ pub fn cells(img: &Gray, cell_px: usize) -> Input {
             texture[r * cols + c] = (b - a * a).max(0.0).sqrt() as f32;
         }
     }
-    normalise(rows, cols, &mean, &texture)
+    recipe.apply(rows, cols, &mean, &texture)
+}
+
+/// The slope of a picture's equalisation: the density of its cell means, 255 x (2k / n) over the
+/// spread of the sorted means k below and k above a grey level (k = n / 16, at least 2).
+struct Density {
+    sorted: Vec<f32>,
+    k: usize,
+}
+
+impl Density {
+    fn of(mean: &[f32]) -> Density {
+        let mut sorted = mean.to_vec();
+        sorted.sort_unstable_by(f32::total_cmp);
+        Density {
+            k: (sorted.len() / 16).max(2),
+            sorted,
+        }
+    }
+
+    /// F'(v), in equalised grey levels (0-255 over the picture) per grey level.
+    fn slope(&self, v: f32) -> f32 {
+        let n = self.sorted.len();
+        if n < 2 {
+            return 1.0;
+        }
+        let j = self.sorted.partition_point(|&x| x < v);
+        let (lo, hi) = (j.saturating_sub(self.k), (j + self.k).min(n - 1));
+        // A spread of (almost) nothing is a run of equal means (a saturated or padded area): the
+        // slope there is bounded by the floor, and the channels' clip bounds what it gives.
+        let spread = (self.sorted[hi] - self.sorted[lo]).max(1e-3);
+        255.0 * (hi - lo) as f32 / (n as f32 * spread)
+    }
 }
 
 fn median(values: &mut [f32]) -> f32 {
@@ -241,16 +341,18 @@ fn box_mean(rows: usize, cols: usize, v: &[f32], r: usize) -> Vec<f32> {
     out
 }
 
-/// The normalisation of the module's recipe, from raw cell means and textures.
-pub fn normalise(rows: usize, cols: usize, mean: &[f32], texture: &[f32]) -> Input {
-    let flat = box_mean(rows, cols, mean, FLAT_RADIUS);
-    let diff: Vec<f32> = mean.iter().zip(&flat).map(|(m, f)| m - f).collect();
+/// The channels from flat-fielded differences and textures: the differences over 1.4826 x
+/// their median absolute value (at least 0.5), the textures as ln((t + 0.5) / (median + 0.5)),
+/// both clipped to ±6.
+fn scaled(rows: usize, cols: usize, diff: Vec<f32>, texture: Vec<f32>) -> Input {
     let mut abs: Vec<f32> = diff.iter().map(|d| d.abs()).collect();
     let scale = (1.4826 * median(&mut abs)).max(0.5);
-    let mut t = texture.to_vec();
+    let mut t = texture.clone();
     let tm = median(&mut t) + 0.5;
-    let mut data = Vec::with_capacity(2 * rows * cols);
-    data.extend(diff.iter().map(|d| (d / scale).clamp(-CLIP, CLIP)));
+    let mut data = diff;
+    for d in &mut data {
+        *d = (*d / scale).clamp(-CLIP, CLIP);
+    }
     data.extend(
         texture
             .iter()
@@ -279,7 +381,7 @@ mod tests {
                     gain * (100.0 + bar + speckle)
                 })
                 .collect();
-            cells(&Gray::new(64, 64, px), 4)
+            cells(&Gray::new(64, 64, px), 4, Normalisation::Flatfield)
         };
         let (a, b) = (make(1.0, 4.0), make(0.5, 8.0));
         assert_eq!((a.rows, a.cols), (16, 16));
@@ -287,6 +389,98 @@ mod tests {
         assert!(bar(&a) > 1.0, "{}", bar(&a));
         let t = |i: &Input| i.data[256 + 8 * 16 + 1];
         assert!((t(&a) - t(&b)).abs() < 0.5, "{} {}", t(&a), t(&b));
+    }
+
+    /// A bed of grain with a vignette, a bright streak and a rough patch.
+    fn bed(size: usize) -> Gray {
+        let mut state = 12345u64;
+        let mut noise = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        let c = size as f32 / 2.0;
+        let px = (0..size * size)
+            .map(|i| {
+                let (y, x) = ((i / size) as f32, (i % size) as f32);
+                let vignette = 1.0 - 0.6 * ((x - c).powi(2) + (y - c).powi(2)) / (c * c);
+                let streak = if (40.0..46.0).contains(&x) { 25.0 } else { 0.0 };
+                let rough = if (80.0..110.0).contains(&x) && (20.0..60.0).contains(&y) {
+                    40.0
+                } else {
+                    8.0
+                };
+                (vignette * 170.0 + streak + rough * noise()).clamp(0.0, 255.0)
+            })
+            .collect();
+        Gray::new(size, size, px)
+    }
+
+    #[test]
+    fn the_equalised_input_does_not_change_under_a_tone_curve_and_grey_levels_do() {
+        let img = bed(128);
+        type Curve = fn(f32) -> f32;
+        let curves: [(&str, Curve); 3] = [
+            ("gamma 1.3", |v| 255.0 * (v / 255.0).powf(1.3)),
+            ("gamma 0.8", |v| 255.0 * (v / 255.0).powf(0.8)),
+            ("s-curve", |v| 255.0 / (1.0 + (-(v - 110.0) / 30.0).exp())),
+        ];
+        let change = |recipe: Normalisation, g: Curve| {
+            let curved = Gray::new(
+                img.width,
+                img.height,
+                img.px.iter().map(|&v| g(v)).collect(),
+            );
+            let (a, b) = (cells(&img, 4, recipe), cells(&curved, 4, recipe));
+            let n = a.data.len() as f32;
+            a.data
+                .iter()
+                .zip(&b.data)
+                .map(|(x, y)| (x - y).abs())
+                .sum::<f32>()
+                / n
+        };
+        for (name, g) in curves {
+            // A strong vignette (0.4 to 1 of the centre's level): the curve's slope differs
+            // across the picture. Measured: the equalised input moves 0.35-0.44 of the grey
+            // levels' (0.045 / 0.120 at gamma 1.3, 0.035 / 0.089 at 0.8, 0.113 / 0.259 s-curve).
+            let (equalised, grey) = (
+                change(Normalisation::Equalised, g),
+                change(Normalisation::Flatfield, g),
+            );
+            assert!(
+                equalised < grey / 2.0,
+                "{name}: the equalised input moves {equalised}, grey levels {grey}"
+            );
+        }
+        // The streak and the rough patch still stand out.
+        let input = cells(&img, 4, Normalisation::Equalised);
+        let (rows, cols) = (input.rows, input.cols);
+        let at = |ch: usize, r: usize, c: usize| input.data[ch * rows * cols + r * cols + c];
+        assert!(at(0, 16, 10) > 1.0, "streak {}", at(0, 16, 10));
+        assert!(
+            at(1, 10, 23) > at(1, 24, 23) + 0.5,
+            "rough {} smooth {}",
+            at(1, 10, 23),
+            at(1, 24, 23)
+        );
+    }
+
+    #[test]
+    fn the_density_is_the_slope_of_the_equalisation_and_a_flat_input_is_finite() {
+        // 640 means spread evenly over 0..64: 10 a grey level, so F' = 255 / 64 everywhere.
+        let mean: Vec<f32> = (0..640).map(|i| i as f32 / 10.0).collect();
+        let d = Density::of(&mean);
+        for v in [5.0, 32.0, 60.0] {
+            assert!(
+                (d.slope(v) - 255.0 / 64.0).abs() < 0.1,
+                "{v}: {}",
+                d.slope(v)
+            );
+        }
+        let flat = Normalisation::Equalised.apply(4, 4, &[7.0; 16], &[0.0; 16]);
+        assert!(flat.data.iter().all(|v| v.is_finite()), "{:?}", flat.data);
     }
 
     #[test]
@@ -303,7 +497,7 @@ mod tests {
             frame_px: None,
             cell_mm: Some(0.1),
             map_stride_cells: 2,
-            normalisation: NORMALISATION.into(),
+            normalisation: Normalisation::Flatfield,
         };
         let c = spec.canonical(&img).unwrap();
         assert_eq!((c.width, c.height, c.at(0, 0)), (8, 8, 16.0));

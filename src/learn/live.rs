@@ -21,6 +21,11 @@ use std::path::Path;
 /// (255 = certainly a defect).
 pub const HEATMAP_DIR: &str = "model";
 
+/// At most this many model flags a view. A model that calls tiles defects all over a view says
+/// so in one flag after the most probable ones, not in thousands: a layer's record must stay
+/// one readable line of the inspection log (and an operator reads the first few anyway).
+pub const MAX_FLAGS_PER_VIEW: usize = 32;
+
 /// A checked model with its live settings.
 pub struct LiveModel {
     pub model: Model,
@@ -109,7 +114,12 @@ impl LiveModel {
     ) -> Result<ViewScan, ModelError> {
         let started = std::time::Instant::now();
         self.pool.install(|| {
-            let input = input::normalise(rows, cols, mean, texture);
+            let input = self
+                .model
+                .header
+                .input
+                .normalisation
+                .apply(rows, cols, mean, texture);
             let x = net::tensor(&input, input::CHANNELS.len())?;
             let cam = self.model.net.cam(&x)?;
             let tiles = net::tile_probabilities(&cam)?;
@@ -234,7 +244,80 @@ impl LiveModel {
                 evidence: vec![],
             });
         }
-        flags
+        capped(flags, MAX_FLAGS_PER_VIEW)
+    }
+}
+
+/// The `max - 1` most probable of `flags` and one flag for the rest (their union box, the class
+/// and probability of the most probable of them), when there are more than `max`.
+fn capped(mut flags: Vec<Flag>, max: usize) -> Vec<Flag> {
+    if flags.len() <= max || max == 0 {
+        return flags;
+    }
+    flags.sort_by(|a, b| b.score.total_cmp(&a.score));
+    let rest = flags.split_off(max - 1);
+    let mut summary = rest[0].clone();
+    for f in &rest[1..] {
+        for i in 0..2 {
+            summary.bbox_mm[i] = summary.bbox_mm[i].min(f.bbox_mm[i]);
+            summary.bbox_px[i] = summary.bbox_px[i].min(f.bbox_px[i]);
+            summary.bbox_mm[i + 2] = summary.bbox_mm[i + 2].max(f.bbox_mm[i + 2]);
+            summary.bbox_px[i + 2] = summary.bbox_px[i + 2].max(f.bbox_px[i + 2]);
+        }
+    }
+    let b = summary.bbox_mm;
+    summary.message = format!(
+        "model: {} more groups of defect tiles (p {:.2} or less) across x = {:.1}..{:.1} mm, y = {:.1}..{:.1} mm",
+        rest.len(),
+        summary.score,
+        b[0],
+        b[2],
+        b[1],
+        b[3]
+    );
+    flags.push(summary);
+    flags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_past_the_most_are_one_flag_over_all_of_them() {
+        let flag = |i: usize| Flag {
+            kind: FlagKind::Model,
+            class: Some("Spots".into()),
+            severity: Severity::Warning,
+            part: None,
+            view: "pre_top".into(),
+            bbox_mm: [i as f64, 0.0, i as f64 + 1.0, 1.0],
+            bbox_px: [i as u32 * 10, 0, i as u32 * 10 + 9, 9],
+            score: i as f64 / 1000.0,
+            threshold: 0.0,
+            message: format!("tile {i}"),
+            since: None,
+            evidence: vec![],
+        };
+        let few: Vec<Flag> = (0..5).map(flag).collect();
+        assert_eq!(capped(few, 8).len(), 5);
+        let many = capped((0..500).map(flag).collect(), 8);
+        assert_eq!(many.len(), 8);
+        // The 7 most probable first, then the other 493 in one.
+        assert_eq!(many[0].message, "tile 499");
+        assert_eq!(many[6].message, "tile 493");
+        let last = &many[7];
+        assert_eq!(
+            (last.bbox_mm, last.bbox_px),
+            ([0.0, 0.0, 493.0, 1.0], [0, 0, 4929, 9])
+        );
+        assert_eq!(last.score, 0.492);
+        assert!(
+            last.message
+                .starts_with("model: 493 more groups of defect tiles (p 0.49 or less)"),
+            "{}",
+            last.message
+        );
     }
 }
 

@@ -4,7 +4,7 @@
 use super::data::{read_item, Dataset, Item, Part};
 use super::error::LearnError;
 use super::file::{Model, Use};
-use super::input::{self, Gray, Input, CHANNELS};
+use super::input::{Gray, Input, CHANNELS};
 use super::metrics::Metrics;
 use super::net;
 use image::{GrayImage, Rgb, RgbImage};
@@ -28,7 +28,7 @@ impl Model {
     /// The model's input of a picture (frames squared and resampled, patches centre-cropped).
     pub fn input(&self, img: &Gray) -> Option<Input> {
         let spec = &self.header.input;
-        spec.canonical(img).map(|c| input::cells(&c, spec.cell_px))
+        spec.canonical(img).map(|c| spec.input(&c))
     }
 
     /// Class and tile probabilities of an input.

@@ -10,8 +10,8 @@ use super::augment::Augment;
 use super::average::Average;
 use super::data::{read_item, DataKind, Dataset, Part};
 use super::error::LearnError;
-use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT, VERSION};
-use super::input::{self, Gray, Input, InputSpec, CHANNELS, NORMALISATION};
+use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT};
+use super::input::{Gray, Input, InputSpec, Normalisation, CHANNELS};
 use super::metrics::Metrics;
 use super::net::{self, Arch, Net};
 use super::rng::Rng;
@@ -46,6 +46,8 @@ pub struct TrainOptions {
     /// Validate and keep the moving average of the weights with this decay per step
     /// ([`super::average`]), not the last step's weights.
     pub average: Option<f64>,
+    /// How the cells become the input ([`Normalisation`]).
+    pub normalisation: Normalisation,
 }
 
 impl Default for TrainOptions {
@@ -65,6 +67,7 @@ impl Default for TrainOptions {
             max_seconds: 540.0,
             refit: false,
             average: None,
+            normalisation: Normalisation::default(),
         }
     }
 }
@@ -240,7 +243,7 @@ fn design(
                     frame_px: Some(cells * opts.cell_px.max(1)),
                     cell_mm: opts.cell_mm,
                     map_stride_cells: 1 << pools,
-                    normalisation: NORMALISATION.into(),
+                    normalisation: opts.normalisation,
                 },
                 pools,
             )
@@ -264,7 +267,7 @@ fn design(
                     frame_px: None,
                     cell_mm: data.pixel_mm,
                     map_stride_cells: stride,
-                    normalisation: NORMALISATION.into(),
+                    normalisation: opts.normalisation,
                 },
                 pools,
             )
@@ -275,7 +278,7 @@ fn design(
 
 /// The model's input of a canonical picture.
 pub fn input_of(spec: &InputSpec, canonical: &Gray) -> Input {
-    input::cells(canonical, spec.cell_px)
+    spec.input(canonical)
 }
 
 /// Each input's loss and predicted class, in batches.
@@ -492,7 +495,7 @@ pub fn train(
     drop(pass);
     let header = Header {
         format: FORMAT.into(),
-        version: VERSION,
+        version: super::file::version_for(&spec),
         arch,
         classes: data.classes.clone(),
         normal_class: data.normal.clone(),

@@ -137,16 +137,31 @@ fn train_eval_and_predict_on_generated_classes_deterministically() {
     let val = learn_on(&["learn", "eval", "--part", "val"], &model, &data).stdout_ok();
     assert!(val.starts_with("6 images: accuracy"), "{val}");
 
-    let streak = data.join("Streaks/frame_0009.png");
-    let heat = tmp.path().join("heat.png");
+    // Every streak frame, one line each, as `learn eval` counted them (recall 0.7 or more).
+    let streaks: Vec<PathBuf> = (0..10)
+        .map(|k| data.join(format!("Streaks/frame_{k:04}.png")))
+        .collect();
     let said = layerwise()
         .args(["learn", "predict", "--model"])
         .arg(&model)
-        .arg(&streak)
+        .args(&streaks)
+        .stdout_ok();
+    let right = said.lines().filter(|l| l.contains(": Streaks (")).count();
+    let recall = eval["per_class"]["Streaks"]["recall"].as_f64().unwrap();
+    assert_eq!(right, (recall * 10.0).round() as usize, "{said}");
+    assert_eq!(
+        said.lines().filter(|l| l.contains("Spots ")).count(),
+        10,
+        "{said}"
+    );
+    let heat = tmp.path().join("heat.png");
+    layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(&model)
+        .arg(&streaks[9])
         .arg("--heatmap")
         .arg(&heat)
         .stdout_ok();
-    assert!(said.contains(": Streaks ("), "{said}");
     let picture = image::open(&heat).unwrap();
     assert_eq!((picture.width(), picture.height()), (64, 64));
     let info = layerwise()
@@ -183,8 +198,8 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
             "the weights do not match their checksum",
         ),
         (
-            bad("newer", &with_header(&bytes, |h| h["version"] = 2.into())),
-            "written by a newer layerwise (model format 2, this one reads 1)",
+            bad("newer", &with_header(&bytes, |h| h["version"] = 3.into())),
+            "written by a newer layerwise (model format 3, this one reads 2)",
         ),
         (
             bad("older", &with_header(&bytes, |h| h["version"] = 0.into())),
@@ -197,6 +212,10 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
         (
             bad("header", &with_header(&bytes, |h| h["input"]["cells"] = "many".into())),
             "header is damaged at `input.cells`",
+        ),
+        (
+            bad("recipe", &with_header(&bytes, |h| h["input"]["normalisation"] = "sharpen".into())),
+            "header is damaged at `input.normalisation`",
         ),
         (
             bad(

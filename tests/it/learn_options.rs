@@ -1,7 +1,9 @@
 //! `layerwise learn train`'s options that change what is kept, through the binary on generated
 //! class folders: `--refit` trains afresh on every picture for the chosen epochs and keeps the
 //! selection run's held-out figures (and refuses to call its validation part held out);
-//! `--average` validates and keeps the moving average of the weights and says so.
+//! `--average` validates and keeps the moving average of the weights and says so;
+//! `--normalisation` chooses the input recipe, which the file records (and its format: 2 for the
+//! equalised, 1 as before for the grey levels).
 
 use crate::common::*;
 
@@ -115,4 +117,100 @@ fn a_refit_model_learns_from_every_picture_and_keeps_the_held_out_figures_of_its
         .arg(&model)
         .stdout_ok();
     assert!(info.contains(&format!("for {epochs} epochs")), "{info}");
+}
+
+/// Every picture of the class folders `from` through the tone curve `255 (v / 255)^1.3`, in the
+/// same folders and names under `to`.
+fn tone_curved(from: &std::path::Path, to: &std::path::Path) {
+    for class in std::fs::read_dir(from).unwrap() {
+        let class = class.unwrap().path();
+        let out = to.join(class.file_name().unwrap());
+        std::fs::create_dir_all(&out).unwrap();
+        for picture in std::fs::read_dir(&class).unwrap() {
+            let picture = picture.unwrap().path();
+            let mut img = image::open(&picture).unwrap().into_luma8();
+            for v in img.iter_mut() {
+                *v = (255.0 * (f64::from(*v) / 255.0).powf(1.3)).round() as u8;
+            }
+            img.save(out.join(picture.file_name().unwrap())).unwrap();
+        }
+    }
+}
+
+#[test]
+fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_alike() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, curved) = (tmp.path().join("data"), tmp.path().join("curved"));
+    class_folders(&data, 10);
+    tone_curved(&data, &curved);
+    let (equalised, grey) = (
+        tmp.path().join("equalised.safetensors"),
+        tmp.path().join("grey.safetensors"),
+    );
+    train_small(&data, &equalised, &THIRTY_EPOCHS).succeeds();
+    train_small(&data, &grey, &THIRTY_EPOCHS)
+        .args(["--normalisation", "flatfield"])
+        .succeeds();
+    let (r, g) = (
+        header_of(&std::fs::read(&equalised).unwrap()),
+        header_of(&std::fs::read(&grey).unwrap()),
+    );
+    assert_eq!(
+        r["input"]["normalisation"],
+        layerwise::learn::input::EQUALISED,
+        "{r}"
+    );
+    assert_eq!(r["version"], 2, "{r}");
+    // The grey-level input is written as before, so a layerwise of format 1 still reads it.
+    assert_eq!(
+        g["input"]["normalisation"],
+        layerwise::learn::input::FLATFIELD,
+        "{g}"
+    );
+    assert_eq!(g["version"], 1, "{g}");
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&equalised)
+        .stdout_ok();
+    assert!(info.contains(layerwise::learn::input::EQUALISED), "{info}");
+    // Each picture's class from each model, on the frames as they are and darker.
+    let classes = |model: &std::path::Path, root: &std::path::Path| -> Vec<String> {
+        let pictures: Vec<std::path::PathBuf> = ["No_Defect", "Spots", "Streaks"]
+            .iter()
+            .flat_map(|c| (0..10).map(move |k| root.join(format!("{c}/frame_{k:04}.png"))))
+            .collect();
+        let said = layerwise()
+            .args(["learn", "predict", "--model"])
+            .arg(model)
+            .args(&pictures)
+            .stdout_ok();
+        let classes: Vec<String> = said
+            .lines()
+            .filter_map(|l| l.split(": ").nth(1)?.split(" (").next().map(String::from))
+            .collect();
+        assert_eq!(classes.len(), 30, "{said}");
+        classes
+    };
+    let changed = |model: &std::path::Path| {
+        let (a, b) = (classes(model, &data), classes(model, &curved));
+        a.iter().zip(&b).filter(|(x, y)| x != y).count()
+    };
+    // These frames are easy for both inputs (docs/learning.md measures the difference on
+    // real frames, benches/learn_tolerance.py); here the equalised model must keep its calls.
+    // Measured: 2 of 30 changed (the grey-level model: 0).
+    let equalised_changed = changed(&equalised);
+    assert!(
+        equalised_changed <= 4,
+        "classes changed by the darker curve: {equalised_changed} of 30"
+    );
+    let all = learn_on(&["learn", "eval", "--json"], &equalised, &data).json_ok();
+    assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
+    let refused = train_small(&data, &equalised, &["--normalisation", "sharpen"])
+        .output()
+        .unwrap();
+    let refused = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        refused.contains("equalised") && refused.contains("flatfield"),
+        "{refused}"
+    );
 }
