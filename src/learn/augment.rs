@@ -1,9 +1,10 @@
 //! Augmentation that keeps the defect and takes away what should not decide the class: the
 //! framing (a small rotation, scale and shift), the light (gain, contrast, gamma, a smooth
 //! illumination gradient), the grain (a blur, added noise) and the camera's compression (a JPEG
-//! re-compression at a low to middling quality, as another camera's files may have). Frames of an oblique camera are
-//! only flipped left-right (the view, the light and the recoating direction are not symmetric
-//! top to bottom); top-down patches and views also flip and turn by quarter turns.
+//! re-compression at a low to middling quality, as another camera's files may have). Frames of
+//! an oblique camera are only flipped left-right (the view, the light and the recoating direction
+//! are not symmetric top to bottom); top-down patches and views also flip and turn by quarter
+//! turns.
 
 use super::input::Gray;
 use super::rng::Rng;
