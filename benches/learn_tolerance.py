@@ -40,11 +40,29 @@ def crop85(im):
     return im.crop((dx, dy, w - dx, h - dy))
 
 
+def crop85_left(im):
+    """85 % of the side, the left edge kept (where pblm's uneven powder lies)."""
+    w, h = im.size
+    dy = int(h * 0.075)
+    return im.crop((0, dy, int(w * 0.85), h - dy))
+
+
+def wide85(im):
+    """A wider field: the frame shrunk to 85 % in the middle of a black surround."""
+    w, h = im.size
+    small = im.resize((int(w * 0.85), int(h * 0.85)), Image.BILINEAR)
+    out = Image.new("L", (w, h), 0)
+    out.paste(small, ((w - small.width) // 2, (h - small.height) // 2))
+    return out
+
+
 # (name, what the docs call it, change, JPEG quality written)
 CHANGES = [
     ("half", "half the resolution (bilinear)",
      lambda im: im.resize((im.width // 2, im.height // 2), Image.BILINEAR), 95),
     ("crop85", "the centre 85 % (a narrower field)", crop85, 95),
+    ("crop85left", "85 % of the side, the left edge kept", crop85_left, 95),
+    ("wide85", "a wider field: shrunk to 85 % in a black surround", wide85, 95),
     ("blur2", "Gaussian blur, radius 2 px", lambda im: im.filter(ImageFilter.GaussianBlur(2)), 95),
     ("gain06", "grey levels x 0.6", lambda im: im.point(lambda v: int(0.6 * v)), 95),
     ("gamma08", "tone curve `255 (v/255)^0.8`", tone(0.8), 95),
