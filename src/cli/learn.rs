@@ -101,6 +101,19 @@ pub struct TrainingArgs {
     /// curve does not change it; `flatfield`, grey levels (the models before December 2026).
     #[arg(long, value_enum, default_value_t = Recipe::Equalised)]
     normalisation: Recipe,
+    /// What part of a camera frame the model reads: `centre-square`, the centred square (as
+    /// every model before); `bed`, the frame without its dark margins (walls, a surround),
+    /// stretched to the square, so a camera that sees past the bed gives the same input
+    /// (docs/learning.md measures what it costs).
+    #[arg(long, value_enum, default_value_t = FrameField::CentreSquare)]
+    framing: FrameField,
+}
+
+/// `--framing` ([`learn::framing::Framing`]).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FrameField {
+    CentreSquare,
+    Bed,
 }
 
 /// `--normalisation` ([`learn::input::Normalisation`]).
@@ -145,6 +158,10 @@ impl TrainingArgs {
             normalisation: match self.normalisation {
                 Recipe::Equalised => learn::input::Normalisation::Equalised,
                 Recipe::Flatfield => learn::input::Normalisation::Flatfield,
+            },
+            framing: match self.framing {
+                FrameField::Bed => learn::framing::Framing::Bed,
+                FrameField::CentreSquare => learn::framing::Framing::CentreSquare,
             },
         })
     }
@@ -366,7 +383,7 @@ impl InfoArgs {
             h.input.cell_px,
             h.input
                 .frame_px
-                .map(|f| format!(" (frames squared to {f} px)"))
+                .map(|f| format!(" (frames: {}, to {f} px a side)", h.input.framing.name()))
                 .unwrap_or_default(),
             h.input
                 .cell_mm

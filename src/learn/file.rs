@@ -21,14 +21,19 @@ use std::path::{Path, PathBuf};
 pub const FORMAT: &str = "layerwise-model";
 /// The newest model format this layerwise reads and writes: 2 for files of the
 /// [`Normalisation::Equalised`](super::input::Normalisation) input, which a layerwise that reads
-/// only 1 must refuse (it would normalise the frames the old way). Files of the old input are
-/// still written as 1 ([`version_for`]).
-pub const VERSION: u32 = 2;
+/// only 1 must refuse (it would normalise the frames the old way); 3 for files that read frames by
+/// the [`Framing::Bed`](super::framing::Framing) (a layerwise reading 2 would refuse the header's
+/// field anyway, and says "newer" this way). Files of the older inputs are still written as 1 and
+/// 2 ([`version_for`]).
+pub const VERSION: u32 = 3;
 /// The oldest format read.
 pub const MIN_VERSION: u32 = 1;
 
 /// The format a file of `input` is written in: the oldest that can hold it.
 pub fn version_for(input: &InputSpec) -> u32 {
+    if !input.framing.is_centre_square() {
+        return 3;
+    }
     match input.normalisation {
         super::input::Normalisation::Flatfield => 1,
         super::input::Normalisation::Equalised => 2,

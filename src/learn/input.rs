@@ -22,6 +22,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::framing::Framing;
+
 /// The grey-level recipe's name (model files before December 2026).
 pub const FLATFIELD: &str = "flatfield15-mad/log-texture-median/clip6";
 /// The recipe unchanged by a tone curve, to first order.
@@ -194,6 +196,10 @@ pub struct InputSpec {
     pub map_stride_cells: usize,
     /// The normalisation recipe.
     pub normalisation: Normalisation,
+    /// Frames: what part of the picture becomes the canonical square (files without it: the
+    /// centred square).
+    #[serde(default, skip_serializing_if = "Framing::is_centre_square")]
+    pub framing: Framing,
 }
 
 impl InputSpec {
@@ -207,13 +213,13 @@ impl InputSpec {
         cells(canonical, self.cell_px, self.normalisation)
     }
 
-    /// The canonical picture of a frame or patch: frames are centre-squared and resampled to
-    /// `frame_px`; patches are centre-cropped to the input size. `None` when a patch is smaller
+    /// The canonical picture of a frame or patch: frames are framed ([`Framing`]) and resampled
+    /// to `frame_px`; patches are centre-cropped to the input size. `None` when a patch is smaller
     /// than the input.
     pub fn canonical(&self, img: &Gray) -> Option<Gray> {
         let [h, w] = self.input_px();
         match self.frame_px {
-            Some(f) => Some(img.center_square().resize(f, f)),
+            Some(f) => Some(self.framing.square(img, f)),
             None => {
                 if img.width < w || img.height < h {
                     return None;
@@ -498,6 +504,7 @@ mod tests {
             cell_mm: Some(0.1),
             map_stride_cells: 2,
             normalisation: Normalisation::Flatfield,
+            framing: Framing::CentreSquare,
         };
         let c = spec.canonical(&img).unwrap();
         assert_eq!((c.width, c.height, c.at(0, 0)), (8, 8, 16.0));

@@ -10,6 +10,7 @@ pub mod crossval;
 pub mod data;
 pub mod error;
 pub mod file;
+pub mod framing;
 pub mod input;
 pub mod live;
 pub mod metrics;

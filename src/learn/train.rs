@@ -11,6 +11,7 @@ use super::average::Average;
 use super::data::{read_item, DataKind, Dataset, Part};
 use super::error::LearnError;
 use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT};
+use super::framing::Framing;
 use super::input::{Gray, Input, InputSpec, Normalisation, CHANNELS};
 use super::metrics::Metrics;
 use super::net::{self, Arch, Net};
@@ -48,6 +49,8 @@ pub struct TrainOptions {
     pub average: Option<f64>,
     /// How the cells become the input ([`Normalisation`]).
     pub normalisation: Normalisation,
+    /// Frames: what part of the picture the model reads ([`Framing`]).
+    pub framing: Framing,
 }
 
 impl Default for TrainOptions {
@@ -68,6 +71,7 @@ impl Default for TrainOptions {
             refit: false,
             average: None,
             normalisation: Normalisation::default(),
+            framing: Framing::CentreSquare,
         }
     }
 }
@@ -244,6 +248,7 @@ fn design(
                     cell_mm: opts.cell_mm,
                     map_stride_cells: 1 << pools,
                     normalisation: opts.normalisation,
+                    framing: opts.framing,
                 },
                 pools,
             )
@@ -268,6 +273,7 @@ fn design(
                     cell_mm: data.pixel_mm,
                     map_stride_cells: stride,
                     normalisation: opts.normalisation,
+                    framing: Framing::CentreSquare,
                 },
                 pools,
             )

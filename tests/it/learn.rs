@@ -198,8 +198,8 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
             "the weights do not match their checksum",
         ),
         (
-            bad("newer", &with_header(&bytes, |h| h["version"] = 3.into())),
-            "written by a newer layerwise (model format 3, this one reads 2)",
+            bad("newer", &with_header(&bytes, |h| h["version"] = 4.into())),
+            "written by a newer layerwise (model format 4, this one reads 3)",
         ),
         (
             bad("older", &with_header(&bytes, |h| h["version"] = 0.into())),
@@ -216,6 +216,10 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
         (
             bad("recipe", &with_header(&bytes, |h| h["input"]["normalisation"] = "sharpen".into())),
             "header is damaged at `input.normalisation`",
+        ),
+        (
+            bad("framing", &with_header(&bytes, |h| h["input"]["framing"] = "crop".into())),
+            "header is damaged at `input.framing`",
         ),
         (
             bad(

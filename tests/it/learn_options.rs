@@ -3,7 +3,11 @@
 //! selection run's held-out figures (and refuses to call its validation part held out);
 //! `--average` validates and keeps the moving average of the weights and says so;
 //! `--normalisation` chooses the input recipe, which the file records (and its format: 2 for the
-//! equalised, 1 as before for the grey levels).
+//! equalised, 1 as before for the grey levels); `--framing bed` reads the bed
+//! without the camera's dark margins, so a frame in a black surround is read as the frame
+//! (format 3).
+
+use std::path::{Path, PathBuf};
 
 use crate::common::*;
 
@@ -119,41 +123,97 @@ fn a_refit_model_learns_from_every_picture_and_keeps_the_held_out_figures_of_its
     assert!(info.contains(&format!("for {epochs} epochs")), "{info}");
 }
 
-/// Every picture of the class folders `from` through the tone curve `255 (v / 255)^1.3`, in the
-/// same folders and names under `to`.
-fn tone_curved(from: &std::path::Path, to: &std::path::Path) {
+/// Each of the 30 pictures' class (10 of each of [`class_folders`]' classes under `root`) by
+/// `model`, through `learn predict`.
+fn classes(model: &Path, root: &Path) -> Vec<String> {
+    let pictures: Vec<PathBuf> = ["No_Defect", "Spots", "Streaks"]
+        .iter()
+        .flat_map(|c| (0..10).map(move |k| root.join(format!("{c}/frame_{k:04}.png"))))
+        .collect();
+    let said = layerwise()
+        .args(["learn", "predict", "--model"])
+        .arg(model)
+        .args(&pictures)
+        .stdout_ok();
+    let classes: Vec<String> = said
+        .lines()
+        .filter_map(|l| l.split(": ").nth(1)?.split(" (").next().map(String::from))
+        .collect();
+    assert_eq!(classes.len(), 30, "{said}");
+    classes
+}
+
+/// Every picture of the class folders `from` through `change`, in the same folders and names
+/// under `to`.
+fn changed_copy(from: &Path, to: &Path, change: impl Fn(image::GrayImage) -> image::GrayImage) {
     for class in std::fs::read_dir(from).unwrap() {
         let class = class.unwrap().path();
         let out = to.join(class.file_name().unwrap());
         std::fs::create_dir_all(&out).unwrap();
         for picture in std::fs::read_dir(&class).unwrap() {
             let picture = picture.unwrap().path();
-            let mut img = image::open(&picture).unwrap().into_luma8();
-            for v in img.iter_mut() {
-                *v = (255.0 * (f64::from(*v) / 255.0).powf(1.3)).round() as u8;
-            }
-            img.save(out.join(picture.file_name().unwrap())).unwrap();
+            let img = image::open(&picture).unwrap().into_luma8();
+            change(img)
+                .save(out.join(picture.file_name().unwrap()))
+                .unwrap();
         }
     }
+}
+
+/// The picture placed off-centre in a black surround a third larger each side (another camera
+/// that sees past the bed).
+fn surrounded(img: image::GrayImage) -> image::GrayImage {
+    let (w, h) = img.dimensions();
+    let mut wide = image::GrayImage::new(w + w / 3, h + h / 3);
+    image::imageops::replace(&mut wide, &img, i64::from(w / 12), i64::from(h / 4));
+    wide
+}
+
+/// The picture through the tone curve `255 (v / 255)^1.3`.
+fn tone_curved(mut img: image::GrayImage) -> image::GrayImage {
+    for v in img.iter_mut() {
+        *v = (255.0 * (f64::from(*v) / 255.0).powf(1.3)).round() as u8;
+    }
+    img
+}
+
+/// What `learn train` says when the command line refuses `extra` (exit status 2).
+fn refused_by_clap(data: &Path, model: &Path, extra: &[&str]) -> String {
+    let out = train_small(data, model, extra).output().unwrap();
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Generated class folders (10 a class) in `tmp/data`, a changed copy in `tmp/changed`, and two
+/// models trained 30 epochs on the folders with `a` and `b` added: their paths and headers.
+fn two_models(
+    tmp: &Path,
+    change: impl Fn(image::GrayImage) -> image::GrayImage,
+    a: &[&str],
+    b: &[&str],
+) -> [(PathBuf, serde_json::Value); 2] {
+    let (data, changed) = (tmp.join("data"), tmp.join("changed"));
+    class_folders(&data, 10);
+    changed_copy(&data, &changed, change);
+    [("a", a), ("b", b)].map(|(name, extra)| {
+        let model = tmp.join(format!("{name}.safetensors"));
+        train_small(&data, &model, &THIRTY_EPOCHS)
+            .args(extra)
+            .succeeds();
+        let header = header_of(&std::fs::read(&model).unwrap());
+        (model, header)
+    })
 }
 
 #[test]
 fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_alike() {
     let tmp = tempfile::tempdir().unwrap();
-    let (data, curved) = (tmp.path().join("data"), tmp.path().join("curved"));
-    class_folders(&data, 10);
-    tone_curved(&data, &curved);
-    let (equalised, grey) = (
-        tmp.path().join("equalised.safetensors"),
-        tmp.path().join("grey.safetensors"),
-    );
-    train_small(&data, &equalised, &THIRTY_EPOCHS).succeeds();
-    train_small(&data, &grey, &THIRTY_EPOCHS)
-        .args(["--normalisation", "flatfield"])
-        .succeeds();
-    let (r, g) = (
-        header_of(&std::fs::read(&equalised).unwrap()),
-        header_of(&std::fs::read(&grey).unwrap()),
+    let (data, curved) = (tmp.path().join("data"), tmp.path().join("changed"));
+    let [(equalised, r), (_, g)] = two_models(
+        tmp.path(),
+        tone_curved,
+        &["--framing", "centre-square"],
+        &["--normalisation", "flatfield", "--framing", "centre-square"],
     );
     assert_eq!(
         r["input"]["normalisation"],
@@ -174,24 +234,7 @@ fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_ali
         .stdout_ok();
     assert!(info.contains(layerwise::learn::input::EQUALISED), "{info}");
     // Each picture's class from each model, on the frames as they are and darker.
-    let classes = |model: &std::path::Path, root: &std::path::Path| -> Vec<String> {
-        let pictures: Vec<std::path::PathBuf> = ["No_Defect", "Spots", "Streaks"]
-            .iter()
-            .flat_map(|c| (0..10).map(move |k| root.join(format!("{c}/frame_{k:04}.png"))))
-            .collect();
-        let said = layerwise()
-            .args(["learn", "predict", "--model"])
-            .arg(model)
-            .args(&pictures)
-            .stdout_ok();
-        let classes: Vec<String> = said
-            .lines()
-            .filter_map(|l| l.split(": ").nth(1)?.split(" (").next().map(String::from))
-            .collect();
-        assert_eq!(classes.len(), 30, "{said}");
-        classes
-    };
-    let changed = |model: &std::path::Path| {
+    let changed = |model: &Path| {
         let (a, b) = (classes(model, &data), classes(model, &curved));
         a.iter().zip(&b).filter(|(x, y)| x != y).count()
     };
@@ -205,12 +248,47 @@ fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_ali
     );
     let all = learn_on(&["learn", "eval", "--json"], &equalised, &data).json_ok();
     assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
-    let refused = train_small(&data, &equalised, &["--normalisation", "sharpen"])
-        .output()
-        .unwrap();
-    let refused = String::from_utf8_lossy(&refused.stderr);
+    let refused = refused_by_clap(&data, &equalised, &["--normalisation", "sharpen"]);
     assert!(
         refused.contains("equalised") && refused.contains("flatfield"),
+        "{refused}"
+    );
+}
+
+#[test]
+fn a_bed_framed_model_reads_a_frame_in_a_black_surround_as_the_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, wide) = (tmp.path().join("data"), tmp.path().join("changed"));
+    // The default framing is the centre square.
+    let [(bed, b), (square, s)] = two_models(tmp.path(), surrounded, &["--framing", "bed"], &[]);
+    assert_eq!(
+        b["input"]["framing"], "bed-margins-under-half-centre-median/stretch",
+        "{b}"
+    );
+    assert_eq!(b["version"], 3, "{b}");
+    // The centre square is what files without the field meant: not written, format 2.
+    assert!(s["input"].get("framing").is_none(), "{s}");
+    assert_eq!(s["version"], 2, "{s}");
+    let info = layerwise()
+        .args(["learn", "info", "--model"])
+        .arg(&bed)
+        .stdout_ok();
+    assert!(info.contains("frames: bed-margins"), "{info}");
+    let all = learn_on(&["learn", "eval", "--json"], &bed, &data).json_ok();
+    assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
+    // The surround is cut off again, so every call stands; the centre square of the wider
+    // picture is another picture (a third of it surround).
+    let (as_they_are, in_surround) = (classes(&bed, &data), classes(&bed, &wide));
+    assert_eq!(as_they_are, in_surround);
+    let square_changed = classes(&square, &data)
+        .iter()
+        .zip(&classes(&square, &wide))
+        .filter(|(x, y)| x != y)
+        .count();
+    eprintln!("centre-square model: {square_changed} of 30 calls changed by the surround");
+    let refused = refused_by_clap(&data, &bed, &["--framing", "crop"]);
+    assert!(
+        refused.contains("bed") && refused.contains("centre-square"),
         "{refused}"
     );
 }
