@@ -12,8 +12,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::input::Gray;
-
 /// A margin's median is under this share of the centre's median.
 const MARGIN_SHARE: f32 = 0.5;
 /// At most this many samples of a row or column are read for its median.
@@ -44,14 +42,15 @@ impl Framing {
     pub fn is_centre_square(&self) -> bool {
         *self == Framing::CentreSquare
     }
+}
 
-    /// `img` framed and resampled to `side` x `side`.
-    pub fn square(self, img: &Gray, side: usize) -> Gray {
-        match self {
-            Framing::CentreSquare => img.center_square().resize(side, side),
-            Framing::Bed => bed(img).resize(side, side),
-        }
-    }
+/// A part of a picture: columns `x0..x1`, rows `y0..y1`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Part {
+    pub x0: usize,
+    pub x1: usize,
+    pub y0: usize,
+    pub y1: usize,
 }
 
 /// The median of `values` (reordered); 0 when empty.
@@ -74,44 +73,40 @@ fn span(n: usize, level: f32, line_median: impl Fn(usize) -> f32) -> (usize, usi
     }
 }
 
-/// The bed's part of `img`: without the dark margins (module docs).
-pub fn bed(img: &Gray) -> Gray {
-    let (w, h) = (img.width, img.height);
-    if w < 4 || h < 4 {
-        return img.clone();
+/// The bed's part of a `w` x `h` picture of row-major `px`: without the dark margins (module
+/// docs); the whole picture when there are none.
+pub fn bed(w: usize, h: usize, px: &[f32]) -> Part {
+    let whole = Part {
+        x0: 0,
+        x1: w,
+        y0: 0,
+        y1: h,
+    };
+    if w < 4 || h < 4 || px.len() < w * h {
+        return whole;
     }
     let mut centre: Vec<f32> = (h / 4..h - h / 4)
-        .flat_map(|y| img.px[y * w + w / 4..y * w + w - w / 4].iter().copied())
+        .flat_map(|y| px[y * w + w / 4..y * w + w - w / 4].iter().copied())
         .collect();
     let level = MARGIN_SHARE * median(&mut centre);
     if level <= 0.0 {
-        return img.clone();
+        return whole;
     }
     let (xs, ys) = (
         h.div_ceil(MEDIAN_SAMPLES).max(1),
         w.div_ceil(MEDIAN_SAMPLES).max(1),
     );
     let column = |x: usize| {
-        let mut v: Vec<f32> = (0..h).step_by(xs).map(|y| img.px[y * w + x]).collect();
+        let mut v: Vec<f32> = (0..h).step_by(xs).map(|y| px[y * w + x]).collect();
         median(&mut v)
     };
     let row = |y: usize| {
-        let mut v: Vec<f32> = img.px[y * w..(y + 1) * w]
-            .iter()
-            .step_by(ys)
-            .copied()
-            .collect();
+        let mut v: Vec<f32> = px[y * w..(y + 1) * w].iter().step_by(ys).copied().collect();
         median(&mut v)
     };
     let (x0, x1) = span(w, level, column);
     let (y0, y1) = span(h, level, row);
-    if (x0, x1, y0, y1) == (0, w, 0, h) {
-        return img.clone();
-    }
-    let px = (y0..y1)
-        .flat_map(|y| img.px[y * w + x0..y * w + x1].iter().copied())
-        .collect();
-    Gray::new(x1 - x0, y1 - y0, px)
+    Part { x0, x1, y0, y1 }
 }
 
 #[cfg(test)]
@@ -119,61 +114,73 @@ mod tests {
     use super::*;
 
     /// A bed of grain (grey 90-110) with a dark band of uneven powder near its left edge.
-    fn bed_picture(w: usize, h: usize) -> Gray {
-        Gray::new(
-            w,
-            h,
-            (0..w * h)
-                .map(|i| {
-                    let (x, y) = (i % w, i / w);
-                    let grain = ((x * 7 + y * 13) % 21) as f32;
-                    if (w / 20..w / 10).contains(&x) && y % 9 < 4 {
-                        40.0 + grain
-                    } else {
-                        90.0 + grain
-                    }
-                })
-                .collect(),
-        )
+    fn bed_picture(w: usize, h: usize) -> Vec<f32> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let grain = ((x * 7 + y * 13) % 21) as f32;
+                if (w / 20..w / 10).contains(&x) && y % 9 < 4 {
+                    40.0 + grain
+                } else {
+                    90.0 + grain
+                }
+            })
+            .collect()
     }
 
-    /// `img` placed at (`x`, `y`) in a `w` x `h` surround of grey `level`.
-    fn surrounded(img: &Gray, w: usize, h: usize, x: usize, y: usize, level: f32) -> Gray {
-        let mut px = vec![level; w * h];
-        for r in 0..img.height {
-            px[(y + r) * w + x..(y + r) * w + x + img.width]
-                .copy_from_slice(&img.px[r * img.width..(r + 1) * img.width]);
+    /// A `bw` x `bh` picture placed at (`x`, `y`) in a `w` x `h` surround of grey `level`.
+    fn surrounded(
+        bw: usize,
+        bh: usize,
+        w: usize,
+        h: usize,
+        x: usize,
+        y: usize,
+        level: f32,
+    ) -> Vec<f32> {
+        let (img, mut px) = (bed_picture(bw, bh), vec![level; w * h]);
+        for r in 0..bh {
+            px[(y + r) * w + x..(y + r) * w + x + bw].copy_from_slice(&img[r * bw..(r + 1) * bw]);
         }
-        Gray::new(w, h, px)
+        px
     }
 
     #[test]
     fn the_bed_is_found_in_any_dark_surround_and_its_edge_band_kept() {
-        let b = bed_picture(200, 160);
         // The bed alone: nothing cut (the dark band is under half the centre's median only in
         // some rows, so its columns' medians stay above).
-        let alone = bed(&b);
-        assert_eq!((alone.width, alone.height), (200, 160));
-        assert_eq!(alone.px, b.px);
-        // In a black surround, off-centre, and under a dim wall (30): the same bed back.
+        let whole = Part {
+            x0: 0,
+            x1: 200,
+            y0: 0,
+            y1: 160,
+        };
+        assert_eq!(bed(200, 160, &bed_picture(200, 160)), whole);
+        // In a black surround, off-centre, and under a dim wall (30): exactly the bed.
         for (x, y, level) in [(20, 30, 0.0), (3, 41, 0.0), (35, 2, 30.0)] {
-            let found = bed(&surrounded(&b, 260, 210, x, y, level));
-            assert_eq!((found.width, found.height), (200, 160), "{x} {y} {level}");
-            assert_eq!(found.px, b.px);
+            let found = bed(260, 210, &surrounded(200, 160, 260, 210, x, y, level));
+            assert_eq!(
+                found,
+                Part {
+                    x0: x,
+                    x1: x + 200,
+                    y0: y,
+                    y1: y + 160
+                },
+                "{x} {y} {level}"
+            );
         }
-        // Both framings give the same canonical square for the bed in a surround.
-        let a = Framing::Bed.square(&b, 64);
-        let c = Framing::Bed.square(&surrounded(&b, 300, 170, 50, 5, 10.0), 64);
-        assert_eq!(a.px, c.px);
-        // The centre square of the surrounded frame is another picture.
-        let d = Framing::CentreSquare.square(&surrounded(&b, 300, 170, 50, 5, 10.0), 64);
-        assert_ne!(a.px, d.px);
     }
 
     #[test]
     fn a_picture_without_margins_or_mostly_dark_is_kept_whole() {
-        let flat = Gray::new(50, 40, vec![0.0; 2000]);
-        assert_eq!(bed(&flat).px, flat.px);
+        let whole = |w, h| Part {
+            x0: 0,
+            x1: w,
+            y0: 0,
+            y1: h,
+        };
+        assert_eq!(bed(50, 40, &[0.0; 2000]), whole(50, 40));
         // A bright spot in the centre of a dark frame: cutting would keep under half, so no cut.
         let mut px = vec![5.0; 100 * 100];
         for y in 30..70 {
@@ -181,10 +188,10 @@ mod tests {
                 px[y * 100 + x] = 200.0;
             }
         }
-        let spot = Gray::new(100, 100, px);
-        let found = bed(&spot);
-        assert_eq!((found.width, found.height), (100, 100));
-        assert_eq!(bed(&Gray::new(3, 3, vec![1.0; 9])).width, 3);
+        assert_eq!(bed(100, 100, &px), whole(100, 100));
+        assert_eq!(bed(3, 3, &[1.0; 9]), whole(3, 3));
+        // A buffer shorter than its size says is not read.
+        assert_eq!(bed(10, 10, &[1.0; 50]), whole(10, 10));
     }
 
     #[test]

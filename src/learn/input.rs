@@ -22,7 +22,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::framing::Framing;
+use super::framing::{self, Framing};
 
 /// The grey-level recipe's name (model files before December 2026).
 pub const FLATFIELD: &str = "flatfield15-mad/log-texture-median/clip6";
@@ -64,6 +64,27 @@ impl Gray {
 
     pub fn at(&self, x: usize, y: usize) -> f32 {
         self.px[y * self.width + x]
+    }
+
+    /// The part of the picture `framing` reads (before it is resampled to the square).
+    pub fn framed(&self, framing: Framing) -> Gray {
+        match framing {
+            Framing::CentreSquare => self.center_square(),
+            Framing::Bed => {
+                let p = framing::bed(self.width, self.height, &self.px);
+                if (p.x0, p.x1, p.y0, p.y1) == (0, self.width, 0, self.height) {
+                    return self.clone();
+                }
+                let px = (p.y0..p.y1)
+                    .flat_map(|y| {
+                        self.px[y * self.width + p.x0..y * self.width + p.x1]
+                            .iter()
+                            .copied()
+                    })
+                    .collect();
+                Gray::new(p.x1 - p.x0, p.y1 - p.y0, px)
+            }
+        }
     }
 
     /// The centred square of side min(width, height).
@@ -219,7 +240,7 @@ impl InputSpec {
     pub fn canonical(&self, img: &Gray) -> Option<Gray> {
         let [h, w] = self.input_px();
         match self.frame_px {
-            Some(f) => Some(self.framing.square(img, f)),
+            Some(f) => Some(img.framed(self.framing).resize(f, f)),
             None => {
                 if img.width < w || img.height < h {
                     return None;
@@ -487,6 +508,37 @@ mod tests {
         }
         let flat = Normalisation::Equalised.apply(4, 4, &[7.0; 16], &[0.0; 16]);
         assert!(flat.data.iter().all(|v| v.is_finite()), "{:?}", flat.data);
+    }
+
+    #[test]
+    fn a_bed_framed_frame_in_a_dark_surround_gives_the_frame_s_canonical_square() {
+        let (w, h) = (120, 90);
+        let frame = Gray::new(
+            w,
+            h,
+            (0..w * h).map(|i| 90.0 + ((i * 7) % 23) as f32).collect(),
+        );
+        let mut px = vec![8.0; 170 * 130];
+        for r in 0..h {
+            px[(r + 31) * 170 + 12..(r + 31) * 170 + 12 + w]
+                .copy_from_slice(&frame.px[r * w..(r + 1) * w]);
+        }
+        let wide = Gray::new(170, 130, px);
+        let spec = |framing| InputSpec {
+            channels: CHANNELS.map(String::from).to_vec(),
+            cells: [8, 8],
+            cell_px: 4,
+            frame_px: Some(32),
+            cell_mm: None,
+            map_stride_cells: 2,
+            normalisation: Normalisation::Equalised,
+            framing,
+        };
+        let (bed, square) = (spec(Framing::Bed), spec(Framing::CentreSquare));
+        let canonical = |s: &InputSpec, g: &Gray| s.canonical(g).unwrap().px;
+        assert_eq!(canonical(&bed, &frame), canonical(&bed, &wide));
+        assert_eq!(canonical(&bed, &frame), frame.resize(32, 32).px);
+        assert_ne!(canonical(&square, &frame), canonical(&square, &wide));
     }
 
     #[test]
