@@ -104,7 +104,8 @@ pub struct TrainingArgs {
     /// What part of a camera frame the model reads: `centre-square`, the centred square (as
     /// every model before); `bed`, the frame without its dark margins (walls, a surround),
     /// stretched to the square, so a camera that sees past the bed gives the same input
-    /// (docs/learning.md measures what it costs).
+    /// (docs/learning.md measures what it costs). Camera frames only: patches and verdicts are
+    /// read as they are.
     #[arg(long, value_enum, default_value_t = FrameField::CentreSquare)]
     framing: FrameField,
 }

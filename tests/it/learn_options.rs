@@ -184,32 +184,39 @@ fn refused_by_clap(data: &Path, model: &Path, extra: &[&str]) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// How many of the 30 pictures' classes by `model` differ between the folders `a` and `b`.
+fn calls_changed(model: &Path, a: &Path, b: &Path) -> usize {
+    let (a, b) = (classes(model, a), classes(model, b));
+    a.iter().zip(&b).filter(|(x, y)| x != y).count()
+}
+
 /// Generated class folders (10 a class) in `tmp/data`, a changed copy in `tmp/changed`, and two
-/// models trained 30 epochs on the folders with `a` and `b` added: their paths and headers.
+/// models trained 30 epochs on the folders with `a` and `b` added: the two folders, and each
+/// model's path and header.
 fn two_models(
     tmp: &Path,
     change: impl Fn(image::GrayImage) -> image::GrayImage,
     a: &[&str],
     b: &[&str],
-) -> [(PathBuf, serde_json::Value); 2] {
+) -> (PathBuf, PathBuf, [(PathBuf, serde_json::Value); 2]) {
     let (data, changed) = (tmp.join("data"), tmp.join("changed"));
     class_folders(&data, 10);
     changed_copy(&data, &changed, change);
-    [("a", a), ("b", b)].map(|(name, extra)| {
+    let models = [("a", a), ("b", b)].map(|(name, extra)| {
         let model = tmp.join(format!("{name}.safetensors"));
         train_small(&data, &model, &THIRTY_EPOCHS)
             .args(extra)
             .succeeds();
         let header = header_of(&std::fs::read(&model).unwrap());
         (model, header)
-    })
+    });
+    (data, changed, models)
 }
 
 #[test]
 fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_alike() {
     let tmp = tempfile::tempdir().unwrap();
-    let (data, curved) = (tmp.path().join("data"), tmp.path().join("changed"));
-    let [(equalised, r), (_, g)] = two_models(
+    let (data, curved, [(equalised, r), (_, g)]) = two_models(
         tmp.path(),
         tone_curved,
         &["--framing", "centre-square"],
@@ -234,14 +241,10 @@ fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_ali
         .stdout_ok();
     assert!(info.contains(layerwise::learn::input::EQUALISED), "{info}");
     // Each picture's class from each model, on the frames as they are and darker.
-    let changed = |model: &Path| {
-        let (a, b) = (classes(model, &data), classes(model, &curved));
-        a.iter().zip(&b).filter(|(x, y)| x != y).count()
-    };
     // These frames are easy for both inputs (docs/learning.md measures the difference on
     // real frames, benches/learn_tolerance.py); here the equalised model must keep its calls.
     // Measured: 2 of 30 changed (the grey-level model: 0).
-    let equalised_changed = changed(&equalised);
+    let equalised_changed = calls_changed(&equalised, &data, &curved);
     assert!(
         equalised_changed <= 4,
         "classes changed by the darker curve: {equalised_changed} of 30"
@@ -258,9 +261,9 @@ fn the_input_recipe_is_recorded_and_an_equalised_model_reads_a_darker_camera_ali
 #[test]
 fn a_bed_framed_model_reads_a_frame_in_a_black_surround_as_the_frame() {
     let tmp = tempfile::tempdir().unwrap();
-    let (data, wide) = (tmp.path().join("data"), tmp.path().join("changed"));
     // The default framing is the centre square.
-    let [(bed, b), (square, s)] = two_models(tmp.path(), surrounded, &["--framing", "bed"], &[]);
+    let (data, wide, [(bed, b), (square, s)]) =
+        two_models(tmp.path(), surrounded, &["--framing", "bed"], &[]);
     assert_eq!(
         b["input"]["framing"], "bed-margins-under-half-centre-median/stretch",
         "{b}"
@@ -277,15 +280,14 @@ fn a_bed_framed_model_reads_a_frame_in_a_black_surround_as_the_frame() {
     let all = learn_on(&["learn", "eval", "--json"], &bed, &data).json_ok();
     assert!(all["accuracy"].as_f64().unwrap() >= 0.8, "{all}");
     // The surround is cut off again, so every call stands; the centre square of the wider
-    // picture is another picture (a third of it surround).
-    let (as_they_are, in_surround) = (classes(&bed, &data), classes(&bed, &wide));
-    assert_eq!(as_they_are, in_surround);
-    let square_changed = classes(&square, &data)
-        .iter()
-        .zip(&classes(&square, &wide))
-        .filter(|(x, y)| x != y)
-        .count();
-    eprintln!("centre-square model: {square_changed} of 30 calls changed by the surround");
+    // picture is another picture (a third of it surround), which changes many calls (measured:
+    // 23 of 30), so the surround is a change the bed framing had to undo.
+    assert_eq!(calls_changed(&bed, &data, &wide), 0);
+    let square_changed = calls_changed(&square, &data, &wide);
+    assert!(
+        square_changed >= 10,
+        "the centre-square model: {square_changed} of 30 calls changed by the surround"
+    );
     let refused = refused_by_clap(&data, &bed, &["--framing", "crop"]);
     assert!(
         refused.contains("bed") && refused.contains("centre-square"),
