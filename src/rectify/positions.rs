@@ -93,8 +93,9 @@ impl Line {
 /// 24.8 → 22.8 ms median).
 const BLOCK: usize = 512;
 /// Largest position change (fixed-point units, 2²¹ = 1024 px) across a block for the f32
-/// path. Offsets are taken from the block's middle, so they stay below 2²⁰ units, and their
-/// rounding error below ~0.3 unit (1.5·10⁻⁴ px): a few f32 roundings of ~6·10⁻⁸ each.
+/// path. Offsets are taken from the block's middle, so where w changes little along the block
+/// they stay below 2²⁰ units and their rounding error below ~0.3 unit (1.5·10⁻⁴ px): a few f32
+/// roundings of ~6·10⁻⁸ each (at most the whole span, where w changes by up to the 2x allowed).
 const BLOCK_SPAN: f64 = (1 << 21) as f64;
 /// [`BLOCK`] and [`BLOCK_SPAN`] of the distorted path ([`fast_block_distorted`], which builds
 /// the position map once per rectifier), whose offsets run from the block's start.
@@ -142,7 +143,8 @@ fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize,
             let (xmf, ymf) = ((uxm - xmi) as f32, (uym - ymi) as f32);
             let (xmi, ymi) = (xmi as i32, ymi as i32);
             let (wmf, swf) = (wm as f32, l.sw as f32);
-            let lim = BLOCK_SPAN as f32;
+            // Twice the most an offset can be, so the clamp only ever catches NaN and overflow.
+            let lim = 2.0 * BLOCK_SPAN as f32;
             let ix = &mut co.ix[j0..j0 + len];
             let iy = &mut co.iy[j0..j0 + len];
             let fx = &mut co.fx[j0..j0 + len];
@@ -153,7 +155,7 @@ fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize,
                 let t = jf / (wmf + swf * jf);
                 let dx = clamp_f32((xmf + kx * t).floor(), lim);
                 let dy = clamp_f32((ymf + ky * t).floor(), lim);
-                // SAFETY: clamped to ±2^21, finite (NaN became -lim).
+                // SAFETY: clamped to ±2^22, finite (NaN became -lim).
                 let (dx, dy): (i32, i32) =
                     unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
                 (ix[j], iy[j], fx[j], fy[j]) = finish(job, xmi + dx, ymi + dy, true);
