@@ -1,7 +1,7 @@
 //! Phase 1 of the rectifier (see `warp.rs`): fixed-point source positions of a run of grid
 //! pixels, incremental along the row, f32 blocks where that is exact enough, f64 elsewhere.
 
-use super::kernel::{Coords, DistParams, Job, FRAC_BITS, ONE};
+use super::kernel::{Coords, DistParams, Job, CHUNK, FRAC_BITS, ONE};
 use crate::geometry::mat3::Mat3;
 
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
@@ -87,15 +87,16 @@ impl Line {
     }
 }
 
-/// Pixels per block of the f32 incremental path: a whole run (`CHUNK`). Each block costs three
-/// f64 evaluations and its checks; at 128 pixels that was ~15 % of the grey warp, at 512 the
-/// warp is ~8 % faster (7360 x 4912 → 4400² bench, grey, one thread, three alternating runs:
-/// 24.8 → 22.8 ms median).
-const BLOCK: usize = 512;
+/// Pixels per block of the f32 incremental path: a whole run. Each block costs three f64
+/// evaluations and its checks; at 128 pixels a block that was ~8 % of the grey warp (`perf`), and
+/// at 512 the warp is ~8 % faster (7360 x 4912 → 4400² bench, grey, one thread, three
+/// alternating runs: 24.8 → 22.8 ms median).
+const BLOCK: usize = CHUNK;
 /// Largest position change (fixed-point units, 2²¹ = 1024 px) across a block for the f32
-/// path. Offsets are taken from the block's middle, so where w changes little along the block
-/// they stay below 2²⁰ units and their rounding error below ~0.3 unit (1.5·10⁻⁴ px): a few f32
-/// roundings of ~6·10⁻⁸ each (at most the whole span, where w changes by up to the 2x allowed).
+/// path. Offsets are taken from the block's middle, so they stay under 2²⁰ units where w
+/// changes little along the block, and under 2/3 of the span (2^20.4) where it changes by up to
+/// the 2x allowed; their rounding error is then under ~0.3 and ~0.7 unit (1.5·10⁻⁴ and
+/// 3.5·10⁻⁴ px): a few f32 roundings of ~6·10⁻⁸ each.
 const BLOCK_SPAN: f64 = (1 << 21) as f64;
 /// [`BLOCK`] and [`BLOCK_SPAN`] of the distorted path ([`fast_block_distorted`], which builds
 /// the position map once per rectifier), whose offsets run from the block's start.
@@ -107,10 +108,10 @@ const W_MIN: f64 = 1e-200;
 /// Phase 1 for one block of `len` pixels starting at column `col0 + j0`.
 ///
 /// Within a block, the position relative to the block's middle pixel `m` is
-/// `δ(j) = j·K / w(j)` (`j` from `−m`) with `K = step − U_m·sw` (one f64 setup per block),
-/// evaluated in f32: δ is small, so f32 loses nothing that matters, and the
-/// loop runs 8 or 16 lanes wide. Blocks where that does not hold (near the
-/// horizon, steep minification) use the exact f64 path.
+/// `δ(j) = j·K / w(j)` (`j` from `−m`) with `K = sx·ONE + ½·sw − U_m·sw` (one f64 setup per
+/// block), evaluated in f32: δ is small, so f32 loses nothing that matters, and the loop runs 8
+/// or 16 lanes wide. Blocks where that does not hold (near the horizon, steep minification)
+/// use the exact f64 path.
 #[inline(always)]
 fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize, co: &mut Coords) {
     let c0 = (col0 + j0) as f64;
@@ -136,6 +137,8 @@ fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize,
         if near {
             let one = ONE as f64;
             let mid = len / 2;
+            // Between the ends (w > 0 and affine: the position is monotonic), so |uxm| stays
+            // under 1e9 + BLOCK_SPAN and its floor fits an i32 with room for the offsets.
             let (uxm, uym, wm) = l.scaled(c0 + mid as f64);
             let (xmi, ymi) = (uxm.floor(), uym.floor());
             let kx = (l.sx * one + 0.5 * l.sw - uxm * l.sw) as f32;
@@ -236,7 +239,7 @@ fn fast_block_distorted<T>(
                 let dvd = dv * (k0f + kappa) + dv0f * kappa;
                 let dx = clamp_f32((x0f + dud * onef).floor(), lim);
                 let dy = clamp_f32((y0f + dvd * onef).floor(), lim);
-                // SAFETY: clamped to ±2^19, finite (NaN became -lim).
+                // SAFETY: clamped to ±2^20, finite (NaN became -lim).
                 let (dx, dy): (i32, i32) =
                     unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
                 (ix[j], iy[j], fx[j], fy[j]) = finish(job, x0i + dx, y0i + dy, e < e_max);
@@ -345,7 +348,6 @@ mod tests {
     use super::*;
     use crate::geometry::mat3;
     use crate::geometry::{homography_from_points, RadialDistortion};
-    use crate::rectify::kernel::CHUNK;
 
     /// The f32 block paths (with and without distortion) agree with the
     /// exact f64 path to within one fixed-point unit (1/2048 px), including
@@ -386,7 +388,7 @@ mod tests {
             k1: -0.06,
             k2: 0.015,
         };
-        let mut fast_blocks = 0;
+        let mut fast_blocks = [0usize; 2];
         for ((k, img), dist) in views
             .iter()
             .enumerate()
@@ -406,8 +408,12 @@ mod tests {
             let cols = (300.0 / p) as usize;
             let (mut a, mut b) = (Coords::new(), Coords::new());
             for row in (0..cols).step_by(97) {
-                for col0 in (0..cols).step_by(CHUNK) {
-                    let n = CHUNK.min(cols - col0);
+                // Whole runs along the row, and a run of one pixel (a row's last run can be).
+                let runs = (0..cols)
+                    .step_by(CHUNK)
+                    .map(|c| (c, CHUNK.min(cols - c)))
+                    .chain([((row * 7) % cols, 1)]);
+                for (col0, n) in runs {
                     map_run(&j, row, col0, n, &mut a);
                     let line = Line::of_row(&m, row);
                     match &dist {
@@ -435,13 +441,14 @@ mod tests {
                                 "row {row} col {}: {xa},{ya} vs {xb},{yb}",
                                 col0 + i
                             );
-                            fast_blocks += usize::from(xa != xb || ya != yb);
+                            fast_blocks[usize::from(dist.is_some())] +=
+                                usize::from(xa != xb || ya != yb);
                         }
                     }
                 }
             }
         }
-        // Tiny differences show the block path really ran (and stayed within 1 unit).
-        assert!(fast_blocks > 0);
+        // Tiny differences show each block path really ran (and stayed within 1 unit).
+        assert!(fast_blocks.iter().all(|&n| n > 0), "{fast_blocks:?}");
     }
 }

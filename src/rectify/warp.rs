@@ -5,9 +5,9 @@
 //! 1. [`map_run`] (in `positions.rs`): source positions as fixed-point integers (pixel + 11-bit
 //!    fraction), or "outside". Along a grid row the homogeneous position is
 //!    affine in the column, so each pixel costs a few adds/multiplies and
-//!    one division. Blocks of 128 pixels are evaluated relative to the block
-//!    start in f32, 8 lanes with AVX2 ([`fast_block`],
-//!    [`fast_block_distorted`]); near the horizon each pixel is evaluated
+//!    one division. Blocks are evaluated in f32 relative to a pixel of the block, 8 lanes
+//!    with AVX2 or 16 with AVX-512 (a whole run from its middle, [`fast_block`]; 128 pixels
+//!    from their start, [`fast_block_distorted`]); near the horizon each pixel is evaluated
 //!    in f64 ([`exact_run`]). With lens distortion the positions are instead
 //!    computed once per `Rectifier` into a cached map (8 bytes per grid
 //!    pixel), which measured ~2x faster per frame than re-evaluating the
