@@ -24,18 +24,16 @@ pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co
     }
     let mut j0 = 0;
     while j0 < n {
-        let len = match &job.dist {
-            Some(d) => {
-                let len = DIST_BLOCK.min(n - j0);
-                fast_block_distorted(job, d, &line, col0, j0, len, co);
-                len
-            }
-            None => {
-                let len = BLOCK.min(n - j0);
-                fast_block(job, &line, col0, j0, len, co);
-                len
-            }
+        let block = if job.dist.is_some() {
+            DIST_BLOCK
+        } else {
+            BLOCK
         };
+        let len = block.min(n - j0);
+        match &job.dist {
+            Some(d) => fast_block_distorted(job, d, &line, col0, j0, len, co),
+            None => fast_block(job, &line, col0, j0, len, co),
+        }
         j0 += len;
     }
 }
@@ -88,8 +86,8 @@ impl Line {
 }
 
 /// Pixels per block of the f32 incremental path: a whole run. Each block costs three f64
-/// evaluations and its checks; at 128 pixels a block that was ~8 % of the grey warp (`perf`), and
-/// at 512 the warp is ~8 % faster (7360 x 4912 → 4400² bench, grey, one thread, three
+/// evaluations and its checks; with blocks of 128 pixels those were ~8 % of the grey warp
+/// (`perf`), and with 512 the warp is ~8 % faster (7360 x 4912 → 4400² bench, grey, one thread, three
 /// alternating runs: 24.8 → 22.8 ms median).
 const BLOCK: usize = CHUNK;
 /// Largest position change (fixed-point units, 2²¹ = 1024 px) across a block for the f32
