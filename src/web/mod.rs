@@ -6,9 +6,10 @@
 //! written by another process.
 //!
 //! The server runs on its own thread with its own small runtime, so no request, slow client or
-//! picture being encoded can take time from the capture path. It watches the journal (a stat
-//! every 250 ms, then only the appended bytes) and pushes updates to open pages as server-sent
-//! events. Only layer numbers and view names from a request reach the file system.
+//! picture being encoded can take time from the capture path. It watches the journal, the
+//! inspection and alarm logs and status.json (woken by the system's change notification, and a
+//! stat every 250 ms besides; then only the appended bytes) and pushes updates to open pages as
+//! server-sent events. Only layer numbers and view names from a request reach the file system.
 
 mod alarm;
 pub mod bed;
@@ -26,6 +27,7 @@ pub mod supervisor;
 pub mod timeline;
 pub mod trends;
 mod verdicts;
+mod wake;
 
 use crate::config::WebConfig;
 use crate::shutdown::Shutdown;
@@ -128,7 +130,7 @@ impl WebServer {
                         Ok(l) => l,
                         Err(e) => return warn!(error = %e, "page server: cannot listen"),
                     };
-                    tokio::spawn(watch_build(shared.clone()));
+                    tokio::spawn(watch_build(shared.clone(), WATCH_PERIOD));
                     let app = routes::router(shared.clone());
                     listener::serve(listener, app, shared.clients.clone(), server_stop).await;
                 });
@@ -221,13 +223,16 @@ pub fn read_token(path: &Path) -> Result<String, WebError> {
     Ok(token)
 }
 
-/// Looks at the journal, the inspection and alarm logs and status.json every [`WATCH_PERIOD`];
-/// when they changed, reads what is new, remakes the status (at most every [`STATUS_PERIOD`],
+/// Looks at the journal, the inspection and alarm logs and status.json when they change (as the
+/// system tells: [`wake`]) and every `period` ([`WATCH_PERIOD`]) besides; when they changed, reads
+/// what is new, remakes the status (at most every [`STATUS_PERIOD`],
 /// at least every [`STATUS_STALE`]; at once when the inspection or alarm log grew: a layer's
 /// flags or an alarm wait for no period), tells the open pages, and makes the newest layer's
 /// previews ahead of their request.
-async fn watch_build(shared: Arc<PageState>) {
-    let mut tick = tokio::time::interval(WATCH_PERIOD);
+async fn watch_build(shared: Arc<PageState>, period: Duration) {
+    let wake = wake::BuildWake::new(&shared.dir);
+    tracing::debug!(dir = %shared.dir.display(), notified = wake.active(), "page server: watching the build");
+    let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let stop = shared.stop.clone();
     // The journal's length, the inspection and alarm logs' lengths, status.json's time.
@@ -239,6 +244,7 @@ async fn watch_build(shared: Arc<PageState>) {
     loop {
         tokio::select! {
             _ = tick.tick() => {}
+            _ = wake.changed() => {}
             _ = stop.requested() => return,
         }
         let s = shared.clone();
@@ -291,5 +297,50 @@ async fn watch_build(shared: Arc<PageState>) {
                 flag.store(false, std::sync::atomic::Ordering::SeqCst);
             });
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    #[test]
+    fn a_layers_flags_reach_the_pages_without_waiting_for_the_look_period() {
+        let dir = tempfile::tempdir().unwrap();
+        let inspection = dir.path().join(crate::build_dir::INSPECTION);
+        std::fs::write(&inspection, "").unwrap();
+        let stop = Shutdown::new();
+        let shared = page_state(dir.path(), &WebConfig::default(), stop.clone()).unwrap();
+        let mut updates = shared.updates.subscribe();
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap();
+        rt.block_on(async {
+            // A look period far longer than the test: only the change notification can tell.
+            let watch = tokio::spawn(watch_build(shared.clone(), Duration::from_secs(3600)));
+            let wait = Duration::from_secs(20);
+            // The first look (at once) tells the pages what is there.
+            tokio::time::timeout(wait, updates.changed())
+                .await
+                .expect("the first look")
+                .unwrap();
+            let first = *updates.borrow_and_update();
+            let mut log = std::fs::OpenOptions::new()
+                .append(true)
+                .open(&inspection)
+                .unwrap();
+            log.write_all(b"{\"layer\":1,\"flags\":[]}\n").unwrap();
+            tokio::time::timeout(wait, updates.changed())
+                .await
+                .expect("the pages told of the new record before the next look")
+                .unwrap();
+            assert!(*updates.borrow() > first);
+            stop.request(crate::shutdown::StopReason::Terminated(
+                crate::shutdown::TermSignal::Term,
+            ));
+            watch.await.unwrap();
+        });
     }
 }
