@@ -230,8 +230,23 @@ pub fn read_token(path: &Path) -> Result<String, WebError> {
 /// flags or an alarm wait for no period), tells the open pages, and makes the newest layer's
 /// previews ahead of their request.
 async fn watch_build(shared: Arc<PageState>, period: Duration) {
-    let wake = wake::BuildWake::new(&shared.dir);
-    tracing::debug!(dir = %shared.dir.display(), notified = wake.active(), "page server: watching the build");
+    let wake = wake::BuildWake::new(&shared.dir)
+        .map_err(|e| {
+            tracing::info!(
+                dir = %shared.dir.display(),
+                error = %e,
+                "page server: no change notification for the build directory; it is looked at every {} ms instead",
+                period.as_millis()
+            )
+        })
+        .ok();
+    // Without notifications, only the look period wakes the watch.
+    let changed = || async {
+        match &wake {
+            Some(w) => w.changed().await,
+            None => std::future::pending().await,
+        }
+    };
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let stop = shared.stop.clone();
@@ -244,7 +259,7 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
     loop {
         tokio::select! {
             _ = tick.tick() => {}
-            _ = wake.changed() => {}
+            _ = changed() => {}
             _ = stop.requested() => return,
         }
         let s = shared.clone();

@@ -10,7 +10,6 @@ use notify::{Event, EventKind, RecommendedWatcher, RecursiveMode, Watcher};
 use std::path::Path;
 use std::sync::Arc;
 use tokio::sync::Notify;
-use tracing::info;
 
 /// The files of a build whose changes the page shows.
 const WATCHED: [&str; 4] = [JOURNAL, INSPECTION, ALARM, STATUS];
@@ -18,45 +17,30 @@ const WATCHED: [&str; 4] = [JOURNAL, INSPECTION, ALARM, STATUS];
 /// Change notifications of one build directory; [`BuildWake::changed`] waits for the next.
 pub(super) struct BuildWake {
     /// Kept for as long as notifications are wanted (dropping it ends them).
-    watcher: Option<RecommendedWatcher>,
+    _watcher: RecommendedWatcher,
     notify: Arc<Notify>,
 }
 
 impl BuildWake {
-    /// Notifications of `dir`'s watched files; none (the look period alone) if the system gives
-    /// none, which is logged once.
-    pub(super) fn new(dir: &Path) -> BuildWake {
+    /// Notifications of `dir`'s watched files, or why the system gives none (the directory is
+    /// gone, or `fs.inotify.max_user_instances` / `max_user_watches` is reached).
+    pub(super) fn new(dir: &Path) -> notify::Result<BuildWake> {
         let notify = Arc::new(Notify::new());
         let tell = notify.clone();
-        let watcher = notify::recommended_watcher(move |event: notify::Result<Event>| {
+        let mut watcher = notify::recommended_watcher(move |event: notify::Result<Event>| {
             if event.is_ok_and(|e| wakes(&e)) {
                 // Stored if the watch is busy: changes during a look wake it once more.
                 tell.notify_one();
             }
+        })?;
+        watcher.watch(dir, RecursiveMode::NonRecursive)?;
+        Ok(BuildWake {
+            _watcher: watcher,
+            notify,
         })
-        .and_then(|mut w| w.watch(dir, RecursiveMode::NonRecursive).map(|()| w));
-        let watcher = match watcher {
-            Ok(w) => Some(w),
-            Err(e) => {
-                info!(
-                    dir = %dir.display(),
-                    error = %e,
-                    "page server: no change notification for the build directory; it is looked \
-                     at every 250 ms instead (a network file system, or fs.inotify.max_user_instances reached)"
-                );
-                None
-            }
-        };
-        BuildWake { watcher, notify }
     }
 
-    /// Whether changes are notified (else only the look period finds them).
-    pub(super) fn active(&self) -> bool {
-        self.watcher.is_some()
-    }
-
-    /// Returns after a watched file changed (at once if one changed since the last call);
-    /// never without notifications.
+    /// Returns after a watched file changed (at once if one changed since the last call).
     pub(super) async fn changed(&self) {
         self.notify.notified().await;
     }
@@ -111,8 +95,7 @@ mod tests {
             .unwrap();
         let inspection = dir.path().join(INSPECTION);
         std::fs::write(&inspection, "{}\n").unwrap();
-        let wake = BuildWake::new(dir.path());
-        assert!(wake.active(), "inotify is available on the test machine");
+        let wake = BuildWake::new(dir.path()).expect("inotify on the test machine");
         // Not woken by what the page itself does, nor by the slices and temporary files.
         let _ = std::fs::read(&inspection).unwrap();
         std::fs::create_dir(dir.path().join("series_front")).unwrap();
@@ -140,14 +123,8 @@ mod tests {
     }
 
     #[test]
-    fn a_directory_that_cannot_be_watched_leaves_the_look_period() {
+    fn a_directory_that_cannot_be_watched_is_an_error() {
         let dir = tempfile::tempdir().unwrap();
-        let wake = BuildWake::new(&dir.path().join("missing"));
-        assert!(!wake.active());
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .unwrap();
-        assert!(!woken(&rt, &wake, Duration::from_millis(50)));
+        assert!(BuildWake::new(&dir.path().join("missing")).is_err());
     }
 }
