@@ -32,36 +32,55 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The layer number of the next pass over the views. Every pass writes a layer of its own, as a
+/// build does: slices are new files. (Writing the same layer again renames each slice over the
+/// one before, and on a file system mounted with `discard`, as this machine's, freeing the old
+/// file's blocks made the rename 3-10 ms: not the daemon's cost.)
+static NEXT_LAYER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(1);
+
+fn next_layer() -> u32 {
+    NEXT_LAYER.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
+/// The view's shot in `layer`.
+fn in_layer(shot: Shot, layer: u32) -> Shot {
+    Shot { layer, ..shot }
+}
+
 /// Per-frame times (ms, each frame alone), per-layer times (s, the six frames one per core at
 /// a time, as the processing worker runs them) and the steps of the layers' frames, over
-/// `rounds` rounds.
+/// `rounds` rounds; and the last layer written.
 fn time_frames(
     live: &LiveSeries,
     build_dir: &std::path::Path,
     originals: &[(Shot, std::path::PathBuf)],
     rounds: usize,
-) -> (Vec<f64>, Vec<f64>, Vec<StepTimes>) {
+) -> (Vec<f64>, Vec<f64>, Vec<StepTimes>, u32) {
     let mut per_frame = Vec::new();
     let mut layer_totals = Vec::new();
     let steps = std::sync::Mutex::new(Vec::new());
+    let mut last = 0;
     for _ in 0..rounds {
+        let alone = next_layer();
         for (shot, path) in originals {
             let t = Instant::now();
-            live.process(build_dir, *shot, path).expect("process");
+            live.process(build_dir, in_layer(*shot, alone), path)
+                .expect("process");
             per_frame.push(t.elapsed().as_secs_f64() * 1e3);
         }
+        last = next_layer();
         let layer = Instant::now();
         originals.par_iter().for_each(|(shot, path)| {
             // What `FrameProcessor::process` runs, with its step times kept.
             let mut frame = StepTimes::default();
-            live.write_original_timed(build_dir, *shot, 1, path, &mut frame)
+            live.write_original_timed(build_dir, in_layer(*shot, last), 1, path, &mut frame)
                 .expect("process");
             steps.lock().expect("steps").push(frame);
         });
         layer_totals.push(layer.elapsed().as_secs_f64());
     }
     let steps = steps.into_inner().expect("steps");
-    (per_frame, layer_totals, steps)
+    (per_frame, layer_totals, steps, last)
 }
 
 /// The medians of the steps of the layers' frames, ms.
@@ -187,8 +206,9 @@ fn main() {
         // memory before it (the rendered frames, the renderer).
         let before_kib = memory::current_rss_kib();
         memory::reset_peak();
-        let (per_frame, layer_totals, steps) = time_frames(&live, dir.path(), &originals, rounds);
-        let size = std::fs::metadata(dir.path().join("dicom/post_top/L00001.dcm"))
+        let (per_frame, layer_totals, steps, last) =
+            time_frames(&live, dir.path(), &originals, rounds);
+        let size = std::fs::metadata(dir.path().join(format!("dicom/post_top/L{last:05}.dcm")))
             .map(|m| m.len())
             .unwrap_or(0);
         let layers = layer_totals.len();
@@ -275,7 +295,7 @@ fn raw_frames(
         fill: 0,
     };
     let live = LiveSeries::new(manifest, views, calibration, settings).expect("series");
-    let (per_frame, layer_totals, _) =
+    let (per_frame, layer_totals, _, _) =
         time_frames(&live, dir.path(), &originals, if full { 2 } else { 1 });
     println!(
         "NEF, None: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s",

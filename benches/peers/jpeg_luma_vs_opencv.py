@@ -8,6 +8,10 @@ rectify_vs_opencv.py). examples/peer_steps.rs renders a D810-size mock frame
 - ours: `decode_jpeg_luma` (what the views use), on all cores;
 - OpenCV: `cv2.imdecode(buf, IMREAD_GRAYSCALE)` (libjpeg-turbo, decoding the Y channel only);
 - OpenCV colour: `cv2.imdecode(buf, IMREAD_COLOR)` for reference;
+- OpenCV at 1/8 scale: `cv2.imdecode(buf, IMREAD_REDUCED_GRAYSCALE_8)`, for reference too: every
+  Huffman code of the file is still decoded (a scan without restart markers is one sequence),
+  but each block keeps only its DC term, so no inverse DCT: libjpeg-turbo's entropy decoding,
+  the part of a decode no decoder of such a file can run in parallel or skip;
 - PIL: `Image.open(...).convert("L")`.
 
 And the same file to 8-bit colour, ours against the same two libraries:
@@ -110,6 +114,8 @@ def main():
     peers = [
         ("cv2.imdecode GRAYSCALE", lambda: cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)),
         ("cv2.imdecode COLOR", lambda: cv2.imdecode(buf, cv2.IMREAD_COLOR)),
+        ("cv2.imdecode REDUCED_GRAYSCALE_8 (entropy decoding, no IDCT)",
+         lambda: cv2.imdecode(buf, cv2.IMREAD_REDUCED_GRAYSCALE_8)),
     ]
     if Image is not None:
         peers.append(("PIL convert L", lambda: Image.open(io.BytesIO(data)).convert("L")))
