@@ -31,6 +31,12 @@ pub enum ModelError {
         #[source]
         source: serde_json::Error,
     },
+    #[error("{path}: the model's header is damaged at `{at}`: {detail}; retrain the model (`layerwise learn train`) or use an undamaged copy")]
+    Input {
+        path: PathBuf,
+        at: &'static str,
+        detail: String,
+    },
     #[error("{path}: written by a newer layerwise (model format {found}, this one reads {reads}); update layerwise or retrain the model")]
     Newer {
         path: PathBuf,

@@ -5,11 +5,12 @@
 //!
 //! [`Model::load`] checks, in order, each with its own message: size, safetensors structure,
 //! the header's presence, its JSON, the format version, the weights' checksum, every tensor
-//! against the architecture, finite values. [`Model::check_use`] then checks the input against
+//! against the architecture, finite values, the input's sizes ([`InputSpec::check`]: a header is
+//! not covered by the checksum, and its sizes decide allocations). [`Model::check_use`] then checks the input against
 //! what it is used on.
 
 use super::error::ModelError;
-use super::input::InputSpec;
+use super::input::{InputSpec, MAX_CELLS};
 use super::metrics::Metrics;
 use super::net::{Arch, Net, ARCH_KINDS};
 use candle_core::{Device, Tensor};
@@ -278,6 +279,13 @@ impl Model {
         if header.arch.channels.iter().any(|&c| c == 0 || c > 1024) {
             return Err(arch_error(format!("channels {:?}", header.arch.channels)));
         }
+        // At most one pool per halving of the largest input (the stride is 2^pools).
+        let pools = header.arch.pool_after.iter().filter(|&&p| p).count();
+        if 1 << pools.min(63) > MAX_CELLS {
+            return Err(arch_error(format!(
+                "{pools} pooling steps (a tile of 2^{pools} cells; inputs are at most {MAX_CELLS} cells a side)"
+            )));
+        }
         let expected = header.arch.shapes(header.classes.len());
         let mut params = Vec::new();
         for (name, shape) in &expected {
@@ -311,6 +319,14 @@ impl Model {
         {
             return Err(arch_error(format!("{extra} is not part of it")));
         }
+        header
+            .input
+            .check(header.arch.stride())
+            .map_err(|(at, detail)| ModelError::Input {
+                path: p(),
+                at,
+                detail,
+            })?;
         Ok(Model {
             path: p(),
             net: Net {

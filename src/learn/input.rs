@@ -197,6 +197,13 @@ impl Normalisation {
     }
 }
 
+/// The largest input a model may take: cells a side, pixels a cell, and the side of the square a
+/// frame is resampled to (a 4096 px square is 64 MiB of f32, its 1024 x 1024 cells 8 MiB a
+/// channel). Training refuses options beyond them, and a model file that declares more is damaged.
+pub const MAX_CELLS: usize = 1024;
+pub const MAX_CELL_PX: usize = 64;
+pub const MAX_FRAME_PX: usize = 4096;
+
 /// How a picture becomes the model's input; recorded in the model file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -224,6 +231,64 @@ pub struct InputSpec {
 }
 
 impl InputSpec {
+    /// Whether this input is one that training writes for a network of `stride` cells a tile:
+    /// the two channels, at least a tile and at most [`MAX_CELLS`] cells a side, 1 to
+    /// [`MAX_CELL_PX`] px a cell, frames resampled to a square of exactly their cells (at most
+    /// [`MAX_FRAME_PX`]), the class map's tile the network's stride, a positive scale. `Err`
+    /// names the header's field and what is wrong with it.
+    pub fn check(&self, stride: usize) -> Result<(), (&'static str, String)> {
+        if self.channels.iter().map(String::as_str).ne(CHANNELS) {
+            return Err((
+                "input.channels",
+                format!("{:?}; this layerwise computes {CHANNELS:?}", self.channels),
+            ));
+        }
+        let least = stride.max(4);
+        if self.cells.iter().any(|c| !(least..=MAX_CELLS).contains(c)) {
+            return Err((
+                "input.cells",
+                format!(
+                    "{:?} cells; {least} to {MAX_CELLS} a side for this network",
+                    self.cells
+                ),
+            ));
+        }
+        if !(1..=MAX_CELL_PX).contains(&self.cell_px) {
+            return Err((
+                "input.cell_px",
+                format!("{} px a cell; 1 to {MAX_CELL_PX}", self.cell_px),
+            ));
+        }
+        if let Some(f) = self.frame_px {
+            let [rows, cols] = self.cells;
+            if rows != cols || f != rows * self.cell_px || f > MAX_FRAME_PX {
+                return Err((
+                    "input.frame_px",
+                    format!(
+                        "{f} px is not the square of {rows}x{cols} cells of {} px (at most {MAX_FRAME_PX} px)",
+                        self.cell_px
+                    ),
+                ));
+            }
+        }
+        if self.map_stride_cells != stride {
+            return Err((
+                "input.map_stride_cells",
+                format!(
+                    "{}; the network's class map has a tile every {stride} cells",
+                    self.map_stride_cells
+                ),
+            ));
+        }
+        if let Some(mm) = self.cell_mm.filter(|mm| !(mm.is_finite() && *mm > 0.0)) {
+            return Err((
+                "input.cell_mm",
+                format!("{mm} mm; a cell's size is positive"),
+            ));
+        }
+        Ok(())
+    }
+
     /// The input size in pixels of the canonical picture.
     pub fn input_px(&self) -> [usize; 2] {
         [self.cells[0] * self.cell_px, self.cells[1] * self.cell_px]

@@ -12,7 +12,9 @@ use super::data::{read_item, DataKind, Dataset, Part};
 use super::error::LearnError;
 use super::file::{DataInfo, Header, RefitInfo, SplitInfo, TrainingInfo, FORMAT};
 use super::framing::Framing;
-use super::input::{Gray, Input, InputSpec, Normalisation, CHANNELS};
+use super::input::{
+    Gray, Input, InputSpec, Normalisation, CHANNELS, MAX_CELLS, MAX_CELL_PX, MAX_FRAME_PX,
+};
 use super::metrics::Metrics;
 use super::net::{self, Arch, Net};
 use super::rng::Rng;
@@ -238,6 +240,12 @@ fn design(
                     format!("--frame-px {} / --cell-px {} leaves {cells} cells a side; at least 4 are needed", opts.frame_px, opts.cell_px),
                 ));
             }
+            if opts.cell_px > MAX_CELL_PX || opts.frame_px > MAX_FRAME_PX || cells > MAX_CELLS {
+                return Err(LearnError::data(
+                    &data.root,
+                    format!("--frame-px {} / --cell-px {}: a model takes frames of at most {MAX_FRAME_PX} px, cells of at most {MAX_CELL_PX} px and {MAX_CELLS} cells a side", opts.frame_px, opts.cell_px),
+                ));
+            }
             let pools = fit(cells);
             (
                 InputSpec {
@@ -264,6 +272,12 @@ fn design(
                     format!("patches of {side} px are too small to learn from (4 px at least)"),
                 ));
             }
+            if cells > MAX_CELLS {
+                return Err(LearnError::data(
+                    &data.root,
+                    format!("patches of {side} px are larger than a model takes ({MAX_CELLS} px at most)"),
+                ));
+            }
             (
                 InputSpec {
                     channels: CHANNELS.map(String::from).to_vec(),
@@ -279,6 +293,22 @@ fn design(
             )
         }
     };
+    if let Some(mm) = spec.cell_mm.filter(|mm| !(mm.is_finite() && *mm > 0.0)) {
+        return Err(LearnError::data(
+            &data.root,
+            format!(
+                "a cell of {mm} mm (--cell-mm, or the patches' pixel size): it must be positive"
+            ),
+        ));
+    }
+    // What the file's loader checks (Model::load), so that no model is written that would not
+    // load again.
+    spec.check(1 << pools).map_err(|(at, detail)| {
+        LearnError::data(
+            &data.root,
+            format!("the model's input ({at}: {detail}) would not load"),
+        )
+    })?;
     Ok((spec, Arch::cnn(CHANNELS.len(), &opts.channels, pools)))
 }
 

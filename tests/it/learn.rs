@@ -221,6 +221,28 @@ fn damaged_foreign_newer_and_mismatched_model_files_are_refused() {
             bad("framing", &with_header(&bytes, |h| h["input"]["framing"] = "crop".into())),
             "header is damaged at `input.framing`",
         ),
+        // Sizes the loader would otherwise allocate by or divide by (the header is not covered
+        // by the weights' checksum).
+        (
+            bad("cell_px", &with_header(&bytes, |h| h["input"]["cell_px"] = 0.into())),
+            "header is damaged at `input.cell_px`: 0 px a cell; 1 to 64",
+        ),
+        (
+            bad("frame_px", &with_header(&bytes, |h| h["input"]["frame_px"] = 4_294_967_296u64.into())),
+            "header is damaged at `input.frame_px`",
+        ),
+        (
+            bad("cells", &with_header(&bytes, |h| h["input"]["cells"] = serde_json::json!([1u64 << 40, 1u64 << 40]))),
+            "header is damaged at `input.cells`",
+        ),
+        (
+            bad("stride", &with_header(&bytes, |h| h["input"]["map_stride_cells"] = 0.into())),
+            "header is damaged at `input.map_stride_cells`",
+        ),
+        (
+            bad("cell_mm", &with_header(&bytes, |h| h["input"]["cell_mm"] = (-1.0).into())),
+            "header is damaged at `input.cell_mm`",
+        ),
         (
             bad(
                 "channels",
