@@ -103,15 +103,23 @@ pub fn check_voxels(path: &Path, dims: [usize; 3], max_voxels: usize) -> Result<
 pub fn read_raw(path: &Path, spec: &RawSpec, max_voxels: usize) -> Result<Volume> {
     let [nx, ny, nz] = spec.dims;
     let bpv = spec.dtype.bytes();
+    // The voxel count first: it names the file and the cap, and bounds what follows.
+    let voxels = check_voxels(path, spec.dims, max_voxels)?;
+    let overflow = || {
+        CtError::Invalid(format!(
+            "{}: {nx} x {ny} x {nz} voxels of {bpv} bytes after a header of {} bytes are more              bytes than a file can hold: check the size in the volume's description",
+            path.display(),
+            spec.header_bytes
+        ))
+    };
     let slice_bytes = nx
         .checked_mul(ny)
         .and_then(|v| v.checked_mul(bpv))
-        .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
-    let voxels = check_voxels(path, spec.dims, max_voxels)?;
+        .ok_or_else(overflow)?;
     let expected = (slice_bytes as u64)
         .checked_mul(nz as u64)
         .and_then(|v| v.checked_add(spec.header_bytes))
-        .ok_or_else(|| CtError::Invalid(format!("dims {:?} overflow", spec.dims)))?;
+        .ok_or_else(overflow)?;
     let file = crate::fsutil::open_regular(path).map_err(io_err(path))?;
     let actual = file.metadata().map_err(io_err(path))?.len();
     if actual != expected {
@@ -178,5 +186,24 @@ mod tests {
         .expect_err("f32 needs 96 bytes")
         .to_string();
         assert!(msg.contains("96") && msg.contains("48"), "{msg}");
+    }
+
+    #[test]
+    fn sizes_past_any_file_name_the_file() {
+        let d = scratch("overflow");
+        write_u16(&d.join("x.raw"), 24);
+        let huge = usize::MAX / 4;
+        for (dims, cap) in [([6, huge, 6], MAX_VOXELS), ([huge, 3, 1], usize::MAX)] {
+            let spec = RawSpec {
+                dims,
+                voxel_mm: [0.1; 3],
+                dtype: RawDtype::U16,
+                header_bytes: 0,
+            };
+            let msg = read_raw(&d.join("x.raw"), &spec, cap)
+                .expect_err("no such file")
+                .to_string();
+            assert!(msg.contains("x.raw") && msg.contains("voxels"), "{msg}");
+        }
     }
 }
