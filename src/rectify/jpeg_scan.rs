@@ -8,6 +8,11 @@
 //! marker after every scan), so it keeps it and is checked here instead: it must end with the EOI
 //! after its last scan (a cut file does not), and its scans must bring every coefficient of every
 //! component to its last bit (a file cut between scans and closed would not).
+//!
+//! Not caught here (mutation fuzzing, 2026-12-05): a progressive frame whose header claims more
+//! rows or columns than its scans code decodes with the missing blocks zero, as zune-jpeg fills
+//! them. Telling that needs each scan's codes read to its last MCU (the DC scans' codes at least,
+//! as the baseline decoder reads them), which this marker walk does not do.
 
 use super::RectifyError;
 
