@@ -8,11 +8,15 @@
 //! marker after every scan), so it keeps it and is checked here instead: it must end with the EOI
 //! after its last scan (a cut file does not), and its scans must bring every coefficient of every
 //! component to its last bit (a file cut between scans and closed would not).
-//!
-//! Not caught here (mutation fuzzing, 2026-12-05): a progressive frame whose header claims more
-//! rows or columns than its scans code decodes with the missing blocks zero, as zune-jpeg fills
-//! them. Telling that needs each scan's codes read to its last MCU (the DC scans' codes at least,
-//! as the baseline decoder reads them), which this marker walk does not do.
+//! A progressive frame whose header claims more rows or columns than its scans code would decode
+//! with the blocks never coded as zero (zune-jpeg fills them; found by mutation fuzzing): every
+//! DC first scan's codes are read to its last MCU ([`super::jpeg_luma::dc_scan_complete`]), so
+//! such a frame is refused too. Not read here, so not caught: progressive AC scans that stop
+//! early (with end-of-band runs a few bytes code thousands of blocks, so nothing short of
+//! decoding them says so), and a sequential frame that our own decoder (`jpeg_luma`, which
+//! refuses a scan that stops early) declines, such as one with 16-bit quantisation tables, whose
+//! scan meets its EOI early: zune-jpeg decodes the rest as zero there (mutation fuzzing,
+//! 2026-12-05).
 
 use super::RectifyError;
 
@@ -34,6 +38,13 @@ pub(crate) fn decoder_input(bytes: &[u8]) -> Result<&[u8], RectifyError> {
                 .into(),
         ));
     }
+    if let Some(scan) = walk.dc_short {
+        return Err(RectifyError::Jpeg(format!(
+            "the progressive file's DC scan {scan} ends before the last of the blocks its frame \
+             header claims ({}x{} px): a damaged file; take the frame again",
+            walk.width, walk.height
+        )));
+    }
     if let Some((component, k, bit)) = walk.first_incomplete() {
         return Err(RectifyError::Jpeg(format!(
             "the progressive file's scans stop before coefficient {k} of component {} is \
@@ -46,6 +57,7 @@ pub(crate) fn decoder_input(bytes: &[u8]) -> Result<&[u8], RectifyError> {
 }
 
 /// What the marker walk found.
+#[derive(Default)]
 struct Walk {
     progressive: bool,
     /// The file ends with the EOI, right after the last scan's data.
@@ -55,6 +67,17 @@ struct Walk {
     /// Per component and coefficient: the lowest bit its scans have reached (`Al`), or −1 if no
     /// scan carried it yet.
     bits: Vec<[i8; 64]>,
+    /// The frame's size and its components' sampling factors (h, v), in frame order.
+    width: usize,
+    height: usize,
+    sampling: Vec<(usize, usize)>,
+    /// The DC Huffman tables defined so far (DHT counts and symbols), by table number.
+    dc_tables: [Option<([u8; 16], Vec<u8>)>; 4],
+    restart_interval: usize,
+    /// Scans seen, and the number (from 1) of the first DC first scan that ends before its last
+    /// MCU.
+    scans: usize,
+    dc_short: Option<usize>,
 }
 
 impl Walk {
@@ -64,6 +87,43 @@ impl Walk {
                 .position(|&b| b != 0)
                 .map(|k| (c, k, bits[k].max(0)))
         })
+    }
+
+    /// Whether the DC first scan over `ids` (DC tables by `selectors`' high nibbles), its data
+    /// at `data_start`, codes every block of the frame; false too for a component or table the
+    /// file does not define.
+    fn dc_scan_complete(
+        &self,
+        bytes: &[u8],
+        ids: &[u8],
+        selectors: &[u8],
+        data_start: usize,
+    ) -> bool {
+        let max_hv = self
+            .sampling
+            .iter()
+            .fold((0, 0), |(h, v), &(a, b)| (h.max(a), v.max(b)));
+        let mut components = Vec::with_capacity(ids.len());
+        for (id, sel) in ids.iter().zip(selectors) {
+            let Some(c) = self.components.iter().position(|x| x == id) else {
+                return false;
+            };
+            let Some(Some((counts, symbols))) = self.dc_tables.get(usize::from(sel >> 4)) else {
+                return false;
+            };
+            components.push((self.sampling[c], counts, symbols.as_slice()));
+        }
+        super::jpeg_luma::dc_scan_complete(
+            bytes,
+            &super::jpeg_luma::DcScan {
+                width: self.width,
+                height: self.height,
+                max_hv,
+                components,
+                restart_interval: self.restart_interval,
+                data_start,
+            },
+        )
     }
 
     /// A progressive scan over `ids`, coefficients `ss..=se`, successive approximation `ah`/`al`.
@@ -92,12 +152,7 @@ fn walk(bytes: &[u8]) -> Option<Walk> {
     if !bytes.starts_with(&[0xFF, 0xD8]) {
         return None;
     }
-    let mut w = Walk {
-        progressive: false,
-        ends_with_eoi: false,
-        components: Vec::new(),
-        bits: Vec::new(),
-    };
+    let mut w = Walk::default();
     match walk_markers(bytes, &mut w) {
         Some(()) => Some(w),
         None => (!w.components.is_empty()).then_some(w),
@@ -137,15 +192,43 @@ fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
             // Frame headers (not DHT 0xC4, JPG 0xC8, DAC 0xCC).
             0xC0..=0xCF if !matches!(code, 0xC4 | 0xC8 | 0xCC) => {
                 w.progressive = matches!(code, 0xC2 | 0xC6 | 0xCA | 0xCE);
+                w.height = usize::from(u16::from_be_bytes([*segment.get(1)?, *segment.get(2)?]));
+                w.width = usize::from(u16::from_be_bytes([*segment.get(3)?, *segment.get(4)?]));
                 let n = usize::from(*segment.get(5)?);
                 w.components = (0..n)
                     .map(|i| segment.get(6 + 3 * i).copied())
+                    .collect::<Option<_>>()?;
+                w.sampling = (0..n)
+                    .map(|i| {
+                        let hv = segment.get(7 + 3 * i)?;
+                        Some((usize::from(hv >> 4), usize::from(hv & 15)))
+                    })
                     .collect::<Option<_>>()?;
                 w.bits = vec![[-1; 64]; n];
                 if !w.progressive {
                     // Nothing more to learn: a baseline frame is decoded without its EOI.
                     return Some(());
                 }
+            }
+            0xC4 => {
+                // DHT: tables of class 0 (DC) are kept for the DC scans' check.
+                let mut rest = segment;
+                while let [tc_th, tail @ ..] = rest {
+                    let counts: [u8; 16] = tail.get(..16)?.try_into().ok()?;
+                    let n: usize = counts.iter().map(|&c| usize::from(c)).sum();
+                    let symbols = tail.get(16..16 + n)?;
+                    // (A table number past 3 is the decoder's to refuse.)
+                    if let Some(slot) = w.dc_tables.get_mut(usize::from(tc_th & 15)) {
+                        if tc_th >> 4 == 0 {
+                            *slot = Some((counts, symbols.to_vec()));
+                        }
+                    }
+                    rest = &tail[16 + n..];
+                }
+            }
+            0xDD => {
+                w.restart_interval =
+                    usize::from(u16::from_be_bytes([*segment.first()?, *segment.get(1)?]));
             }
             0xDA => {
                 let n = usize::from(*segment.first()?);
@@ -155,6 +238,16 @@ fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
                 let tail = segment.get(1 + 2 * n..1 + 2 * n + 3)?;
                 let (ah, al) = ((tail[2] >> 4) as i8, (tail[2] & 15) as i8);
                 w.scan(&ids, usize::from(tail[0]), usize::from(tail[1]), ah, al);
+                w.scans += 1;
+                if w.progressive && tail[0] == 0 && tail[1] == 0 && ah == 0 && w.dc_short.is_none()
+                {
+                    let selectors: Vec<u8> = (0..n)
+                        .map(|i| segment.get(2 + 2 * i).copied())
+                        .collect::<Option<_>>()?;
+                    if !w.dc_scan_complete(bytes, &ids, &selectors, pos) {
+                        w.dc_short = Some(w.scans);
+                    }
+                }
                 // The entropy-coded data runs to the next marker that is not a restart marker
                 // (0xFF 0x00 is a stuffed 0xFF byte).
                 loop {
@@ -176,6 +269,43 @@ fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_progressive_header_claiming_more_blocks_than_its_scans_code_is_refused() {
+        use jpeg_encoder::{ColorType, Encoder};
+        let (w, h) = (203u16, 157u16);
+        let px = |x: u32, y: u32| [(x * 7) as u8, (y * 5) as u8, ((x + y) * 3) as u8];
+        let rgb: Vec<u8> = (0..u32::from(w) * u32::from(h))
+            .flat_map(|i| px(i % u32::from(w), i / u32::from(w)))
+            .collect();
+        let grey: Vec<u8> = rgb.iter().step_by(3).copied().collect();
+        for (colour, restart) in [(true, 0), (true, 3), (false, 0), (false, 5)] {
+            let mut jpeg = Vec::new();
+            let mut enc = Encoder::new(&mut jpeg, 90);
+            enc.set_progressive(true);
+            enc.set_restart_interval(restart);
+            match colour {
+                true => enc.encode(&rgb, w, h, ColorType::Rgb),
+                false => enc.encode(&grey, w, h, ColorType::Luma),
+            }
+            .unwrap();
+            // Whole, it is given to the decoder as it is, and decodes.
+            assert_eq!(decoder_input(&jpeg).unwrap(), &jpeg[..]);
+            crate::rectify::decode_jpeg(&jpeg).unwrap();
+            let sof = jpeg.windows(2).position(|m| m == [0xFF, 0xC2]).unwrap();
+            // One more MCU row or column and more: blocks no scan codes.
+            for (field, size) in [(5, h + 16), (5, 1000), (5, 65535), (7, w + 16), (7, 4096)] {
+                let mut bad = jpeg.clone();
+                bad[sof + field..sof + field + 2].copy_from_slice(&size.to_be_bytes());
+                let e = decoder_input(&bad).unwrap_err().to_string();
+                assert!(
+                    e.contains("DC scan") && e.contains("damaged"),
+                    "colour {colour}, restart {restart}, {field} = {size}: {e}"
+                );
+                assert!(crate::rectify::decode_jpeg(&bad).is_err());
+            }
+        }
+    }
 
     fn jpeg(progressive: bool) -> Vec<u8> {
         let picture = image::RgbImage::from_fn(48, 40, |x, y| {
@@ -213,6 +343,7 @@ mod tests {
             ends_with_eoi: true,
             components: vec![1, 2, 3],
             bits: vec![[-1; 64]; 3],
+            ..Walk::default()
         };
         // libjpeg's default script, without its last scan (luma AC refinement to bit 0).
         w.scan(&[1, 2, 3], 0, 0, 0, 1);

@@ -337,7 +337,7 @@ impl<'a> BitReader<'a> {
 
     /// The DC difference of a block.
     #[inline(always)]
-    fn dc_diff(&mut self, t: &HuffTable) -> Result<i32, DataError> {
+    pub(super) fn dc_diff(&mut self, t: &HuffTable) -> Result<i32, DataError> {
         self.refill();
         let fast = t.fast_value[self.peek(FAST_BITS) as usize];
         if fast != 0 {

@@ -14,6 +14,7 @@
 //! last MCU is an error (the file was cut short), as is a bit sequence that is no Huffman code.
 
 mod bits;
+mod dc_scan;
 mod header;
 mod idct;
 #[cfg(target_arch = "x86_64")]
@@ -28,6 +29,8 @@ use super::{Rectifier, RectifyError};
 use bits::{BitReader, DataError, HuffTable};
 use header::{Component, Header};
 use idct::Band;
+
+pub(in crate::rectify) use dc_scan::{dc_scan_complete, DcScan};
 
 /// MCU rows per band, and bands in flight between the two threads.
 const BAND_MCU_ROWS: usize = 4;
