@@ -211,12 +211,18 @@ fn walk_markers(bytes: &[u8], w: &mut Walk) -> Option<()> {
                 }
             }
             0xC4 => {
-                // DHT: tables of class 0 (DC) are kept for the DC scans' check.
+                // DHT: tables of class 0 (DC) are kept for the DC scans' check. A table that
+                // does not parse is left to the decoder, whose error names it.
                 let mut rest = segment;
                 while let [tc_th, tail @ ..] = rest {
-                    let counts: [u8; 16] = tail.get(..16)?.try_into().ok()?;
+                    let Some(counts) = tail.get(..16).and_then(|c| <[u8; 16]>::try_from(c).ok())
+                    else {
+                        break;
+                    };
                     let n: usize = counts.iter().map(|&c| usize::from(c)).sum();
-                    let symbols = tail.get(16..16 + n)?;
+                    let Some(symbols) = tail.get(16..16 + n) else {
+                        break;
+                    };
                     // (A table number past 3 is the decoder's to refuse.)
                     if let Some(slot) = w.dc_tables.get_mut(usize::from(tc_th & 15)) {
                         if tc_th >> 4 == 0 {
