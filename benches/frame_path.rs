@@ -4,6 +4,8 @@
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 //! LAYERWISE_BENCH_ROUNDS sets the rounds (each: every frame alone, then one layer; default 3
 //! with `--bench`, else 1); the layer line gives the median, fastest and slowest layer.
+//! LAYERWISE_BENCH_DICOM=deflate (or none, jpegls; comma-separated) runs only those transfer
+//! syntaxes and no NEF, for profiling one of them (`perf record`).
 
 #[path = "support/views.rs"]
 mod bench_views;
@@ -162,6 +164,11 @@ fn main() {
     if cfg!(feature = "jpegls") {
         compressions.push(Compression::JpegLs);
     }
+    let only = std::env::var("LAYERWISE_BENCH_DICOM").ok();
+    if let Some(only) = &only {
+        let wanted: Vec<String> = only.split(',').map(|s| s.trim().to_lowercase()).collect();
+        compressions.retain(|c| wanted.contains(&format!("{c:?}").to_lowercase()));
+    }
     println!(
         "frames {w}x{h} JPEG ({jpeg_mb:.1} MB each) -> grid {}x{} at {} mm",
         grid.columns(),
@@ -234,15 +241,17 @@ fn main() {
         );
     }
     #[cfg(feature = "nef")]
-    raw_frames(
-        &renderer,
-        &parts,
-        &views,
-        &manifest,
-        &calibration,
-        &rectifier,
-        full,
-    );
+    if only.is_none() {
+        raw_frames(
+            &renderer,
+            &parts,
+            &views,
+            &manifest,
+            &calibration,
+            &rectifier,
+            full,
+        );
+    }
 }
 
 /// The same path when the camera is set to NEF (14-bit lossless compressed, the D810's
