@@ -271,6 +271,7 @@ impl LiveSeries {
         let started = Instant::now();
         let rectified = luma.rectified(&self.rectifier);
         steps.rectify_ms = ms_since(started);
+        luma.recycle();
         Ok(rectified)
     }
 

@@ -23,6 +23,14 @@ impl FrameLuma {
         }
     }
 
+    /// Done with this luma: an 8-bit frame's buffer is kept for the next frame's decode (see
+    /// `reuse.rs`), so that its pages need not be zeroed again.
+    pub fn recycle(self) {
+        if let FrameLuma::Gamma8(g) = self {
+            super::reuse::give_back(g.into_raw());
+        }
+    }
+
     /// The samples a DICOM slice stores, as they are (8-bit luma is stored in 16 bits).
     pub fn samples(&self) -> crate::dicom::Samples<'_> {
         match self {

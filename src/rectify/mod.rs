@@ -45,6 +45,7 @@ mod os;
 mod positions;
 #[cfg(feature = "nef")]
 pub mod raw;
+mod reuse;
 mod row;
 #[cfg(target_arch = "x86_64")]
 mod simd;

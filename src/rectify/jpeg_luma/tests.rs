@@ -328,6 +328,10 @@ fn decoding_only_what_the_rectifier_reads_changes_no_rectified_pixel() {
                         .filter(|(&p, &f)| p != 0 && p != f)
                         .count();
                     assert_eq!(kept_differ, 0, "{case}");
+                    // Into the buffer of another frame: the same pixels, zeros included.
+                    let stale = vec![0xA5u8; part.as_raw().len()];
+                    let reused = decode_into(&jpeg, &header, threaded, Some(&r), Some(stale));
+                    assert!(reused.unwrap() == part, "{case}: a reused buffer");
                 }
             }
         }
