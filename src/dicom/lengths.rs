@@ -16,6 +16,18 @@ const SHORT_VRS: [&[u8; 2]; 21] = [
 
 const UNDEFINED: u32 = 0xFFFF_FFFF;
 
+/// Bytes per value of a binary VR (1 for the others): dicom-rs reads `length / size` values, so
+/// a length that is no multiple of it loses its place in the file, and the next header it reads
+/// can claim gigabytes (found by mutation fuzzing).
+fn value_size(vr: &[u8; 2]) -> u32 {
+    match vr {
+        b"US" | b"SS" | b"OW" => 2,
+        b"UL" | b"SL" | b"FL" | b"AT" | b"OL" | b"OF" => 4,
+        b"FD" | b"OD" | b"OV" | b"SV" | b"UV" => 8,
+        _ => 1,
+    }
+}
+
 /// How the data set after the file meta group is encoded.
 #[derive(Clone, Copy)]
 enum Encoding {
@@ -88,12 +100,14 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
         };
         let explicit = in_meta || matches!(encoding, Encoding::Explicit { .. });
         let mut sequence = false;
+        let mut unit = 1;
         let (length, header) = if group == 0xFFFE {
             // Items and delimiters: tag and a 32-bit length in every encoding.
             (u32_of([head[4], head[5], head[6], head[7]]), 8)
         } else if explicit {
             let vr = [head[4], head[5]];
             sequence = &vr == b"SQ";
+            unit = value_size(&vr);
             if !SHORT_VRS.contains(&&vr) {
                 let mut len = [0u8; 4];
                 if r.read_exact(&mut len).is_err() {
@@ -114,6 +128,13 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
             // A sequence, an item or encapsulated pixel data: walk into it.
             in_fragments |= (group, element) == (0x7FE0, 0x0010);
             continue;
+        }
+        if length % unit != 0 {
+            return Err(damaged(format!(
+                "element ({group:04X},{element:04X}) at byte {} is {length} bytes long, no \
+                 multiple of its values' {unit} bytes: the file is damaged; export it again",
+                pos - header
+            )));
         }
         let left = size - pos.min(size);
         if u64::from(length) > left {
@@ -162,5 +183,28 @@ mod tests {
         std::fs::write(&path, short).expect("write");
         // A cut header states no length: left to the parser too.
         assert!(check_lengths(&path).expect("cut header"));
+    }
+
+    #[test]
+    fn a_binary_value_whose_length_is_no_multiple_of_its_size_is_refused() {
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("x.dcm");
+        // The meta group's transfer syntax (explicit VR little endian), then one element.
+        let file = |vr: &[u8; 2], len: u16| {
+            let mut b = vec![0u8; 128];
+            b.extend(b"DICM\x02\x00\x10\x00UI\x14\x001.2.840.10008.1.2.1\0");
+            b.extend(b"\x28\x00\x10\x00");
+            b.extend(vr);
+            b.extend(len.to_le_bytes());
+            b.extend(vec![0u8; usize::from(len)]);
+            b
+        };
+        for (vr, len, refused) in [(b"US", 1, true), (b"US", 2, false), (b"FD", 12, true)] {
+            std::fs::write(&path, file(vr, len)).expect("write");
+            match check_lengths(&path) {
+                Err(e) => assert!(refused && e.to_string().contains("no multiple"), "{e}"),
+                Ok(fine) => assert!(!refused && fine, "{vr:?} {len}"),
+            }
+        }
     }
 }

@@ -141,7 +141,13 @@ fn decode_picture(bytes: &[u8]) -> Result<DynamicImage, RectifyError> {
     let decoder = reader.into_decoder().map_err(image_error)?;
     let (w, h) = image::ImageDecoder::dimensions(&decoder);
     super::check_frame_size(u64::from(w), u64::from(h))?;
-    DynamicImage::from_decoder(decoder).map_err(image_error)
+    // The png crate panics on some damaged files (a palette shorter than its indices reach,
+    // found by mutation fuzzing); such a panic is this file's error, not the process's.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        DynamicImage::from_decoder(decoder)
+    }))
+    .map_err(|_| RectifyError::ImagePanic)?
+    .map_err(image_error)
 }
 
 /// A camera raw frame (a TIFF-based file rawler knows), its structure walked first

@@ -102,6 +102,12 @@ pub enum RectifyError {
     /// A picture (PNG, TIFF, …) the image crate could not read.
     #[error("cannot read the picture")]
     Image(#[source] Box<image::ImageError>),
+    /// The image crate's decoder panicked on a picture.
+    #[error(
+        "cannot read the picture: its decoder gave up on it (a panic inside the decoder), so \
+         the file is damaged; take the frame again"
+    )]
+    ImagePanic,
     /// A JPEG refused before or after decoding, for the reason given.
     #[error("JPEG decoding failed: {0}")]
     Jpeg(String),

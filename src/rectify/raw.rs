@@ -64,8 +64,28 @@ pub fn decode(bytes: &[u8]) -> Result<RawFrame, RectifyError> {
             raw.clean_make, raw.clean_model, raw.cpp
         )));
     }
+    // rawler's demosaic never ends on a mosaic under 6 photosites wide (found by mutation
+    // fuzzing); no camera frame is that small.
+    let areas = [
+        Some((raw.width, raw.height)),
+        raw.active_area.map(|a| (a.width(), a.height())),
+        raw.crop_area.map(|a| (a.width(), a.height())),
+    ];
+    if let Some((w, h)) = areas
+        .into_iter()
+        .flatten()
+        .find(|&(w, h)| w.min(h) < MIN_SIDE)
+    {
+        return Err(failed(&format!(
+            "a mosaic (or its active or cropped area) of {w} x {h} photosites, under the \
+             {MIN_SIDE} a side of any camera frame: a damaged file"
+        )));
+    }
     Ok(RawFrame { raw })
 }
+
+/// Fewest photosites a side of a raw frame (a D810's is 7380 x 4928).
+const MIN_SIDE: usize = 16;
 
 fn failed(what: &str) -> RectifyError {
     RectifyError::Raw(what.to_string())
@@ -573,6 +593,14 @@ mod tests {
         assert!(!is_camera_raw(&tiff));
         assert!(!is_camera_raw(b"\xff\xd8\xff"));
         assert!(decode(b"MM\0\x2Anonsense").is_err());
+        // A frame too small for any camera (the demosaic's loop never ended under 6 photosites
+        // a side; here the mosaic has the D810's margins and its cropped area is 4 x 4).
+        let tiny = encode_nef(
+            &image::RgbImage::from_pixel(4, 4, image::Rgb([9, 9, 9])),
+            &NefOptions::default(),
+        );
+        let e = decode(&tiny).err().expect("refused");
+        assert!(e.to_string().contains("4 x 4 photosites"), "{e}");
         let nef = grey_nef(128, NefCompression::Lossless);
         for cut in [16, 200, nef.len() / 2, nef.len() - 40] {
             // A truncated file is an error or a picture, never a panic.

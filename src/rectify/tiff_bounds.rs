@@ -10,8 +10,16 @@
 //! only its list of visited directories.
 //!
 //! Directories reached: the main chain, the sub-directories rawler opens (SubIFDs, Exif, GPS and
-//! the tag it also takes for one, InterColorProfile), their chains, and a Nikon maker note (an
-//! embedded TIFF whose offsets count from its own header).
+//! the tag it also takes for one, InterColorProfile; one at offset 0 too, where rawler reads the
+//! file's header as a directory), their chains, and a Nikon maker note (an embedded TIFF whose
+//! offsets count from its own header).
+//!
+//! Refused because rawler would read them otherwise than this walk does (all found by mutation
+//! fuzzing, each reserving gigabytes or, for the mosaics, giving a different result from call to
+//! call): a picture size that is not SHORT or LONG; a sub-directory tag of a type rawler does
+//! not know (it opens a directory at an offset made of the value's first byte); a maker note
+//! that is not a Nikon one (rawler opens it as a directory of its own kind); and a second
+//! directory with a colour filter pattern (rawler takes one of them in a hash map's order).
 
 use super::RectifyError;
 
@@ -26,6 +34,8 @@ const SUB_DIRECTORY_TAGS: [u16; 4] = [330, 34665, 34853, 34675];
 const MAKER_NOTE: u16 = 0x927C;
 const IMAGE_WIDTH: u16 = 256;
 const IMAGE_LENGTH: u16 = 257;
+/// The raw mosaic's colour filter pattern: in one directory of a NEF.
+const CFA_PATTERN: u16 = 33422;
 
 /// Bytes per value of TIFF field type `typ` (rawler reads an unknown type as bytes).
 fn value_size(typ: u16) -> u64 {
@@ -52,6 +62,7 @@ pub(crate) fn check(bytes: &[u8]) -> Result<(), RectifyError> {
         bytes,
         big_endian: bytes[0] == b'M',
         visited: Vec::new(),
+        mosaics: 0,
     };
     let first = walk.u32_at(4).unwrap_or(0);
     walk.chain(0, first)
@@ -62,6 +73,8 @@ struct Walk<'a> {
     big_endian: bool,
     /// File offsets of the directories seen.
     visited: Vec<u64>,
+    /// Directories with a colour filter pattern seen.
+    mosaics: usize,
 }
 
 fn refused(what: String) -> RectifyError {
@@ -88,8 +101,14 @@ impl Walk<'_> {
     }
 
     /// The chain of directories from `offset` (relative to `base`), each followed by the next
-    /// it names, until one names 0.
+    /// it names, until one names 0. The first is read even at offset 0, as rawler reads a
+    /// sub-directory there (the file's header taken for a directory).
     fn chain(&mut self, base: u64, mut offset: u32) -> Result<(), RectifyError> {
+        if let Some(next) = self.directory(base, offset)? {
+            offset = next;
+        } else {
+            return Ok(());
+        }
         while offset != 0 {
             match self.directory(base, offset)? {
                 Some(next) => offset = next,
@@ -158,17 +177,42 @@ impl Walk<'_> {
                 4 | 13 => self.u32_at(data).map(u64::from),
                 _ => None,
             };
+            let damaged = |what: &str| {
+                refused(format!(
+                    "the directory at byte {at}, entry {} (tag {tag}): {what}: a damaged or \
+                     crafted file",
+                    i + 1
+                ))
+            };
             match tag {
+                IMAGE_WIDTH | IMAGE_LENGTH if !matches!(typ, 3 | 4) => {
+                    // A decoder would still read it as a size, past the check below.
+                    return Err(damaged(&format!(
+                        "a picture size of type {typ}, where TIFF has SHORT (3) or LONG (4)"
+                    )));
+                }
                 IMAGE_WIDTH => width = first_value(),
                 IMAGE_LENGTH => height = first_value(),
-                MAKER_NOTE if typ == 7 => {
-                    let note = &self.bytes[data as usize..(data + size) as usize];
-                    if note.starts_with(b"Nikon\0\x02") && note.len() >= 18 {
-                        subs.push(SubDirectory::Nikon(data + 10));
+                CFA_PATTERN => {
+                    self.mosaics += 1;
+                    if self.mosaics > 1 {
+                        // rawler would take one of them at random (a hash map's order).
+                        return Err(damaged("a second raw mosaic (colour filter pattern)"));
                     }
                 }
+                MAKER_NOTE if typ == 7 => {
+                    let note = &self.bytes[data as usize..(data + size) as usize];
+                    if !(note.starts_with(b"Nikon\0\x02") && note.len() >= 18) {
+                        // rawler opens any other maker note as a directory of its own kind.
+                        return Err(damaged(
+                            "a maker note that is not a Nikon one (layerwise reads the frames \
+                             of a Nikon D810)",
+                        ));
+                    }
+                    subs.push(SubDirectory::Nikon(data + 10));
+                }
                 t if SUB_DIRECTORY_TAGS.contains(&t) => match typ {
-                    4 | 13 => {
+                    4 => {
                         for k in 0..n {
                             let offset = self.u32_at(data + 4 * k).unwrap_or(0);
                             subs.push(SubDirectory::At(base, offset));
@@ -176,6 +220,14 @@ impl Walk<'_> {
                     }
                     // rawler opens an opaque value (an ICC profile) as a directory.
                     7 => subs.push(SubDirectory::At(0, data as u32)),
+                    // Types rawler does not know (0, 13 and above) it opens at an offset made
+                    // of the value's first byte.
+                    0 | 13.. => {
+                        return Err(damaged(&format!(
+                            "a sub-directory of type {typ}, where TIFF has LONG (4)"
+                        )))
+                    }
+                    // rawler ignores a sub-directory of another known type.
                     _ => {}
                 },
                 _ => {}
@@ -293,6 +345,52 @@ mod tests {
         let fine = tiff(&[(8, &[(256, 3, 1, 64), (257, 3, 1, 48)], 0)], 64);
         assert!(check(&fine).is_ok());
         assert!(check(b"\xff\xd8\xff").is_ok());
+    }
+
+    #[test]
+    fn entries_a_decoder_would_read_otherwise_than_the_walk_are_refused() {
+        // Each found by mutation fuzzing: rawler reserved gigabytes or took a random directory.
+        let cases: [(&[Entry], &str); 5] = [
+            // A size as a RATIONAL: the size check did not see it.
+            (
+                &[(256, 5, 1, 40), (257, 3, 1, 48)],
+                "a picture size of type 5",
+            ),
+            // SubIFDs and an ICC profile of types rawler does not know.
+            (&[(330, 14, 1, 40)], "a sub-directory of type 14"),
+            (&[(34675, 15, 4, 0)], "a sub-directory of type 15"),
+            // A maker note that is not Nikon's (here: one byte off).
+            (&[(0x927C, 7, 20, 41)], "not a Nikon one"),
+            // Two mosaics.
+            (
+                &[(33422, 1, 4, 0x0102_0100), (33422, 1, 4, 0x0102_0100)],
+                "a second raw mosaic",
+            ),
+        ];
+        for (entries, expected) in cases {
+            let mut bytes = tiff(&[(8, entries, 0)], 96);
+            bytes[40..47].copy_from_slice(b"Nikon\0\x02");
+            let m = message(&bytes);
+            assert!(
+                m.contains(expected) && m.contains("entry"),
+                "{expected}: {m}"
+            );
+        }
+        // A Nikon maker note where it belongs passes.
+        let mut nikon = tiff(&[(8, &[(0x927C, 7, 20, 40)], 0)], 96);
+        nikon[40..47].copy_from_slice(b"Nikon\0\x02");
+        nikon[50..54].copy_from_slice(b"II\x2A\0");
+        check(&nikon).unwrap();
+        // A sub-directory at offset 0 is walked (rawler reads the header as one).
+        let at_zero = tiff(&[(8, &[(330, 4, 1, 0)], 0)], 64);
+        let mut walk = Walk {
+            bytes: &at_zero,
+            big_endian: false,
+            visited: Vec::new(),
+            mosaics: 0,
+        };
+        let _ = walk.chain(0, 8);
+        assert!(walk.visited.contains(&0), "{:?}", walk.visited);
     }
 
     #[test]

@@ -169,6 +169,15 @@ fn dicom_errors_name_the_file() {
     write_slice(&dir, "b.dcm", 1, 2, 2, &px, iop, [0.0, 0.0, 0.0], 0.1);
     let e = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect_err("same position");
     assert!(e.to_string().contains("same slice position"), "{e}");
+    // A position so far out that the slices' step overflowed to infinity (found by mutation
+    // fuzzing: the volume was read with an infinite slice spacing).
+    write_slice(&dir, "b.dcm", 1, 2, 2, &px, iop, [-1e308, 0.0, 1.0], 0.1);
+    let e = volume::read_dicom_series(&dir, volume::MAX_VOXELS).expect_err("far away");
+    let m = format!("{e:#}");
+    assert!(
+        m.contains("b.dcm") && m.contains("ImagePositionPatient"),
+        "{m}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 

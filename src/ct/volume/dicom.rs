@@ -18,6 +18,9 @@ struct DicomSlice {
     intercept: f64,
 }
 
+/// Farthest a slice may be from the patient origin, mm.
+const MAX_POSITION_MM: f64 = 1e6;
+
 fn dicom_err(path: &Path, message: impl Into<String>) -> CtError {
     CtError::Format {
         path: path.to_path_buf(),
@@ -151,6 +154,21 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
             "ImageOrientationPatient",
             6,
         )?;
+        // Past a kilometre the slices' steps overflow (1e308 - -1e308 is infinite) and the
+        // spacing check below means nothing.
+        if position[..3]
+            .iter()
+            .any(|p| !p.is_finite() || p.abs() > MAX_POSITION_MM)
+        {
+            return Err(dicom_err(
+                &path,
+                format!(
+                    "ImagePositionPatient {:?} mm: each must be a number within {MAX_POSITION_MM} \
+                     mm of the origin",
+                    &position[..3]
+                ),
+            ));
+        }
         let spacing = dicom_numbers(&obj, &path, tags::PIXEL_SPACING, "PixelSpacing", 2)?;
         // A negative or zero spacing mirrors or collapses the volume: a registration would
         // fit the mirror image.

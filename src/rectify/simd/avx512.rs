@@ -221,7 +221,11 @@ pub(super) fn rgb8_run16(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
             u16::MAX => by as usize * stride + 3 * bx as usize,
             _ => usize::MAX,
         };
-        if at > data.len().saturating_sub(2 * stride + 128) {
+        // (A frame smaller than the window has no room for it anywhere, `at` = 0 included.)
+        if at
+            .checked_add(2 * stride + 128)
+            .is_none_or(|end| end > data.len())
+        {
             rgb8_run(job, co, &mut out[..3 * (i + 16)], i);
             i += 16;
             continue;

@@ -194,3 +194,62 @@ fn luma_is_bt601_rounded() {
     let px = luma(&RgbImage::from_pixel(1, 1, Rgb([255, 128, 0])));
     assert_eq!(px.get_pixel(0, 0)[0], 151); // 76.245 + 75.136 = 151.381
 }
+
+#[test]
+fn frames_smaller_than_the_wide_kernels_window_rectify_like_the_scalar_path() {
+    // The AVX-512 RGB kernel reads three rows of 128 bytes from a run's first pixel; a frame
+    // smaller than that once passed its bounds check at the frame's first pixel and panicked.
+    for (w, h) in [(19u32, 2u32), (40, 1), (1, 1), (21, 3), (60, 2)] {
+        let rgb = RgbImage::from_fn(w, h, |x, y| Rgb([0, 1, 2].map(|c| pattern(x, y, c) as u8)));
+        let gray = image::GrayImage::from_fn(w, h, |x, y| Luma([pattern(x, y, 0) as u8]));
+        let r = Rectifier::new(
+            &camera_of(identity_h(f64::from(h)), None),
+            grid_1mm(f64::from(w), f64::from(h)),
+            Interpolation::Bilinear,
+            0,
+        )
+        .unwrap();
+        let [fast, scalar] = both_paths(&r);
+        assert_eq!(
+            fast.rectify_rgb8(&rgb),
+            scalar.rectify_rgb8(&rgb),
+            "{w}x{h} RGB"
+        );
+        assert_eq!(
+            fast.rectify_gray8(&gray),
+            scalar.rectify_gray8(&gray),
+            "{w}x{h} grey"
+        );
+    }
+}
+
+/// A PNG chunk: length, type, data, CRC.
+fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+    out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+    let mut crc = flate2::Crc::new();
+    crc.update(kind);
+    crc.update(data);
+    out.extend_from_slice(kind);
+    out.extend_from_slice(data);
+    out.extend_from_slice(&crc.sum().to_be_bytes());
+}
+
+#[test]
+fn a_picture_its_decoder_panics_on_is_an_error() {
+    // A 1 x 1 palette PNG whose palette is 4 bytes long (not a whole colour): the png crate
+    // panics on it (found by mutation fuzzing).
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    png_chunk(&mut png, b"IHDR", &[0, 0, 0, 1, 0, 0, 0, 1, 8, 3, 0, 0, 0]);
+    png_chunk(&mut png, b"PLTE", &[1, 2, 3, 4]);
+    let mut idat = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    std::io::Write::write_all(&mut idat, &[0, 0]).unwrap();
+    png_chunk(&mut png, b"IDAT", &idat.finish().unwrap());
+    png_chunk(&mut png, b"IEND", &[]);
+    for result in [
+        decode_frame_luma(&png).map(|_| ()),
+        decode_frame(&png).map(|_| ()),
+    ] {
+        let e = result.expect_err("a damaged picture");
+        assert!(e.to_string().contains("the file is damaged"), "{e}");
+    }
+}
