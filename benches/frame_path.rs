@@ -166,8 +166,14 @@ fn main() {
     }
     let only = std::env::var("LAYERWISE_BENCH_DICOM").ok();
     if let Some(only) = &only {
+        let name = |c: &Compression| format!("{c:?}").to_lowercase();
         let wanted: Vec<String> = only.split(',').map(|s| s.trim().to_lowercase()).collect();
-        compressions.retain(|c| wanted.contains(&format!("{c:?}").to_lowercase()));
+        let known: Vec<String> = compressions.iter().map(name).collect();
+        if let Some(unknown) = wanted.iter().find(|w| !known.contains(w)) {
+            eprintln!("LAYERWISE_BENCH_DICOM: no transfer syntax `{unknown}` in this build; one of {known:?}");
+            std::process::exit(2);
+        }
+        compressions.retain(|c| wanted.contains(&name(c)));
     }
     println!(
         "frames {w}x{h} JPEG ({jpeg_mb:.1} MB each) -> grid {}x{} at {} mm",

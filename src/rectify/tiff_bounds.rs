@@ -104,16 +104,11 @@ impl Walk<'_> {
     /// it names, until one names 0. The first is read even at offset 0, as rawler reads a
     /// sub-directory there (the file's header taken for a directory).
     fn chain(&mut self, base: u64, mut offset: u32) -> Result<(), RectifyError> {
-        if let Some(next) = self.directory(base, offset)? {
-            offset = next;
-        } else {
-            return Ok(());
-        }
-        while offset != 0 {
-            match self.directory(base, offset)? {
-                Some(next) => offset = next,
-                None => break,
+        while let Some(next) = self.directory(base, offset)? {
+            if next == 0 {
+                break;
             }
+            offset = next;
         }
         Ok(())
     }
@@ -174,7 +169,7 @@ impl Walk<'_> {
             };
             let first_value = || match typ {
                 3 => self.u16_at(data).map(u64::from),
-                4 | 13 => self.u32_at(data).map(u64::from),
+                4 => self.u32_at(data).map(u64::from),
                 _ => None,
             };
             let damaged = |what: &str| {
