@@ -9,7 +9,7 @@ use dicom_dictionary_std::tags;
 use dicom_object::{InMemDicomObject, OpenFileOptions};
 
 use super::error::DicomError;
-use super::lengths::check_lengths;
+use super::lengths::{check_lengths_until, PIXEL_DATA};
 
 /// The take of the original a slice file was made from (its ImageComments,
 /// [`SliceSource`](super::SliceSource)): `None` when there is no readable file; a slice written
@@ -18,7 +18,7 @@ pub fn slice_take(path: &Path) -> Option<u32> {
     if !path.is_file() {
         return None;
     }
-    check_lengths(path).ok()?;
+    check_lengths_until(path, Some(PIXEL_DATA)).ok()?;
     let obj = OpenFileOptions::new()
         .read_until(tags::PIXEL_DATA)
         .open_file(path)
@@ -36,7 +36,7 @@ pub fn slice_take(path: &Path) -> Option<u32> {
 
 /// The SOP Instance UID a DICOM file's meta header names (None when it cannot be read).
 pub fn file_instance_uid(path: &Path) -> Option<String> {
-    check_lengths(path).ok()?;
+    check_lengths_until(path, Some((0x0008, 0x0016))).ok()?;
     let obj = OpenFileOptions::new()
         .read_until(tags::SOP_CLASS_UID)
         .open_file(path)
@@ -147,7 +147,7 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
     files.sort();
     let mut series: BTreeMap<String, SeriesSummary> = BTreeMap::new();
     for path in files {
-        check_lengths(&path)?;
+        check_lengths_until(&path, Some(PIXEL_DATA))?;
         let obj = OpenFileOptions::new()
             .read_until(tags::PIXEL_DATA)
             .open_file(&path)
@@ -325,7 +325,8 @@ mod tests {
                  folder of DICOM files): {cause}"
             )
         );
-        let e = check_lengths(Path::new("/nonexistent/layerwise-dicom/L00001.dcm")).unwrap_err();
+        let e = super::super::check_lengths(Path::new("/nonexistent/layerwise-dicom/L00001.dcm"))
+            .unwrap_err();
         assert!(matches!(e, DicomError::Io { .. }), "{e:?}");
         let cause = std::error::Error::source(&e)
             .expect("the OS error")

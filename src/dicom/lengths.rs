@@ -1,9 +1,14 @@
 //! A walk over a DICOM file's element headers that refuses a stated length the file cannot hold,
 //! before a parser sizes a read by it (dicom-rs allocates what an element claims: a 1 KB file
 //! whose PixelData claims 0xFFFFFFF0 bytes cost 4 GB).
+//!
+//! A deflated data set (PS3.5 A.5) is walked as it inflates: its lengths are checked against
+//! what the stream holds, found by reading, since no size is stated for it.
 
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{self, BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
+
+use flate2::bufread::DeflateDecoder;
 
 use super::DicomError;
 
@@ -15,6 +20,7 @@ const SHORT_VRS: [&[u8; 2]; 21] = [
 ];
 
 const UNDEFINED: u32 = 0xFFFF_FFFF;
+pub(super) const PIXEL_DATA: (u16, u16) = (0x7FE0, 0x0010);
 
 /// Bytes per value of a binary VR (1 for the others): dicom-rs reads `length / size` values, so
 /// a length that is no multiple of it loses its place in the file, and the next header it reads
@@ -29,15 +35,13 @@ fn value_size(vr: &[u8; 2]) -> u32 {
 }
 
 /// How the data set after the file meta group is encoded.
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, PartialEq)]
 enum Encoding {
     Explicit {
         big_endian: bool,
     },
     Implicit,
-    /// Deflated: the lengths are inside the compressed stream and are not walked. A deflated
-    /// file of 835 bytes whose element claims gigabytes still makes dicom-rs reserve and fill
-    /// them (found by mutation fuzzing; walking the inflated data set is still to do).
+    /// Explicit VR little endian, deflated (a raw deflate stream, no zlib header).
     Deflated,
 }
 
@@ -46,10 +50,13 @@ enum Encoding {
 /// Undefined lengths (sequences, encapsulated pixel data) are walked into, so items and
 /// fragments are checked too.
 pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
-    let damaged = |message: String| DicomError::Damaged {
-        path: path.to_path_buf(),
-        message,
-    };
+    check_lengths_until(path, None)
+}
+
+/// [`check_lengths`] for a reader that stops before the top-level element `until` (dicom-rs's
+/// `read_until`): a deflated data set is inflated only that far, since the parser reads no
+/// further. A file that is not deflated is walked whole: skipping costs nothing there.
+pub fn check_lengths_until(path: &Path, until: Option<(u16, u16)>) -> Result<bool, DicomError> {
     let read_err = |source| DicomError::Io {
         path: path.to_path_buf(),
         source,
@@ -61,38 +68,139 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
     if r.read_exact(&mut preamble).is_err() || &preamble[128..] != b"DICM" {
         return Ok(false);
     }
-    let mut pos = 132u64;
-    let mut encoding = Encoding::Explicit { big_endian: false };
-    let mut in_meta = true;
-    // Inside encapsulated pixel data, items are compressed fragments (skipped, not walked).
-    let mut in_fragments = false;
-    while pos < size {
-        let mut head = [0u8; 8];
-        if r.read_exact(&mut head).is_err() {
-            // A few bytes after the last element (padding, or a cut header): no length to
-            // trust; the parser judges them.
-            return Ok(true);
+    let mut walk = Walk {
+        r,
+        pos: 132,
+        size: Some(size),
+        big_endian: false,
+        implicit: false,
+        path,
+        place: "",
+    };
+    let Some(encoding) = walk.meta()? else {
+        return Ok(true);
+    };
+    match encoding {
+        Encoding::Deflated => {
+            let start = walk.pos;
+            let mut r = walk.r;
+            r.seek(SeekFrom::Start(start)).map_err(read_err)?;
+            let mut walk = Walk {
+                r: DeflateDecoder::new(r),
+                pos: 0,
+                size: None,
+                big_endian: false,
+                implicit: false,
+                path,
+                place: " of the inflated data set",
+            };
+            walk.data_set(until)?;
         }
-        let big = matches!(encoding, Encoding::Explicit { big_endian: true }) && !in_meta;
+        Encoding::Explicit { big_endian } => {
+            walk.big_endian = big_endian;
+            walk.data_set(None)?;
+        }
+        Encoding::Implicit => {
+            walk.implicit = true;
+            walk.data_set(None)?;
+        }
+    }
+    Ok(true)
+}
+
+/// What the walk reads: the file, whose size bounds every length, or a deflated data set,
+/// whose end is found by reading.
+trait Source: Read {
+    /// Skips `n` bytes; how many there were.
+    fn skip(&mut self, n: u64) -> io::Result<u64>;
+}
+
+impl Source for BufReader<std::fs::File> {
+    fn skip(&mut self, n: u64) -> io::Result<u64> {
+        // Only called for lengths checked against the file's size.
+        let n_signed = i64::try_from(n).map_err(|_| io::ErrorKind::InvalidInput)?;
+        self.seek_relative(n_signed)?;
+        Ok(n)
+    }
+}
+
+impl<R: io::BufRead> Source for DeflateDecoder<R> {
+    fn skip(&mut self, n: u64) -> io::Result<u64> {
+        io::copy(&mut self.take(n), &mut io::sink())
+    }
+}
+
+/// The walk's place in one stream of elements.
+struct Walk<'p, R> {
+    r: R,
+    /// Bytes read so far: the offset in the file, or in the inflated data set.
+    pos: u64,
+    /// The file's size; `None` for an inflated data set.
+    size: Option<u64>,
+    big_endian: bool,
+    implicit: bool,
+    path: &'p Path,
+    /// Where `pos` counts, for messages ("" in the file).
+    place: &'static str,
+}
+
+/// One element's header as the walk reads it.
+struct Header {
+    group: u16,
+    element: u16,
+    vr: Option<[u8; 2]>,
+    length: u32,
+    /// Bytes of the header itself.
+    bytes: u64,
+}
+
+impl<R: Source> Walk<'_, R> {
+    fn damaged(&self, message: String) -> DicomError {
+        DicomError::Damaged {
+            path: self.path.to_path_buf(),
+            message,
+        }
+    }
+
+    /// A read error: in an inflated data set, the stream's own damage.
+    fn read_error(&self, source: io::Error) -> DicomError {
+        if self.size.is_none() {
+            return self.damaged(format!(
+                "the deflated data set cannot be inflated past byte {} ({source}): the file \
+                 is damaged; export it again",
+                self.pos
+            ));
+        }
+        DicomError::Io {
+            path: self.path.to_path_buf(),
+            source,
+        }
+    }
+
+    /// A header the stream ends inside (`None`), or a stream that cannot be inflated.
+    fn cut(&self, e: io::Error) -> Result<Option<Header>, DicomError> {
+        if e.kind() == io::ErrorKind::UnexpectedEof || self.size.is_some() {
+            return Ok(None);
+        }
+        Err(self.read_error(e))
+    }
+
+    /// Reads the next header; `None` at the end, or on a cut header (no length to trust: the
+    /// parser judges those bytes).
+    fn header(&mut self, explicit: bool) -> Result<Option<Header>, DicomError> {
+        let mut head = [0u8; 8];
+        if let Err(e) = self.r.read_exact(&mut head) {
+            return self.cut(e);
+        }
+        let big = self.big_endian;
         let u16_at = |b: &[u8]| {
+            let b = [b[0], b[1]];
             if big {
-                u16::from_be_bytes([b[0], b[1]])
+                u16::from_be_bytes(b)
             } else {
-                u16::from_le_bytes([b[0], b[1]])
+                u16::from_le_bytes(b)
             }
         };
-        let (group, element) = (u16_at(&head[0..2]), u16_at(&head[2..4]));
-        if in_meta && group != 0x0002 {
-            in_meta = false;
-            if matches!(encoding, Encoding::Deflated) {
-                return Ok(true);
-            }
-            if matches!(encoding, Encoding::Explicit { big_endian: true }) {
-                // Re-read this header as big endian.
-                r.seek(SeekFrom::Start(pos)).map_err(read_err)?;
-                continue;
-            }
-        }
         let u32_of = |b: [u8; 4]| {
             if big {
                 u32::from_be_bytes(b)
@@ -100,74 +208,206 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
                 u32::from_le_bytes(b)
             }
         };
-        let explicit = in_meta || matches!(encoding, Encoding::Explicit { .. });
-        let mut sequence = false;
-        let mut unit = 1;
-        let (length, header) = if group == 0xFFFE {
+        let (group, element) = (u16_at(&head[0..2]), u16_at(&head[2..4]));
+        let tail = [head[4], head[5], head[6], head[7]];
+        let header = if group == 0xFFFE || !explicit {
             // Items and delimiters: tag and a 32-bit length in every encoding.
-            (u32_of([head[4], head[5], head[6], head[7]]), 8)
-        } else if explicit {
-            let vr = [head[4], head[5]];
-            sequence = &vr == b"SQ";
-            unit = value_size(&vr);
-            if !SHORT_VRS.contains(&&vr) {
-                let mut len = [0u8; 4];
-                if r.read_exact(&mut len).is_err() {
-                    return Ok(true);
-                }
-                (u32_of(len), 12)
-            } else {
-                (u32::from(u16_at(&head[6..8])), 8)
+            Header {
+                group,
+                element,
+                vr: None,
+                length: u32_of(tail),
+                bytes: 8,
             }
         } else {
-            (u32_of([head[4], head[5], head[6], head[7]]), 8)
+            let vr = [head[4], head[5]];
+            if SHORT_VRS.contains(&&vr) {
+                Header {
+                    group,
+                    element,
+                    vr: Some(vr),
+                    length: u32::from(u16_at(&head[6..8])),
+                    bytes: 8,
+                }
+            } else {
+                let mut len = [0u8; 4];
+                if let Err(e) = self.r.read_exact(&mut len) {
+                    return self.cut(e);
+                }
+                Header {
+                    group,
+                    element,
+                    vr: Some(vr),
+                    length: u32_of(len),
+                    bytes: 12,
+                }
+            }
         };
-        pos += header;
-        if group == 0xFFFE && element == 0xE0DD {
-            in_fragments = false;
-        }
-        if length == UNDEFINED {
-            // A sequence, an item or encapsulated pixel data: walk into it.
-            in_fragments |= (group, element) == (0x7FE0, 0x0010);
-            continue;
-        }
+        self.pos += header.bytes;
+        Ok(Some(header))
+    }
+
+    /// Refuses a defined length the file cannot hold, or one that is no multiple of its VR's
+    /// value size.
+    fn check(&self, h: &Header) -> Result<(), DicomError> {
+        let (group, element, length) = (h.group, h.element, h.length);
+        let at = self.pos - h.bytes;
+        let unit = h.vr.as_ref().map_or(1, value_size);
         if length % unit != 0 {
-            return Err(damaged(format!(
-                "element ({group:04X},{element:04X}) at byte {} is {length} bytes long, no \
+            return Err(self.damaged(format!(
+                "element ({group:04X},{element:04X}) at byte {at}{} is {length} bytes long, no \
                  multiple of its values' {unit} bytes: the file is damaged; export it again",
-                pos - header
+                self.place
             )));
         }
-        let left = size - pos.min(size);
-        if u64::from(length) > left {
-            return Err(damaged(format!(
-                "element ({group:04X},{element:04X}) at byte {} claims {length} bytes but only \
-                 {left} bytes follow in the {size}-byte file: the file is cut short or damaged; \
-                 export it again",
-                pos - header
+        if let Some(size) = self.size {
+            let left = size - self.pos.min(size);
+            if u64::from(length) > left {
+                return Err(self.damaged(format!(
+                    "element ({group:04X},{element:04X}) at byte {at} claims {length} bytes but \
+                     only {left} bytes follow in the {size}-byte file: the file is cut short or \
+                     damaged; export it again"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Skips a checked value; in an inflated data set, refuses one the stream ends inside.
+    fn skip(&mut self, h: &Header) -> Result<(), DicomError> {
+        let length = u64::from(h.length);
+        let there = self.r.skip(length).map_err(|e| self.read_error(e))?;
+        self.pos += there;
+        if there < length {
+            return Err(self.damaged(format!(
+                "element ({:04X},{:04X}) at byte {}{} claims {length} bytes but the data set \
+                 ends {there} bytes after its header: the file is cut short or damaged; export \
+                 it again",
+                h.group,
+                h.element,
+                self.pos - there - h.bytes,
+                self.place
             )));
         }
-        if in_meta && (group, element) == (0x0002, 0x0010) {
-            let mut uid = vec![0u8; length as usize];
-            r.read_exact(&mut uid).map_err(read_err)?;
-            let uid = String::from_utf8_lossy(&uid);
-            encoding = match uid.trim_end_matches(['\0', ' ']) {
-                "1.2.840.10008.1.2" => Encoding::Implicit,
-                "1.2.840.10008.1.2.2" => Encoding::Explicit { big_endian: true },
-                "1.2.840.10008.1.2.1.99" => Encoding::Deflated,
-                _ => Encoding::Explicit { big_endian: false },
+        Ok(())
+    }
+
+    /// Walks the data set's elements. Undefined lengths (sequences, items, encapsulated pixel
+    /// data) are walked into, as are sequences and items of defined length; with `until`, the
+    /// walk ends at the first top-level element at or past it.
+    fn data_set(&mut self, until: Option<(u16, u16)>) -> Result<(), DicomError> {
+        // The containers the walk is in: the end of one of defined length, `None` for one that
+        // ends at its delimiter.
+        let mut open: Vec<Option<u64>> = Vec::new();
+        // Inside encapsulated pixel data, items are compressed fragments (skipped, not walked).
+        let mut in_fragments = false;
+        loop {
+            while let Some(Some(end)) = open.last() {
+                if self.pos < *end {
+                    break;
+                }
+                open.pop();
+            }
+            let Some(mut h) = self.header(!self.implicit)? else {
+                return Ok(());
             };
-            pos += u64::from(length);
-        } else if sequence || (group == 0xFFFE && element == 0xE000 && !in_fragments) {
-            // A sequence or an item of defined length: its elements are walked too.
-        } else {
-            r.seek_relative(i64::from(length)).map_err(read_err)?;
-            pos += u64::from(length);
+            let tag = (h.group, h.element);
+            if self.implicit && h.group != 0xFFFE {
+                h.vr = Some(implicit_vr(tag));
+            }
+            if h.group == 0xFFFE && h.element != 0xE000 {
+                // A delimiter ends the item or sequence of undefined length it is in.
+                if matches!(open.last(), Some(None)) {
+                    open.pop();
+                }
+                in_fragments &= h.element != 0xE0DD;
+            } else if open.is_empty() && until.is_some_and(|until| tag >= until) {
+                return Ok(());
+            }
+            if h.length == UNDEFINED {
+                in_fragments |= tag == PIXEL_DATA;
+                open.push(None);
+                continue;
+            }
+            self.check(&h)?;
+            if h.vr == Some(*b"SQ") || (tag == (0xFFFE, 0xE000) && !in_fragments) {
+                open.push(Some(self.pos + u64::from(h.length)));
+            } else {
+                self.skip(&h)?;
+            }
         }
     }
-    Ok(true)
 }
 
+impl Walk<'_, BufReader<std::fs::File>> {
+    /// Walks the file meta group (explicit VR little endian) and says how the data set after it
+    /// is encoded; `None` when the file ends first, or when its group holds what dicom-rs
+    /// refuses anyway. The group ends where its group length says, as dicom-rs reads it, or
+    /// without one at the first element of another group.
+    fn meta(&mut self) -> Result<Option<Encoding>, DicomError> {
+        let mut encoding = Encoding::Explicit { big_endian: false };
+        let mut end = None;
+        loop {
+            if end.is_some_and(|end| self.pos >= end) {
+                return Ok(Some(encoding));
+            }
+            let start = self.pos;
+            let Some(h) = self.header(true)? else {
+                return Ok(None);
+            };
+            if h.group != 0x0002 {
+                // No group length: this header is the data set's first, read again below.
+                self.r
+                    .seek(SeekFrom::Start(start))
+                    .map_err(|e| self.read_error(e))?;
+                self.pos = start;
+                return Ok(Some(encoding));
+            }
+            if h.length == UNDEFINED {
+                return Ok(None);
+            }
+            self.check(&h)?;
+            let mut value = || -> Result<Vec<u8>, DicomError> {
+                let mut v = vec![0u8; h.length as usize];
+                self.r.read_exact(&mut v).map_err(|e| self.read_error(e))?;
+                self.pos += u64::from(h.length);
+                Ok(v)
+            };
+            match h.element {
+                0x0000 if h.length == 4 => {
+                    let v = value()?;
+                    let length = u32::from_le_bytes([v[0], v[1], v[2], v[3]]);
+                    end = Some(self.pos + u64::from(length));
+                }
+                0x0010 => {
+                    let uid = value()?;
+                    encoding = match String::from_utf8_lossy(&uid).trim_end_matches(['\0', ' ']) {
+                        "1.2.840.10008.1.2" => Encoding::Implicit,
+                        "1.2.840.10008.1.2.2" => Encoding::Explicit { big_endian: true },
+                        "1.2.840.10008.1.2.1.99" => Encoding::Deflated,
+                        _ => Encoding::Explicit { big_endian: false },
+                    };
+                }
+                _ => self.skip(&h)?,
+            }
+        }
+    }
+}
+
+/// The VR dicom-rs gives an element in implicit VR: OW for pixel and overlay data, the
+/// dictionary's (its first when it names two), UN for a tag it does not know.
+fn implicit_vr((group, element): (u16, u16)) -> [u8; 2] {
+    use dicom_core::dictionary::DataDictionary;
+    if (group, element) == PIXEL_DATA || (group >> 8 == 0x60 && element == 0x3000) {
+        return *b"OW";
+    }
+    dicom_dictionary_std::StandardDataDictionary
+        .by_tag(dicom_core::Tag(group, element))
+        .map_or(*b"UN", |entry| {
+            use dicom_core::dictionary::DataDictionaryEntry;
+            entry.vr().relaxed().to_bytes()
+        })
+}
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -208,5 +448,165 @@ mod tests {
                 Ok(fine) => assert!(!refused && fine, "{vr:?} {len}"),
             }
         }
+    }
+
+    /// One explicit-VR little-endian element; `length` overrides the value's length (a lie).
+    fn element(tag: (u16, u16), vr: &[u8; 2], value: &[u8], length: Option<u32>) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend(tag.0.to_le_bytes());
+        out.extend(tag.1.to_le_bytes());
+        out.extend(vr);
+        let len = length.unwrap_or(value.len() as u32);
+        if SHORT_VRS.contains(&vr) {
+            out.extend((len as u16).to_le_bytes());
+        } else {
+            out.extend([0, 0]);
+            out.extend(len.to_le_bytes());
+        }
+        out.extend(value);
+        out
+    }
+
+    /// A Part-10 file of `data_set` in transfer syntax `ts`, deflated when `ts` says so.
+    fn part10(ts: &str, data_set: &[u8]) -> Vec<u8> {
+        use std::io::Write;
+        let class = b"1.2.840.10008.5.1.4.1.1.7\0";
+        let mut ts = ts.as_bytes().to_vec();
+        if ts.len() % 2 == 1 {
+            ts.push(0);
+        }
+        let mut meta = element((2, 1), b"OB", &[0, 1], None);
+        meta.extend(element((2, 2), b"UI", class, None));
+        meta.extend(element((2, 3), b"UI", b"1.2.3.4.5\0", None));
+        meta.extend(element((2, 0x10), b"UI", &ts, None));
+        let mut file = vec![0u8; 128];
+        file.extend(b"DICM");
+        let group_length = (meta.len() as u32).to_le_bytes();
+        file.extend(element((2, 0), b"UL", &group_length, None));
+        file.extend(meta);
+        if ts.starts_with(b"1.2.840.10008.1.2.1.99") {
+            let mut z = flate2::write::DeflateEncoder::new(Vec::new(), flate2::Compression::fast());
+            z.write_all(data_set).expect("deflate");
+            file.extend(z.finish().expect("deflate"));
+        } else {
+            file.extend(data_set);
+        }
+        file
+    }
+
+    const DEFLATED: &str = "1.2.840.10008.1.2.1.99";
+
+    /// A secondary capture's elements: an icon sequence whose item holds pixel data of its
+    /// own, a private OB of `private` bytes stated, then 4 x 4 pixels of `pixels` bytes stated.
+    fn data_set(private: Option<u32>, pixels: Option<u32>) -> Vec<u8> {
+        let mut ds = element((8, 0x16), b"UI", b"1.2.840.10008.5.1.4.1.1.7\0", None);
+        ds.extend(element((8, 0x18), b"UI", b"1.2.3.4.5\0", None));
+        let mut icon = element((0x28, 0x10), b"US", &1u16.to_le_bytes(), None);
+        icon.extend(element((0x28, 0x11), b"US", &1u16.to_le_bytes(), None));
+        icon.extend(element(PIXEL_DATA, b"OB", &[7, 0], None));
+        let mut item = vec![0xFE, 0xFF, 0x00, 0xE0];
+        item.extend((icon.len() as u32).to_le_bytes());
+        item.extend(icon);
+        ds.extend(element((0x88, 0x200), b"SQ", &item, None));
+        ds.extend(element((0x99, 0x1000), b"OB", &[1, 2, 3, 4], private));
+        ds.extend(element((0x28, 0x10), b"US", &4u16.to_le_bytes(), None));
+        ds.extend(element((0x28, 0x11), b"US", &4u16.to_le_bytes(), None));
+        ds.extend(element(PIXEL_DATA, b"OB", &[9; 16], pixels));
+        ds
+    }
+
+    fn written(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).expect("write");
+        path
+    }
+
+    #[test]
+    fn a_deflated_data_set_is_walked_as_it_inflates() {
+        let dir = tempfile::tempdir().expect("dir");
+        let honest = written(
+            dir.path(),
+            "honest.dcm",
+            &part10(DEFLATED, &data_set(None, None)),
+        );
+        assert!(check_lengths(&honest).expect("honest lengths"));
+        // The file is one dicom-rs reads, so the walk checks what the parser will read.
+        let obj = dicom_object::open_file(&honest).expect("dicom-rs reads it");
+        assert_eq!(
+            obj.element_by_name("Rows")
+                .expect("rows")
+                .to_int::<u16>()
+                .ok(),
+            Some(4)
+        );
+
+        // Found by mutation fuzzing: 835 bytes whose element claimed gigabytes, which dicom-rs
+        // reserved and filled (3.2 GB, 5 s).
+        let lie = written(
+            dir.path(),
+            "lie.dcm",
+            &part10(DEFLATED, &data_set(Some(0xFFFF_FFF0), None)),
+        );
+        let e = check_lengths(&lie).expect_err("refused").to_string();
+        for words in [
+            "lie.dcm",
+            "(0099,1000)",
+            "of the inflated data set",
+            "4294967280",
+        ] {
+            assert!(e.contains(words), "{words}: {e}");
+        }
+        // Read only up to the pixel data, the lie is still read: refused too.
+        assert!(check_lengths_until(&lie, Some(PIXEL_DATA)).is_err());
+
+        // Damage to the stream itself is the file's damage, named.
+        let mut corrupt = part10(DEFLATED, &data_set(None, None));
+        let start = corrupt.len() - 40;
+        corrupt[start..].fill(0xFF);
+        let corrupt = written(dir.path(), "corrupt.dcm", &corrupt);
+        let e = check_lengths(&corrupt).expect_err("refused").to_string();
+        assert!(e.contains("corrupt.dcm") && e.contains("inflated"), "{e}");
+    }
+
+    #[test]
+    fn a_reader_that_stops_at_the_pixel_data_inflates_no_further() {
+        let dir = tempfile::tempdir().expect("dir");
+        let ds = data_set(None, Some(0xFFFF_FFF0));
+        let lie = written(dir.path(), "pixels.dcm", &part10(DEFLATED, &ds));
+        assert!(check_lengths(&lie).is_err());
+        // The pixel data inside the icon's item is not where a top-level reader stops: the
+        // private element after it is still walked (above), the top-level pixel data is not.
+        assert!(check_lengths_until(&lie, Some(PIXEL_DATA)).expect("stops before"));
+        // In a file that is not deflated, skipping costs nothing: walked whole.
+        let plain = written(dir.path(), "plain.dcm", &part10("1.2.840.10008.1.2.1", &ds));
+        assert!(check_lengths_until(&plain, Some(PIXEL_DATA)).is_err());
+    }
+
+    #[test]
+    fn implicit_vr_elements_are_read_with_the_dictionarys_vr() {
+        let dir = tempfile::tempdir().expect("dir");
+        let implicit = |tag: (u16, u16), value: &[u8], length: Option<u32>| {
+            let mut out = Vec::new();
+            out.extend(tag.0.to_le_bytes());
+            out.extend(tag.1.to_le_bytes());
+            out.extend(length.unwrap_or(value.len() as u32).to_le_bytes());
+            out.extend(value);
+            out
+        };
+        // A sequence of defined length (Referenced Image Sequence) is walked into: the element
+        // in its item that claims gigabytes is refused, not skipped with the sequence.
+        let inner = implicit((8, 0x1155), b"1.2.3\0", Some(0xFFFF_FFF0));
+        let mut item = vec![0xFE, 0xFF, 0x00, 0xE0];
+        item.extend((inner.len() as u32).to_le_bytes());
+        item.extend(inner);
+        let sq = implicit((8, 0x1140), &item, None);
+        let path = written(dir.path(), "sq.dcm", &part10("1.2.840.10008.1.2", &sq));
+        let e = check_lengths(&path).expect_err("refused").to_string();
+        assert!(e.contains("(0008,1155)"), "{e}");
+        // Rows is US: one byte of it loses dicom-rs its place.
+        let rows = implicit((0x28, 0x10), &[4], None);
+        let path = written(dir.path(), "rows.dcm", &part10("1.2.840.10008.1.2", &rows));
+        let e = check_lengths(&path).expect_err("refused").to_string();
+        assert!(e.contains("no multiple"), "{e}");
     }
 }

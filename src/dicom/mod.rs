@@ -24,7 +24,7 @@ pub use info::{file_instance_uid, series_info, slice_take, SeriesSummary};
 pub use iod::{
     instance_uid, instance_uid_of_take, person_name, Plane, Series, Slice, SliceSource, Study,
 };
-pub use lengths::check_lengths;
+pub use lengths::{check_lengths, check_lengths_until};
 pub use uid::{derived_uid, new_uid};
 
 /// CT Image Storage.

@@ -460,6 +460,12 @@ pub fn read_slice(path: &Path) -> Result<Gray, LearnError> {
         what,
         source,
     };
+    // Every stated length must fit in the file before dicom-rs sizes a read by it.
+    match crate::dicom::check_lengths(path) {
+        Err(crate::dicom::DicomError::Damaged { message, .. }) => return Err(bad(message)),
+        Err(e) => return Err(dicom("check the lengths of", Box::new(e))),
+        Ok(_) => {}
+    }
     let obj =
         dicom_object::open_file(path).map_err(|e| dicom("read the DICOM file", Box::new(e)))?;
     let width = obj

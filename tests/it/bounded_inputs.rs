@@ -144,7 +144,16 @@ fn element(group: u16, elem: u16, vr: &[u8; 2], value: &[u8], length: Option<u32
 /// A 4 x 4 CT slice, hand-written: `lie` gives a (group, element) whose stated length is
 /// 0xFFFFFFF0 (a private OB element, or PixelData).
 fn dicom_slice(lie: Option<(u16, u16)>, z: f64) -> Vec<u8> {
-    let ts = b"1.2.840.10008.1.2.1\0";
+    dicom_slice_in(lie, z, false)
+}
+
+/// [`dicom_slice`], its data set deflated (transfer syntax 1.2.840.10008.1.2.1.99) when asked.
+fn dicom_slice_in(lie: Option<(u16, u16)>, z: f64, deflated: bool) -> Vec<u8> {
+    let ts: &[u8] = if deflated {
+        b"1.2.840.10008.1.2.1.99"
+    } else {
+        b"1.2.840.10008.1.2.1\0"
+    };
     let class = b"1.2.840.10008.5.1.4.1.1.2\0";
     let mut meta = Vec::new();
     meta.extend(element(2, 1, b"OB", &[0, 1], None));
@@ -198,6 +207,12 @@ fn dicom_slice(lie: Option<(u16, u16)>, z: f64) -> Vec<u8> {
     ds.extend(element(0x28, 0x1053, b"DS", b"1 ", None));
     let pixels: Vec<u8> = (0..16u16).flat_map(|v| (v * 100).to_le_bytes()).collect();
     ds.extend(element(0x7FE0, 0x10, b"OW", &pixels, lie_len(0x7FE0, 0x10)));
+    if deflated {
+        use std::io::Write;
+        let mut z = flate2::write::DeflateEncoder::new(file, flate2::Compression::default());
+        z.write_all(&ds).unwrap();
+        return z.finish().unwrap();
+    }
     file.extend(ds);
     // About 1 KB, as in the finding.
     file.resize(1024.max(file.len()), 0);
@@ -271,6 +286,40 @@ fn dicom_unknown_vr_with_a_long_length_is_refused() {
     refused(
         layerwise().args(["dicom", "info"]).arg(&folder),
         &["slice.dcm", "(0009,0010)", "bytes"],
+    );
+}
+
+/// Found by mutation fuzzing: in a deflated file the lengths are inside the compressed stream,
+/// so the file's size bounds none of them; an 835-byte file whose element claimed gigabytes had
+/// dicom-rs reserve and fill 3.2 GB. The walk inflates the data set and checks each length
+/// against what the stream holds.
+#[test]
+fn dicom_deflated_slice_claiming_0xfffffff0_bytes_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = dir.path().join("series");
+    std::fs::create_dir_all(&folder).unwrap();
+    std::fs::write(folder.join("slice.dcm"), dicom_slice_in(None, 0.0, true)).unwrap();
+    let out = bounded(layerwise().args(["dicom", "info", "--json"]).arg(&folder));
+    assert!(out.status.success(), "{}", report(&out));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json[0]["rows"], 4, "{json}");
+
+    let lie = dicom_slice_in(Some((0x9, 0x1000)), 0.0, true);
+    assert!(lie.len() < 1024, "{}", lie.len());
+    std::fs::write(folder.join("slice.dcm"), lie).unwrap();
+    let started = Instant::now();
+    let words = [
+        "slice.dcm",
+        "(0009,1000)",
+        "inflated data set",
+        "4294967280",
+    ];
+    refused(layerwise().args(["dicom", "info"]).arg(&folder), &words);
+    refused(&mut register_ct(dir.path(), &folder, &[]), &words);
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "{:?}",
+        started.elapsed()
     );
 }
 
