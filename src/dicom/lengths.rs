@@ -292,21 +292,67 @@ impl<R: Source> Walk<'_, R> {
         Ok(())
     }
 
-    /// Walks the data set's elements. Undefined lengths (sequences, items, encapsulated pixel
-    /// data) are walked into, as are sequences and items of defined length; with `until`, the
-    /// walk ends at the first top-level element at or past it.
+    /// Walks the data set's elements as dicom-rs's data set reader reads them (its states, so
+    /// that the two never read the same bytes differently: mutation fuzzing found each place
+    /// where they did). Sequences and items are walked into, fragments of encapsulated pixel
+    /// data skipped; with `until`, the walk ends at the first top-level element at or past it.
+    /// Where dicom-rs would stop with an error of its own, the walk ends too: the parser reads
+    /// nothing past it.
     fn data_set(&mut self, until: Option<(u16, u16)>) -> Result<(), DicomError> {
-        // The containers the walk is in: the end of one of defined length, `None` for one that
-        // ends at its delimiter.
-        let mut open: Vec<Option<u64>> = Vec::new();
-        // Inside encapsulated pixel data, items are compressed fragments (skipped, not walked).
-        let mut in_fragments = false;
+        let mut open: Vec<Open> = Vec::new();
+        // At a sequence's level, where only item headers and delimiters are read.
+        let mut in_sequence = false;
         loop {
-            while let Some(Some(end)) = open.last() {
-                if self.pos < *end {
+            // A container of defined length ends where its length says; past it dicom-rs stops.
+            while let Some(&Open {
+                end: Some(end),
+                item,
+                ..
+            }) = open.last()
+            {
+                if self.pos < end {
                     break;
                 }
+                if self.pos > end {
+                    return Ok(());
+                }
                 open.pop();
+                in_sequence = item;
+            }
+            if in_sequence {
+                // Tag and a 32-bit length, in every encoding.
+                let Some(h) = self.header(false)? else {
+                    return Ok(());
+                };
+                let pixel = open.last().is_some_and(|o| o.pixel);
+                match (h.group, h.element, h.length) {
+                    (0xFFFE, 0xE000, UNDEFINED) if pixel => return Ok(()),
+                    (0xFFFE, 0xE000, _) if pixel => {
+                        // A fragment (or the offset table): read whole.
+                        self.check(&h)?;
+                        self.skip(&h)?;
+                    }
+                    (0xFFFE, 0xE000, length) => {
+                        let end = (length != UNDEFINED).then(|| self.pos + u64::from(length));
+                        if end.is_some() {
+                            self.check(&h)?;
+                        }
+                        open.push(Open {
+                            item: true,
+                            end,
+                            pixel: false,
+                        });
+                        in_sequence = false;
+                    }
+                    // Delimiters: no value follows, whatever a sequence delimiter's length says.
+                    (0xFFFE, 0xE00D, 0) | (0xFFFE, 0xE0DD, _) => {
+                        open.pop();
+                        in_sequence = h.element == 0xE00D;
+                    }
+                    // Anything else here (an item delimiter with a length too) dicom-rs refuses.
+                    _ => return Ok(()),
+                }
+                continue;
             }
             let Some(mut h) = self.header(!self.implicit)? else {
                 return Ok(());
@@ -315,28 +361,50 @@ impl<R: Source> Walk<'_, R> {
             if self.implicit && h.group != 0xFFFE {
                 h.vr = Some(implicit_vr(tag));
             }
-            if h.group == 0xFFFE && h.element != 0xE000 {
-                // A delimiter ends the item or sequence of undefined length it is in.
-                if matches!(open.last(), Some(None)) {
-                    open.pop();
+            if tag == (0xFFFE, 0xE00D) {
+                // An item's end: no value is read after it, whatever its length says; outside
+                // any sequence it is passed over.
+                if open.pop().is_some() {
+                    in_sequence = true;
                 }
-                in_fragments &= h.element != 0xE0DD;
-            } else if open.is_empty() && until.is_some_and(|until| tag >= until) {
-                return Ok(());
-            }
-            if h.length == UNDEFINED {
-                in_fragments |= tag == PIXEL_DATA;
-                open.push(None);
                 continue;
             }
-            self.check(&h)?;
-            if h.vr == Some(*b"SQ") || (tag == (0xFFFE, 0xE000) && !in_fragments) {
-                open.push(Some(self.pos + u64::from(h.length)));
-            } else {
-                self.skip(&h)?;
+            if open.is_empty() && until.is_some_and(|until| tag >= until) {
+                return Ok(());
             }
+            let sequence = h.vr == Some(*b"SQ");
+            if sequence || h.length == UNDEFINED {
+                // A sequence; an element of undefined length is read as one too, and pixel data
+                // of undefined length is a sequence of fragments.
+                let end = if h.length == UNDEFINED {
+                    None
+                } else {
+                    self.check(&h)?;
+                    Some(self.pos + u64::from(h.length))
+                };
+                open.push(Open {
+                    item: false,
+                    end,
+                    pixel: !sequence && tag == PIXEL_DATA,
+                });
+                in_sequence = true;
+                continue;
+            }
+            // A value, an item or a sequence delimiter met outside a sequence's level included:
+            // dicom-rs reads those as values too.
+            self.check(&h)?;
+            self.skip(&h)?;
         }
     }
+}
+
+/// A sequence or an item the walk is in, as dicom-rs's reader keeps it.
+struct Open {
+    item: bool,
+    /// Where it ends when its length is defined (a position as `Walk::pos` counts).
+    end: Option<u64>,
+    /// Encapsulated pixel data: its items are fragments, read whole.
+    pixel: bool,
 }
 
 impl Walk<'_, BufReader<std::fs::File>> {
@@ -561,8 +629,9 @@ mod tests {
 
         // Damage to the stream itself is the file's damage, named.
         let mut corrupt = part10(DEFLATED, &data_set(None, None));
-        let start = corrupt.len() - 40;
-        corrupt[start..].fill(0xFF);
+        let meta = u32::from_le_bytes(corrupt[140..144].try_into().expect("4 bytes"));
+        // The first block's type: 3, which no deflate stream has.
+        corrupt[144 + meta as usize] = 0b111;
         let corrupt = written(dir.path(), "corrupt.dcm", &corrupt);
         let e = check_lengths(&corrupt).expect_err("refused").to_string();
         assert!(e.contains("corrupt.dcm") && e.contains("inflated"), "{e}");
@@ -608,5 +677,56 @@ mod tests {
         let path = written(dir.path(), "rows.dcm", &part10("1.2.840.10008.1.2", &rows));
         let e = check_lengths(&path).expect_err("refused").to_string();
         assert!(e.contains("no multiple"), "{e}");
+    }
+
+    const EXPLICIT: &str = "1.2.840.10008.1.2.1";
+
+    /// An item header: tag (FFFE,`element`) and a 32-bit length, no VR in any encoding.
+    fn item(element: u16, length: u32) -> Vec<u8> {
+        let mut out = vec![0xFE, 0xFF];
+        out.extend(element.to_le_bytes());
+        out.extend(length.to_le_bytes());
+        out
+    }
+
+    #[test]
+    fn delimiters_and_items_are_read_where_dicom_rs_reads_them() {
+        let dir = tempfile::tempdir().expect("dir");
+        let lie = element((0x99, 0x1000), b"OB", &[1, 2, 3, 4], Some(0xFFFF_FFF0));
+        // Encapsulated pixel data ended by a sequence delimiter whose length is not 0 (found by
+        // mutation fuzzing): dicom-rs reads no value after it, and the lie after it is its.
+        let mut ds = element((0x28, 0x10), b"US", &4u16.to_le_bytes(), None);
+        ds.extend(element(PIXEL_DATA, b"OB", &[], Some(UNDEFINED)));
+        ds.extend(item(0xE000, 0));
+        ds.extend(item(0xE000, 4));
+        ds.extend([1, 2, 3, 4]);
+        ds.extend(item(0xE0DD, 8));
+        ds.extend(&lie);
+        let path = written(dir.path(), "delimiter.dcm", &part10(EXPLICIT, &ds));
+        let e = check_lengths(&path).expect_err("refused").to_string();
+        assert!(e.contains("(0099,1000)"), "{e}");
+
+        // An item header met inside an item, not at a sequence's level, is a value to dicom-rs
+        // (found by mutation fuzzing): the walk skips it too and reads the lie after it.
+        let in_item = |value: &[u8], after: &[u8]| {
+            let mut body = element((8, 0x1150), b"UI", b"1.2.3\0", None);
+            body.extend(item(0xE000, value.len() as u32));
+            body.extend(value);
+            body.extend(after);
+            let mut items = item(0xE000, body.len() as u32);
+            items.extend(body);
+            let mut ds = element((8, 0x1140), b"SQ", &items, None);
+            ds.extend(element((0x28, 0x10), b"US", &4u16.to_le_bytes(), None));
+            ds
+        };
+        let ds = in_item(&[8, 0, 0, 1], &lie);
+        let path = written(dir.path(), "item.dcm", &part10(EXPLICIT, &ds));
+        let e = check_lengths(&path).expect_err("refused").to_string();
+        assert!(e.contains("(0099,1000)"), "{e}");
+        // And what looks like a lie inside that value is no element of the file: read.
+        let ds = in_item(&lie, &[]);
+        let path = written(dir.path(), "value.dcm", &part10(EXPLICIT, &ds));
+        assert!(check_lengths(&path).expect("read as dicom-rs reads it"));
+        dicom_object::open_file(&path).expect("dicom-rs reads it");
     }
 }

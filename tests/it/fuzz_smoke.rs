@@ -427,7 +427,13 @@ fn dicom_slices() {
     let series = dir.path().join("series");
     std::fs::create_dir_all(&series).unwrap();
     let target = series.join("L00001.dcm");
-    assert_no_panics(fuzz_n("dicom", &[seed], DICOM_MUTANTS, |b| {
+    // The same slice deflated: its lengths are walked as the data set inflates. It reads.
+    let deflated = deflated(&seed);
+    std::fs::write(&target, &deflated).unwrap();
+    let info = layerwise::dicom::series_info(&series).expect("the deflated seed reads");
+    assert_eq!(info.len(), 1);
+    let seeds = [seed, deflated];
+    assert_no_panics(fuzz_n("dicom", &seeds, DICOM_MUTANTS, |b| {
         std::fs::write(&target, b).unwrap();
         let _ = layerwise::dicom::series_info(&series);
         // The CT reader of the same folder (pixels too).
@@ -435,6 +441,43 @@ fn dicom_slices() {
             series.clone(),
         ));
     }));
+}
+
+/// `file` (explicit VR little endian, its meta group led by the group length) with its data set
+/// deflated (transfer syntax 1.2.840.10008.1.2.1.99, PS3.5 A.5).
+fn deflated(file: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let u16_at = |at: usize| usize::from(u16::from_le_bytes([file[at], file[at + 1]]));
+    let group = u32::from_le_bytes(file[140..144].try_into().unwrap()) as usize;
+    let (meta_end, mut at) = (144 + group, 144);
+    let mut meta = Vec::new();
+    while at < meta_end {
+        let (element, vr) = (u16_at(at + 2), &file[at + 4..at + 6]);
+        let long = !matches!(vr, b"UI" | b"UL" | b"SH" | b"AE" | b"CS");
+        let (header, len) = if long {
+            (
+                12,
+                u32::from_le_bytes(file[at + 8..at + 12].try_into().unwrap()) as usize,
+            )
+        } else {
+            (8, u16_at(at + 6))
+        };
+        if element == 0x0010 {
+            let uid = b"1.2.840.10008.1.2.1.99";
+            meta.extend(&file[at..at + 6]);
+            meta.extend((uid.len() as u16).to_le_bytes());
+            meta.extend(uid);
+        } else {
+            meta.extend(&file[at..at + header + len]);
+        }
+        at += header + len;
+    }
+    let mut out = file[..140].to_vec();
+    out.extend((meta.len() as u32).to_le_bytes());
+    out.extend(meta);
+    let mut z = flate2::write::DeflateEncoder::new(out, flate2::Compression::default());
+    z.write_all(&file[meta_end..]).unwrap();
+    z.finish().unwrap()
 }
 
 /// Found by the libFuzzer target `frames` (fuzz/run.sh): the seeds' NEF with 7,579 bytes of its
