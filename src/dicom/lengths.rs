@@ -409,56 +409,52 @@ struct Open {
 
 impl Walk<'_, BufReader<std::fs::File>> {
     /// Walks the file meta group (explicit VR little endian) and says how the data set after it
-    /// is encoded; `None` when the file ends first, or when its group holds what dicom-rs
-    /// refuses anyway. The group ends where its group length says, as dicom-rs reads it, or
-    /// without one at the first element of another group.
+    /// is encoded; `None` where dicom-rs refuses the group (no group length first, an undefined
+    /// length, the file ending inside it), so nothing after it is read. The group ends where its
+    /// group length says, whatever the groups of the elements before that: dicom-rs reads them
+    /// all as the meta group's (a fuzzed file whose meta elements changed group had the walk
+    /// read its data set in another encoding than dicom-rs).
     fn meta(&mut self) -> Result<Option<Encoding>, DicomError> {
         let mut encoding = Encoding::Explicit { big_endian: false };
-        let mut end = None;
-        loop {
-            if end.is_some_and(|end| self.pos >= end) {
-                return Ok(Some(encoding));
-            }
-            let start = self.pos;
+        let Some(h) = self.header(true)? else {
+            return Ok(None);
+        };
+        if (h.group, h.element, h.length) != (0x0002, 0x0000, 4) {
+            return Ok(None);
+        }
+        let mut value = [0u8; 4];
+        if self.r.read_exact(&mut value).is_err() {
+            return Ok(None);
+        }
+        self.pos += 4;
+        let end = self.pos + u64::from(u32::from_le_bytes(value));
+        while self.pos < end {
             let Some(h) = self.header(true)? else {
                 return Ok(None);
             };
-            if h.group != 0x0002 {
-                // No group length: this header is the data set's first, read again below.
-                self.r
-                    .seek(SeekFrom::Start(start))
-                    .map_err(|e| self.read_error(e))?;
-                self.pos = start;
-                return Ok(Some(encoding));
-            }
             if h.length == UNDEFINED {
                 return Ok(None);
             }
+            // dicom-rs reads the meta group's values as bytes: only the file's size bounds them.
+            let h = Header { vr: None, ..h };
             self.check(&h)?;
-            let mut value = || -> Result<Vec<u8>, DicomError> {
-                let mut v = vec![0u8; h.length as usize];
-                self.r.read_exact(&mut v).map_err(|e| self.read_error(e))?;
+            if (h.group, h.element) == (0x0002, 0x0010) {
+                let mut uid = vec![0u8; h.length as usize];
+                self.r
+                    .read_exact(&mut uid)
+                    .map_err(|e| self.read_error(e))?;
                 self.pos += u64::from(h.length);
-                Ok(v)
-            };
-            match h.element {
-                0x0000 if h.length == 4 => {
-                    let v = value()?;
-                    let length = u32::from_le_bytes([v[0], v[1], v[2], v[3]]);
-                    end = Some(self.pos + u64::from(length));
-                }
-                0x0010 => {
-                    let uid = value()?;
-                    encoding = match String::from_utf8_lossy(&uid).trim_end_matches(['\0', ' ']) {
-                        "1.2.840.10008.1.2" => Encoding::Implicit,
-                        "1.2.840.10008.1.2.2" => Encoding::Explicit { big_endian: true },
-                        "1.2.840.10008.1.2.1.99" => Encoding::Deflated,
-                        _ => Encoding::Explicit { big_endian: false },
-                    };
-                }
-                _ => self.skip(&h)?,
+                encoding = match String::from_utf8_lossy(&uid).trim_end_matches(['\0', ' ']) {
+                    "1.2.840.10008.1.2" => Encoding::Implicit,
+                    "1.2.840.10008.1.2.2" => Encoding::Explicit { big_endian: true },
+                    "1.2.840.10008.1.2.1.99" => Encoding::Deflated,
+                    _ => Encoding::Explicit { big_endian: false },
+                };
+            } else {
+                self.skip(&h)?;
             }
         }
+        Ok(Some(encoding))
     }
 }
 
@@ -501,13 +497,11 @@ mod tests {
         let path = dir.path().join("x.dcm");
         // The meta group's transfer syntax (explicit VR little endian), then one element.
         let file = |vr: &[u8; 2], len: u16| {
-            let mut b = vec![0u8; 128];
-            b.extend(b"DICM\x02\x00\x10\x00UI\x14\x001.2.840.10008.1.2.1\0");
-            b.extend(b"\x28\x00\x10\x00");
-            b.extend(vr);
-            b.extend(len.to_le_bytes());
-            b.extend(vec![0u8; usize::from(len)]);
-            b
+            let mut ds = b"\x28\x00\x10\x00".to_vec();
+            ds.extend(vr);
+            ds.extend(len.to_le_bytes());
+            ds.extend(vec![0u8; usize::from(len)]);
+            part10(EXPLICIT, &ds)
         };
         for (vr, len, refused) in [(b"US", 1, true), (b"US", 2, false), (b"FD", 12, true)] {
             std::fs::write(&path, file(vr, len)).expect("write");
@@ -728,5 +722,34 @@ mod tests {
         let path = written(dir.path(), "value.dcm", &part10(EXPLICIT, &ds));
         assert!(check_lengths(&path).expect("read as dicom-rs reads it"));
         dicom_object::open_file(&path).expect("dicom-rs reads it");
+    }
+
+    #[test]
+    fn the_meta_group_ends_where_its_group_length_says() {
+        let dir = tempfile::tempdir().expect("dir");
+        // An element of another group inside the meta group's length, before the transfer
+        // syntax (implicit VR): dicom-rs reads it as the meta group's, then the data set in
+        // implicit VR (found by mutation fuzzing: the walk took the data set to start there).
+        let mut meta = element((2, 1), b"OB", &[0, 1], None);
+        meta.extend(element((4, 0x1130), b"CS", b"ID", None));
+        meta.extend(element((2, 0x10), b"UI", b"1.2.840.10008.1.2\0", None));
+        let mut file = vec![0u8; 128];
+        file.extend(b"DICM");
+        file.extend(element(
+            (2, 0),
+            b"UL",
+            &(meta.len() as u32).to_le_bytes(),
+            None,
+        ));
+        file.extend(meta);
+        file.extend([0x99, 0, 0, 0x10]);
+        file.extend(0xFFFF_FFF0u32.to_le_bytes());
+        file.extend([1, 2, 3, 4]);
+        let path = written(dir.path(), "meta.dcm", &file);
+        let e = check_lengths(&path).expect_err("refused").to_string();
+        assert!(e.contains("(0099,1000)"), "{e}");
+        // Without a group length first, dicom-rs reads nothing of the file: left to it.
+        let path = written(dir.path(), "no-group-length.dcm", &file[..132]);
+        assert!(check_lengths(&path).expect("left to the parser"));
     }
 }
