@@ -75,9 +75,13 @@ pub struct SeriesSummary {
 fn file_problems(obj: &InMemDicomObject, path: &Path, ts: &str) -> Vec<String> {
     let mut problems = Vec::new();
     let spacing = floats(obj, tags::PIXEL_SPACING);
-    if spacing.len() != 2 || spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+    if spacing.len() != 2
+        || spacing
+            .iter()
+            .any(|s| !(s.is_finite() && *s >= super::MIN_PIXEL_SPACING_MM))
+    {
         problems.push(format!(
-            "PixelSpacing {:?} is not two positive numbers of mm",
+            "PixelSpacing {:?} is not two positive numbers of mm, each at least 1e-6",
             text(obj, tags::PIXEL_SPACING).unwrap_or_default()
         ));
     }

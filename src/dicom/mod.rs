@@ -31,3 +31,7 @@ pub use uid::{derived_uid, new_uid};
 pub const CT_IMAGE_STORAGE: &str = "1.2.840.10008.5.1.4.1.1.2";
 /// Our implementation class UID (2.25 root, fixed for layerwise).
 pub const IMPLEMENTATION_CLASS_UID: &str = "2.25.302378146212377404151786716384913425853";
+
+/// The finest PixelSpacing a series may state: a nanometre. Finer (a subnormal 1e-320, say)
+/// makes a voxel's size round to zero (found by mutation fuzzing).
+pub const MIN_PIXEL_SPACING_MM: f64 = 1e-6;

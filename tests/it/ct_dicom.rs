@@ -303,6 +303,8 @@ fn dicom_info_names_unsound_series_and_register_ct_refuses_negative_spacing() {
     for (name, spacing, iop, pixels, words) in [
         ("zero", 0.0, axial, 64 * 64, "PixelSpacing"),
         ("nan", f64::NAN, axial, 64 * 64, "PixelSpacing"),
+        // Found by mutation fuzzing: a voxel of 1e-320 mm rounded to 0 through the reader.
+        ("subnormal", 1e-320, axial, 64 * 64, "PixelSpacing"),
         (
             "skew",
             0.1,
@@ -325,11 +327,19 @@ fn dicom_info_names_unsound_series_and_register_ct_refuses_negative_spacing() {
             "{name}: {report}"
         );
     }
-    let mirrored = tmp.path().join("mirrored");
-    write_pair(&mirrored, -0.1, axial, 64 * 64);
+    for (name, spacing) in [("mirrored", -0.1), ("subnormal-ct", 1e-320)] {
+        refused_by_register(tmp.path(), name, spacing, axial);
+    }
+}
+
+/// `register ct` of a pair of slices at `spacing` is refused, naming the file and the tag.
+fn refused_by_register(tmp: &Path, name: &str, spacing: f64, axial: [f64; 6]) {
+    use crate::common;
+    let mirrored = tmp.join(name);
+    write_pair(&mirrored, spacing, axial, 64 * 64);
     let mut register = common::layerwise();
     register
-        .current_dir(tmp.path())
+        .current_dir(tmp)
         .args([
             "register",
             "ct",
@@ -344,5 +354,5 @@ fn dicom_info_names_unsound_series_and_register_ct_refuses_negative_spacing() {
         &mut register,
         &["s0.dcm", "PixelSpacing", "must be positive"],
     );
-    assert!(!tmp.path().join("ct.toml").exists());
+    assert!(!tmp.join("ct.toml").exists());
 }

@@ -172,11 +172,13 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
         let spacing = dicom_numbers(&obj, &path, tags::PIXEL_SPACING, "PixelSpacing", 2)?;
         // A negative or zero spacing mirrors or collapses the volume: a registration would
         // fit the mirror image.
-        if spacing[..2].iter().any(|s| !(*s > 0.0 && *s <= 1000.0)) {
+        let fine = crate::dicom::MIN_PIXEL_SPACING_MM;
+        if spacing[..2].iter().any(|s| !(*s >= fine && *s <= 1000.0)) {
             return Err(dicom_err(
                 &path,
                 format!(
-                    "PixelSpacing {:?} mm: each must be positive, at most 1000 mm",
+                    "PixelSpacing {:?} mm: each must be positive, from 1e-6 mm (a nanometre) \
+                     to 1000 mm",
                     &spacing[..2]
                 ),
             ));
