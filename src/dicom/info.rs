@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use dicom_core::Tag;
 use dicom_dictionary_std::tags;
-use dicom_object::{InMemDicomObject, OpenFileOptions};
+use dicom_object::{DefaultDicomObject, InMemDicomObject, OpenFileOptions};
 
 use super::error::DicomError;
-use super::lengths::{check_lengths_until, PIXEL_DATA};
+use super::lengths::check_lengths_until;
 
 /// The take of the original a slice file was made from (its ImageComments,
 /// [`SliceSource`](super::SliceSource)): `None` when there is no readable file; a slice written
@@ -18,11 +18,7 @@ pub fn slice_take(path: &Path) -> Option<u32> {
     if !path.is_file() {
         return None;
     }
-    check_lengths_until(path, Some(PIXEL_DATA)).ok()?;
-    let obj = OpenFileOptions::new()
-        .read_until(tags::PIXEL_DATA)
-        .open_file(path)
-        .ok()?;
+    let obj = read_until(path, tags::PIXEL_DATA).ok()?;
     let Some(comments) = text(&obj, tags::IMAGE_COMMENTS) else {
         return Some(1);
     };
@@ -36,13 +32,22 @@ pub fn slice_take(path: &Path) -> Option<u32> {
 
 /// The SOP Instance UID a DICOM file's meta header names (None when it cannot be read).
 pub fn file_instance_uid(path: &Path) -> Option<String> {
-    check_lengths_until(path, Some((0x0008, 0x0016))).ok()?;
-    let obj = OpenFileOptions::new()
-        .read_until(tags::SOP_CLASS_UID)
-        .open_file(path)
-        .ok()?;
+    let obj = read_until(path, tags::SOP_CLASS_UID).ok()?;
     // As the push reads it (pacs::Instance), so the two compare equal.
     Some(obj.meta().media_storage_sop_instance_uid().to_string())
+}
+
+/// The file at `path` read up to the top-level element `until` (excluded), once the lengths
+/// dicom-rs will read that far are checked.
+fn read_until(path: &Path, until: Tag) -> Result<DefaultDicomObject, DicomError> {
+    check_lengths_until(path, Some(until))?;
+    OpenFileOptions::new()
+        .read_until(until)
+        .open_file(path)
+        .map_err(|e| DicomError::Read {
+            path: path.to_path_buf(),
+            source: Box::new(e),
+        })
 }
 
 /// What `layerwise dicom info` reports of one series.
@@ -81,8 +86,9 @@ fn file_problems(obj: &InMemDicomObject, path: &Path, ts: &str) -> Vec<String> {
             .any(|s| !(s.is_finite() && *s >= super::MIN_PIXEL_SPACING_MM))
     {
         problems.push(format!(
-            "PixelSpacing {:?} is not two positive numbers of mm, each at least 1e-6",
-            text(obj, tags::PIXEL_SPACING).unwrap_or_default()
+            "PixelSpacing {:?} is not two positive numbers of mm, each at least {}",
+            text(obj, tags::PIXEL_SPACING).unwrap_or_default(),
+            super::MIN_PIXEL_SPACING_MM
         ));
     }
     let o = floats(obj, tags::IMAGE_ORIENTATION_PATIENT);
@@ -151,14 +157,7 @@ pub fn series_info(dir: &Path) -> Result<Vec<SeriesSummary>, DicomError> {
     files.sort();
     let mut series: BTreeMap<String, SeriesSummary> = BTreeMap::new();
     for path in files {
-        check_lengths_until(&path, Some(PIXEL_DATA))?;
-        let obj = OpenFileOptions::new()
-            .read_until(tags::PIXEL_DATA)
-            .open_file(&path)
-            .map_err(|e| DicomError::Read {
-                path: path.clone(),
-                source: Box::new(e),
-            })?;
+        let obj = read_until(&path, tags::PIXEL_DATA)?;
         let uid = text(&obj, tags::SERIES_INSTANCE_UID).unwrap_or_default();
         let position = floats(&obj, tags::IMAGE_POSITION_PATIENT);
         let [x, y, z] =

@@ -5,7 +5,7 @@
 //! A deflated data set (PS3.5 A.5) is walked as it inflates: its lengths are checked against
 //! what the stream holds, found by reading, since no size is stated for it.
 
-use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::io::{self, BufReader, Read};
 use std::path::Path;
 
 use flate2::bufread::DeflateDecoder;
@@ -20,7 +20,7 @@ const SHORT_VRS: [&[u8; 2]; 21] = [
 ];
 
 const UNDEFINED: u32 = 0xFFFF_FFFF;
-pub(super) const PIXEL_DATA: (u16, u16) = (0x7FE0, 0x0010);
+const PIXEL_DATA: (u16, u16) = (0x7FE0, 0x0010);
 
 /// Bytes per value of a binary VR (1 for the others): dicom-rs reads `length / size` values, so
 /// a length that is no multiple of it loses its place in the file, and the next header it reads
@@ -35,7 +35,7 @@ fn value_size(vr: &[u8; 2]) -> u32 {
 }
 
 /// How the data set after the file meta group is encoded.
-#[derive(Clone, Copy, PartialEq)]
+#[derive(Clone, Copy)]
 enum Encoding {
     Explicit {
         big_endian: bool,
@@ -56,7 +56,10 @@ pub fn check_lengths(path: &Path) -> Result<bool, DicomError> {
 /// [`check_lengths`] for a reader that stops before the top-level element `until` (dicom-rs's
 /// `read_until`): a deflated data set is inflated only that far, since the parser reads no
 /// further. A file that is not deflated is walked whole: skipping costs nothing there.
-pub fn check_lengths_until(path: &Path, until: Option<(u16, u16)>) -> Result<bool, DicomError> {
+pub fn check_lengths_until(
+    path: &Path,
+    until: Option<dicom_core::Tag>,
+) -> Result<bool, DicomError> {
     let read_err = |source| DicomError::Io {
         path: path.to_path_buf(),
         source,
@@ -82,11 +85,9 @@ pub fn check_lengths_until(path: &Path, until: Option<(u16, u16)>) -> Result<boo
     };
     match encoding {
         Encoding::Deflated => {
-            let start = walk.pos;
-            let mut r = walk.r;
-            r.seek(SeekFrom::Start(start)).map_err(read_err)?;
+            // The meta group was read to its end: the reader is where the stream starts.
             let mut walk = Walk {
-                r: DeflateDecoder::new(r),
+                r: DeflateDecoder::new(walk.r),
                 pos: 0,
                 size: None,
                 big_endian: false,
@@ -298,7 +299,7 @@ impl<R: Source> Walk<'_, R> {
     /// data skipped; with `until`, the walk ends at the first top-level element at or past it.
     /// Where dicom-rs would stop with an error of its own, the walk ends too: the parser reads
     /// nothing past it.
-    fn data_set(&mut self, until: Option<(u16, u16)>) -> Result<(), DicomError> {
+    fn data_set(&mut self, until: Option<dicom_core::Tag>) -> Result<(), DicomError> {
         let mut open: Vec<Open> = Vec::new();
         // At a sequence's level, where only item headers and delimiters are read.
         let mut in_sequence = false;
@@ -369,7 +370,8 @@ impl<R: Source> Walk<'_, R> {
                 }
                 continue;
             }
-            if open.is_empty() && until.is_some_and(|until| tag >= until) {
+            if open.is_empty() && until.is_some_and(|until| dicom_core::Tag(tag.0, tag.1) >= until)
+            {
                 return Ok(());
             }
             let sequence = h.vr == Some(*b"SQ");
@@ -472,9 +474,12 @@ fn implicit_vr((group, element): (u16, u16)) -> [u8; 2] {
             entry.vr().relaxed().to_bytes()
         })
 }
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const PIXEL_DATA_TAG: dicom_core::Tag = dicom_dictionary_std::tags::PIXEL_DATA;
 
     // Files with lengths that fit and lengths that lie: tests/it/bounded_inputs.rs (through the
     // binary, with a sequence of undefined length holding an item of defined length).
@@ -619,7 +624,7 @@ mod tests {
             assert!(e.contains(words), "{words}: {e}");
         }
         // Read only up to the pixel data, the lie is still read: refused too.
-        assert!(check_lengths_until(&lie, Some(PIXEL_DATA)).is_err());
+        assert!(check_lengths_until(&lie, Some(PIXEL_DATA_TAG)).is_err());
 
         // Damage to the stream itself is the file's damage, named.
         let mut corrupt = part10(DEFLATED, &data_set(None, None));
@@ -639,10 +644,10 @@ mod tests {
         assert!(check_lengths(&lie).is_err());
         // The pixel data inside the icon's item is not where a top-level reader stops: the
         // private element after it is still walked (above), the top-level pixel data is not.
-        assert!(check_lengths_until(&lie, Some(PIXEL_DATA)).expect("stops before"));
+        assert!(check_lengths_until(&lie, Some(PIXEL_DATA_TAG)).expect("stops before"));
         // In a file that is not deflated, skipping costs nothing: walked whole.
         let plain = written(dir.path(), "plain.dcm", &part10("1.2.840.10008.1.2.1", &ds));
-        assert!(check_lengths_until(&plain, Some(PIXEL_DATA)).is_err());
+        assert!(check_lengths_until(&plain, Some(PIXEL_DATA_TAG)).is_err());
     }
 
     #[test]

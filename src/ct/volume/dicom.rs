@@ -177,7 +177,7 @@ pub fn read_dicom_series(dir: &Path, max_voxels: usize) -> Result<Volume> {
             return Err(dicom_err(
                 &path,
                 format!(
-                    "PixelSpacing {:?} mm: each must be positive, from 1e-6 mm (a nanometre) \
+                    "PixelSpacing {:?} mm: each must be positive, from {fine} mm (a nanometre) \
                      to 1000 mm",
                     &spacing[..2]
                 ),
