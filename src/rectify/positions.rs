@@ -4,6 +4,10 @@
 use super::kernel::{Coords, DistParams, Job, CHUNK, FRAC_BITS, ONE};
 use crate::geometry::mat3::Mat3;
 
+mod quad;
+
+pub(crate) use quad::{Finish8, Lanes8, QuadBlock};
+
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
 #[inline(always)]
 pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co: &mut Coords) {
@@ -30,16 +34,18 @@ pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co
             BLOCK
         };
         let len = block.min(n - j0);
-        match &job.dist {
-            Some(d) => fast_block_distorted(job, d, &line, col0, j0, len, co),
+        j0 += match &job.dist {
+            Some(d) => {
+                fast_block_distorted(job, d, &line, col0, j0, len, co);
+                len
+            }
             None => fast_block(job, &line, col0, j0, len, co),
-        }
-        j0 += len;
+        };
     }
 }
 
 /// Homogeneous source position along one grid row: `base + c·step`.
-struct Line {
+pub(crate) struct Line {
     bx: f64,
     by: f64,
     bw: f64,
@@ -53,7 +59,7 @@ impl Line {
     /// the position is affine in the column, one base per row plus c·step per pixel, no 3x3
     /// product.
     #[inline(always)]
-    fn of_row(m: &Mat3, row: usize) -> Line {
+    pub(crate) fn of_row(m: &Mat3, row: usize) -> Line {
         let r = row as f64;
         Line {
             bx: m[0][1] * r + m[0][2],
@@ -74,7 +80,7 @@ impl Line {
 
     /// Source position in fixed-point units plus ½ (so `floor` rounds), and w.
     #[inline(always)]
-    fn scaled(&self, c: f64) -> (f64, f64, f64) {
+    pub(crate) fn scaled(&self, c: f64) -> (f64, f64, f64) {
         let w = self.bw + c * self.sw;
         let rw = ONE as f64 / w;
         (
@@ -103,68 +109,146 @@ const DIST_BLOCK_SPAN: f64 = (1 << 19) as f64;
 /// Homogeneous w at or below this is "beyond the horizon" (keeps 1/w finite).
 const W_MIN: f64 = 1e-200;
 
-/// Phase 1 for one block of `len` pixels starting at column `col0 + j0`.
+/// What phase 1 does with one block of pixels (see [`plan_block`]).
+pub(crate) enum Plan {
+    /// Every pixel of the block samples outside the frame.
+    Outside,
+    /// The quadratic path applies ([`QuadBlock`]).
+    Quad(QuadBlock),
+    /// The f32 incremental path applies, with these constants.
+    Near(NearBlock),
+    /// The exact f64 path ([`exact_run`]).
+    Exact,
+}
+
+/// The f32 path's constants for one block: the pixel `jm` columns from the block's middle
+/// pixel is at `(xmi, ymi)` plus the floors of `(xmf, ymf) + (kx, ky)·t`, with
+/// `t = jm / (wmf + swf·jm)`, each clamped to `±lim` (which only NaN and overflow reach).
+/// [`NearBlock::at`] is the computation; the SIMD kernel that fuses it with sampling
+/// (`simd/avx2.rs`) repeats it operation for operation, so the two give the same bits.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct NearBlock {
+    pub(crate) xmf: f32,
+    pub(crate) ymf: f32,
+    pub(crate) kx: f32,
+    pub(crate) ky: f32,
+    pub(crate) wmf: f32,
+    pub(crate) swf: f32,
+    pub(crate) xmi: i32,
+    pub(crate) ymi: i32,
+    pub(crate) lim: f32,
+    /// The middle pixel's index in the block.
+    pub(crate) mid: usize,
+}
+
+impl NearBlock {
+    /// Fixed-point (ix, iy, fx, fy) of the pixel `jm` columns from the middle one ([`finish`]).
+    #[inline(always)]
+    pub(crate) fn at<T>(&self, job: &Job<'_, T>, jm: i32) -> (i32, i32, i32, i32) {
+        let jf = jm as f32;
+        let t = jf / (self.wmf + self.swf * jf);
+        let dx = clamp_f32((self.xmf + self.kx * t).floor(), self.lim);
+        let dy = clamp_f32((self.ymf + self.ky * t).floor(), self.lim);
+        // SAFETY: clamped to ±2^22, finite (NaN became -lim).
+        let (dx, dy): (i32, i32) = unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
+        finish(job, self.xmi + dx, self.ymi + dy, true)
+    }
+}
+
+/// How phase 1 computes pixels from column `c0` of the grid row `l`, and how many of the `len`
+/// asked (all but for [`Plan::Quad`], which may take a shorter block where the quadratic is
+/// close enough to the positions only over that: the caller plans the rest again).
 ///
 /// Within a block, the position relative to the block's middle pixel `m` is
 /// `δ(j) = j·K / w(j)` (`j` from `−m`) with `K = sx·ONE + ½·sw − U_m·sw` (one f64 setup per
 /// block), evaluated in f32: δ is small, so f32 loses nothing that matters, and the loop runs 8
 /// or 16 lanes wide. Blocks where that does not hold (near the horizon, steep minification)
-/// use the exact f64 path.
+/// use the exact f64 path. Blocks where a quadratic in the pixel index is close enough take it
+/// instead (`positions/quad.rs`): no division per pixel, and no float.
 #[inline(always)]
-fn fast_block<T>(job: &Job<'_, T>, l: &Line, col0: usize, j0: usize, len: usize, co: &mut Coords) {
-    let c0 = (col0 + j0) as f64;
+pub(crate) fn plan_block<T>(job: &Job<'_, T>, l: &Line, c0: usize, len: usize) -> (Plan, usize) {
+    let first = c0;
+    let c0 = c0 as f64;
     let c1 = c0 + (len - 1) as f64;
     let (ux0, uy0, w0) = l.scaled(c0);
     let (ux1, uy1, w1) = l.scaled(c1);
     let (xmax, ymax) = (job.xmax_q as f64, job.ymax_q as f64);
     // w is affine in c, so positive at both ends means positive throughout,
     // and then the position is monotonic along the block.
-    if w0 > W_MIN && w1 > W_MIN {
-        let off_x = (ux0 < 0.0 && ux1 < 0.0) || (ux0 >= xmax + 1.0 && ux1 >= xmax + 1.0);
-        let off_y = (uy0 < 0.0 && uy1 < 0.0) || (uy0 >= ymax + 1.0 && uy1 >= ymax + 1.0);
-        if off_x || off_y {
-            co.ix[j0..j0 + len].fill(-1);
-            return;
+    if !(w0 > W_MIN && w1 > W_MIN) {
+        return (Plan::Exact, len);
+    }
+    let off_x = (ux0 < 0.0 && ux1 < 0.0) || (ux0 >= xmax + 1.0 && ux1 >= xmax + 1.0);
+    let off_y = (uy0 < 0.0 && uy1 < 0.0) || (uy0 >= ymax + 1.0 && uy1 >= ymax + 1.0);
+    if off_x || off_y {
+        return (Plan::Outside, len);
+    }
+    let near = (ux1 - ux0).abs() <= BLOCK_SPAN
+        && (uy1 - uy0).abs() <= BLOCK_SPAN
+        && ux0.abs() < 1e9
+        && uy0.abs() < 1e9
+        && w1 <= 2.0 * w0
+        && w0 <= 2.0 * w1;
+    if !near {
+        return (Plan::Exact, len);
+    }
+    let mut q = len;
+    while q >= quad::MIN_LEN {
+        if let Some(b) = QuadBlock::new(l, first, q) {
+            return (Plan::Quad(b), q);
         }
-        let near = (ux1 - ux0).abs() <= BLOCK_SPAN
-            && (uy1 - uy0).abs() <= BLOCK_SPAN
-            && ux0.abs() < 1e9
-            && uy0.abs() < 1e9
-            && w1 <= 2.0 * w0
-            && w0 <= 2.0 * w1;
-        if near {
-            let one = ONE as f64;
-            let mid = len / 2;
-            // Between the ends (w > 0 and affine: the position is monotonic), so |uxm| stays
-            // under 1e9 + BLOCK_SPAN and its floor fits an i32 with room for the offsets.
-            let (uxm, uym, wm) = l.scaled(c0 + mid as f64);
-            let (xmi, ymi) = (uxm.floor(), uym.floor());
-            let kx = (l.sx * one + 0.5 * l.sw - uxm * l.sw) as f32;
-            let ky = (l.sy * one + 0.5 * l.sw - uym * l.sw) as f32;
-            let (xmf, ymf) = ((uxm - xmi) as f32, (uym - ymi) as f32);
-            let (xmi, ymi) = (xmi as i32, ymi as i32);
-            let (wmf, swf) = (wm as f32, l.sw as f32);
-            // Twice the most an offset can be, so the clamp only ever catches NaN and overflow.
-            let lim = 2.0 * BLOCK_SPAN as f32;
+        q /= 2;
+    }
+    let one = ONE as f64;
+    let mid = len / 2;
+    // Between the ends (w > 0 and affine: the position is monotonic), so |uxm| stays
+    // under 1e9 + BLOCK_SPAN and its floor fits an i32 with room for the offsets.
+    let (uxm, uym, wm) = l.scaled(c0 + mid as f64);
+    let (xmi, ymi) = (uxm.floor(), uym.floor());
+    let near = NearBlock {
+        kx: (l.sx * one + 0.5 * l.sw - uxm * l.sw) as f32,
+        ky: (l.sy * one + 0.5 * l.sw - uym * l.sw) as f32,
+        xmf: (uxm - xmi) as f32,
+        ymf: (uym - ymi) as f32,
+        xmi: xmi as i32,
+        ymi: ymi as i32,
+        wmf: wm as f32,
+        swf: l.sw as f32,
+        // Twice the most an offset can be, so the clamp only ever catches NaN and overflow.
+        lim: 2.0 * BLOCK_SPAN as f32,
+        mid,
+    };
+    (Plan::Near(near), len)
+}
+
+/// Phase 1 for a block of up to `len` pixels starting at column `col0 + j0` ([`plan_block`]);
+/// returns how many it computed.
+#[inline(always)]
+fn fast_block<T>(
+    job: &Job<'_, T>,
+    l: &Line,
+    col0: usize,
+    j0: usize,
+    len: usize,
+    co: &mut Coords,
+) -> usize {
+    let (plan, len) = plan_block(job, l, col0 + j0, len);
+    match plan {
+        Plan::Outside => co.ix[j0..j0 + len].fill(-1),
+        Plan::Quad(b) => b.fill(job, j0, len, co),
+        Plan::Exact => exact_run::<T, false>(job, &NO_DIST, l, col0, j0, len, co),
+        Plan::Near(b) => {
             let ix = &mut co.ix[j0..j0 + len];
             let iy = &mut co.iy[j0..j0 + len];
             let fx = &mut co.fx[j0..j0 + len];
             let fy = &mut co.fy[j0..j0 + len];
             // j − mid counted on its own, so the loop needs no subtraction per lane.
-            for (j, jm) in (0..len).zip(-(mid as i32)..) {
-                let jf = jm as f32;
-                let t = jf / (wmf + swf * jf);
-                let dx = clamp_f32((xmf + kx * t).floor(), lim);
-                let dy = clamp_f32((ymf + ky * t).floor(), lim);
-                // SAFETY: clamped to ±2^22, finite (NaN became -lim).
-                let (dx, dy): (i32, i32) =
-                    unsafe { (dx.to_int_unchecked(), dy.to_int_unchecked()) };
-                (ix[j], iy[j], fx[j], fy[j]) = finish(job, xmi + dx, ymi + dy, true);
+            for (j, jm) in (0..len).zip(-(b.mid as i32)..) {
+                (ix[j], iy[j], fx[j], fy[j]) = b.at(job, jm);
             }
-            return;
         }
     }
-    exact_run::<T, false>(job, &NO_DIST, l, col0, j0, len, co);
+    len
 }
 
 /// [`fast_block`] with lens distortion.
@@ -342,24 +426,26 @@ fn clamp_f64(x: f64, hi: f64) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::mat3;
     use crate::geometry::{homography_from_points, RadialDistortion};
 
-    /// The f32 block paths (with and without distortion) agree with the
+    /// The plate's corners in build mm (a 275 mm square), which the tests' views map.
+    pub(crate) const PLATE: [[f64; 2]; 4] = [
+        [-137.5, 137.5],
+        [137.5, 137.5],
+        [137.5, -137.5],
+        [-137.5, -137.5],
+    ];
+
+    /// The quadratic and f32 block paths (with and without distortion) agree with the
     /// exact f64 path to within one fixed-point unit (1/2048 px), including
     /// the inside/outside verdict away from the boundary.
     #[test]
     fn f32_blocks_match_exact_positions() {
         let (w, h) = (7360usize, 4912usize);
         let data = vec![0u8; w * h];
-        let plate = [
-            [-137.5, 137.5],
-            [137.5, 137.5],
-            [137.5, -137.5],
-            [-137.5, -137.5],
-        ];
         let views = [
             [
                 [1400.0, 600.0],
@@ -379,6 +465,13 @@ mod tests {
                 [4200.0, 2900.0],
                 [2900.0, 2800.0],
             ],
+            // Seen from a corner: w changes fast along the grid's rows.
+            [
+                [3600.0, 100.0],
+                [7200.0, 2400.0],
+                [3700.0, 4800.0],
+                [2600.0, 2450.0],
+            ],
         ];
         let lens = RadialDistortion {
             center: [3650.0, 2500.0],
@@ -387,12 +480,14 @@ mod tests {
             k2: 0.015,
         };
         let mut fast_blocks = [0usize; 2];
+        // Blocks without distortion: quadratic (whole runs, shorter), f32.
+        let mut plans = [0usize; 3];
         for ((k, img), dist) in views
             .iter()
             .enumerate()
             .flat_map(|v| [(v, None), (v, Some(DistParams::new(&lens)))])
         {
-            let h_img = homography_from_points(*img, plate).unwrap().matrix();
+            let h_img = homography_from_points(*img, PLATE).unwrap().matrix();
             // Overhanging grid (pixels outside the image) at two scales.
             let p = if k == 2 { 0.5 } else { 0.0625 };
             let g = [
@@ -414,6 +509,17 @@ mod tests {
                 for (col0, n) in runs {
                     map_run(&j, row, col0, n, &mut a);
                     let line = Line::of_row(&m, row);
+                    let mut j0 = 0;
+                    while dist.is_none() && j0 < n {
+                        let (plan, len) = plan_block(&j, &line, col0 + j0, n - j0);
+                        match plan {
+                            Plan::Quad(_) if len == n => plans[0] += 1,
+                            Plan::Quad(_) => plans[1] += 1,
+                            Plan::Near(_) => plans[2] += 1,
+                            Plan::Outside | Plan::Exact => {}
+                        }
+                        j0 += len;
+                    }
                     match &dist {
                         Some(d) => exact_run::<u8, true>(&j, d, &line, col0, 0, n, &mut b),
                         None => exact_run::<u8, false>(&j, &NO_DIST, &line, col0, 0, n, &mut b),
@@ -448,5 +554,6 @@ mod tests {
         }
         // Tiny differences show each block path really ran (and stayed within 1 unit).
         assert!(fast_blocks.iter().all(|&n| n > 0), "{fast_blocks:?}");
+        assert!(plans.iter().all(|&n| n > 0), "{plans:?}");
     }
 }

@@ -162,4 +162,97 @@ mod tests {
             |j, c, o| unsafe { avx512::rgb8_run16(j, c, o) },
         );
     }
+
+    /// The grey row kernel, which positions and samples blocks in registers, and phase 1's
+    /// SIMD lanes give exactly phase 1 pixel by pixel then the scalar kernel, row by row, on
+    /// views whose rows take the quadratic
+    /// path whole, in shorter blocks, the f32 path and the exact one, with grids overhanging
+    /// the frame and runs that are not a multiple of 8 pixels.
+    #[test]
+    fn gray8_rows_match_phase_1_then_scalar() {
+        use crate::geometry::{homography_from_points, mat3};
+        use crate::rectify::positions::tests::PLATE;
+        use crate::rectify::positions::{map_run, plan_block, Line, Plan};
+        use crate::rectify::row::row_generic;
+        if !available() {
+            return;
+        }
+        let (w, h) = (736usize, 491usize);
+        let data: Vec<u8> = (0..w * h).map(|i| (i * 7 + i / w * 13) as u8).collect();
+        let views = [
+            [[140.0, 60.0], [596.0, 60.0], [690.0, 450.0], [46.0, 450.0]],
+            [[120.0, 90.0], [610.0, 30.0], [730.0, 470.0], [10.0, 400.0]],
+            [[300.0, 20.0], [700.0, 200.0], [500.0, 480.0], [60.0, 250.0]],
+            [
+                [368.0, 10.0],
+                [720.0, 240.0],
+                [368.0, 480.0],
+                [300.0, 245.0],
+            ],
+            // The grid's first rows above the frame (outside), and magnified 25-fold (exact).
+            [[10.0, 10.0], [200.0, 12.0], [205.0, 150.0], [8.0, 148.0]],
+            [
+                [-3000.0, -2000.0],
+                [4000.0, -2500.0],
+                [3900.0, 3000.0],
+                [-2800.0, 2900.0],
+            ],
+        ];
+        let mut plans = [0usize; 4];
+        for (v, img) in views.iter().enumerate() {
+            let h_img = homography_from_points(*img, PLATE).unwrap().matrix();
+            for p in [0.6, 0.25] {
+                let g = [
+                    [p, 0.0, -150.0 + 0.5 * p],
+                    [0.0, -p, 150.0 - 0.5 * p],
+                    [0.0, 0.0, 1.0],
+                ];
+                let m = mat3::mul(&mat3::inverse(&h_img).0, &g);
+                let job = Job::for_test(&data, w, h, m, None);
+                let cols = (300.0 / p) as usize;
+                let mut co = Coords::new();
+                let (mut want, mut got) = (vec![0u8; cols], vec![1u8; cols]);
+                let mut generic = vec![2u8; cols];
+                for row in (0..cols).step_by(3) {
+                    // Phase 1 pixel by pixel (`at`, no SIMD lanes), then the scalar kernel.
+                    let line = Line::of_row(&m, row);
+                    for c0 in (0..cols).step_by(CHUNK) {
+                        let n = CHUNK.min(cols - c0);
+                        let mut j0 = 0;
+                        while j0 < n {
+                            let (plan, len) = plan_block(&job, &line, c0 + j0, n - j0);
+                            let k = match plan {
+                                Plan::Quad(b) => {
+                                    for j in 0..len {
+                                        (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(&job, j);
+                                    }
+                                    usize::from(len != n)
+                                }
+                                Plan::Near(b) => {
+                                    for j in 0..len {
+                                        let jm = j as i32 - b.mid as i32;
+                                        (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(&job, jm);
+                                    }
+                                    2
+                                }
+                                Plan::Outside | Plan::Exact => {
+                                    map_run(&job, row, c0 + j0, len, &mut co);
+                                    3
+                                }
+                            };
+                            plans[k] += 1;
+                            let part = &mut want[c0 + j0..c0 + j0 + len];
+                            bilinear_run::<u8, 1>(&job, &co, part, 0);
+                            j0 += len;
+                        }
+                    }
+                    row_gray8(&job, row, &mut got, &mut co);
+                    assert_eq!(got, want, "view {v}, pixel {p}, row {row}");
+                    row_generic::<u8, 1, false>(&job, row, &mut generic, &mut co);
+                    assert_eq!(generic, want, "phase 1, view {v}, pixel {p}, row {row}");
+                }
+            }
+        }
+        assert!(plans.iter().all(|&n| n > 0), "blocks per path: {plans:?}");
+    }
 }

@@ -5,7 +5,8 @@
 use std::arch::x86_64::*;
 
 use crate::rectify::kernel::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
-use crate::rectify::positions::map_run;
+use crate::rectify::positions::QuadBlock;
+use crate::rectify::positions::{map_run, plan_block, Finish8, Lanes8, Line, NearBlock, Plan};
 
 /// The generic row kernel compiled for AVX2 (phase 1 vectorises 4-wide f64).
 #[target_feature(enable = "avx2")]
@@ -36,10 +37,35 @@ pub(super) fn row_8bit<const CN: usize>(
     }
 }
 
-/// Bilinear 8-bit grey row: phase 1, then [`gray8_run`].
+/// Bilinear 8-bit grey row. Without distortion, a block that phase 1 takes by its quadratic
+/// or f32 path ([`Plan::Quad`], [`Plan::Near`]) is positioned and sampled 8 pixels at a time
+/// in registers ([`gray8_quad`], [`gray8_near`]): its coordinates never go through memory.
+/// Other blocks, and rows with distortion, are phase 1 then [`gray8_run`].
 #[target_feature(enable = "avx2")]
 pub(super) fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
-    row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run(j, c, o))
+    if job.map.is_some() || job.dist.is_some() {
+        return row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run(j, c, o));
+    }
+    let line = Line::of_row(&job.m, row);
+    let mut col0 = 0;
+    for chunk in out.chunks_mut(CHUNK) {
+        // Blocks as map_run takes them without distortion.
+        let mut j0 = 0;
+        while j0 < chunk.len() {
+            let (plan, len) = plan_block(job, &line, col0 + j0, chunk.len() - j0);
+            let part = &mut chunk[j0..j0 + len];
+            match plan {
+                Plan::Quad(b) => gray8_quad(job, &b, part, co),
+                Plan::Near(b) => gray8_near(job, &b, part, co),
+                Plan::Outside | Plan::Exact => {
+                    map_run(job, row, col0 + j0, len, co);
+                    gray8_run(job, co, part);
+                }
+            }
+            j0 += len;
+        }
+        col0 += chunk.len();
+    }
 }
 
 /// Bilinear 8-bit RGB row: phase 1, then [`rgb8_run`].
@@ -56,127 +82,279 @@ fn load8(v: &[i32], i: usize) -> __m256i {
     unsafe { _mm256_loadu_si256(s.as_ptr().cast()) }
 }
 
-/// Grey: 8 pixels per step.
-///
-/// Pairs (p00, p01) and (p10, p11) come from byte shuffles of 16-byte row
-/// windows when the 8 samples sit in two or three consecutive source rows
-/// within 15 columns (the usual case: a grid row maps to a nearly horizontal
-/// image line), and from two dword gathers otherwise. Gathers are the
-/// slowest part of this loop, so the shuffle path roughly halves its cost.
+/// Grey: 8 pixels per step, from the coordinates phase 1 wrote ([`Gray8::step`]).
 #[target_feature(enable = "avx2")]
 pub(super) fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
-    let src = &job.src;
-    let (data, stride) = (src.data, src.stride);
+    let k = Gray8::new(job);
     let n = out.len();
-    let base = data.as_ptr();
-    // Byte pairs → i16 pairs for madd: top (p00, p01) are bytes 0,1 of the
-    // dword gathered at the pixel, bottom (p10, p11) bytes 2,3 of the dword
-    // gathered 2 bytes before it (so the read never passes the buffer end).
-    const Z: i8 = -128;
-    #[rustfmt::skip]
-    let shuf_top = _mm256_setr_epi8(
-        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
-        0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
-    );
-    #[rustfmt::skip]
-    let shuf_bot = _mm256_setr_epi8(
-        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
-        2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
-    );
-    let stride_v = _mm256_set1_epi32(stride as i32);
-    let one = _mm256_set1_epi32(ONE);
-    let round = _mm256_set1_epi32(ROUND2 as i32);
-    let fillv = _mm256_set1_epi32(i32::from(job.fill));
-    let minus1 = _mm256_set1_epi32(-1);
-    let zero = _mm256_setzero_si256();
-    let max_dx = _mm256_set1_epi32(14);
-    let max_dy = _mm256_set1_epi32(1);
-    // Shuffle index per dword: [dx, zero, dx + 1, zero].
-    let idx_bias = _mm256_set1_epi32(0x8001_8000_u32 as i32);
-    // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
-    let base_bot = unsafe { base.add(stride - 2) };
     let mut i = 0;
     while i + 8 <= n {
-        let ix = load8(&co.ix, i);
-        let iy = load8(&co.iy, i);
-        let fx = load8(&co.fx, i);
-        let fy = load8(&co.fy, i);
-        let valid = _mm256_cmpgt_epi32(ix, minus1);
+        let (ix, iy) = (load8(&co.ix, i), load8(&co.iy, i));
+        let (bx, by) = (co.ix[i].min(co.ix[i + 7]), co.iy[i].min(co.iy[i + 7]));
+        let px = k.step(job, ix, iy, load8(&co.fx, i), load8(&co.fy, i), bx, by);
+        let dst = &mut out[i..i + 8];
+        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
+        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
+        i += 8;
+    }
+    bilinear_run::<u8, 1>(job, co, out, i);
+}
 
-        // Window origin: the smaller end of the run (runs are monotonic in
-        // practice; every lane is checked below anyway).
-        let bx = co.ix[i].min(co.ix[i + 7]);
-        let by = co.iy[i].min(co.iy[i + 7]);
-        let mut pairs = None;
-        // Rows by..=by+2 from column bx, 16 bytes each, must be in the buffer.
-        if bx >= 0 && (by as usize + 2) * stride + bx as usize + 16 <= data.len() {
+/// Grey, one block of phase 1's f32 path ([`NearBlock`]): each step computes 8 pixels'
+/// positions as [`NearBlock::at`] does, operation for operation (no FMA, the same floor,
+/// clamp and [`finish`](crate::rectify::positions)), and samples them ([`Gray8::step`]). The
+/// last `len % 8` pixels go through `at` and the scalar kernel.
+#[target_feature(enable = "avx2")]
+fn gray8_near(job: &Job<'_, u8>, b: &NearBlock, out: &mut [u8], co: &mut Coords) {
+    let k = Gray8::new(job);
+    let n = out.len();
+    let mid = b.mid as i32;
+    let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let (xmf, ymf) = (_mm256_set1_ps(b.xmf), _mm256_set1_ps(b.ymf));
+    let (kx, ky) = (_mm256_set1_ps(b.kx), _mm256_set1_ps(b.ky));
+    let (wm, sw) = (_mm256_set1_ps(b.wmf), _mm256_set1_ps(b.swf));
+    let (lim, neg_lim) = (_mm256_set1_ps(b.lim), _mm256_set1_ps(-b.lim));
+    let (xmi, ymi) = (_mm256_set1_epi32(b.xmi), _mm256_set1_epi32(b.ymi));
+    // floor, clamped to ±lim (maxps returns its second operand for NaN: −lim, as
+    // clamp_f32), truncated: exact, the value being an integer within ±2^22.
+    let offset = |base: __m256, kk: __m256, t: __m256| {
+        let f = _mm256_floor_ps(_mm256_add_ps(base, _mm256_mul_ps(kk, t)));
+        _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(f, neg_lim), lim))
+    };
+    let mut i = 0;
+    while i + 8 <= n {
+        let jf = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i as i32 - mid), lanes));
+        let t = _mm256_div_ps(jf, _mm256_add_ps(wm, _mm256_mul_ps(sw, jf)));
+        let xq = _mm256_add_epi32(xmi, offset(xmf, kx, t));
+        let yq = _mm256_add_epi32(ymi, offset(ymf, ky, t));
+        let px = k.finish_step(job, xq, yq);
+        let dst = &mut out[i..i + 8];
+        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
+        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
+        i += 8;
+    }
+    for j in i..n {
+        (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(job, j as i32 - mid);
+    }
+    bilinear_run::<u8, 1>(job, co, out, i);
+}
+
+/// Grey, one block of phase 1's quadratic path ([`QuadBlock`]): 8 lanes of 64-bit positions
+/// stepped by their differences ([`Lanes8`], the integers [`QuadBlock::fill`] gives) and
+/// sampled at once ([`Gray8::step`]). The last `len % 8` pixels go through `at` and the scalar
+/// kernel.
+#[target_feature(enable = "avx2")]
+fn gray8_quad(job: &Job<'_, u8>, b: &QuadBlock, out: &mut [u8], co: &mut Coords) {
+    let k = Gray8::new(job);
+    let n = out.len();
+    let mut lanes = Lanes8::new(b);
+    let mut i = 0;
+    while i + 8 <= n {
+        let (xq, yq) = lanes.next();
+        let px = k.finish_step(job, xq, yq);
+        let dst = &mut out[i..i + 8];
+        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
+        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
+        i += 8;
+    }
+    for j in i..n {
+        (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(job, j);
+    }
+    bilinear_run::<u8, 1>(job, co, out, i);
+}
+
+/// The grey kernel's constants.
+struct Gray8 {
+    shuf_top: __m256i,
+    shuf_bot: __m256i,
+    stride_v: __m256i,
+    one: __m256i,
+    round: __m256i,
+    fillv: __m256i,
+    minus1: __m256i,
+    sign: __m256i,
+    max_dx: __m256i,
+    max_dy: __m256i,
+    idx_bias: __m256i,
+    finish: Finish8,
+}
+
+impl Gray8 {
+    #[target_feature(enable = "avx2")]
+    fn new(job: &Job<'_, u8>) -> Gray8 {
+        // Byte pairs → i16 pairs for madd: top (p00, p01) are bytes 0,1 of the
+        // dword gathered at the pixel, bottom (p10, p11) bytes 2,3 of the dword
+        // gathered 2 bytes before it (so the read never passes the buffer end).
+        const Z: i8 = -128;
+        #[rustfmt::skip]
+        let shuf_top = _mm256_setr_epi8(
+            0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
+            0, Z, 1, Z, 4, Z, 5, Z, 8, Z, 9, Z, 12, Z, 13, Z,
+        );
+        #[rustfmt::skip]
+        let shuf_bot = _mm256_setr_epi8(
+            2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
+            2, Z, 3, Z, 6, Z, 7, Z, 10, Z, 11, Z, 14, Z, 15, Z,
+        );
+        Gray8 {
+            shuf_top,
+            shuf_bot,
+            stride_v: _mm256_set1_epi32(job.src.stride as i32),
+            one: _mm256_set1_epi32(ONE),
+            round: _mm256_set1_epi32(ROUND2 as i32),
+            fillv: _mm256_set1_epi32(i32::from(job.fill)),
+            minus1: _mm256_set1_epi32(-1),
+            // The window's bounds on dx and dy, with the sign bit flipped (see `step`).
+            sign: _mm256_set1_epi32(i32::MIN),
+            max_dx: _mm256_set1_epi32(14 ^ i32::MIN),
+            max_dy: _mm256_set1_epi32(1 ^ i32::MIN),
+            // Shuffle index per dword: [dx, zero, dx + 1, zero].
+            idx_bias: _mm256_set1_epi32(0x8001_8000_u32 as i32),
+            finish: Finish8::new(job),
+        }
+    }
+
+    /// 8 grey pixels from their fixed-point positions: phase 1's `finish` ([`Finish8`]), then
+    /// [`Gray8::step`].
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn finish_step(&self, job: &Job<'_, u8>, xq: __m256i, yq: __m256i) -> __m128i {
+        let [ix, iy, fx, fy] = self.finish.apply(xq, yq);
+        let bx = _mm256_extract_epi32::<0>(ix).min(_mm256_extract_epi32::<7>(ix));
+        let by = _mm256_extract_epi32::<0>(iy).min(_mm256_extract_epi32::<7>(iy));
+        self.step(job, ix, iy, fx, fy, bx, by)
+    }
+
+    /// 8 grey pixels from their positions (`ix < 0`: outside, filled), as 8 bytes.
+    ///
+    /// Pairs (p00, p01) and (p10, p11) come from byte shuffles of 16-byte row windows from
+    /// (`bx`, `by`) when the 8 samples sit in two or three consecutive source rows within 15
+    /// columns (the usual case: a grid row maps to a nearly horizontal image line), and from
+    /// two dword gathers otherwise ([`Gray8::gathered`]). Gathers are the slowest part of this
+    /// loop, so the shuffle path roughly halves its cost.
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn step(
+        &self,
+        job: &Job<'_, u8>,
+        ix: __m256i,
+        iy: __m256i,
+        fx: __m256i,
+        fy: __m256i,
+        bx: i32,
+        by: i32,
+    ) -> __m128i {
+        let (data, stride) = (job.src.data, job.src.stride);
+        // Rows by..=by+2 from column bx, 16 bytes each, must be in the buffer (bx, by are
+        // the smaller ends of the run: runs are monotonic in practice; every lane is checked
+        // below anyway).
+        if bx >= 0 && by >= 0 && (by as usize + 2) * stride + bx as usize + 16 <= data.len() {
             let dx = _mm256_sub_epi32(ix, _mm256_set1_epi32(bx));
             let dy = _mm256_sub_epi32(iy, _mm256_set1_epi32(by));
-            let fits = _mm256_and_si256(
-                _mm256_cmpeq_epi32(_mm256_min_epu32(dx, max_dx), dx),
-                _mm256_cmpeq_epi32(_mm256_min_epu32(dy, max_dy), dy),
+            // Lanes with dx > 14 or dy > 1 as unsigned numbers: signed compares of the values
+            // with their sign bits flipped.
+            let beyond = _mm256_or_si256(
+                _mm256_cmpgt_epi32(_mm256_xor_si256(dx, self.sign), self.max_dx),
+                _mm256_cmpgt_epi32(_mm256_xor_si256(dy, self.sign), self.max_dy),
             );
-            if _mm256_movemask_epi8(fits) == -1 {
+            if _mm256_testz_si256(beyond, beyond) == 1 {
+                // Every lane has ix ≥ bx ≥ 0: all are inside, none is filled.
                 let at = by as usize * stride + bx as usize;
-                let w = &data[at..at + 2 * stride + 16];
-                // The row after next is needed by the next grid rows; fetch
-                // it now, as curved (distorted) source paths defeat the
-                // hardware prefetcher.
-                if let Some(ahead) = data.get(at + 3 * stride) {
-                    _mm_prefetch::<_MM_HINT_T0>((ahead as *const u8).cast());
-                }
-                // SAFETY: each 16-byte window lies inside `w` (bounds-checked).
-                let (r0, r1, r2) = unsafe {
+                let p = data[at..at + 2 * stride + 16].as_ptr();
+                // The row after next is needed by the next grid rows; fetch it now, as curved
+                // (distorted) source paths defeat the hardware prefetcher. (A prefetch never
+                // faults, so the address needs no check.)
+                _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(3 * stride).cast());
+                let idx = _mm256_add_epi32(
+                    _mm256_add_epi32(dx, _mm256_slli_epi32::<16>(dx)),
+                    self.idx_bias,
+                );
+                // SAFETY: rows by and by+1 from column bx, 16 bytes each, lie in the slice
+                // taken above.
+                let (t0, t1) = unsafe {
                     (
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(w.as_ptr().cast())),
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(w[stride..].as_ptr().cast())),
-                        _mm256_broadcastsi128_si256(_mm_loadu_si128(
-                            w[2 * stride..].as_ptr().cast(),
-                        )),
+                        _mm256_shuffle_epi8(
+                            _mm256_broadcastsi128_si256(_mm_loadu_si128(p.cast())),
+                            idx,
+                        ),
+                        _mm256_shuffle_epi8(
+                            _mm256_broadcastsi128_si256(_mm_loadu_si128(p.add(stride).cast())),
+                            idx,
+                        ),
                     )
                 };
-                let idx =
-                    _mm256_add_epi32(_mm256_add_epi32(dx, _mm256_slli_epi32::<16>(dx)), idx_bias);
-                let (t0, t1, t2) = (
-                    _mm256_shuffle_epi8(r0, idx),
-                    _mm256_shuffle_epi8(r1, idx),
-                    _mm256_shuffle_epi8(r2, idx),
-                );
-                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2).
-                let first = _mm256_cmpeq_epi32(dy, zero);
-                pairs = Some((
-                    _mm256_blendv_epi8(t1, t0, first),
-                    _mm256_blendv_epi8(t2, t1, first),
-                ));
+                // Lanes with dy = 0 use rows (by, by+1), the others (by+1, by+2); all of them
+                // the first pair where the run stays in one row pair (most runs).
+                let (pt, pb) = if _mm256_testz_si256(dy, dy) == 1 {
+                    (t0, t1)
+                } else {
+                    // SAFETY: row by+2 from column bx, 16 bytes, lies in the slice above.
+                    let t2 = unsafe {
+                        _mm256_shuffle_epi8(
+                            _mm256_broadcastsi128_si256(_mm_loadu_si128(p.add(2 * stride).cast())),
+                            idx,
+                        )
+                    };
+                    let first = _mm256_cmpeq_epi32(dy, _mm256_setzero_si256());
+                    (
+                        _mm256_blendv_epi8(t1, t0, first),
+                        _mm256_blendv_epi8(t2, t1, first),
+                    )
+                };
+                return pack8(self.weigh(pt, pb, fx, fy));
             }
         }
-        let (pt, pb) = match pairs {
-            Some(p) => p,
-            None => {
-                // Outside samples read offset 0 (in bounds) and become fill.
-                let off = _mm256_and_si256(
-                    _mm256_add_epi32(_mm256_mullo_epi32(iy, stride_v), ix),
-                    valid,
-                );
-                // SAFETY: inside samples have ix ≤ W−2, iy ≤ H−2, so the top
-                // dword [off, off+3] ends at ≤ (H−1)·W + 1 < W·H and the bottom
-                // dword [off+W−2, off+W+1] ends at ≤ H·W − 1; offset 0 is in
-                // bounds since W, H ≥ 2. The driver caps the buffer below
-                // i32::MAX.
-                let (gt, gb) = unsafe {
-                    (
-                        _mm256_i32gather_epi32::<1>(base.cast(), off),
-                        _mm256_i32gather_epi32::<1>(base_bot.cast(), off),
-                    )
-                };
-                (
-                    _mm256_shuffle_epi8(gt, shuf_top),
-                    _mm256_shuffle_epi8(gb, shuf_bot),
-                )
-            }
+        self.gathered(job, ix, iy, fx, fy)
+    }
+
+    /// [`Gray8::step`] by two dword gathers (samples far apart, or some outside).
+    #[target_feature(enable = "avx2")]
+    #[inline(never)]
+    fn gathered(
+        &self,
+        job: &Job<'_, u8>,
+        ix: __m256i,
+        iy: __m256i,
+        fx: __m256i,
+        fy: __m256i,
+    ) -> __m128i {
+        let (data, stride) = (job.src.data, job.src.stride);
+        let base = data.as_ptr();
+        let valid = _mm256_cmpgt_epi32(ix, self.minus1);
+        // Outside samples read offset 0 (in bounds) and become fill.
+        let off = _mm256_and_si256(
+            _mm256_add_epi32(_mm256_mullo_epi32(iy, self.stride_v), ix),
+            valid,
+        );
+        // SAFETY: stride ≥ 2 (width ≥ 2 is checked by the driver).
+        let base_bot = unsafe { base.add(stride - 2) };
+        // SAFETY: inside samples have ix ≤ W−2, iy ≤ H−2, so the top
+        // dword [off, off+3] ends at ≤ (H−1)·W + 1 < W·H and the bottom
+        // dword [off+W−2, off+W+1] ends at ≤ H·W − 1; offset 0 is in
+        // bounds since W, H ≥ 2. The driver caps the buffer below
+        // i32::MAX.
+        let (gt, gb) = unsafe {
+            (
+                _mm256_i32gather_epi32::<1>(base.cast(), off),
+                _mm256_i32gather_epi32::<1>(base_bot.cast(), off),
+            )
         };
+        let val = self.weigh(
+            _mm256_shuffle_epi8(gt, self.shuf_top),
+            _mm256_shuffle_epi8(gb, self.shuf_bot),
+            fx,
+            fy,
+        );
+        pack8(_mm256_blendv_epi8(self.fillv, val, valid))
+    }
+
+    /// The bilinear value (i32 lanes) from the pairs (p00, p01) and (p10, p11) as i16.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn weigh(&self, pt: __m256i, pb: __m256i, fx: __m256i, fy: __m256i) -> __m256i {
         // (ONE − fx, fx) as i16 pairs.
-        let wx = _mm256_or_si256(_mm256_sub_epi32(one, fx), _mm256_slli_epi32::<16>(fx));
+        let wx = _mm256_or_si256(_mm256_sub_epi32(self.one, fx), _mm256_slli_epi32::<16>(fx));
         let top = _mm256_madd_epi16(pt, wx);
         let bot = _mm256_madd_epi16(pb, wx);
         // top·(ONE − fy) + bot·fy = top·ONE + (bot − top)·fy
@@ -184,20 +362,20 @@ pub(super) fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
             _mm256_slli_epi32::<{ FRAC_BITS as i32 }>(top),
             _mm256_mullo_epi32(_mm256_sub_epi32(bot, top), fy),
         );
-        let val = _mm256_srai_epi32::<{ 2 * FRAC_BITS as i32 }>(_mm256_add_epi32(val, round));
-        let val = _mm256_blendv_epi8(fillv, val, valid);
-        let p16 = _mm256_packus_epi32(val, val);
-        let p8 = _mm256_packus_epi16(p16, p16);
-        let px = _mm_unpacklo_epi32(
-            _mm256_castsi256_si128(p8),
-            _mm256_extracti128_si256::<1>(p8),
-        );
-        let dst = &mut out[i..i + 8];
-        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
-        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
-        i += 8;
+        _mm256_srai_epi32::<{ 2 * FRAC_BITS as i32 }>(_mm256_add_epi32(val, self.round))
     }
-    bilinear_run::<u8, 1>(job, co, out, i);
+}
+
+/// 8 i32 lanes, each 0..=255 (or clamped there), as 8 bytes.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn pack8(val: __m256i) -> __m128i {
+    let p16 = _mm256_packus_epi32(val, val);
+    let p8 = _mm256_packus_epi16(p16, p16);
+    _mm_unpacklo_epi32(
+        _mm256_castsi256_si128(p8),
+        _mm256_extracti128_si256::<1>(p8),
+    )
 }
 
 /// RGB: 8 pixels per step from pixel `start` of the run. Per pixel one 8-byte load from each of
