@@ -6,7 +6,9 @@ use crate::geometry::mat3::Mat3;
 
 mod quad;
 
-pub(crate) use quad::{Finish8, Lanes8, QuadBlock};
+pub(crate) use quad::QuadBlock;
+#[cfg(target_arch = "x86_64")]
+pub(crate) use quad::{Finish8, Lanes8};
 
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
 #[inline(always)]
@@ -204,6 +206,10 @@ pub(crate) fn plan_block<T>(job: &Job<'_, T>, l: &Line, c0: usize, len: usize) -
     // Between the ends (w > 0 and affine: the position is monotonic), so |uxm| stays
     // under 1e9 + BLOCK_SPAN and its floor fits an i32 with room for the offsets.
     let (uxm, uym, wm) = l.scaled(c0 + mid as f64);
+    if !(wm as f32).is_normal() {
+        // A w too small (or too large) for f32: the f32 path would divide by 0 (or inf).
+        return (Plan::Exact, len);
+    }
     let (xmi, ymi) = (uxm.floor(), uym.floor());
     let near = NearBlock {
         kx: (l.sx * one + 0.5 * l.sw - uxm * l.sw) as f32,

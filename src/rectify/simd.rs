@@ -198,7 +198,8 @@ mod tests {
                 [-2800.0, 2900.0],
             ],
         ];
-        let mut plans = [0usize; 4];
+        // Blocks: quadratic whole, quadratic shorter, f32, outside, exact.
+        let mut plans = [0usize; 5];
         for (v, img) in views.iter().enumerate() {
             let h_img = homography_from_points(*img, PLATE).unwrap().matrix();
             for p in [0.6, 0.25] {
@@ -226,7 +227,7 @@ mod tests {
                                     for j in 0..len {
                                         (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(&job, j);
                                     }
-                                    usize::from(len != n)
+                                    usize::from(len != n - j0)
                                 }
                                 Plan::Near(b) => {
                                     for j in 0..len {
@@ -237,7 +238,7 @@ mod tests {
                                 }
                                 Plan::Outside | Plan::Exact => {
                                     map_run(&job, row, c0 + j0, len, &mut co);
-                                    3
+                                    3 + usize::from(matches!(plan, Plan::Exact))
                                 }
                             };
                             plans[k] += 1;
@@ -246,8 +247,12 @@ mod tests {
                             j0 += len;
                         }
                     }
-                    row_gray8(&job, row, &mut got, &mut co);
+                    // The AVX2 kernel itself (`row_gray8` picks AVX-512 where it can).
+                    // SAFETY: AVX2 is present (checked above).
+                    unsafe { super::avx2::row_gray8_avx2(&job, row, &mut got, &mut co) };
                     assert_eq!(got, want, "view {v}, pixel {p}, row {row}");
+                    row_gray8(&job, row, &mut got, &mut co);
+                    assert_eq!(got, want, "dispatched, view {v}, pixel {p}, row {row}");
                     row_generic::<u8, 1, false>(&job, row, &mut generic, &mut co);
                     assert_eq!(generic, want, "phase 1, view {v}, pixel {p}, row {row}");
                 }

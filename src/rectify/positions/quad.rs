@@ -11,6 +11,7 @@
 //! evaluating them (directly, or 8 lanes stepping by 8 with first and second differences,
 //! as the scalar loop below and the AVX2 kernel do) gives the same bits.
 
+#[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
 use super::{finish, Line};
@@ -61,7 +62,8 @@ impl QuadBlock {
         let gx = (l.sx * one + 0.5 * l.sw - uxm * l.sw) / wm;
         let gy = (l.sy * one + 0.5 * l.sw - uym * l.sw) / wm;
         let err = gx.abs().max(gy.abs()) * s * s * h * h * h / (1.0 - sh);
-        if err.is_nan() || err > MAX_ERR {
+        // (`max` passes over a NaN slope, so the slopes are checked on their own.)
+        if !gx.is_finite() || !gy.is_finite() || err.is_nan() || err > MAX_ERR {
             return None;
         }
         let scale = (1u64 << QF) as f64;
@@ -114,12 +116,12 @@ impl QuadBlock {
     /// ([`fill_avx2`] where the CPU has AVX2: compilers leave the scalar loop scalar).
     #[inline(always)]
     pub(crate) fn fill<T>(&self, job: &Job<'_, T>, j0: usize, len: usize, co: &mut Coords) {
+        #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: AVX2 is present (checked).
-            unsafe { fill_avx2(self, job, j0, len, co) }
-        } else {
-            self.fill_scalar(job, j0, len, co)
+            return unsafe { fill_avx2(self, job, j0, len, co) };
         }
+        self.fill_scalar(job, j0, len, co)
     }
 
     /// [`QuadBlock::fill`] without SIMD.
@@ -154,6 +156,7 @@ impl QuadBlock {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
 /// The quadratics' 8 lanes in AVX2 registers: pixels 0, 1, 4, 5 in one register and 2, 3, 6, 7
 /// in the other, so that the high halves picked by one `shufps` (within 128-bit lanes) come
 /// out in pixel order.
@@ -166,6 +169,7 @@ pub(crate) struct Lanes8 {
     ddy: __m256i,
 }
 
+#[cfg(target_arch = "x86_64")]
 impl Lanes8 {
     /// The lanes of block pixels 0..8.
     #[target_feature(enable = "avx2")]
@@ -213,6 +217,7 @@ impl Lanes8 {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
 /// Phase 1's `finish` on 8 pixels in AVX2 registers: inside iff 0 ≤ q ≤ max (an unsigned
 /// compare); the last column and row step back by one pixel with full weight on the far one.
 pub(crate) struct Finish8 {
@@ -223,6 +228,7 @@ pub(crate) struct Finish8 {
     all: __m256i,
 }
 
+#[cfg(target_arch = "x86_64")]
 impl Finish8 {
     #[target_feature(enable = "avx2")]
     pub(crate) fn new<T>(job: &Job<'_, T>) -> Finish8 {
@@ -252,6 +258,7 @@ impl Finish8 {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
 /// [`QuadBlock::fill`] with AVX2: the same integers, 8 pixels a step.
 #[target_feature(enable = "avx2")]
 fn fill_avx2<T>(b: &QuadBlock, job: &Job<'_, T>, j0: usize, len: usize, co: &mut Coords) {
