@@ -1,10 +1,13 @@
 //! Phase 1 of the rectifier (see `warp.rs`): fixed-point source positions of a run of grid
 //! pixels, incremental along the row, f32 blocks where that is exact enough, f64 elsewhere.
 
-use super::kernel::{Coords, DistParams, Job, CHUNK, FRAC_BITS, ONE};
-use crate::geometry::mat3::Mat3;
+use super::kernel::{Coords, DistParams, Job, CHUNK, ONE};
 
+mod line;
 mod quad;
+
+use line::finish;
+pub(crate) use line::Line;
 
 pub(crate) use quad::QuadBlock;
 #[cfg(target_arch = "x86_64")]
@@ -43,53 +46,6 @@ pub(crate) fn map_run<T>(job: &Job<'_, T>, row: usize, col0: usize, n: usize, co
             }
             None => fast_block(job, &line, col0, j0, len, co),
         };
-    }
-}
-
-/// Homogeneous source position along one grid row: `base + c·step`.
-pub(crate) struct Line {
-    bx: f64,
-    by: f64,
-    bw: f64,
-    sx: f64,
-    sy: f64,
-    sw: f64,
-}
-
-impl Line {
-    /// Grid row `row` under `m` (grid (col, row, 1) → homogeneous image position): along a row
-    /// the position is affine in the column, one base per row plus c·step per pixel, no 3x3
-    /// product.
-    #[inline(always)]
-    pub(crate) fn of_row(m: &Mat3, row: usize) -> Line {
-        let r = row as f64;
-        Line {
-            bx: m[0][1] * r + m[0][2],
-            by: m[1][1] * r + m[1][2],
-            bw: m[2][1] * r + m[2][2],
-            sx: m[0][0],
-            sy: m[1][0],
-            sw: m[2][0],
-        }
-    }
-
-    /// Undistorted source position in pixels, and w.
-    #[inline(always)]
-    fn at(&self, c: f64) -> (f64, f64, f64) {
-        let w = self.bw + c * self.sw;
-        ((self.bx + c * self.sx) / w, (self.by + c * self.sy) / w, w)
-    }
-
-    /// Source position in fixed-point units plus ½ (so `floor` rounds), and w.
-    #[inline(always)]
-    pub(crate) fn scaled(&self, c: f64) -> (f64, f64, f64) {
-        let w = self.bw + c * self.sw;
-        let rw = ONE as f64 / w;
-        (
-            (self.bx + c * self.sx) * rw + 0.5,
-            (self.by + c * self.sy) * rw + 0.5,
-            w,
-        )
     }
 }
 
@@ -350,25 +306,6 @@ fn clamp_f32(x: f32, lim: f32) -> f32 {
     }
 }
 
-/// Fixed-point position → (ix, iy, fx, fy), `ix = −1` when outside.
-///
-/// Inside iff the rounded position lies in [0, W−1] x [0, H−1]. On the last
-/// column/row the pixel steps back by one with full weight on the far
-/// neighbour, so the 2x2 block stays in the image.
-#[inline(always)]
-fn finish<T>(job: &Job<'_, T>, xq: i32, yq: i32, ok: bool) -> (i32, i32, i32, i32) {
-    // Unsigned compare tests 0 ≤ q ≤ max in one go.
-    let ok = ok & ((xq as u32) <= job.xmax_q as u32) & ((yq as u32) <= job.ymax_q as u32);
-    let xi = (xq >> FRAC_BITS).min(job.wm2);
-    let yi = (yq >> FRAC_BITS).min(job.hm2);
-    (
-        if ok { xi } else { -1 },
-        yi,
-        xq - (xi << FRAC_BITS),
-        yq - (yi << FRAC_BITS),
-    )
-}
-
 const NO_DIST: DistParams = DistParams {
     cu: 0.0,
     cv: 0.0,
@@ -436,6 +373,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::geometry::mat3;
     use crate::geometry::{homography_from_points, RadialDistortion};
+    use crate::rectify::kernel::FRAC_BITS;
 
     /// The plate's corners in build mm (a 275 mm square), which the tests' views map.
     pub(crate) const PLATE: [[f64; 2]; 4] = [

@@ -14,7 +14,7 @@
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
-use super::{finish, Line};
+use super::line::{finish, Line};
 use crate::rectify::kernel::{Coords, Job, FRAC_BITS, ONE};
 
 /// Fraction bits of the fixed point, below the fixed-point unit (1/2048 px).
