@@ -82,8 +82,7 @@ pub(crate) enum Plan {
 /// The f32 path's constants for one block: the pixel `jm` columns from the block's middle
 /// pixel is at `(xmi, ymi)` plus the floors of `(xmf, ymf) + (kx, ky)·t`, with
 /// `t = jm / (wmf + swf·jm)`, each clamped to `±lim` (which only NaN and overflow reach).
-/// [`NearBlock::at`] is the computation; the SIMD kernel that fuses it with sampling
-/// (`simd/avx2.rs`) repeats it operation for operation, so the two give the same bits.
+/// [`NearBlock::at`] is the computation.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct NearBlock {
     pub(crate) xmf: f32,

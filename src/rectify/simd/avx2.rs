@@ -6,7 +6,7 @@ use std::arch::x86_64::*;
 
 use crate::rectify::kernel::{bilinear_run, Coords, Job, Sample, CHUNK, FRAC_BITS, ONE, ROUND2};
 use crate::rectify::positions::QuadBlock;
-use crate::rectify::positions::{map_run, plan_block, Finish8, Lanes8, Line, NearBlock, Plan};
+use crate::rectify::positions::{map_run, plan_block, Finish8, Lanes8, Line, Plan};
 
 /// The generic row kernel compiled for AVX2 (phase 1 vectorises 4-wide f64).
 #[target_feature(enable = "avx2")]
@@ -38,8 +38,8 @@ pub(super) fn row_8bit<const CN: usize>(
 }
 
 /// Bilinear 8-bit grey row. Without distortion, a block that phase 1 takes by its quadratic
-/// or f32 path ([`Plan::Quad`], [`Plan::Near`]) is positioned and sampled 8 pixels at a time
-/// in registers ([`gray8_quad`], [`gray8_near`]): its coordinates never go through memory.
+/// path ([`Plan::Quad`]) is positioned and sampled 8 pixels at a time in registers
+/// ([`gray8_quad`]): its coordinates never go through memory.
 /// Other blocks, and rows with distortion, are phase 1 then [`gray8_run`].
 #[target_feature(enable = "avx2")]
 pub(super) fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
@@ -56,8 +56,8 @@ pub(super) fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: 
             let part = &mut chunk[j0..j0 + len];
             match plan {
                 Plan::Quad(b) => gray8_quad(job, &b, part, co),
-                Plan::Near(b) => gray8_near(job, &b, part, co),
-                Plan::Outside | Plan::Exact => {
+                // (The f32 path fused here measured no faster: its float work is the cost.)
+                Plan::Near(_) | Plan::Outside | Plan::Exact => {
                     map_run(job, row, col0 + j0, len, co);
                     gray8_run(job, co, part);
                 }
@@ -96,45 +96,6 @@ pub(super) fn gray8_run(job: &Job<'_, u8>, co: &Coords, out: &mut [u8]) {
         // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
         unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
         i += 8;
-    }
-    bilinear_run::<u8, 1>(job, co, out, i);
-}
-
-/// Grey, one block of phase 1's f32 path ([`NearBlock`]): each step computes 8 pixels'
-/// positions as [`NearBlock::at`] does, operation for operation (no FMA, the same floor,
-/// clamp and [`finish`](crate::rectify::positions)), and samples them ([`Gray8::step`]). The
-/// last `len % 8` pixels go through `at` and the scalar kernel.
-#[target_feature(enable = "avx2")]
-fn gray8_near(job: &Job<'_, u8>, b: &NearBlock, out: &mut [u8], co: &mut Coords) {
-    let k = Gray8::new(job);
-    let n = out.len();
-    let mid = b.mid as i32;
-    let lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-    let (xmf, ymf) = (_mm256_set1_ps(b.xmf), _mm256_set1_ps(b.ymf));
-    let (kx, ky) = (_mm256_set1_ps(b.kx), _mm256_set1_ps(b.ky));
-    let (wm, sw) = (_mm256_set1_ps(b.wmf), _mm256_set1_ps(b.swf));
-    let (lim, neg_lim) = (_mm256_set1_ps(b.lim), _mm256_set1_ps(-b.lim));
-    let (xmi, ymi) = (_mm256_set1_epi32(b.xmi), _mm256_set1_epi32(b.ymi));
-    // floor, clamped to ±lim (maxps returns its second operand for NaN: −lim, as
-    // clamp_f32), truncated: exact, the value being an integer within ±2^22.
-    let offset = |base: __m256, kk: __m256, t: __m256| {
-        let f = _mm256_floor_ps(_mm256_add_ps(base, _mm256_mul_ps(kk, t)));
-        _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(f, neg_lim), lim))
-    };
-    let mut i = 0;
-    while i + 8 <= n {
-        let jf = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(i as i32 - mid), lanes));
-        let t = _mm256_div_ps(jf, _mm256_add_ps(wm, _mm256_mul_ps(sw, jf)));
-        let xq = _mm256_add_epi32(xmi, offset(xmf, kx, t));
-        let yq = _mm256_add_epi32(ymi, offset(ymf, ky, t));
-        let px = k.finish_step(job, xq, yq);
-        let dst = &mut out[i..i + 8];
-        // SAFETY: `dst` is exactly 8 bytes; unaligned 8-byte store.
-        unsafe { _mm_storel_epi64(dst.as_mut_ptr().cast(), px) };
-        i += 8;
-    }
-    for j in i..n {
-        (co.ix[j], co.iy[j], co.fx[j], co.fy[j]) = b.at(job, j as i32 - mid);
     }
     bilinear_run::<u8, 1>(job, co, out, i);
 }
