@@ -3,7 +3,8 @@
 //! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 //! LAYERWISE_BENCH_ROUNDS sets the rounds (each: every frame alone, then one layer; default 3
-//! with `--bench`, else 1); the layer line gives the median, fastest and slowest layer.
+//! with `--bench`, else 1); the layer line gives the median, fastest and slowest layer, and the
+//! CPU line the CPU time of a layer (all threads) and how busy it kept the cores.
 //! LAYERWISE_BENCH_DICOM=deflate (or none, jpegls; comma-separated) runs only those transfer
 //! syntaxes and no NEF, for profiling one of them (`perf record`).
 
@@ -49,17 +50,30 @@ fn in_layer(shot: Shot, layer: u32) -> Shot {
     Shot { layer, ..shot }
 }
 
+/// This process's CPU time so far (user and system, all threads), s.
+fn cpu_s() -> f64 {
+    // SAFETY: getrusage fills the struct it is given; a zeroed rusage is a valid one.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `usage` is a valid, writable rusage.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+        return 0.0;
+    }
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 / 1e6;
+    s(usage.ru_utime) + s(usage.ru_stime)
+}
+
 /// Per-frame times (ms, each frame alone), per-layer times (s, the six frames one per core at
-/// a time, as the processing worker runs them) and the steps of the layers' frames, over
-/// `rounds` rounds; and the last layer written.
+/// a time, as the processing worker runs them), the CPU time of each layer (s, all threads)
+/// and the steps of the layers' frames, over `rounds` rounds; and the last layer written.
 fn time_frames(
     live: &LiveSeries,
     build_dir: &std::path::Path,
     originals: &[(Shot, std::path::PathBuf)],
     rounds: usize,
-) -> (Vec<f64>, Vec<f64>, Vec<StepTimes>, u32) {
+) -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<StepTimes>, u32) {
     let mut per_frame = Vec::new();
     let mut layer_totals = Vec::new();
+    let mut layer_cpu = Vec::new();
     let steps = std::sync::Mutex::new(Vec::new());
     let mut last = 0;
     for _ in 0..rounds {
@@ -71,7 +85,7 @@ fn time_frames(
             per_frame.push(t.elapsed().as_secs_f64() * 1e3);
         }
         last = next_layer();
-        let layer = Instant::now();
+        let (layer, cpu) = (Instant::now(), cpu_s());
         originals.par_iter().for_each(|(shot, path)| {
             // What `FrameProcessor::process` runs, with its step times kept.
             let mut frame = StepTimes::default();
@@ -80,9 +94,10 @@ fn time_frames(
             steps.lock().expect("steps").push(frame);
         });
         layer_totals.push(layer.elapsed().as_secs_f64());
+        layer_cpu.push(cpu_s() - cpu);
     }
     let steps = steps.into_inner().expect("steps");
-    (per_frame, layer_totals, steps, last)
+    (per_frame, layer_totals, layer_cpu, steps, last)
 }
 
 /// The medians of the steps of the layers' frames, ms.
@@ -219,8 +234,9 @@ fn main() {
         // memory before it (the rendered frames, the renderer).
         let before_kib = memory::current_rss_kib();
         memory::reset_peak();
-        let (per_frame, layer_totals, steps, last) =
+        let (per_frame, layer_totals, layer_cpu, steps, last) =
             time_frames(&live, dir.path(), &originals, rounds);
+        let (cpu, layer_s) = (median(layer_cpu), median(layer_totals.clone()));
         let size = std::fs::metadata(dir.path().join(format!("dicom/post_top/L{last:05}.dcm")))
             .map(|m| m.len())
             .unwrap_or(0);
@@ -231,7 +247,7 @@ fn main() {
         println!(
             "{compression:?}: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s (target < 2 s; {} layers, fastest {fastest:.2} s, slowest {slowest:.2} s); {:.1} MB per slice, {:.0} MB per layer",
             median(per_frame),
-            median(layer_totals),
+            layer_s,
             layers,
             size as f64 / 1e6,
             6.0 * size as f64 / 1e6
@@ -239,6 +255,10 @@ fn main() {
         println!(
             "{compression:?}: steps of a frame within the layers (medians, ms, two frames at a time): {}",
             steps_line(&steps)
+        );
+        println!(
+            "{compression:?}: CPU of a layer (median, all threads) {cpu:.2} s, {:.0} % of its time",
+            100.0 * cpu / layer_s
         );
         println!(
             "{compression:?}: peak resident memory while processing {:.0} MiB ({:.0} MiB before it)",
@@ -310,7 +330,7 @@ fn raw_frames(
         fill: 0,
     };
     let live = LiveSeries::new(manifest, views, calibration, settings).expect("series");
-    let (per_frame, layer_totals, _, _) =
+    let (per_frame, layer_totals, _, _, _) =
         time_frames(&live, dir.path(), &originals, if full { 2 } else { 1 });
     println!(
         "NEF, None: per frame alone median {:.0} ms; per layer (6 frames, one per core at a time) median {:.2} s",

@@ -10,7 +10,7 @@ use dicom_object::FileMetaTableBuilder;
 use dicom_pixeldata::Transcode;
 use dicom_transfer_syntax_registry::TransferSyntaxIndex;
 
-use super::deflate::{deflate_samples, Samples};
+use super::deflate::{deflate_samples_each, Samples};
 use super::error::{DicomError, EncodeError};
 use super::iod::{
     instance_uid_of_take, put, put_pixel_data, slice_object, Series, Slice, SliceSource, Study,
@@ -53,10 +53,10 @@ pub fn encode_slice_from(
     source: Option<SliceSource>,
 ) -> Result<Vec<u8>, EncodeError> {
     let encoded = EncodedSlice::new(study, series, slice, compression, source)?;
-    let mut out = Vec::with_capacity(encoded.len());
+    let mut out = Vec::with_capacity(encoded.capacity_hint());
     // Writing to a vector cannot fail.
     encoded
-        .write_to(&mut out)
+        .write_to(&mut out, &mut 0.0)
         .map_err(|e| EncodeError::encoder("cannot write the data set")(Box::new(e)))?;
     Ok(out)
 }
@@ -64,19 +64,19 @@ pub fn encode_slice_from(
 /// A slice file in the parts it is written from, so that the samples are never copied into
 /// one big buffer first: the file's opening (preamble, meta group and the data set up to the
 /// pixel data's element header, deflated for [`Compression::Deflate`]), then the samples (as
-/// they are, little endian, or deflated in parallel segments), then any padding.
+/// they are, little endian, or deflated in parallel segments as they are written), then any
+/// padding.
 struct EncodedSlice<'a> {
     head: Vec<u8>,
     body: Body<'a>,
-    /// One NUL after an odd-length deflated stream (PS3.5 A.5).
-    pad: bool,
 }
 
 enum Body<'a> {
     /// The samples as 16-bit little-endian values.
     Plain(Samples<'a>),
-    /// The deflated samples: the rest of the stream.
-    Deflated(Vec<Vec<u8>>),
+    /// The samples, to be deflated as the rest of the stream the head opens; one NUL follows an
+    /// odd-length stream (PS3.5 A.5).
+    Deflate(Samples<'a>),
     /// Already part of the head (JPEG-LS encapsulates its pixel data in the data set).
     None,
 }
@@ -165,7 +165,6 @@ impl<'a> EncodedSlice<'a> {
                 Ok(EncodedSlice {
                     head,
                     body: Body::Plain(slice.pixels),
-                    pad: false,
                 })
             }
             Compression::Deflate => {
@@ -185,12 +184,9 @@ impl<'a> EncodedSlice<'a> {
                 .map_err(write_error)?;
                 plain.extend_from_slice(&pixel_data_header(slice.pixels.len())?);
                 head.extend_from_slice(&deflate_flushed(&plain));
-                let segments = deflate_samples(slice.pixels);
-                let len = head.len() + segments.iter().map(Vec::len).sum::<usize>();
                 Ok(EncodedSlice {
                     head,
-                    body: Body::Deflated(segments),
-                    pad: len % 2 == 1,
+                    body: Body::Deflate(slice.pixels),
                 })
             }
             Compression::JpegLs => {
@@ -210,24 +206,26 @@ impl<'a> EncodedSlice<'a> {
                 Ok(EncodedSlice {
                     head: bytes,
                     body: Body::None,
-                    pad: false,
                 })
             }
         }
     }
 
-    /// The file's length in bytes.
-    fn len(&self) -> usize {
+    /// About the file's length in bytes (exact but for deflate, where it is the samples' count:
+    /// a rectified frame's deflated samples take about a byte each).
+    fn capacity_hint(&self) -> usize {
         let body = match &self.body {
             Body::Plain(s) => 2 * s.len(),
-            Body::Deflated(parts) => parts.iter().map(Vec::len).sum(),
+            Body::Deflate(s) => s.len(),
             Body::None => 0,
         };
-        self.head.len() + body + usize::from(self.pad)
+        self.head.len() + body + 1
     }
 
-    /// Writes the file's bytes in order; plain samples go out a block at a time.
-    fn write_to(&self, w: &mut impl std::io::Write) -> std::io::Result<()> {
+    /// Writes the file's bytes in order; plain samples go out a block at a time, deflated ones
+    /// a few segments at a time as they are coded (so the disk writes the first while the rest
+    /// are coded). Adds the time spent coding to `encode_ms`.
+    fn write_to(&self, w: &mut impl std::io::Write, encode_ms: &mut f64) -> std::io::Result<()> {
         w.write_all(&self.head)?;
         match &self.body {
             Body::Plain(samples) => {
@@ -239,15 +237,26 @@ impl<'a> EncodedSlice<'a> {
                     w.write_all(&buf)?;
                 }
             }
-            Body::Deflated(parts) => {
-                for part in parts {
-                    w.write_all(part)?;
+            Body::Deflate(samples) => {
+                // Two segments a core: each group keeps the cores busy, the file takes each
+                // group while the next is coded, and the coded slice is never whole in memory.
+                let group = 2 * rayon::current_num_threads().max(1);
+                let mut len = self.head.len();
+                let mut started = Instant::now();
+                deflate_samples_each(*samples, group, |parts| {
+                    *encode_ms += ms_since(started);
+                    for part in &parts {
+                        w.write_all(part)?;
+                        len += part.len();
+                    }
+                    started = Instant::now();
+                    Ok::<(), std::io::Error>(())
+                })?;
+                if len % 2 == 1 {
+                    w.write_all(&[0])?;
                 }
             }
             Body::None => {}
-        }
-        if self.pad {
-            w.write_all(&[0])?;
         }
         Ok(())
     }
@@ -314,7 +323,7 @@ pub fn write_slice_from(
                 source,
             }
         })?;
-    let encode_ms = ms_since(started);
+    let mut encode_ms = ms_since(started);
     let started = Instant::now();
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).map_err(|source| crate::fsutil::WriteError {
@@ -324,10 +333,12 @@ pub fn write_slice_from(
     }
     // Straight to the file: the parts are large (plain samples go in 128 KiB blocks, deflated
     // ones in segments of about 1 MB), and a buffer would only copy them once more.
-    write_atomic_with(path, true, |file| encoded.write_to(file))?;
+    let mut coding_ms = 0.0;
+    write_atomic_with(path, true, |file| encoded.write_to(file, &mut coding_ms))?;
+    encode_ms += coding_ms;
     Ok(WriteTimes {
         encode_ms,
-        write_ms: ms_since(started),
+        write_ms: ms_since(started) - coding_ms,
     })
 }
 

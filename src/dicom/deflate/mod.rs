@@ -3,17 +3,18 @@
 //! at distance 2 (a sample is two bytes). No other string matching: on rectified camera frames
 //! matches beyond runs are rare, and the literal codes are what makes the file small (on a
 //! rectified D810 frame 13% larger than zlib's level 1 and 8% smaller than the miniz level 1
-//! used before, in 0.08 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
+//! used before, in 0.07-0.08 of zlib level 1's time on two cores; benches/peers/deflate_vs_zlib.py,
 //! docs/benchmarks.md). 8-bit samples (the luma of JPEG frames, stored in 16 bits) are coded
 //! as one table entry per sample: the low byte's code followed by the high (zero) byte's.
-//! Each segment is read twice: once to count its byte values (a plain histogram, no run scan:
-//! [`Segment::frequencies`]), once to write its tokens, finding where runs start 16 samples at
-//! a time ([`scan`]); the codes go to the bit writer four at a time
-//! ([`huffman::BitWriter::put_all`]).
+//! Each segment is read twice: once to count the byte values of a quarter of it, spread evenly
+//! (a plain histogram, no run scan: [`Segment::frequencies`]), once to write its tokens, finding
+//! where runs start 16 samples at a time ([`scan`]); the codes go to the bit writer four at a
+//! time ([`huffman::BitWriter::put_all`]).
 //!
-//! Segments of [`SEGMENT`] samples are coded in parallel, each ending on a byte boundary with an
-//! empty stored block (as zlib's sync flush and pigz do), so their concatenation is one stream;
-//! the last one ends the stream.
+//! Segments of [`SEGMENT`] samples are coded in parallel, a few at a time in order
+//! ([`deflate_samples_each`]: the file takes each group as it is done), each ending on a byte
+//! boundary with an empty stored block (as zlib's sync flush and pigz do), so their
+//! concatenation is one stream; the last one ends the stream.
 
 mod huffman;
 
@@ -74,17 +75,41 @@ impl<'a> From<&'a Vec<u16>> for Samples<'a> {
 
 /// The samples deflated, as parts of one raw deflate stream that `prefix` (an already
 /// compressed, byte-aligned, non-final part, or nothing) opens; the last part ends the stream.
+#[cfg(test)]
 pub(crate) fn deflate_samples(samples: Samples<'_>) -> Vec<Vec<u8>> {
+    let mut all = Vec::new();
+    let group = samples.len().div_ceil(SEGMENT).max(1);
+    let _ = deflate_samples_each(samples, group, |parts| {
+        all.extend(parts);
+        Ok::<(), std::convert::Infallible>(())
+    });
+    all
+}
+
+/// The parts of [`deflate_samples`], handed to `each` in order `group` segments at a time as
+/// soon as those are coded (each group's segments in parallel), so that a file can take the
+/// first parts (and the disk start on them) while the rest are being coded. Stops at the first
+/// error of `each`.
+pub(crate) fn deflate_samples_each<E>(
+    samples: Samples<'_>,
+    group: usize,
+    mut each: impl FnMut(Vec<Vec<u8>>) -> Result<(), E>,
+) -> Result<(), E> {
     let n = samples.len();
     let segments = n.div_ceil(SEGMENT).max(1);
-    (0..segments)
-        .into_par_iter()
-        .map(|k| {
-            let range = k * SEGMENT..((k + 1) * SEGMENT).min(n);
-            let last = k + 1 == segments;
-            Segment::new(samples.slice(range)).encode(last)
-        })
-        .collect()
+    let group = group.max(1);
+    for first in (0..segments).step_by(group) {
+        let parts = (first..(first + group).min(segments))
+            .into_par_iter()
+            .map(|k| {
+                let range = k * SEGMENT..((k + 1) * SEGMENT).min(n);
+                let last = k + 1 == segments;
+                Segment::new(samples.slice(range)).encode(last)
+            })
+            .collect();
+        each(parts)?;
+    }
+    Ok(())
 }
 
 /// Literal/length codes (0..=285), EOB at 256.
@@ -284,10 +309,15 @@ fn run_length<T: Sample>(samples: &[T], p: usize) -> usize {
     k
 }
 
-/// The byte values of `samples` counted as literals (16-bit samples: both bytes; 8-bit samples:
-/// the value, their zero high bytes are added by the caller), in four tables so that equal
+/// Samples per span of [`sampled_counts`], and those of each span counted.
+const SPAN: usize = 4096;
+const COUNTED: usize = 1024;
+
+/// The byte values of the first [`COUNTED`] samples of every [`SPAN`] of `samples` counted as
+/// literals (16-bit samples: both bytes; 8-bit samples: the value, their zero high bytes are
+/// added by the caller), and how many samples that was. In four tables so that equal
 /// neighbouring samples (powder is nearly uniform) do not wait on each other's increments.
-fn byte_counts<T: Sample>(samples: &[T]) -> [u32; LITLEN] {
+fn sampled_counts<T: Sample>(samples: &[T]) -> ([u32; LITLEN], usize) {
     let mut tables = [[0u32; 256]; 4];
     let count = |table: &mut [u32; 256], v: u16| {
         table[usize::from(v & 0xFF)] += 1;
@@ -296,15 +326,20 @@ fn byte_counts<T: Sample>(samples: &[T]) -> [u32; LITLEN] {
         }
     };
     let [t0, t1, t2, t3] = &mut tables;
-    let quads = samples.chunks_exact(4);
-    for &v in quads.remainder() {
-        count(t0, v.into());
-    }
-    for q in quads {
-        count(t0, q[0].into());
-        count(t1, q[1].into());
-        count(t2, q[2].into());
-        count(t3, q[3].into());
+    let mut counted = 0;
+    for span in samples.chunks(SPAN) {
+        let part = &span[..span.len().min(COUNTED)];
+        counted += part.len();
+        let quads = part.chunks_exact(4);
+        for &v in quads.remainder() {
+            count(t0, v.into());
+        }
+        for q in quads {
+            count(t0, q[0].into());
+            count(t1, q[1].into());
+            count(t2, q[2].into());
+            count(t3, q[3].into());
+        }
     }
     let mut freq = [0u32; LITLEN];
     for table in &tables {
@@ -312,7 +347,7 @@ fn byte_counts<T: Sample>(samples: &[T]) -> [u32; LITLEN] {
             *f += g;
         }
     }
-    freq
+    (freq, counted)
 }
 
 /// A code and its length in one word: the bits in the low half, the length in the high half.
@@ -446,22 +481,25 @@ impl<'a> Segment<'a> {
         Segment { samples }
     }
 
-    /// The symbol counts the segment's code is built from, in one pass without the run scan:
-    /// every sample counted as a literal (a sample inside a run too, which can only lengthen
-    /// its run's code a little: runs are rare in camera frames, and a run of 129 samples costs
-    /// a few bits whatever its code), every length symbol and the end of block at least once,
-    /// so that every token the scan then writes has a code.
+    /// The symbol counts the segment's code is built from, in one pass without the run scan,
+    /// over the first [`COUNTED`] samples of every [`SPAN`] (a quarter, spread evenly over the
+    /// segment: the code of a million samples is as good from a quarter of them, and counting
+    /// was a quarter of the coding's time): every sample counted as a literal (a sample inside a
+    /// run too, which can only lengthen its run's code a little: runs are rare in camera frames,
+    /// and a run of 129 samples costs a few bits whatever its code), every byte value, every
+    /// length symbol and the end of block at least once, so that every token the scan then
+    /// writes has a code whatever the samples not counted hold.
     fn frequencies(&self) -> [u32; LITLEN] {
         let mut freq = match self.samples {
             Samples::Gray8(s) => {
-                let mut freq = byte_counts(s);
+                let (mut freq, counted) = sampled_counts(s);
                 // Every 8-bit sample's high byte is 0.
-                freq[0] = freq[0].saturating_add(s.len() as u32);
+                freq[0] = freq[0].saturating_add(counted as u32);
                 freq
             }
-            Samples::Gray16(s) => byte_counts(s),
+            Samples::Gray16(s) => sampled_counts(s).0,
         };
-        for f in &mut freq[EOB..] {
+        for f in &mut freq {
             *f = (*f).max(1);
         }
         freq
@@ -549,6 +587,60 @@ mod tests {
                 &v[..3.min(v.len())]
             );
         }
+    }
+
+    #[test]
+    fn values_only_where_the_counts_do_not_look_still_inflate_back() {
+        // Every span's counted head holds 0-3 only; the values after it, 8-bit and both bytes of
+        // 16-bit samples, are never counted and must still have codes.
+        let v8: Vec<u8> = (0..3 * SPAN + 100)
+            .map(|i| match i % SPAN {
+                p if p < COUNTED => (p % 4) as u8,
+                p => (p * 7 % 256) as u8,
+            })
+            .collect();
+        let (counts, counted) = sampled_counts(&v8);
+        assert_eq!(counted, 3 * COUNTED + 100);
+        assert!(counts[4..256].iter().all(|&c| c == 0));
+        let s = Samples::Gray8(&v8);
+        assert_eq!(inflate(&deflate_samples(s)), le(s));
+        let v16: Vec<u16> = v8.iter().map(|&v| u16::from(v) * 257).collect();
+        let s = Samples::Gray16(&v16);
+        assert_eq!(inflate(&deflate_samples(s)), le(s));
+    }
+
+    #[test]
+    fn parts_in_groups_are_the_parts_at_once() {
+        let v8: Vec<u8> = (0..(3 * SEGMENT + 5))
+            .map(|i| (i % 251 / 3) as u8)
+            .collect();
+        let s = Samples::Gray8(&v8);
+        let all = deflate_samples(s);
+        assert_eq!(all.len(), 4);
+        for group in [1, 2, 3, 4, 9] {
+            let mut sizes = Vec::new();
+            let mut parts = Vec::new();
+            deflate_samples_each(s, group, |g| {
+                sizes.push(g.len());
+                parts.extend(g);
+                Ok::<(), ()>(())
+            })
+            .expect("no error");
+            assert_eq!(parts, all, "groups of {group}");
+            let expected: Vec<usize> = (0..4).step_by(group).map(|f| group.min(4 - f)).collect();
+            assert_eq!(sizes, expected, "groups of {group}");
+        }
+        // The first error stops the coding.
+        let mut calls = 0;
+        let stopped = deflate_samples_each(s, 1, |_| {
+            calls += 1;
+            if calls == 2 {
+                Err("full disk")
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!((stopped, calls), (Err("full disk"), 2));
     }
 
     #[test]
