@@ -73,8 +73,9 @@ impl<'a> From<&'a Vec<u16>> for Samples<'a> {
     }
 }
 
-/// The samples deflated, as parts of one raw deflate stream that `prefix` (an already
-/// compressed, byte-aligned, non-final part, or nothing) opens; the last part ends the stream.
+/// The samples deflated, as the parts of a raw deflate stream (each byte-aligned; an already
+/// compressed, byte-aligned, non-final part may come before them); the last part ends the
+/// stream. The tests' way to [`deflate_samples_each`]'s parts all at once.
 #[cfg(test)]
 pub(crate) fn deflate_samples(samples: Samples<'_>) -> Vec<Vec<u8>> {
     let mut all = Vec::new();
@@ -86,10 +87,12 @@ pub(crate) fn deflate_samples(samples: Samples<'_>) -> Vec<Vec<u8>> {
     all
 }
 
-/// The parts of [`deflate_samples`], handed to `each` in order `group` segments at a time as
-/// soon as those are coded (each group's segments in parallel), so that a file can take the
-/// first parts (and the disk start on them) while the rest are being coded. Stops at the first
-/// error of `each`.
+/// The samples deflated, as the parts of a raw deflate stream (each byte-aligned; an already
+/// compressed, byte-aligned, non-final part may come before them; the last part ends the
+/// stream), handed to `each` in order `group` segments at a time as soon as those are coded
+/// (each group's segments in parallel): a file takes each group before the next is coded, so
+/// that the system can start writing it back meanwhile and only a group is held at a time.
+/// Stops at the first error of `each`.
 pub(crate) fn deflate_samples_each<E>(
     samples: Samples<'_>,
     group: usize,
@@ -309,9 +312,11 @@ fn run_length<T: Sample>(samples: &[T], p: usize) -> usize {
     k
 }
 
-/// Samples per span of [`sampled_counts`], and those of each span counted.
-const SPAN: usize = 4096;
-const COUNTED: usize = 1024;
+/// Samples per span of [`sampled_counts`], and those of each span counted (a quarter). The span
+/// is prime so that the counted samples drift across the columns of a slice of any width,
+/// instead of falling in the same columns row after row when the width is a multiple of it.
+const SPAN: usize = 4099;
+const COUNTED: usize = 1025;
 
 /// The byte values of the first [`COUNTED`] samples of every [`SPAN`] of `samples` counted as
 /// literals (16-bit samples: both bytes; 8-bit samples: the value, their zero high bytes are
@@ -484,7 +489,7 @@ impl<'a> Segment<'a> {
     /// The symbol counts the segment's code is built from, in one pass without the run scan,
     /// over the first [`COUNTED`] samples of every [`SPAN`] (a quarter, spread evenly over the
     /// segment: the code of a million samples is as good from a quarter of them, and counting
-    /// was a quarter of the coding's time): every sample counted as a literal (a sample inside a
+    /// was a quarter of the coding's time): every counted sample as a literal (a sample inside a
     /// run too, which can only lengthen its run's code a little: runs are rare in camera frames,
     /// and a run of 129 samples costs a few bits whatever its code), every byte value, every
     /// length symbol and the end of block at least once, so that every token the scan then
@@ -617,6 +622,10 @@ mod tests {
         let s = Samples::Gray8(&v8);
         let all = deflate_samples(s);
         assert_eq!(all.len(), 4);
+        assert_eq!(inflate(&all), le(s));
+        // Only the last part's block is final (BFINAL, the first bit of a part).
+        let finals: Vec<u8> = all.iter().map(|part| part[0] & 1).collect();
+        assert_eq!(finals, [0, 0, 0, 1]);
         for group in [1, 2, 3, 4, 9] {
             let mut sizes = Vec::new();
             let mut parts = Vec::new();
