@@ -1,6 +1,7 @@
 //! The whole per-frame processing path on D810-size frames (7360 x 4912 JPEG) onto the full
 //! 4400 x 4400 plate grid: decode, luma, rectify, DICOM encode and atomic write, for each transfer
-//! syntax; and the per-layer total for the six views. Target: a layer (6 frames) under 2 s on
+//! syntax; and the per-layer total for the six views, run as the processing worker runs them (one
+//! frame per core, each slice's commit on a thread beside them). Target: a layer (6 frames) under 2 s on
 //! this 2-core machine. Run: `cargo bench --bench frame_path --all-features`.
 //! LAYERWISE_BENCH_ROUNDS sets the rounds (each: every frame alone, then one layer; default 3
 //! with `--bench`, else 1); the layer line gives the median, fastest and slowest layer, and the
@@ -22,6 +23,7 @@ use layerwise::acquisition::storage::Storage;
 #[cfg(feature = "nef")]
 use layerwise::build_dir::BuildManifest;
 use layerwise::dicom::Compression;
+use layerwise::fsutil::Pending;
 use layerwise::hardware::camera::Frame;
 use layerwise::rectify::{Calibration, Interpolation};
 use layerwise::series::{LayerHeights, LiveSeries, SeriesSettings, StepTimes};
@@ -86,12 +88,34 @@ fn time_frames(
         }
         last = next_layer();
         let (layer, cpu) = (Instant::now(), cpu_s());
-        originals.par_iter().for_each(|(shot, path)| {
-            // What `FrameProcessor::process` runs, with its step times kept.
-            let mut frame = StepTimes::default();
-            live.write_original_timed(build_dir, in_layer(*shot, last), 1, path, &mut frame)
-                .expect("process");
-            steps.lock().expect("steps").push(frame);
+        // As the processing worker runs them: one frame per core, each slice's commit (fsync,
+        // rename) on a thread of its own while the lanes go on with the next frames.
+        std::thread::scope(|scope| {
+            let (to_commit, commits) = crossbeam_channel::unbounded::<(Pending, StepTimes)>();
+            scope.spawn(|| {
+                for (pending, mut frame) in commits {
+                    let t = Instant::now();
+                    pending.commit().expect("commit");
+                    frame.commit_ms = t.elapsed().as_secs_f64() * 1e3;
+                    steps.lock().expect("steps").push(frame);
+                }
+            });
+            originals
+                .par_iter()
+                .for_each_with(to_commit, |to_commit, (shot, path)| {
+                    // What `FrameProcessor::process_take_then` runs, with its step times kept.
+                    let mut frame = StepTimes::default();
+                    let pending = live
+                        .write_original_pending(
+                            build_dir,
+                            in_layer(*shot, last),
+                            1,
+                            path,
+                            &mut frame,
+                        )
+                        .expect("process");
+                    to_commit.send((pending, frame)).expect("commit thread");
+                });
         });
         layer_totals.push(layer.elapsed().as_secs_f64());
         layer_cpu.push(cpu_s() - cpu);
@@ -104,12 +128,13 @@ fn time_frames(
 fn steps_line(steps: &[StepTimes]) -> String {
     let of = |f: fn(&StepTimes) -> f64| median(steps.iter().map(f).collect());
     format!(
-        "read {:.0}, decode {:.0}, rectify {:.0}, encode {:.0}, write {:.0}",
+        "read {:.0}, decode {:.0}, rectify {:.0}, encode {:.0}, write {:.0}, commit {:.0}",
         of(|s| s.read_ms),
         of(|s| s.decode_ms),
         of(|s| s.rectify_ms),
         of(|s| s.encode_ms),
-        of(|s| s.write_ms)
+        of(|s| s.write_ms),
+        of(|s| s.commit_ms)
     )
 }
 

@@ -6,11 +6,12 @@
 //! against the demo vectors; the page served on loopback with one client reading its event
 //! stream over HTTP. Per step, median and 95th percentile over the layers (default 50):
 //! - download: the camera's download time per frame (the frame's sidecar);
-//! - read, decode, rectify, encode, write, cells: each frame's steps in the processing worker
-//!   (its `frame processed` line at DEBUG);
+//! - read, decode, rectify, encode, write, commit, cells: each frame's steps in the processing
+//!   worker (its `frame processed` line at DEBUG; the commit, the slice's fsync and rename, runs
+//!   on the worker's commit thread while the lanes go on);
 //! - inspection: inspecting a layer once its views' cells are in (its record's `ms`);
-//! - processing per layer: the worker's time on the layer, its six frames' steps and its
-//!   inspection summed (the worker runs two frames at a time on two cores);
+//! - processing per layer: the worker's time on the layer, its six frames' steps on the lanes
+//!   (the commit left out) and its inspection summed (the worker runs two frames at a time on two cores);
 //! - the daemon's part: from the layer's post-scan signal to its inspection record written (the
 //!   post-scan views downloaded, stored, processed, the layer inspected);
 //! - page event: from the layer's inspection record written to the first event at the page
@@ -53,12 +54,13 @@ use tracing_subscriber::Layer;
 const DOWNLOAD_MB_PER_S: f64 = 32.0;
 
 /// A frame's steps in its `frame processed` line.
-const STEP_FIELDS: [&str; 6] = [
+const STEP_FIELDS: [&str; 7] = [
     "read_ms",
     "decode_ms",
     "rectify_ms",
     "encode_ms",
     "write_ms",
+    "commit_ms",
     "cells_ms",
 ];
 
@@ -177,6 +179,7 @@ fn samples(dir: &Path, run: &Run) -> Vec<(&'static str, Vec<f64>)> {
         "rectify (per frame)",
         "encode, deflate (per frame)",
         "write (per frame)",
+        "commit: fsync, rename (per frame, on the commit thread)",
         "inspection's cells (per frame)",
     ]
     .into_iter()
@@ -196,7 +199,11 @@ fn samples(dir: &Path, run: &Run) -> Vec<(&'static str, Vec<f64>)> {
     let mut per_layer: BTreeMap<u32, f64> = inspected.iter().map(|r| (r.layer, r.ms)).collect();
     for f in frames {
         let layer = f.get("layer").and_then(|l| l.parse().ok());
-        let took: f64 = STEP_FIELDS.iter().filter_map(|k| field(f, k)).sum();
+        let took: f64 = STEP_FIELDS
+            .iter()
+            .filter(|k| **k != "commit_ms")
+            .filter_map(|k| field(f, k))
+            .sum();
         if let Some(sum) = layer.and_then(|l: u32| per_layer.get_mut(&l)) {
             *sum += took;
         }

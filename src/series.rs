@@ -6,7 +6,7 @@ use crate::build_dir::BuildManifest;
 use crate::clock::ms_since;
 use crate::config::Config;
 use crate::dicom::{self, Compression, DicomError, Plane, Series, Slice, SliceSource, Study};
-use crate::fsutil::TomlFileError;
+use crate::fsutil::{Pending, TomlFileError};
 use crate::rectify::{self, Calibration, FrameLuma, Grid, Interpolation, Rectifier, RectifyError};
 use crate::shot::{Shot, View};
 use crate::vectors::{LayerIndex, LayerMap, VectorError};
@@ -16,6 +16,29 @@ use std::time::Instant;
 
 /// Why a frame could not be processed, for the journal (the build goes on).
 pub type ProcessError = Box<dyn std::error::Error + Send + Sync>;
+
+/// What is left of a take once its slice is written but not yet durable
+/// ([`FrameProcessor::process_take_then`]): the slice's commit and what must wait for it.
+pub type Then<'a> = Box<dyn FnOnce() -> Result<(), ProcessError> + Send + 'a>;
+
+/// The rest of a take whose slice is `pending`: its commit (timed into `steps`), then the
+/// frame's `frame processed` line.
+pub fn commit_then(pending: Pending, mut steps: StepTimes, shot: Shot) -> Then<'static> {
+    Box::new(move || {
+        committed(pending, &mut steps)?;
+        steps.log(shot);
+        Ok(())
+    })
+}
+
+/// Commits a slice ([`Pending::commit`]), its time in `steps`; where it now is.
+fn committed(pending: Pending, steps: &mut StepTimes) -> Result<PathBuf, SeriesError> {
+    let path = pending.path().to_path_buf();
+    let started = Instant::now();
+    pending.commit().map_err(DicomError::from)?;
+    steps.commit_ms = ms_since(started);
+    Ok(path)
+}
 
 /// Work done on each stored original after capture.
 pub trait FrameProcessor: Send + Sync {
@@ -33,6 +56,21 @@ pub trait FrameProcessor: Send + Sync {
     ) -> Result<(), ProcessError> {
         let _ = take;
         self.process(build_dir, shot, original)
+    }
+
+    /// [`FrameProcessor::process_take`] up to where it waits for the disk: what it returns does
+    /// the rest (the slice's fsync and rename, and what follows them), and the processing worker
+    /// runs that on its commit thread while this one goes on with the next frame. The default
+    /// does everything here and leaves nothing.
+    fn process_take_then(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<Then<'_>, ProcessError> {
+        self.process_take(build_dir, shot, take, original)?;
+        Ok(Box::new(|| Ok(())))
     }
 
     /// Called once by the processing worker when it ends (drained or stopped): a processor with
@@ -331,7 +369,7 @@ impl LiveSeries {
 
     /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]), made
     /// from `source` (its take picks the SOP Instance UID); replaces the slice atomically. Its
-    /// encode and write times go into `steps`.
+    /// encode, write and commit times go into `steps`.
     pub fn write_rectified(
         &self,
         build_dir: &Path,
@@ -341,6 +379,23 @@ impl LiveSeries {
         source: Option<SliceSource>,
         steps: &mut StepTimes,
     ) -> Result<PathBuf, SeriesError> {
+        let pending =
+            self.write_rectified_pending(build_dir, shot, rectified, acquired, source, steps)?;
+        committed(pending, steps)
+    }
+
+    /// [`LiveSeries::write_rectified`] up to its commit: the slice written beside its place, not
+    /// yet fsynced nor in place ([`Pending::commit`]). Its encode and write times go into
+    /// `steps`.
+    pub fn write_rectified_pending(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        rectified: FrameLuma,
+        acquired: Option<chrono::DateTime<chrono::Utc>>,
+        source: Option<SliceSource>,
+        steps: &mut StepTimes,
+    ) -> Result<Pending, SeriesError> {
         let series = self
             .series
             .get(&shot.view())
@@ -367,10 +422,16 @@ impl LiveSeries {
             derivation,
         };
         let path = self.slice_path(build_dir, shot);
-        let times =
-            dicom::write_slice_from(&path, &self.study, series, &slice, self.compression, source)?;
+        let (times, pending) = dicom::write_slice_pending(
+            &path,
+            &self.study,
+            series,
+            &slice,
+            self.compression,
+            source,
+        )?;
         (steps.encode_ms, steps.write_ms) = (times.encode_ms, times.write_ms);
-        Ok(path)
+        Ok(pending)
     }
 }
 
@@ -396,20 +457,34 @@ impl LiveSeries {
         original: &Path,
         steps: &mut StepTimes,
     ) -> Result<PathBuf, SeriesError> {
+        let pending = self.write_original_pending(build_dir, shot, take, original, steps)?;
+        committed(pending, steps)
+    }
+
+    /// [`LiveSeries::write_original_timed`] up to the slice's commit ([`Pending::commit`]).
+    pub fn write_original_pending(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+        steps: &mut StepTimes,
+    ) -> Result<Pending, SeriesError> {
         let started = Instant::now();
         let (bytes, acquired) = read_original(original)?;
         steps.read_ms = ms_since(started);
         let file = source_file(build_dir, original);
         let source = SliceSource { take, file: &file };
         let rectified = self.rectified_luma_timed(&bytes, steps)?;
-        self.write_rectified(build_dir, shot, rectified, acquired, Some(source), steps)
+        self.write_rectified_pending(build_dir, shot, rectified, acquired, Some(source), steps)
     }
 }
 
 /// How long each step of one frame's processing took, ms: reading the original (checked
-/// against its sidecar), decoding it to luma, rectifying, encoding the slice, writing it; and,
-/// with inspection on, reducing it to the inspection's cells. Said at DEBUG as `frame processed`
-/// (the signal-to-screen benchmark reads them there).
+/// against its sidecar), decoding it to luma, rectifying, encoding the slice, writing it, making
+/// it durable and putting it in place (its commit: fsync, rename); and, with inspection on,
+/// reducing it to the inspection's cells. Said at DEBUG as `frame processed` (the
+/// signal-to-screen benchmark reads them there).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StepTimes {
     pub read_ms: f64,
@@ -417,6 +492,7 @@ pub struct StepTimes {
     pub rectify_ms: f64,
     pub encode_ms: f64,
     pub write_ms: f64,
+    pub commit_ms: f64,
     pub cells_ms: f64,
 }
 
@@ -431,6 +507,7 @@ impl StepTimes {
             rectify_ms = self.rectify_ms,
             encode_ms = self.encode_ms,
             write_ms = self.write_ms,
+            commit_ms = self.commit_ms,
             cells_ms = self.cells_ms,
             "frame processed"
         );
@@ -467,10 +544,19 @@ impl FrameProcessor for LiveSeries {
         take: u32,
         original: &Path,
     ) -> Result<(), ProcessError> {
+        self.process_take_then(build_dir, shot, take, original)?()
+    }
+
+    fn process_take_then(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<Then<'_>, ProcessError> {
         let mut steps = StepTimes::default();
-        self.write_original_timed(build_dir, shot, take, original, &mut steps)?;
-        steps.log(shot);
-        Ok(())
+        let pending = self.write_original_pending(build_dir, shot, take, original, &mut steps)?;
+        Ok(commit_then(pending, steps, shot))
     }
 }
 

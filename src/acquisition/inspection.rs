@@ -11,7 +11,7 @@ use crate::clock::SharedClock;
 use crate::config::Config;
 use crate::inspect::{Inspector, Reducer};
 use crate::logging::Chain;
-use crate::series::{FrameProcessor, LiveSeries, ProcessError, StepTimes};
+use crate::series::{commit_then, FrameProcessor, LiveSeries, ProcessError, StepTimes, Then};
 use crate::shot::Shot;
 use std::path::Path;
 use std::sync::Mutex;
@@ -165,6 +165,33 @@ fn open_model(
 
 impl FrameProcessor for InspectingSeries {
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
+        self.process_take_then(build_dir, shot, 1, original)?()
+    }
+
+    fn process_take(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<(), ProcessError> {
+        self.process_take_then(build_dir, shot, take, original)?()
+    }
+
+    /// The slice is written, then the layer inspected once its views are in (its record, the
+    /// alarm), while the slice's commit waits for the disk on the worker's commit thread. A
+    /// retake replaces the slice (`[series] take = "last"`); the layer was inspected on its first
+    /// take and is not inspected again.
+    fn process_take_then(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+    ) -> Result<Then<'_>, ProcessError> {
+        if take > 1 {
+            return self.live.process_take_then(build_dir, shot, take, original);
+        }
         let mut steps = StepTimes::default();
         let started = Instant::now();
         let (bytes, acquired) = crate::series::read_original(original)?;
@@ -184,7 +211,7 @@ impl FrameProcessor for InspectingSeries {
             take: 1,
             file: &file,
         };
-        self.live.write_rectified(
+        let pending = self.live.write_rectified_pending(
             build_dir,
             shot,
             rectified,
@@ -192,7 +219,6 @@ impl FrameProcessor for InspectingSeries {
             Some(source),
             &mut steps,
         )?;
-        steps.log(shot);
         let records = match (cells, self.inspector.lock()) {
             (Some(cells), Ok(mut inspector)) => {
                 inspector.add(shot.layer, shot.view(), cells, self.clock.now())
@@ -202,22 +228,7 @@ impl FrameProcessor for InspectingSeries {
         for record in &self.with_model(records, false) {
             self.record(record);
         }
-        Ok(())
-    }
-
-    /// A retake replaces the slice (`[series] take = "last"`); the layer was inspected on its
-    /// first take and is not inspected again.
-    fn process_take(
-        &self,
-        build_dir: &Path,
-        shot: Shot,
-        take: u32,
-        original: &Path,
-    ) -> Result<(), ProcessError> {
-        if take <= 1 {
-            return self.process(build_dir, shot, original);
-        }
-        self.live.process_take(build_dir, shot, take, original)
+        Ok(commit_then(pending, steps, shot))
     }
 
     /// The alarm handles the last layers' records, then its thread ends.

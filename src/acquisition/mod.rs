@@ -14,6 +14,7 @@ mod error;
 mod exposure;
 mod health;
 pub mod inspection;
+mod layer_tally;
 pub mod lifecycle;
 pub mod model;
 mod open;

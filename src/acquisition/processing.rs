@@ -6,12 +6,18 @@
 //! The worker waits on its channels, never on a timer: a frame handed over, a change of pause
 //! (`set_paused`), its stop (a [`Shutdown`] requested by [`ProcessingQueue::stop`]), or the
 //! sequencer hanging up ([`ProcessingQueue::drain`]: everything handed over is processed first).
+//!
+//! It runs one frame per core (its lanes), each up to its slice written beside its place
+//! ([`FrameProcessor::process_take_then`]); a commit thread beside it makes each slice durable
+//! and puts it in place, then journals the take, in the order the lanes handed them over, while
+//! the lanes go on with the next frames instead of waiting for the disk's fsync.
 
+use super::layer_tally::{log_layers, LayerTally};
 use crate::build_dir::{Journal, Record};
 use crate::clock::SharedClock;
 use crate::logging::Chain;
-pub use crate::series::{FrameProcessor, KeepOriginals};
-use crate::shot::{Phase, SeriesTake, Shot};
+pub use crate::series::{FrameProcessor, KeepOriginals, Then};
+use crate::shot::{SeriesTake, Shot};
 use crate::shutdown::{Shutdown, StopReason};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use rayon::prelude::*;
@@ -120,10 +126,8 @@ impl ProcessingQueue {
         let worker = std::thread::Builder::new()
             .name("processing".into())
             .spawn(move || {
-                let worker = Worker {
-                    processor: processor.as_ref(),
+                let ends = Ends {
                     state: &worker_state,
-                    build_dir: &build_dir,
                     journal: &journal,
                     clock: &clock,
                     tally: TallyGuard {
@@ -132,7 +136,20 @@ impl ProcessingQueue {
                     },
                     plant: &plan.plant,
                 };
-                worker.run(inbox, plan.backlog, plan.take);
+                std::thread::scope(|scope| {
+                    let worker = Worker {
+                        processor: processor.as_ref(),
+                        state: &worker_state,
+                        build_dir: &build_dir,
+                        journal: &journal,
+                        clock: &clock,
+                        ends: &ends,
+                        commits: ends.start_committing(scope),
+                    };
+                    worker.run(inbox, plan.backlog, plan.take);
+                    // The worker dropped here hangs up on the commit thread: it commits what
+                    // it was handed, and the scope waits for it.
+                });
                 // A processor with threads of its own (the inspection's alarm) stops them now.
                 processor.finish();
             })
@@ -231,98 +248,6 @@ fn disk_full(error: &crate::series::ProcessError) -> bool {
     false
 }
 
-/// The processing of one layer's phases, for the operator's one line per layer signal.
-struct Tally {
-    frames: usize,
-    failed: usize,
-    /// From the start of its first frame's processing to the end of its last.
-    first_start: Duration,
-    last_end: Duration,
-    /// From the last frame's hand-over to the end of its processing (none for a catch-up).
-    lag: Option<Duration>,
-}
-
-/// The layers being processed (frames come in build order, two at a time): a layer's line is
-/// logged once all its frames are processed, or, a frame missing, once a later layer's are or
-/// the worker stops.
-struct LayerTally {
-    /// The frames of one signal (the lights of a phase).
-    complete: usize,
-    open: std::collections::BTreeMap<(u32, Phase), Tally>,
-}
-
-impl LayerTally {
-    fn new(complete: usize) -> LayerTally {
-        LayerTally {
-            complete: complete.max(1),
-            open: Default::default(),
-        }
-    }
-
-    /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns
-    /// the layers now done, in build order.
-    fn add(
-        &mut self,
-        shot: &Shot,
-        ok: bool,
-        (start, end): (Duration, Duration),
-        lag: Option<Duration>,
-    ) -> Vec<((u32, Phase), Tally)> {
-        let key = (shot.layer, shot.phase);
-        let tally = self.open.entry(key).or_insert(Tally {
-            frames: 0,
-            failed: 0,
-            first_start: start,
-            last_end: end,
-            lag: None,
-        });
-        tally.frames += 1;
-        tally.failed += usize::from(!ok);
-        tally.first_start = tally.first_start.min(start);
-        tally.last_end = tally.last_end.max(end);
-        tally.lag = lag;
-        if tally.frames < self.complete {
-            return Vec::new();
-        }
-        // This layer, after any earlier one still open (a frame of it missing).
-        let later = self.open.split_off(&key);
-        let mut done: Vec<_> = std::mem::replace(&mut self.open, later)
-            .into_iter()
-            .collect();
-        done.extend(self.open.remove_entry(&key));
-        done
-    }
-
-    /// Every layer still open, in build order.
-    fn flush(&mut self) -> Vec<((u32, Phase), Tally)> {
-        std::mem::take(&mut self.open).into_iter().collect()
-    }
-}
-
-/// The operator's line for each layer signal's frames processed.
-fn log_layers(layers: Vec<((u32, Phase), Tally)>, backlog: usize) {
-    for (key, tally) in layers {
-        log_layer(key, &tally, backlog);
-    }
-}
-
-fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
-    let processing_ms = tally.last_end.saturating_sub(tally.first_start).as_millis() as u64;
-    let lag = tally
-        .lag
-        .map_or_else(|| "catch-up".to_string(), |l| l.as_millis().to_string());
-    info!(
-        layer,
-        phase = %phase,
-        frames = tally.frames,
-        failed = tally.failed,
-        processing_ms,
-        lag_ms = %lag,
-        backlog,
-        "layer processed"
-    );
-}
-
 /// The layers still open when the worker ends (stopped, drained, paused to the end) are told
 /// then, whichever way it returns.
 struct TallyGuard<'a> {
@@ -345,8 +270,10 @@ struct Worker<'a> {
     build_dir: &'a Path,
     journal: &'a Mutex<Journal>,
     clock: &'a SharedClock,
-    tally: TallyGuard<'a>,
-    plant: &'a crate::plant::PlantSink,
+    /// How a take ends.
+    ends: &'a Ends<'a>,
+    /// The commit thread's queue; none if it could not start (each take then ends on its lane).
+    commits: Option<Sender<Commit<'a>>>,
 }
 
 /// How a catch-up pass from the journal ended.
@@ -357,7 +284,7 @@ enum CatchUp {
     Stopped,
 }
 
-impl Worker<'_> {
+impl<'a> Worker<'a> {
     /// The backlog, then what is handed over, until stopped, or hung up and done.
     fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, String)>, choice: SeriesTake) {
         let state = self.state;
@@ -480,6 +407,8 @@ impl Worker<'_> {
         }
         // The channel is drained, so nothing left in the set can still come out of it.
         caught_up.clear();
+        // What is still being committed is not in the journal yet.
+        self.settle();
         let path = match self.journal.lock() {
             Ok(journal) => journal.path().to_path_buf(),
             Err(_) => return CatchUp::Done,
@@ -512,20 +441,123 @@ impl Worker<'_> {
     fn process_recorded(&self, shot: Shot, take: u32, recorded: &str) {
         match crate::build_dir::original::recorded_path(self.build_dir, &shot, take, recorded) {
             Ok(original) => self.process(shot, take, &original, None),
-            Err(refused) => {
-                let start = self.clock.elapsed();
-                self.conclude(shot, take, start, Err(Box::new(refused)), None)
+            Err(refused) => self.end(Ended {
+                shot,
+                take,
+                start: self.clock.elapsed(),
+                outcome: Err(Box::new(refused)),
+                submitted: None,
+            }),
+        }
+    }
+
+    /// Processes one take up to its slice's commit, and hands the rest to the commit thread.
+    fn process(&self, shot: Shot, take: u32, original: &Path, submitted: Option<Duration>) {
+        let start = self.clock.elapsed();
+        let processor: &'a dyn FrameProcessor = self.processor;
+        let outcome = processor.process_take_then(self.build_dir, shot, take, original);
+        self.end(Ended {
+            shot,
+            take,
+            start,
+            outcome,
+            submitted,
+        });
+    }
+
+    /// Hands a take's end to the commit thread (in the order of the hand-overs), or ends it here
+    /// without one.
+    fn end(&self, ended: Ended<'a>) {
+        let unsent = match &self.commits {
+            Some(commits) => match commits.send(Commit::Take(ended)) {
+                Ok(()) => return,
+                Err(crossbeam_channel::SendError(Commit::Take(ended))) => ended,
+                Err(_) => return,
+            },
+            None => ended,
+        };
+        self.ends.commit(unsent);
+    }
+
+    /// Waits until every take handed to the commit thread is journaled (before the journal is
+    /// read for what is not processed).
+    fn settle(&self) {
+        if let Some(commits) = &self.commits {
+            let (done, settled) = crossbeam_channel::bounded(1);
+            if commits.send(Commit::Settled(done)).is_ok() {
+                let _ = settled.recv();
+            }
+        }
+    }
+}
+
+/// A take processed up to its slice's commit: the rest, or why it failed.
+struct Ended<'a> {
+    shot: Shot,
+    take: u32,
+    /// When its processing began (the clock's monotonic time).
+    start: Duration,
+    outcome: Result<Then<'a>, crate::series::ProcessError>,
+    submitted: Option<Duration>,
+}
+
+/// What the commit thread is handed.
+enum Commit<'a> {
+    Take(Ended<'a>),
+    /// Told once everything handed over before it has ended.
+    Settled(Sender<()>),
+}
+
+/// How takes end: their slices committed, the result journaled and counted for the layer's
+/// line. On the worker's commit thread: the fsync waits for the disk there while the lanes
+/// decode the next frames.
+struct Ends<'a> {
+    state: &'a QueueState,
+    journal: &'a Mutex<Journal>,
+    clock: &'a SharedClock,
+    tally: TallyGuard<'a>,
+    plant: &'a crate::plant::PlantSink,
+}
+
+/// Takes handed to the commit thread and not yet taken up, per lane, before a lane waits.
+const COMMITS_PER_LANE: usize = 2;
+
+impl<'a> Ends<'a> {
+    /// Starts the commit thread in `scope`; its queue, or none if it cannot start.
+    fn start_committing<'scope>(
+        &'a self,
+        scope: &'scope std::thread::Scope<'scope, '_>,
+    ) -> Option<Sender<Commit<'a>>>
+    where
+        'a: 'scope,
+    {
+        let lanes = rayon::current_num_threads().max(1);
+        let (commits, queue) = crossbeam_channel::bounded(COMMITS_PER_LANE * lanes);
+        let started = std::thread::Builder::new()
+            .name("commit".into())
+            .spawn_scoped(scope, move || {
+                for commit in queue {
+                    match commit {
+                        Commit::Take(ended) => self.commit(ended),
+                        Commit::Settled(done) => {
+                            let _ = done.send(());
+                        }
+                    }
+                }
+            });
+        match started {
+            Ok(_) => Some(commits),
+            Err(e) => {
+                error!(error = %e, "processing: cannot start the commit thread; each frame's slice is committed on its lane");
+                None
             }
         }
     }
 
-    /// Processes one take, journals the result, counts it for its layer's line.
-    fn process(&self, shot: Shot, take: u32, original: &Path, submitted: Option<Duration>) {
-        let start = self.clock.elapsed();
-        let result = self
-            .processor
-            .process_take(self.build_dir, shot, take, original);
-        self.conclude(shot, take, start, result, submitted)
+    /// Commits a take's slice (the rest of its processing), then concludes it.
+    fn commit(&self, ended: Ended<'_>) {
+        let result = ended.outcome.and_then(|then| then());
+        self.conclude(ended.shot, ended.take, ended.start, result, ended.submitted);
     }
 
     /// Journals what processing one take gave, counts it for its layer's line.
@@ -606,86 +638,94 @@ impl Worker<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::shot::Light;
+    use crate::series::ProcessError;
+    use crate::shot::{Light, Phase};
 
-    fn ms(n: u64) -> Duration {
-        Duration::from_millis(n)
+    /// Tells each take processed and each commit; the first shot's commit waits to be
+    /// released.
+    struct Gated {
+        events: Sender<String>,
+        release: Receiver<()>,
+        held: Shot,
+    }
+
+    impl FrameProcessor for Gated {
+        fn process(&self, _: &Path, shot: Shot, _: &Path) -> Result<(), ProcessError> {
+            self.process_take_then(Path::new("."), shot, 1, Path::new("."))?()
+        }
+
+        fn process_take_then(
+            &self,
+            _: &Path,
+            shot: Shot,
+            _: u32,
+            _: &Path,
+        ) -> Result<Then<'_>, ProcessError> {
+            self.events.send(format!("processed {}", shot.light))?;
+            Ok(Box::new(move || {
+                if shot == self.held {
+                    self.release.recv()?;
+                }
+                self.events.send(format!("committed {}", shot.light))?;
+                Ok(())
+            }))
+        }
     }
 
     #[test]
-    fn a_layer_line_comes_once_its_frames_are_processed_and_a_missing_frame_does_not_hold_it() {
-        let mut tally = LayerTally::new(3);
-        let lights = [Light::Front, Light::Side, Light::Top];
-        // Layer 1 pre: two frames, nothing yet; the third completes it.
-        for (i, light) in lights[..2].iter().enumerate() {
-            let at = ms(10 * i as u64);
-            assert!(tally
-                .add(
-                    &Shot::new(1, Phase::Pre, *light),
-                    true,
-                    (at, at + ms(5)),
-                    Some(ms(7))
-                )
-                .is_empty());
-        }
-        let done = tally.add(
-            &Shot::new(1, Phase::Pre, Light::Top),
-            false,
-            (ms(20), ms(40)),
+    fn a_lane_goes_on_while_a_slice_commits_and_the_journal_waits_for_the_commit() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let (journal, _) = Journal::open(&path, false).unwrap();
+        let (events, told) = crossbeam_channel::unbounded();
+        let (release, released) = crossbeam_channel::unbounded();
+        let (front, side) = (
+            Shot::new(1, Phase::Post, Light::Front),
+            Shot::new(1, Phase::Post, Light::Side),
+        );
+        let processor = Gated {
+            events,
+            release: released,
+            held: front,
+        };
+        let queue = ProcessingQueue::start(
+            Arc::new(processor),
+            8,
+            dir.path().to_path_buf(),
+            Arc::new(Mutex::new(journal)),
+            WorkerPlan {
+                backlog: Vec::new(),
+                take: SeriesTake::First,
+                frames_per_signal: 2,
+                plant: crate::plant::PlantSink::off(),
+            },
+            crate::clock::SystemClock::shared(),
             None,
         );
-        assert_eq!(done.len(), 1);
-        let ((layer, phase), t) = &done[0];
-        assert_eq!((*layer, *phase, t.frames, t.failed), (1, Phase::Pre, 3, 1));
+        let next = || told.recv_timeout(Duration::from_secs(10)).unwrap();
+        let journaled = || Journal::read(&path).unwrap().processed;
+
+        queue.submit(front, dir.path().join("a.jpg"), Duration::ZERO);
+        assert_eq!(next(), "processed front");
+        // The front slice's commit waits; the side frame is processed meanwhile (in the code
+        // before the commit thread the worker was held here, and this timed out).
+        queue.submit(side, dir.path().join("b.jpg"), Duration::ZERO);
+        assert_eq!(next(), "processed side");
+        // Neither is journaled before its commit (the side's comes after the front's).
+        assert!(journaled().is_empty());
+        assert_eq!(queue.depth(), 2);
+
+        release.send(()).unwrap();
+        assert_eq!(next(), "committed front");
+        assert_eq!(next(), "committed side");
+        // Draining waits for the commits and their records.
+        queue.drain();
         assert_eq!(
-            t.last_end - t.first_start,
-            ms(40),
-            "from the first start to the last end"
+            journaled().into_iter().collect::<Vec<_>>(),
+            vec![front, side]
         );
-        assert_eq!(t.lag, None, "the last frame's lag (a catch-up has none)");
-        // Layer 1 post misses its top frame; layer 2 pre's frames come in between, processed
-        // two at a time: layer 1 post is told (2 frames) just before layer 2 pre.
-        tally.add(
-            &Shot::new(1, Phase::Post, Light::Front),
-            true,
-            (ms(50), ms(60)),
-            Some(ms(10)),
-        );
-        tally.add(
-            &Shot::new(2, Phase::Pre, Light::Front),
-            true,
-            (ms(55), ms(65)),
-            Some(ms(10)),
-        );
-        tally.add(
-            &Shot::new(1, Phase::Post, Light::Side),
-            true,
-            (ms(60), ms(70)),
-            Some(ms(10)),
-        );
-        tally.add(
-            &Shot::new(2, Phase::Pre, Light::Side),
-            true,
-            (ms(65), ms(75)),
-            Some(ms(10)),
-        );
-        let done = tally.add(
-            &Shot::new(2, Phase::Pre, Light::Top),
-            true,
-            (ms(75), ms(85)),
-            Some(ms(9)),
-        );
-        let told: Vec<_> = done.iter().map(|(k, t)| (*k, t.frames)).collect();
-        assert_eq!(told, vec![((1, Phase::Post), 2), ((2, Phase::Pre), 3)]);
-        // A layer left open when the worker stops is told then.
-        tally.add(
-            &Shot::new(2, Phase::Post, Light::Front),
-            true,
-            (ms(90), ms(95)),
-            Some(ms(5)),
-        );
-        let rest: Vec<_> = tally.flush().iter().map(|(k, t)| (*k, t.frames)).collect();
-        assert_eq!(rest, vec![((2, Phase::Post), 1)]);
-        assert!(tally.flush().is_empty());
+        let text = std::fs::read_to_string(&path).unwrap();
+        let (at_front, at_side) = (text.find("front").unwrap(), text.find("side").unwrap());
+        assert!(at_front < at_side, "journaled in the order handed over");
     }
 }

@@ -17,7 +17,7 @@ use super::iod::{
 };
 use super::{CT_IMAGE_STORAGE, IMPLEMENTATION_CLASS_UID};
 use crate::clock::ms_since;
-use crate::fsutil::write_atomic_with;
+use crate::fsutil::{write_pending_with, Pending};
 
 const EXPLICIT_VR_LE: &str = "1.2.840.10008.1.2.1";
 const JPEG_LS_LOSSLESS: &str = "1.2.840.10008.1.2.4.80";
@@ -308,7 +308,7 @@ pub struct WriteTimes {
 
 /// [`write_slice`] of a slice made from a stored original ([`SliceSource`]); replaces the file
 /// atomically. The samples go to the file as they are encoded, never as one more copy of the
-/// slice in memory. Tells how long encoding and writing took.
+/// slice in memory. Tells how long encoding and writing took (the commit included).
 pub fn write_slice_from(
     path: &Path,
     study: &Study,
@@ -317,6 +317,25 @@ pub fn write_slice_from(
     compression: Compression,
     source: Option<SliceSource>,
 ) -> Result<WriteTimes, DicomError> {
+    let (mut times, pending) =
+        write_slice_pending(path, study, series, slice, compression, source)?;
+    let started = Instant::now();
+    pending.commit()?;
+    times.write_ms += ms_since(started);
+    Ok(times)
+}
+
+/// [`write_slice_from`] up to its commit: the slice written beside its place, not yet fsynced
+/// nor renamed over the slice before ([`Pending::commit`] does both, on another thread if the
+/// caller has other work). `write_ms` is the writing alone.
+pub fn write_slice_pending(
+    path: &Path,
+    study: &Study,
+    series: &Series,
+    slice: &Slice,
+    compression: Compression,
+    source: Option<SliceSource>,
+) -> Result<(WriteTimes, Pending), DicomError> {
     let started = Instant::now();
     let encoded =
         EncodedSlice::new(study, series, slice, compression, source).map_err(|source| {
@@ -336,12 +355,13 @@ pub fn write_slice_from(
     // Straight to the file: the parts are large (plain samples go in 128 KiB blocks, deflated
     // ones in segments of about 1 MB), and a buffer would only copy them once more.
     let mut coding_ms = 0.0;
-    write_atomic_with(path, true, |file| encoded.write_to(file, &mut coding_ms))?;
+    let pending = write_pending_with(path, true, |file| encoded.write_to(file, &mut coding_ms))?;
     encode_ms += coding_ms;
-    Ok(WriteTimes {
+    let times = WriteTimes {
         encode_ms,
         write_ms: (ms_since(started) - coding_ms).max(0.0),
-    })
+    };
+    Ok((times, pending))
 }
 
 #[cfg(test)]

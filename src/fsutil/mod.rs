@@ -2,8 +2,10 @@
 //! leaves the whole file or nothing under the final name), SHA-256 of file contents, and TOML
 //! files parsed with errors that name the file, the line and the key.
 
+mod pending;
 mod writeback;
 
+pub use pending::{write_atomic_with, write_pending_with, Pending};
 pub use writeback::WriteBehind;
 
 use sha2::{Digest, Sha256};
@@ -171,16 +173,6 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])], fsync: bool) -> Result<(), Wri
         .iter()
         .map(|(path, data)| (*path, move |w: &mut WriteBehind<'_>| w.write_all(data)));
     write_atomic_each(writes, fsync)
-}
-
-/// [`write_atomic`] of what `write` writes to the file (in parts, as it makes them), so that
-/// large output need not be one buffer first.
-pub fn write_atomic_with(
-    path: &Path,
-    fsync: bool,
-    write: impl FnOnce(&mut WriteBehind<'_>) -> std::io::Result<()>,
-) -> Result<(), WriteError> {
-    write_atomic_each(std::iter::once((path, write)), fsync)
 }
 
 /// [`write_atomic_all`] with each file's content written by its function. Files to be fsynced

@@ -568,7 +568,7 @@ fn demo_refuses_an_unknown_anomaly_and_names_the_choices() {
 
 /// The processing worker says what each frame's steps took, the figures
 /// `benches/signal_to_screen.rs` reads: one `frame processed` line at DEBUG per frame of an
-/// inspected build, with the read, decode, rectify, encode, write and cells times in ms.
+/// inspected build, with the read, decode, rectify, encode, write, commit and cells times in ms.
 #[test]
 fn each_processed_frame_says_what_its_steps_took_at_debug() {
     use crate::common::Run;
@@ -609,13 +609,15 @@ fn each_processed_frame_says_what_its_steps_took_at_debug() {
             "rectify_ms",
             "encode_ms",
             "write_ms",
+            "commit_ms",
             "cells_ms",
         ] {
             let ms = field(key);
             assert!(ms.is_finite() && (0.0..60_000.0).contains(&ms), "{line}");
         }
+        // Said once the slice is committed (fsync, rename) on the worker's commit thread.
         assert!(
-            field("decode_ms") > 0.0 && field("encode_ms") > 0.0,
+            field("decode_ms") > 0.0 && field("encode_ms") > 0.0 && field("commit_ms") > 0.0,
             "{line}"
         );
     }

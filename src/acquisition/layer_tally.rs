@@ -1,0 +1,185 @@
+//! The operator's one line per layer signal: the processing worker counts each frame of a
+//! layer's phase as it ends, and the layer's line is logged once all its frames have.
+
+use crate::shot::{Phase, Shot};
+use std::time::Duration;
+use tracing::info;
+
+/// The processing of one layer's phases, for the operator's one line per layer signal.
+pub(super) struct Tally {
+    frames: usize,
+    failed: usize,
+    /// From the start of its first frame's processing to the end of its last.
+    first_start: Duration,
+    last_end: Duration,
+    /// From the last frame's hand-over to the end of its processing (none for a catch-up).
+    lag: Option<Duration>,
+}
+
+/// The layers being processed (frames come in build order, two at a time): a layer's line is
+/// logged once all its frames are processed, or, a frame missing, once a later layer's are or
+/// the worker stops.
+pub(super) struct LayerTally {
+    /// The frames of one signal (the lights of a phase).
+    complete: usize,
+    open: std::collections::BTreeMap<(u32, Phase), Tally>,
+}
+
+impl LayerTally {
+    pub(super) fn new(complete: usize) -> LayerTally {
+        LayerTally {
+            complete: complete.max(1),
+            open: Default::default(),
+        }
+    }
+
+    /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns
+    /// the layers now done, in build order.
+    pub(super) fn add(
+        &mut self,
+        shot: &Shot,
+        ok: bool,
+        (start, end): (Duration, Duration),
+        lag: Option<Duration>,
+    ) -> Vec<((u32, Phase), Tally)> {
+        let key = (shot.layer, shot.phase);
+        let tally = self.open.entry(key).or_insert(Tally {
+            frames: 0,
+            failed: 0,
+            first_start: start,
+            last_end: end,
+            lag: None,
+        });
+        tally.frames += 1;
+        tally.failed += usize::from(!ok);
+        tally.first_start = tally.first_start.min(start);
+        tally.last_end = tally.last_end.max(end);
+        tally.lag = lag;
+        if tally.frames < self.complete {
+            return Vec::new();
+        }
+        // This layer, after any earlier one still open (a frame of it missing).
+        let later = self.open.split_off(&key);
+        let mut done: Vec<_> = std::mem::replace(&mut self.open, later)
+            .into_iter()
+            .collect();
+        done.extend(self.open.remove_entry(&key));
+        done
+    }
+
+    /// Every layer still open, in build order.
+    pub(super) fn flush(&mut self) -> Vec<((u32, Phase), Tally)> {
+        std::mem::take(&mut self.open).into_iter().collect()
+    }
+}
+
+/// The operator's line for each layer signal's frames processed.
+pub(super) fn log_layers(layers: Vec<((u32, Phase), Tally)>, backlog: usize) {
+    for (key, tally) in layers {
+        log_layer(key, &tally, backlog);
+    }
+}
+
+fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
+    let processing_ms = tally.last_end.saturating_sub(tally.first_start).as_millis() as u64;
+    let lag = tally
+        .lag
+        .map_or_else(|| "catch-up".to_string(), |l| l.as_millis().to_string());
+    info!(
+        layer,
+        phase = %phase,
+        frames = tally.frames,
+        failed = tally.failed,
+        processing_ms,
+        lag_ms = %lag,
+        backlog,
+        "layer processed"
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shot::Light;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    #[test]
+    fn a_layer_line_comes_once_its_frames_are_processed_and_a_missing_frame_does_not_hold_it() {
+        let mut tally = LayerTally::new(3);
+        let lights = [Light::Front, Light::Side, Light::Top];
+        // Layer 1 pre: two frames, nothing yet; the third completes it.
+        for (i, light) in lights[..2].iter().enumerate() {
+            let at = ms(10 * i as u64);
+            assert!(tally
+                .add(
+                    &Shot::new(1, Phase::Pre, *light),
+                    true,
+                    (at, at + ms(5)),
+                    Some(ms(7))
+                )
+                .is_empty());
+        }
+        let done = tally.add(
+            &Shot::new(1, Phase::Pre, Light::Top),
+            false,
+            (ms(20), ms(40)),
+            None,
+        );
+        assert_eq!(done.len(), 1);
+        let ((layer, phase), t) = &done[0];
+        assert_eq!((*layer, *phase, t.frames, t.failed), (1, Phase::Pre, 3, 1));
+        assert_eq!(
+            t.last_end - t.first_start,
+            ms(40),
+            "from the first start to the last end"
+        );
+        assert_eq!(t.lag, None, "the last frame's lag (a catch-up has none)");
+        // Layer 1 post misses its top frame; layer 2 pre's frames come in between, processed
+        // two at a time: layer 1 post is told (2 frames) just before layer 2 pre.
+        tally.add(
+            &Shot::new(1, Phase::Post, Light::Front),
+            true,
+            (ms(50), ms(60)),
+            Some(ms(10)),
+        );
+        tally.add(
+            &Shot::new(2, Phase::Pre, Light::Front),
+            true,
+            (ms(55), ms(65)),
+            Some(ms(10)),
+        );
+        tally.add(
+            &Shot::new(1, Phase::Post, Light::Side),
+            true,
+            (ms(60), ms(70)),
+            Some(ms(10)),
+        );
+        tally.add(
+            &Shot::new(2, Phase::Pre, Light::Side),
+            true,
+            (ms(65), ms(75)),
+            Some(ms(10)),
+        );
+        let done = tally.add(
+            &Shot::new(2, Phase::Pre, Light::Top),
+            true,
+            (ms(75), ms(85)),
+            Some(ms(9)),
+        );
+        let told: Vec<_> = done.iter().map(|(k, t)| (*k, t.frames)).collect();
+        assert_eq!(told, vec![((1, Phase::Post), 2), ((2, Phase::Pre), 3)]);
+        // A layer left open when the worker stops is told then.
+        tally.add(
+            &Shot::new(2, Phase::Post, Light::Front),
+            true,
+            (ms(90), ms(95)),
+            Some(ms(5)),
+        );
+        let rest: Vec<_> = tally.flush().iter().map(|(k, t)| (*k, t.frames)).collect();
+        assert_eq!(rest, vec![((2, Phase::Post), 1)]);
+        assert!(tally.flush().is_empty());
+    }
+}
