@@ -91,7 +91,10 @@ fn time_frames(
         // As the processing worker runs them: one frame per core, each slice's commit (fsync,
         // rename) on a thread of its own while the lanes go on with the next frames.
         std::thread::scope(|scope| {
-            let (to_commit, commits) = crossbeam_channel::unbounded::<(Pending, StepTimes)>();
+            // Bounded as the worker's queue is: two slices a lane.
+            let (to_commit, commits) = crossbeam_channel::bounded::<(Pending, StepTimes)>(
+                2 * rayon::current_num_threads(),
+            );
             scope.spawn(|| {
                 for (pending, mut frame) in commits {
                     let t = Instant::now();

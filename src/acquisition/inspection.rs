@@ -179,9 +179,11 @@ impl FrameProcessor for InspectingSeries {
     }
 
     /// The slice is written, then the layer inspected once its views are in (its record, the
-    /// alarm), while the slice's commit waits for the disk on the worker's commit thread. A
-    /// retake replaces the slice (`[series] take = "last"`); the layer was inspected on its first
-    /// take and is not inspected again.
+    /// alarm), while the slice's commit waits for the disk on the worker's commit thread. The
+    /// inspection looks at the rectified view, not the file: a commit that then fails (an I/O
+    /// error at the fsync) leaves the layer inspected and the frame journaled as failed, its
+    /// original kept. A retake replaces the slice (`[series] take = "last"`); the layer was
+    /// inspected on its first take and is not inspected again.
     fn process_take_then(
         &self,
         build_dir: &Path,

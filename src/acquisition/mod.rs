@@ -9,6 +9,7 @@
 
 pub mod alarm;
 pub mod check;
+mod commit;
 pub mod disk;
 mod error;
 mod exposure;

@@ -12,8 +12,10 @@
 //! and puts it in place, then journals the take, in the order the lanes handed them over, while
 //! the lanes go on with the next frames instead of waiting for the disk's fsync.
 
-use super::layer_tally::{log_layers, LayerTally};
-use crate::build_dir::{Journal, Record};
+pub use super::commit::OnWritten;
+use super::commit::{disk_full, Commit, Ended, Ends, QueueState, TallyGuard};
+use super::layer_tally::LayerTally;
+use crate::build_dir::Journal;
 use crate::clock::SharedClock;
 use crate::logging::Chain;
 pub use crate::series::{FrameProcessor, KeepOriginals, Then};
@@ -27,37 +29,6 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 use tracing::{error, info};
-
-/// What the queue and its worker share.
-struct QueueState {
-    depth: AtomicUsize,
-    overflowed: AtomicBool,
-    /// Derived data waits (the disk is low).
-    paused: AtomicBool,
-    /// Told each change of `paused` (a channel of one: changes coalesce).
-    pause_changed: Sender<()>,
-    /// From submission to the end of processing, for the last frame processed.
-    lag_ms: AtomicU64,
-    /// Told each time a slice is written.
-    written: Option<OnWritten>,
-}
-
-impl QueueState {
-    fn set_paused(&self, paused: bool) -> bool {
-        let was = self.paused.swap(paused, Ordering::SeqCst);
-        if was != paused {
-            let _ = self.pause_changed.try_send(());
-        }
-        was
-    }
-
-    fn paused(&self) -> bool {
-        self.paused.load(Ordering::SeqCst)
-    }
-}
-
-/// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
-pub type OnWritten = Arc<dyn Fn() + Send + Sync>;
 
 /// A stored frame handed over: its shot, take (1: the frame, more: a retake), file, and when
 /// (on the clock's monotonic time) it was.
@@ -230,35 +201,6 @@ impl ProcessingQueue {
     fn join(&mut self) {
         if let Some(worker) = self.worker.take() {
             let _ = worker.join();
-        }
-    }
-}
-
-/// Whether an error (or one of its sources) is a write that found the disk full.
-fn disk_full(error: &crate::series::ProcessError) -> bool {
-    let mut current: Option<&(dyn std::error::Error + 'static)> = Some(&**error);
-    while let Some(e) = current {
-        if e.downcast_ref::<std::io::Error>()
-            .is_some_and(crate::fsutil::is_disk_full)
-        {
-            return true;
-        }
-        current = e.source();
-    }
-    false
-}
-
-/// The layers still open when the worker ends (stopped, drained, paused to the end) are told
-/// then, whichever way it returns.
-struct TallyGuard<'a> {
-    tally: Mutex<LayerTally>,
-    state: &'a QueueState,
-}
-
-impl Drop for TallyGuard<'_> {
-    fn drop(&mut self) {
-        if let Ok(mut open) = self.tally.lock() {
-            log_layers(open.flush(), self.state.depth.load(Ordering::SeqCst));
         }
     }
 }
@@ -468,6 +410,12 @@ impl<'a> Worker<'a> {
     /// Hands a take's end to the commit thread (in the order of the hand-overs), or ends it here
     /// without one.
     fn end(&self, ended: Ended<'a>) {
+        if matches!(&ended.outcome, Err(reason) if disk_full(reason)) {
+            // Paused at once, not once the commit thread comes to it: the lanes must not fill
+            // the room the originals need with more slices meanwhile.
+            self.state.set_paused(true);
+            self.state.overflowed.store(true, Ordering::SeqCst);
+        }
         let unsent = match &self.commits {
             Some(commits) => match commits.send(Commit::Take(ended)) {
                 Ok(()) => return,
@@ -487,150 +435,6 @@ impl<'a> Worker<'a> {
             if commits.send(Commit::Settled(done)).is_ok() {
                 let _ = settled.recv();
             }
-        }
-    }
-}
-
-/// A take processed up to its slice's commit: the rest, or why it failed.
-struct Ended<'a> {
-    shot: Shot,
-    take: u32,
-    /// When its processing began (the clock's monotonic time).
-    start: Duration,
-    outcome: Result<Then<'a>, crate::series::ProcessError>,
-    submitted: Option<Duration>,
-}
-
-/// What the commit thread is handed.
-enum Commit<'a> {
-    Take(Ended<'a>),
-    /// Told once everything handed over before it has ended.
-    Settled(Sender<()>),
-}
-
-/// How takes end: their slices committed, the result journaled and counted for the layer's
-/// line. On the worker's commit thread: the fsync waits for the disk there while the lanes
-/// decode the next frames.
-struct Ends<'a> {
-    state: &'a QueueState,
-    journal: &'a Mutex<Journal>,
-    clock: &'a SharedClock,
-    tally: TallyGuard<'a>,
-    plant: &'a crate::plant::PlantSink,
-}
-
-/// Takes handed to the commit thread and not yet taken up, per lane, before a lane waits.
-const COMMITS_PER_LANE: usize = 2;
-
-impl<'a> Ends<'a> {
-    /// Starts the commit thread in `scope`; its queue, or none if it cannot start.
-    fn start_committing<'scope>(
-        &'a self,
-        scope: &'scope std::thread::Scope<'scope, '_>,
-    ) -> Option<Sender<Commit<'a>>>
-    where
-        'a: 'scope,
-    {
-        let lanes = rayon::current_num_threads().max(1);
-        let (commits, queue) = crossbeam_channel::bounded(COMMITS_PER_LANE * lanes);
-        let started = std::thread::Builder::new()
-            .name("commit".into())
-            .spawn_scoped(scope, move || {
-                for commit in queue {
-                    match commit {
-                        Commit::Take(ended) => self.commit(ended),
-                        Commit::Settled(done) => {
-                            let _ = done.send(());
-                        }
-                    }
-                }
-            });
-        match started {
-            Ok(_) => Some(commits),
-            Err(e) => {
-                error!(error = %e, "processing: cannot start the commit thread; each frame's slice is committed on its lane");
-                None
-            }
-        }
-    }
-
-    /// Commits a take's slice (the rest of its processing), then concludes it.
-    fn commit(&self, ended: Ended<'_>) {
-        let result = ended.outcome.and_then(|then| then());
-        self.conclude(ended.shot, ended.take, ended.start, result, ended.submitted);
-    }
-
-    /// Journals what processing one take gave, counts it for its layer's line.
-    fn conclude(
-        &self,
-        shot: Shot,
-        take: u32,
-        start: Duration,
-        result: Result<(), crate::series::ProcessError>,
-        submitted: Option<Duration>,
-    ) {
-        let (state, clock) = (self.state, self.clock);
-        let record = match result {
-            Err(reason) if disk_full(&reason) => {
-                // Not a failure of the frame: it waits (paused) and is caught up from the
-                // journal once the disk has room again.
-                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %Chain(&*reason), "processing: the disk is full; derived data paused, the frame waits");
-                state.set_paused(true);
-                state.overflowed.store(true, Ordering::SeqCst);
-                return;
-            }
-            Ok(()) if take > 1 => Record::SliceTake {
-                layer: shot.layer,
-                phase: shot.phase,
-                light: shot.light,
-                take,
-                at: clock.now(),
-            },
-            Ok(()) => Record::Processed {
-                layer: shot.layer,
-                phase: shot.phase,
-                light: shot.light,
-                at: clock.now(),
-            },
-            Err(reason) => {
-                let reason = crate::logging::chain(&*reason);
-                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
-                Record::ProcessingFailed {
-                    layer: shot.layer,
-                    phase: shot.phase,
-                    light: shot.light,
-                    reason,
-                    at: clock.now(),
-                }
-            }
-        };
-        if let Ok(mut journal) = self.journal.lock() {
-            if let Err(e) = journal.append(&record) {
-                error!(error = %Chain(&e), "processing: cannot journal the result");
-            }
-        }
-        if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
-            (&state.written, &record)
-        {
-            written();
-        }
-        let _ = state
-            .depth
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
-                Some(d.saturating_sub(1))
-            });
-        let end = clock.elapsed();
-        let lag = submitted.map(|at| end.saturating_sub(at));
-        if let Some(lag) = lag {
-            state.lag_ms.store(lag.as_millis() as u64, Ordering::SeqCst);
-        }
-        self.plant.processed(end.saturating_sub(start), lag);
-        let ok = !matches!(record, Record::ProcessingFailed { .. });
-        if let Ok(mut open) = self.tally.tally.lock() {
-            log_layers(
-                open.add(&shot, ok, (start, end), lag),
-                state.depth.load(Ordering::SeqCst),
-            );
         }
     }
 }
@@ -672,11 +476,83 @@ mod tests {
         }
     }
 
+    /// A commit that panics for the front view.
+    #[derive(Default)]
+    struct PanicsOnFront {
+        finished: AtomicBool,
+    }
+
+    impl FrameProcessor for PanicsOnFront {
+        fn finish(&self) {
+            self.finished.store(true, Ordering::SeqCst);
+        }
+
+        fn process(&self, _: &Path, _: Shot, _: &Path) -> Result<(), ProcessError> {
+            Ok(())
+        }
+
+        fn process_take_then(
+            &self,
+            _: &Path,
+            shot: Shot,
+            _: u32,
+            _: &Path,
+        ) -> Result<Then<'_>, ProcessError> {
+            Ok(Box::new(move || {
+                assert!(shot.light != Light::Front, "a commit that panics");
+                Ok(())
+            }))
+        }
+    }
+
+    fn queue(processor: Arc<dyn FrameProcessor>, dir: &Path) -> ProcessingQueue {
+        let (journal, _) = Journal::open(&dir.join(crate::build_dir::JOURNAL), false).unwrap();
+        ProcessingQueue::start(
+            processor,
+            8,
+            dir.to_path_buf(),
+            Arc::new(Mutex::new(journal)),
+            WorkerPlan {
+                backlog: Vec::new(),
+                take: SeriesTake::First,
+                frames_per_signal: 2,
+                plant: crate::plant::PlantSink::off(),
+            },
+            crate::clock::SystemClock::shared(),
+            None,
+        )
+    }
+
+    #[test]
+    fn a_commit_that_panics_leaves_its_frame_unjournaled_and_the_next_ones_go_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let processor = Arc::new(PanicsOnFront::default());
+        let queue = queue(processor.clone(), dir.path());
+        let shots = [Light::Front, Light::Side, Light::Top].map(|l| Shot::new(1, Phase::Pre, l));
+        for shot in shots {
+            queue.submit(shot, dir.path().join("x.jpg"), Duration::ZERO);
+        }
+        queue.drain();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        // The front frame is neither processed nor failed: it waits for the catch-up.
+        assert_eq!(
+            Journal::read(&path)
+                .unwrap()
+                .processed
+                .into_iter()
+                .collect::<Vec<_>>(),
+            shots[1..].to_vec()
+        );
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(text.lines().count(), 2, "{text}");
+        // The worker ended as it should (the alarm's flush ran), not by the panic.
+        assert!(processor.finished.load(Ordering::SeqCst));
+    }
+
     #[test]
     fn a_lane_goes_on_while_a_slice_commits_and_the_journal_waits_for_the_commit() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(crate::build_dir::JOURNAL);
-        let (journal, _) = Journal::open(&path, false).unwrap();
         let (events, told) = crossbeam_channel::unbounded();
         let (release, released) = crossbeam_channel::unbounded();
         let (front, side) = (
@@ -688,20 +564,7 @@ mod tests {
             release: released,
             held: front,
         };
-        let queue = ProcessingQueue::start(
-            Arc::new(processor),
-            8,
-            dir.path().to_path_buf(),
-            Arc::new(Mutex::new(journal)),
-            WorkerPlan {
-                backlog: Vec::new(),
-                take: SeriesTake::First,
-                frames_per_signal: 2,
-                plant: crate::plant::PlantSink::off(),
-            },
-            crate::clock::SystemClock::shared(),
-            None,
-        );
+        let queue = queue(Arc::new(processor), dir.path());
         let next = || told.recv_timeout(Duration::from_secs(10)).unwrap();
         let journaled = || Journal::read(&path).unwrap().processed;
 

@@ -1,0 +1,230 @@
+//! How the processing worker's takes end: each slice committed (fsync, rename), then the take
+//! journaled, counted for its layer's line and told (the PACS wake), on a commit thread beside
+//! the lanes, in the order the lanes handed them over; and what the queue and its worker share.
+
+use super::layer_tally::{log_layers, LayerTally};
+use crate::build_dir::{Journal, Record};
+use crate::clock::SharedClock;
+use crate::logging::Chain;
+use crate::series::Then;
+use crate::shot::Shot;
+use crossbeam_channel::Sender;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tracing::error;
+
+/// What the queue and its worker share.
+pub(super) struct QueueState {
+    pub(super) depth: AtomicUsize,
+    pub(super) overflowed: AtomicBool,
+    /// Derived data waits (the disk is low).
+    pub(super) paused: AtomicBool,
+    /// Told each change of `paused` (a channel of one: changes coalesce).
+    pub(super) pause_changed: Sender<()>,
+    /// From submission to the end of processing, for the last frame processed.
+    pub(super) lag_ms: AtomicU64,
+    /// Told each time a slice is written.
+    pub(super) written: Option<OnWritten>,
+}
+
+impl QueueState {
+    pub(super) fn set_paused(&self, paused: bool) -> bool {
+        let was = self.paused.swap(paused, Ordering::SeqCst);
+        if was != paused {
+            let _ = self.pause_changed.try_send(());
+        }
+        was
+    }
+
+    pub(super) fn paused(&self) -> bool {
+        self.paused.load(Ordering::SeqCst)
+    }
+}
+
+/// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
+pub type OnWritten = Arc<dyn Fn() + Send + Sync>;
+
+/// Whether an error (or one of its sources) is a write that found the disk full.
+pub(super) fn disk_full(error: &crate::series::ProcessError) -> bool {
+    let mut current: Option<&(dyn std::error::Error + 'static)> = Some(&**error);
+    while let Some(e) = current {
+        if e.downcast_ref::<std::io::Error>()
+            .is_some_and(crate::fsutil::is_disk_full)
+        {
+            return true;
+        }
+        current = e.source();
+    }
+    false
+}
+
+/// The layers still open when the worker ends (stopped, drained, paused to the end) are told
+/// then, whichever way it returns.
+pub(super) struct TallyGuard<'a> {
+    pub(super) tally: Mutex<LayerTally>,
+    pub(super) state: &'a QueueState,
+}
+
+impl Drop for TallyGuard<'_> {
+    fn drop(&mut self) {
+        if let Ok(mut open) = self.tally.lock() {
+            log_layers(open.flush(), self.state.depth.load(Ordering::SeqCst));
+        }
+    }
+}
+
+/// A take processed up to its slice's commit: the rest, or why it failed.
+pub(super) struct Ended<'a> {
+    pub(super) shot: Shot,
+    pub(super) take: u32,
+    /// When its processing began (the clock's monotonic time).
+    pub(super) start: Duration,
+    pub(super) outcome: Result<Then<'a>, crate::series::ProcessError>,
+    pub(super) submitted: Option<Duration>,
+}
+
+/// What the commit thread is handed.
+pub(super) enum Commit<'a> {
+    Take(Ended<'a>),
+    /// Told once everything handed over before it has ended.
+    Settled(Sender<()>),
+}
+
+/// How takes end: their slices committed, the result journaled and counted for the layer's
+/// line. On the worker's commit thread: the fsync waits for the disk there while the lanes
+/// decode the next frames.
+pub(super) struct Ends<'a> {
+    pub(super) state: &'a QueueState,
+    pub(super) journal: &'a Mutex<Journal>,
+    pub(super) clock: &'a SharedClock,
+    pub(super) tally: TallyGuard<'a>,
+    pub(super) plant: &'a crate::plant::PlantSink,
+}
+
+/// Takes handed to the commit thread and not yet taken up, per lane, before a lane waits.
+const COMMITS_PER_LANE: usize = 2;
+
+impl<'a> Ends<'a> {
+    /// Starts the commit thread in `scope`; its queue, or none if it cannot start.
+    pub(super) fn start_committing<'scope>(
+        &'a self,
+        scope: &'scope std::thread::Scope<'scope, '_>,
+    ) -> Option<Sender<Commit<'a>>>
+    where
+        'a: 'scope,
+    {
+        let lanes = rayon::current_num_threads().max(1);
+        let (commits, queue) = crossbeam_channel::bounded(COMMITS_PER_LANE * lanes);
+        let started = std::thread::Builder::new()
+            .name("commit".into())
+            .spawn_scoped(scope, move || {
+                for commit in queue {
+                    match commit {
+                        Commit::Take(ended) => {
+                            let (shot, take) = (ended.shot, ended.take);
+                            let committed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(
+                                || self.commit(ended),
+                            ));
+                            if committed.is_err() {
+                                // The thread goes on with the takes behind it; this one waits
+                                // on disk for the catch-up from the journal.
+                                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, take, "processing: committing the frame's slice panicked; the frame waits on disk and is caught up");
+                                self.state.overflowed.store(true, Ordering::SeqCst);
+                            }
+                        }
+                        Commit::Settled(done) => {
+                            let _ = done.send(());
+                        }
+                    }
+                }
+            });
+        match started {
+            Ok(_) => Some(commits),
+            Err(e) => {
+                error!(error = %e, "processing: cannot start the commit thread; each frame's slice is committed on its lane");
+                None
+            }
+        }
+    }
+
+    /// Commits a take's slice (the rest of its processing), then concludes it.
+    pub(super) fn commit(&self, ended: Ended<'_>) {
+        let result = ended.outcome.and_then(|then| then());
+        self.conclude(ended.shot, ended.take, ended.start, result, ended.submitted);
+    }
+
+    /// Journals what processing one take gave, counts it for its layer's line.
+    fn conclude(
+        &self,
+        shot: Shot,
+        take: u32,
+        start: Duration,
+        result: Result<(), crate::series::ProcessError>,
+        submitted: Option<Duration>,
+    ) {
+        let (state, clock) = (self.state, self.clock);
+        let record = match result {
+            Err(reason) if disk_full(&reason) => {
+                // Not a failure of the frame: it waits (paused) and is caught up from the
+                // journal once the disk has room again.
+                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %Chain(&*reason), "processing: the disk is full; derived data paused, the frame waits");
+                state.set_paused(true);
+                state.overflowed.store(true, Ordering::SeqCst);
+                return;
+            }
+            Ok(()) if take > 1 => Record::SliceTake {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                take,
+                at: clock.now(),
+            },
+            Ok(()) => Record::Processed {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                at: clock.now(),
+            },
+            Err(reason) => {
+                let reason = crate::logging::chain(&*reason);
+                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "processing failed; the original is kept");
+                Record::ProcessingFailed {
+                    layer: shot.layer,
+                    phase: shot.phase,
+                    light: shot.light,
+                    reason,
+                    at: clock.now(),
+                }
+            }
+        };
+        if let Ok(mut journal) = self.journal.lock() {
+            if let Err(e) = journal.append(&record) {
+                error!(error = %Chain(&e), "processing: cannot journal the result");
+            }
+        }
+        if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
+            (&state.written, &record)
+        {
+            written();
+        }
+        let _ = state
+            .depth
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
+                Some(d.saturating_sub(1))
+            });
+        let end = clock.elapsed();
+        let lag = submitted.map(|at| end.saturating_sub(at));
+        if let Some(lag) = lag {
+            state.lag_ms.store(lag.as_millis() as u64, Ordering::SeqCst);
+        }
+        self.plant.processed(end.saturating_sub(start), lag);
+        let ok = !matches!(record, Record::ProcessingFailed { .. });
+        if let Ok(mut open) = self.tally.tally.lock() {
+            log_layers(
+                open.add(&shot, ok, (start, end), lag),
+                state.depth.load(Ordering::SeqCst),
+            );
+        }
+    }
+}
