@@ -364,29 +364,15 @@ impl LiveSeries {
     ) -> Result<PathBuf, SeriesError> {
         let rectified = self.rectified_luma(original)?;
         let steps = &mut StepTimes::default();
-        self.write_rectified(build_dir, shot, rectified, acquired, source, steps)
-    }
-
-    /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]), made
-    /// from `source` (its take picks the SOP Instance UID); replaces the slice atomically. Its
-    /// encode, write and commit times go into `steps`.
-    pub fn write_rectified(
-        &self,
-        build_dir: &Path,
-        shot: Shot,
-        rectified: FrameLuma,
-        acquired: Option<chrono::DateTime<chrono::Utc>>,
-        source: Option<SliceSource>,
-        steps: &mut StepTimes,
-    ) -> Result<PathBuf, SeriesError> {
         let pending =
             self.write_rectified_pending(build_dir, shot, rectified, acquired, source, steps)?;
         committed(pending, steps)
     }
 
-    /// [`LiveSeries::write_rectified`] up to its commit: the slice written beside its place, not
-    /// yet fsynced nor in place ([`Pending::commit`]). Its encode and write times go into
-    /// `steps`.
+    /// Writes the slice of a frame already rectified ([`LiveSeries::rectified_luma`]), made
+    /// from `source` (its take picks the SOP Instance UID), beside its place: not yet fsynced
+    /// nor in place until [`Pending::commit`], which replaces the slice atomically. Its encode
+    /// and write times go into `steps`.
     pub fn write_rectified_pending(
         &self,
         build_dir: &Path,
@@ -445,23 +431,13 @@ impl LiveSeries {
         take: u32,
         original: &Path,
     ) -> Result<PathBuf, SeriesError> {
-        self.write_original_timed(build_dir, shot, take, original, &mut StepTimes::default())
-    }
-
-    /// [`LiveSeries::write_original`], the time of each step put in `steps`.
-    pub fn write_original_timed(
-        &self,
-        build_dir: &Path,
-        shot: Shot,
-        take: u32,
-        original: &Path,
-        steps: &mut StepTimes,
-    ) -> Result<PathBuf, SeriesError> {
+        let steps = &mut StepTimes::default();
         let pending = self.write_original_pending(build_dir, shot, take, original, steps)?;
         committed(pending, steps)
     }
 
-    /// [`LiveSeries::write_original_timed`] up to the slice's commit ([`Pending::commit`]).
+    /// [`LiveSeries::write_original`] up to the slice's commit ([`Pending::commit`]), the time
+    /// of each step put in `steps`.
     pub fn write_original_pending(
         &self,
         build_dir: &Path,
@@ -470,13 +446,39 @@ impl LiveSeries {
         original: &Path,
         steps: &mut StepTimes,
     ) -> Result<Pending, SeriesError> {
+        let see = |_: &FrameLuma, _: &mut StepTimes| ();
+        let (pending, ()) =
+            self.write_original_seen(build_dir, shot, take, original, steps, see)?;
+        Ok(pending)
+    }
+
+    /// [`LiveSeries::write_original_pending`], the rectified view shown to `see` before it is
+    /// written (the inspection reduces it to its cells there); with what `see` gave.
+    pub fn write_original_seen<T>(
+        &self,
+        build_dir: &Path,
+        shot: Shot,
+        take: u32,
+        original: &Path,
+        steps: &mut StepTimes,
+        see: impl FnOnce(&FrameLuma, &mut StepTimes) -> T,
+    ) -> Result<(Pending, T), SeriesError> {
         let started = Instant::now();
         let (bytes, acquired) = read_original(original)?;
         steps.read_ms = ms_since(started);
         let file = source_file(build_dir, original);
         let source = SliceSource { take, file: &file };
         let rectified = self.rectified_luma_timed(&bytes, steps)?;
-        self.write_rectified_pending(build_dir, shot, rectified, acquired, Some(source), steps)
+        let seen = see(&rectified, steps);
+        let pending = self.write_rectified_pending(
+            build_dir,
+            shot,
+            rectified,
+            acquired,
+            Some(source),
+            steps,
+        )?;
+        Ok((pending, seen))
     }
 }
 

@@ -11,6 +11,7 @@ use crate::clock::SharedClock;
 use crate::config::Config;
 use crate::inspect::{Inspector, Reducer};
 use crate::logging::Chain;
+use crate::rectify::FrameLuma;
 use crate::series::{commit_then, FrameProcessor, LiveSeries, ProcessError, StepTimes, Then};
 use crate::shot::Shot;
 use std::path::Path;
@@ -195,32 +196,21 @@ impl FrameProcessor for InspectingSeries {
             return self.live.process_take_then(build_dir, shot, take, original);
         }
         let mut steps = StepTimes::default();
-        let started = Instant::now();
-        let (bytes, acquired) = crate::series::read_original(original)?;
-        steps.read_ms = ms_since(started);
-        let rectified = self.live.rectified_luma_timed(&bytes, &mut steps)?;
-        if let Some(model) = &self.model {
-            model.scan(shot.layer, shot.view(), &rectified);
-        }
-        let started = Instant::now();
-        let cells = self
-            .reducer
-            .needs(shot.view())
-            .then(|| self.reducer.cells(&rectified));
-        steps.cells_ms = ms_since(started);
-        let file = crate::series::source_file(build_dir, original);
-        let source = crate::dicom::SliceSource {
-            take: 1,
-            file: &file,
+        let see = |rectified: &FrameLuma, steps: &mut StepTimes| {
+            if let Some(model) = &self.model {
+                model.scan(shot.layer, shot.view(), rectified);
+            }
+            let started = Instant::now();
+            let cells = self
+                .reducer
+                .needs(shot.view())
+                .then(|| self.reducer.cells(rectified));
+            steps.cells_ms = ms_since(started);
+            cells
         };
-        let pending = self.live.write_rectified_pending(
-            build_dir,
-            shot,
-            rectified,
-            acquired,
-            Some(source),
-            &mut steps,
-        )?;
+        let (pending, cells) = self
+            .live
+            .write_original_seen(build_dir, shot, 1, original, &mut steps, see)?;
         let records = match (cells, self.inspector.lock()) {
             (Some(cells), Ok(mut inspector)) => {
                 inspector.add(shot.layer, shot.view(), cells, self.clock.now())

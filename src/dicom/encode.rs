@@ -294,40 +294,24 @@ pub fn write_slice(
     slice: &Slice,
     compression: Compression,
 ) -> Result<(), DicomError> {
-    write_slice_from(path, study, series, slice, compression, None).map(|_| ())
+    let (_, pending) = write_slice_pending(path, study, series, slice, compression, None)?;
+    Ok(pending.commit()?)
 }
 
 /// How long a slice took to write, ms: encoding it (the data set, and the deflate of its samples,
 /// which runs a group of segments at a time between the file's writes), and writing the file
-/// (atomically, fsync'd; the time of that deflate left out).
+/// (the time of that deflate left out; its commit, the fsync and rename, is timed by the caller).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct WriteTimes {
     pub encode_ms: f64,
     pub write_ms: f64,
 }
 
-/// [`write_slice`] of a slice made from a stored original ([`SliceSource`]); replaces the file
-/// atomically. The samples go to the file as they are encoded, never as one more copy of the
-/// slice in memory. Tells how long encoding and writing took (the commit included).
-pub fn write_slice_from(
-    path: &Path,
-    study: &Study,
-    series: &Series,
-    slice: &Slice,
-    compression: Compression,
-    source: Option<SliceSource>,
-) -> Result<WriteTimes, DicomError> {
-    let (mut times, pending) =
-        write_slice_pending(path, study, series, slice, compression, source)?;
-    let started = Instant::now();
-    pending.commit()?;
-    times.write_ms += ms_since(started);
-    Ok(times)
-}
-
-/// [`write_slice_from`] up to its commit: the slice written beside its place, not yet fsynced
-/// nor renamed over the slice before ([`Pending::commit`] does both, on another thread if the
-/// caller has other work). `write_ms` is the writing alone.
+/// [`write_slice`] of a slice made from a stored original ([`SliceSource`]) up to its commit:
+/// the slice written beside its place, not yet fsynced nor renamed over the slice before
+/// ([`Pending::commit`] does both, on another thread if the caller has other work). The samples
+/// go to the file as they are encoded, never as one more copy of the slice in memory. Tells how
+/// long encoding and writing took (the commit left out).
 pub fn write_slice_pending(
     path: &Path,
     study: &Study,

@@ -17,8 +17,7 @@ pub mod uid;
 
 pub use deflate::Samples;
 pub use encode::{
-    encode_slice, encode_slice_from, write_slice, write_slice_from, write_slice_pending,
-    Compression, WriteTimes,
+    encode_slice, encode_slice_from, write_slice, write_slice_pending, Compression, WriteTimes,
 };
 pub use error::{DicomError, EncodeError};
 pub use info::{file_instance_uid, series_info, slice_take, SeriesSummary};

@@ -5,7 +5,7 @@
 mod pending;
 mod writeback;
 
-pub use pending::{write_atomic_with, write_pending_with, Pending};
+pub use pending::{write_pending_with, Pending};
 pub use writeback::WriteBehind;
 
 use sha2::{Digest, Sha256};

@@ -46,16 +46,6 @@ pub fn write_pending_with(
     Ok(pending)
 }
 
-/// [`super::write_atomic`] of what `write` writes to the file (in parts, as it makes them), so
-/// that large output need not be one buffer first.
-pub fn write_atomic_with(
-    path: &Path,
-    fsync: bool,
-    write: impl FnOnce(&mut WriteBehind<'_>) -> std::io::Result<()>,
-) -> Result<(), WriteError> {
-    write_pending_with(path, fsync, write)?.commit()
-}
-
 impl Pending {
     /// Where the file goes.
     pub fn path(&self) -> &Path {
