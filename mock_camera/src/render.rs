@@ -303,7 +303,9 @@ impl Renderer {
                         }
                         _ => look.chamber + look.chamber_amp * unit(h, 24),
                     };
-                    let g = value.round().clamp(0.0, 255.0) as u8;
+                    // Rounded half up by the cast (`round` is a libm call per pixel without
+                    // SSE4.1: 5 % of a test build's time in the renderer).
+                    let g = (value.clamp(0.0, 255.0) + 0.5) as u8;
                     px.copy_from_slice(&[g, g, g]);
                 }
             });

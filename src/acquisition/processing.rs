@@ -331,48 +331,78 @@ impl<'a> Worker<'a> {
             });
     }
 
-    /// What is still queued, then every frame the journal says is not processed.
+    /// Every frame the journal says is not processed, in build order, the queued ones among
+    /// them too: a frame that overflowed the queue is older than the frames queued after it,
+    /// and a layer's views must come before a later layer's, or the inspection would take the
+    /// later layer's completion for the end of the earlier one's and inspect it without the
+    /// views still waiting on disk.
     fn catch_up(
         &self,
         inbox: &Inbox,
         caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
         choice: SeriesTake,
     ) -> CatchUp {
-        while let Ok((shot, take, original, at)) = inbox.frames.try_recv() {
-            if self.state.paused() {
-                // What is left waits on disk; the journal finds it after the pause.
-                return CatchUp::Paused;
-            }
-            if !caught_up.remove(&(shot, take)) {
-                self.process(shot, take, &original, at);
+        // Taken out of the channel, to be processed in the journal's order. Each one is in the
+        // journal (a frame is journaled before it is handed over).
+        let mut queued = Vec::new();
+        while let Ok(item) = inbox.frames.try_recv() {
+            if !caught_up.remove(&(item.0, item.1)) {
+                queued.push(item);
             }
         }
         // The channel is drained, so nothing left in the set can still come out of it.
         caught_up.clear();
         // What is still being committed is not in the journal yet.
         self.settle();
-        let path = match self.journal.lock() {
-            Ok(journal) => journal.path().to_path_buf(),
-            Err(_) => return CatchUp::Done,
-        };
-        let replay = match Journal::read(&path) {
-            Ok(replay) => replay,
-            Err(e) => {
+        // The path only: the recorder journals under the lock, and must not wait for the read.
+        let path = self.journal.lock().map(|j| j.path().to_path_buf());
+        let replay = match path {
+            Ok(path) => Journal::read(&path).map_err(|e| {
                 error!(error = %Chain(&e), "processing: cannot read the journal to catch up");
-                return CatchUp::Done;
-            }
+            }),
+            Err(_) => Err(()),
         };
-        for (shot, take) in replay.unprocessed_takes(choice) {
+        let mut pass = Vec::new();
+        if let Ok(replay) = &replay {
+            for (shot, take) in replay.unprocessed_takes(choice) {
+                if let Some(entry) = replay.take_entry(&shot, take) {
+                    pass.push((shot, take, entry.file.clone()));
+                }
+            }
+        }
+        let in_pass: std::collections::BTreeSet<Shot> = pass.iter().map(|p| p.0).collect();
+        for (shot, take, recorded) in pass {
+            if inbox.stop.is_requested() {
+                return CatchUp::Stopped;
+            }
+            if self.state.paused() {
+                // What is left waits on disk; the journal finds it after the pause.
+                return CatchUp::Paused;
+            }
+            match queued.iter().position(|q| q.0 == shot && q.1 == take) {
+                Some(i) => {
+                    let (_, _, original, at) = queued.remove(i);
+                    self.process(shot, take, &original, at);
+                }
+                None => {
+                    self.process_recorded(shot, take, &recorded);
+                    caught_up.insert((shot, take));
+                }
+            }
+        }
+        // Queued takes the pass did not cover (the journal unreadable): in their order. A take
+        // of a shot the pass processed is left out (the pass took the take the series shows).
+        for (shot, take, original, at) in queued {
+            if in_pass.contains(&shot) {
+                continue;
+            }
             if inbox.stop.is_requested() {
                 return CatchUp::Stopped;
             }
             if self.state.paused() {
                 return CatchUp::Paused;
             }
-            if let Some(entry) = replay.take_entry(&shot, take) {
-                self.process_recorded(shot, take, &entry.file);
-                caught_up.insert((shot, take));
-            }
+            self.process(shot, take, &original, at);
         }
         CatchUp::Done
     }
@@ -507,11 +537,20 @@ mod tests {
 
     fn queue(processor: Arc<dyn FrameProcessor>, dir: &Path) -> ProcessingQueue {
         let (journal, _) = Journal::open(&dir.join(crate::build_dir::JOURNAL), false).unwrap();
+        queue_on(processor, dir, 8, Arc::new(Mutex::new(journal)))
+    }
+
+    fn queue_on(
+        processor: Arc<dyn FrameProcessor>,
+        dir: &Path,
+        capacity: usize,
+        journal: Arc<Mutex<Journal>>,
+    ) -> ProcessingQueue {
         ProcessingQueue::start(
             processor,
-            8,
+            capacity,
             dir.to_path_buf(),
-            Arc::new(Mutex::new(journal)),
+            journal,
             WorkerPlan {
                 backlog: Vec::new(),
                 take: SeriesTake::First,
@@ -590,5 +629,91 @@ mod tests {
         let text = std::fs::read_to_string(&path).unwrap();
         let (at_front, at_side) = (text.find("front").unwrap(), text.find("side").unwrap());
         assert!(at_front < at_side, "journaled in the order handed over");
+    }
+
+    /// Tells each take as its processing starts; the held shots wait to be released first.
+    struct Held {
+        events: Sender<Shot>,
+        release: Receiver<()>,
+        held: Vec<Shot>,
+    }
+
+    impl FrameProcessor for Held {
+        fn process(&self, _: &Path, shot: Shot, _: &Path) -> Result<(), ProcessError> {
+            self.process_take_then(Path::new("."), shot, 1, Path::new("."))?()
+        }
+
+        fn process_take_then(
+            &self,
+            _: &Path,
+            shot: Shot,
+            _: u32,
+            _: &Path,
+        ) -> Result<Then<'_>, ProcessError> {
+            self.events.send(shot)?;
+            if self.held.contains(&shot) {
+                self.release.recv()?;
+            }
+            Ok(Box::new(|| Ok(())))
+        }
+    }
+
+    #[test]
+    fn a_frame_that_overflowed_the_queue_is_processed_before_the_frames_queued_after_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let (journal, _) = Journal::open(&path, false).unwrap();
+        let journal = Arc::new(Mutex::new(journal));
+        let shots = [
+            (1, Light::Front),
+            (1, Light::Side),
+            (1, Light::Top),
+            (2, Light::Front),
+        ]
+        .map(|(layer, light)| Shot::new(layer, Phase::Post, light));
+        let (events, told) = crossbeam_channel::unbounded();
+        let (release, released) = crossbeam_channel::unbounded();
+        let processor = Held {
+            events,
+            release: released,
+            held: shots[..2].to_vec(),
+        };
+        let queue = queue_on(Arc::new(processor), dir.path(), 1, journal.clone());
+        let next = || told.recv_timeout(Duration::from_secs(10)).unwrap();
+        // Journaled, then handed over, as the recorder does.
+        let store = |shot: Shot| {
+            let file = format!("raw/{}.jpg", shot.take_stem(1));
+            let record = crate::build_dir::journal::Record::Frame {
+                layer: shot.layer,
+                phase: shot.phase,
+                light: shot.light,
+                file: file.clone(),
+                bytes: 1,
+                sha256: String::new(),
+                at: chrono::Utc::now(),
+            };
+            journal.lock().unwrap().append(&record).unwrap();
+            queue.submit(shot, dir.path().join(file), Duration::ZERO);
+        };
+
+        store(shots[0]);
+        assert_eq!(next(), shots[0]);
+        // Layer 1's side view waits in the queue (one place); its top view overflows it and
+        // waits on disk.
+        store(shots[1]);
+        store(shots[2]);
+        release.send(()).unwrap();
+        // The catch-up takes the side view; layer 2's front view is stored meanwhile, and the
+        // queue has room for it.
+        assert_eq!(next(), shots[1]);
+        store(shots[3]);
+        release.send(()).unwrap();
+        // Layer 1's top view comes before layer 2's front view (the code before took the queue
+        // first: layer 2 came before it, and the inspection took layer 1 as done without it).
+        assert_eq!(next(), shots[2]);
+        assert_eq!(next(), shots[3]);
+        queue.drain();
+        assert!(told.try_recv().is_err(), "each frame processed once");
+        assert_eq!(Journal::read(&path).unwrap().processed.len(), 4);
     }
 }
