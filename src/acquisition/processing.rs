@@ -354,22 +354,7 @@ impl<'a> Worker<'a> {
         caught_up.clear();
         // What is still being committed is not in the journal yet.
         self.settle();
-        // The path only: the recorder journals under the lock, and must not wait for the read.
-        let path = self.journal.lock().map(|j| j.path().to_path_buf());
-        let replay = match path {
-            Ok(path) => Journal::read(&path).map_err(|e| {
-                error!(error = %Chain(&e), "processing: cannot read the journal to catch up");
-            }),
-            Err(_) => Err(()),
-        };
-        let mut pass = Vec::new();
-        if let Ok(replay) = &replay {
-            for (shot, take) in replay.unprocessed_takes(choice) {
-                if let Some(entry) = replay.take_entry(&shot, take) {
-                    pass.push((shot, take, entry.file.clone()));
-                }
-            }
-        }
+        let pass = self.unprocessed(choice);
         let in_pass: std::collections::BTreeSet<Shot> = pass.iter().map(|p| p.0).collect();
         for (shot, take, recorded) in pass {
             if inbox.stop.is_requested() {
@@ -405,6 +390,30 @@ impl<'a> Worker<'a> {
             self.process(shot, take, &original, at);
         }
         CatchUp::Done
+    }
+
+    /// The takes the journal says are not processed, in build order, with the file each record
+    /// names; none if the journal cannot be read (said at ERROR).
+    fn unprocessed(&self, choice: SeriesTake) -> Vec<(Shot, u32, String)> {
+        // The path only: the recorder journals under the lock, and must not wait for the read.
+        let Ok(path) = self.journal.lock().map(|j| j.path().to_path_buf()) else {
+            return Vec::new();
+        };
+        let replay = match Journal::read(&path) {
+            Ok(replay) => replay,
+            Err(e) => {
+                error!(error = %Chain(&e), "processing: cannot read the journal to catch up");
+                return Vec::new();
+            }
+        };
+        replay
+            .unprocessed_takes(choice)
+            .into_iter()
+            .filter_map(|(shot, take)| {
+                let entry = replay.take_entry(&shot, take)?;
+                Some((shot, take, entry.file.clone()))
+            })
+            .collect()
     }
 
     /// Processes the take a journal record names: only its own file in `raw/`
@@ -638,23 +647,14 @@ mod tests {
         held: Vec<Shot>,
     }
 
+    /// All its work before the commit: the defaults leave the commit nothing to do.
     impl FrameProcessor for Held {
         fn process(&self, _: &Path, shot: Shot, _: &Path) -> Result<(), ProcessError> {
-            self.process_take_then(Path::new("."), shot, 1, Path::new("."))?()
-        }
-
-        fn process_take_then(
-            &self,
-            _: &Path,
-            shot: Shot,
-            _: u32,
-            _: &Path,
-        ) -> Result<Then<'_>, ProcessError> {
             self.events.send(shot)?;
             if self.held.contains(&shot) {
                 self.release.recv()?;
             }
-            Ok(Box::new(|| Ok(())))
+            Ok(())
         }
     }
 
