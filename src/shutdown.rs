@@ -291,6 +291,10 @@ pub fn watch_signals(shutdown: &Shutdown) -> std::io::Result<SignalWatch> {
                     );
                 }
             }
+            // Its end of the wake-up pipe goes back to the watch, which drops it after `close`
+            // wrote to the other end: a watch dropped before this thread ran must not write to
+            // a closed pipe (SIGPIPE, whose default the binary keeps, would end the process).
+            signals
         })?;
     Ok(SignalWatch {
         handle,
@@ -298,10 +302,11 @@ pub fn watch_signals(shutdown: &Shutdown) -> std::io::Result<SignalWatch> {
     })
 }
 
-/// Watches SIGTERM and SIGINT until dropped (the default dispositions come back then).
+/// Watches SIGTERM and SIGINT until dropped. signal-hook keeps its handler after that (the
+/// signals are then ignored), so a command keeps its watch until it ends.
 pub struct SignalWatch {
     handle: signal_hook::iterator::Handle,
-    thread: Option<std::thread::JoinHandle<()>>,
+    thread: Option<std::thread::JoinHandle<signal_hook::iterator::Signals>>,
 }
 
 impl Drop for SignalWatch {
@@ -316,6 +321,52 @@ impl Drop for SignalWatch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Set in the copy of this test binary that `a_watch_dropped_at_once_never_dies_of_sigpipe`
+    /// runs.
+    const SIGPIPE_CHILD: &str = "LAYERWISE_TEST_SIGPIPE_CHILD";
+
+    /// The binary keeps SIGPIPE's default disposition (main.rs), and a command that fails right
+    /// after `watch_signals` (`demo --listen` on a busy port) drops the watch before its thread
+    /// ran: the wake-up written on close must not find the thread's end closed (the process would
+    /// die of SIGPIPE without its error). Run in a copy of this test binary with SIGPIPE at its
+    /// default, many times over, since the race is one of timing.
+    #[test]
+    fn a_watch_dropped_at_once_never_dies_of_sigpipe() {
+        const NAME: &str = "shutdown::tests::a_watch_dropped_at_once_never_dies_of_sigpipe";
+        if std::env::var_os(SIGPIPE_CHILD).is_some() {
+            // SAFETY: restoring the default disposition of SIGPIPE, as main.rs does.
+            unsafe {
+                libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+            }
+            // Dropped at different times after the thread was started, to meet it as it starts.
+            for i in 0..2000u32 {
+                let watch = watch_signals(&Shutdown::new()).unwrap();
+                let started = Instant::now();
+                while started.elapsed() < std::time::Duration::from_nanos(u64::from(i % 100) * 500)
+                {
+                    std::hint::spin_loop();
+                }
+                drop(watch);
+            }
+            return;
+        }
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", NAME, "--test-threads", "1"])
+            .env(SIGPIPE_CHILD, "1")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "the copy ended with {:?} (signal {:?})",
+            out.status.code(),
+            std::os::unix::process::ExitStatusExt::signal(&out.status)
+        );
+        assert!(
+            String::from_utf8_lossy(&out.stdout).contains("1 passed"),
+            "the copy ran the test"
+        );
+    }
 
     #[test]
     fn the_first_reason_stands_and_every_clone_sees_it() {
