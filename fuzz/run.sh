@@ -34,14 +34,17 @@ fi
 sancov="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
 -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
 -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing"
+# --locked: fuzz/Cargo.lock must list what the project's Cargo.toml asks for (a stale one made
+# every CI run resolve again against the crates.io index); any cargo command in fuzz/ without
+# --locked (`cargo tree`, say) adds what is missing.
 if [ -n "$beside" ]; then
   LAYERWISE_SANCOV_FLAGS="$sancov" RUSTC_WRAPPER="$PWD/instrument-ours.sh" \
-    CARGO_TARGET_DIR="$beside" cargo build --features beside-tests --bins
+    CARGO_TARGET_DIR="$beside" cargo build --locked --features beside-tests --bins
   bin="$beside/debug"
   stale="(cd fuzz && CARGO_TARGET_DIR=$beside cargo clean -p layerwise)"
 else
   host=$(rustc -vV | sed -n 's/^host: //p')
-  RUSTFLAGS="$sancov" cargo build --release --target "$host" --bins
+  RUSTFLAGS="$sancov" cargo build --locked --release --target "$host" --bins
   bin="target/$host/release"
   stale="(cd fuzz && cargo clean -p layerwise)"
 fi
