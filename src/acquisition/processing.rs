@@ -357,12 +357,8 @@ impl<'a> Worker<'a> {
         let pass = self.unprocessed(choice);
         let in_pass: std::collections::BTreeSet<Shot> = pass.iter().map(|p| p.0).collect();
         for (shot, take, recorded) in pass {
-            if inbox.stop.is_requested() {
-                return CatchUp::Stopped;
-            }
-            if self.state.paused() {
-                // What is left waits on disk; the journal finds it after the pause.
-                return CatchUp::Paused;
+            if let Some(end) = self.interrupted(inbox) {
+                return end;
             }
             match queued.iter().position(|q| q.0 == shot && q.1 == take) {
                 Some(i) => {
@@ -381,15 +377,24 @@ impl<'a> Worker<'a> {
             if in_pass.contains(&shot) {
                 continue;
             }
-            if inbox.stop.is_requested() {
-                return CatchUp::Stopped;
-            }
-            if self.state.paused() {
-                return CatchUp::Paused;
+            if let Some(end) = self.interrupted(inbox) {
+                return end;
             }
             self.process(shot, take, &original, at);
         }
         CatchUp::Done
+    }
+
+    /// How a catch-up ends early: stopped, or paused (what is left waits on disk; the journal
+    /// finds it after the pause).
+    fn interrupted(&self, inbox: &Inbox) -> Option<CatchUp> {
+        if inbox.stop.is_requested() {
+            Some(CatchUp::Stopped)
+        } else if self.state.paused() {
+            Some(CatchUp::Paused)
+        } else {
+            None
+        }
     }
 
     /// The takes the journal says are not processed, in build order, with the file each record
