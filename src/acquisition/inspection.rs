@@ -9,7 +9,7 @@ use crate::build_dir::inspection::{InspectionLog, InspectionRecord, Severity};
 use crate::clock::ms_since;
 use crate::clock::SharedClock;
 use crate::config::Config;
-use crate::inspect::{Inspector, Reducer};
+use crate::inspect::{InFlight, Inspector, Reducer};
 use crate::logging::Chain;
 use crate::rectify::FrameLuma;
 use crate::series::{commit_then, FrameProcessor, LiveSeries, ProcessError, StepTimes, Then};
@@ -208,13 +208,12 @@ impl FrameProcessor for InspectingSeries {
             steps.cells_ms = ms_since(started);
             cells
         };
+        let mut flight = Flight::begin(self, shot);
         let (pending, cells) = self
             .live
             .write_original_seen(build_dir, shot, 1, original, &mut steps, see)?;
-        let records = match (cells, self.inspector.lock()) {
-            (Some(cells), Ok(mut inspector)) => {
-                inspector.add(shot.layer, shot.view(), cells, self.clock.now())
-            }
+        let records = match (cells, flight.0.take(), self.inspector.lock()) {
+            (Some(cells), Some(f), Ok(mut inspector)) => inspector.land(f, cells, self.clock.now()),
             _ => Vec::new(),
         };
         for record in &self.with_model(records, false) {
@@ -233,6 +232,36 @@ impl FrameProcessor for InspectingSeries {
 
     fn catch_up(&self) -> Vec<(Shot, u32, String)> {
         self.missed.clone()
+    }
+}
+
+/// A view's place in the inspection while its frame is processed (other lanes may complete a
+/// later layer meanwhile): given up if the processing ends before the view's cells land.
+struct Flight<'s>(Option<InFlight>, &'s InspectingSeries);
+
+impl<'s> Flight<'s> {
+    fn begin(series: &'s InspectingSeries, shot: Shot) -> Flight<'s> {
+        let flight = match series.inspector.lock() {
+            Ok(mut inspector) => inspector.begin(shot.layer, shot.view()),
+            Err(_) => None,
+        };
+        Flight(flight, series)
+    }
+}
+
+impl Drop for Flight<'_> {
+    fn drop(&mut self) {
+        let Some(flight) = self.0.take() else {
+            return;
+        };
+        let series = self.1;
+        let records = match series.inspector.lock() {
+            Ok(mut inspector) => inspector.give_up(flight, series.clock.now()),
+            Err(_) => Vec::new(),
+        };
+        for record in &series.with_model(records, false) {
+            series.record(record);
+        }
     }
 }
 

@@ -64,6 +64,15 @@ pub fn camera_footprint_mm(camera: &crate::geometry::CameraModel, grid: &Grid) -
         .reduce(f64::max)
 }
 
+/// A view of a layer being processed, which its layer's inspection waits for
+/// ([`Inspector::begin`]); handed back to [`Inspector::land`] or [`Inspector::give_up`].
+#[must_use = "a view in flight holds back the inspection until it lands or is given up"]
+#[derive(Debug)]
+pub struct InFlight {
+    layer: u32,
+    view: View,
+}
+
 pub struct Inspector {
     cfg: InspectionConfig,
     view_grid: Grid,
@@ -73,6 +82,10 @@ pub struct Inspector {
     vectors: Option<LayerIndex>,
     needed: BTreeSet<View>,
     pending: BTreeMap<u32, BTreeMap<View, Cells>>,
+    /// Views on their way to [`Inspector::land`], per layer: no layer from the first of these on
+    /// is inspected before they land (or are given up), so that a layer completed by a faster
+    /// lane never takes an earlier layer's view still being processed for missing.
+    in_flight: BTreeMap<u32, usize>,
     done: BTreeSet<u32>,
     plate_checks: PlateChecks,
     baseline: drift::Baseline,
@@ -125,6 +138,7 @@ impl Inspector {
             vectors,
             needed,
             pending: BTreeMap::new(),
+            in_flight: BTreeMap::new(),
             done: BTreeSet::new(),
             plate_checks: PlateChecks::new(cfg),
             baseline: drift::Baseline::new(
@@ -205,6 +219,9 @@ impl Inspector {
     }
 
     /// Adds a view of a layer; returns the records of the layers this completes, in order.
+    /// A layer is inspected once its views are in, and one that still lacks views when a later
+    /// layer's are in is inspected with what it has, unless views of it (or of a layer before
+    /// it) are still in flight ([`Inspector::begin`]).
     pub fn add(
         &mut self,
         layer: u32,
@@ -215,12 +232,68 @@ impl Inspector {
         if self.done.contains(&layer) || !self.needs(view) {
             return Vec::new();
         }
-        let views = self.pending.entry(layer).or_default();
-        views.insert(view, cells);
-        if views.len() < self.needed.len() {
-            return Vec::new();
+        self.pending.entry(layer).or_default().insert(view, cells);
+        self.ready(at)
+    }
+
+    /// Says that a view of `layer` is being processed (by one of several lanes), for
+    /// [`Inspector::land`] with its cells or [`Inspector::give_up`]; `None` if the inspection
+    /// will not take it.
+    pub fn begin(&mut self, layer: u32, view: View) -> Option<InFlight> {
+        if self.done.contains(&layer) || !self.needs(view) {
+            return None;
         }
-        let ready: Vec<u32> = self.pending.range(..=layer).map(|(l, _)| *l).collect();
+        *self.in_flight.entry(layer).or_default() += 1;
+        Some(InFlight { layer, view })
+    }
+
+    /// [`Inspector::add`] for a view that was in flight.
+    pub fn land(
+        &mut self,
+        flight: InFlight,
+        cells: Cells,
+        at: DateTime<Utc>,
+    ) -> Vec<InspectionRecord> {
+        self.landed(flight.layer);
+        self.add(flight.layer, flight.view, cells, at)
+    }
+
+    /// A view in flight that will not come (its processing failed): the layers it held back are
+    /// inspected if they may be now.
+    pub fn give_up(&mut self, flight: InFlight, at: DateTime<Utc>) -> Vec<InspectionRecord> {
+        self.landed(flight.layer);
+        self.ready(at)
+    }
+
+    fn landed(&mut self, layer: u32) {
+        if let Some(n) = self.in_flight.get_mut(&layer) {
+            *n -= 1;
+            if *n == 0 {
+                self.in_flight.remove(&layer);
+            }
+        }
+    }
+
+    /// Inspects, in order, every waiting layer up to the last complete one, but none from the
+    /// first layer with a view in flight on.
+    fn ready(&mut self, at: DateTime<Utc>) -> Vec<InspectionRecord> {
+        let needed = self.needed.len();
+        let Some(last) = self
+            .pending
+            .iter()
+            .rev()
+            .find(|(_, views)| views.len() >= needed)
+            .map(|(l, _)| *l)
+        else {
+            return Vec::new();
+        };
+        let held_from = self.in_flight.keys().next().copied().unwrap_or(u32::MAX);
+        let ready: Vec<u32> = self
+            .pending
+            .range(..=last)
+            .map(|(l, _)| *l)
+            .take_while(|l| *l < held_from)
+            .collect();
         ready
             .into_iter()
             .filter_map(|l| {

@@ -246,3 +246,63 @@ fn the_inspector_waits_for_its_views_and_inspects_layers_in_order() {
         flag.bbox_px
     );
 }
+
+#[test]
+fn a_layer_completed_by_a_faster_lane_waits_for_the_earlier_layers_views_in_flight() {
+    let c = cfg();
+    let views = crate::config::ViewsConfig::default().all();
+    let at = chrono::DateTime::from_timestamp(0, 0).unwrap();
+    let needed = [
+        View {
+            phase: Phase::Pre,
+            light: c.pre_light,
+        },
+        View {
+            phase: Phase::Pre,
+            light: c.elevation_light,
+        },
+        View {
+            phase: Phase::Post,
+            light: c.post_light,
+        },
+    ];
+    let [pre, side, post] = needed;
+    let layers = |records: &[InspectionRecord]| records.iter().map(|r| r.layer).collect::<Vec<_>>();
+    for lands in [true, false] {
+        let mut inspector = Inspector::new(&c, grid(), &views, None);
+        assert!(inspector.add(1, pre, clean(1), at).is_empty());
+        assert!(inspector.add(1, side, clean(2), at).is_empty());
+        // Layer 1's last view is on one lane while other lanes finish all of layer 2's.
+        let late = inspector
+            .begin(1, post)
+            .expect("a view the inspection takes");
+        let early: Vec<InFlight> = needed
+            .iter()
+            .map(|v| inspector.begin(2, *v).unwrap())
+            .collect();
+        for (i, f) in early.into_iter().enumerate() {
+            let got = inspector.land(f, clean(3 + i as u64), at);
+            assert!(
+                got.is_empty(),
+                "layer 2 went before layer 1: {:?}",
+                layers(&got)
+            );
+        }
+        let done = if lands {
+            inspector.land(late, clean(9), at)
+        } else {
+            inspector.give_up(late, at)
+        };
+        assert_eq!(layers(&done), vec![1, 2]);
+        let expected = if lands { 3 } else { 2 };
+        assert_eq!(done[0].views.len(), expected, "{:?}", done[0].views);
+        assert_eq!(done[1].views.len(), 3);
+        // Nothing is held back any more: the next layer goes as soon as its views are in.
+        for (i, v) in needed.iter().enumerate() {
+            let got = inspector.add(3, *v, clean(10 + i as u64), at);
+            assert_eq!(layers(&got), if i == 2 { vec![3] } else { vec![] });
+        }
+        // A done layer's view is not taken, so it holds nothing back.
+        assert!(inspector.begin(1, post).is_none());
+    }
+}

@@ -318,10 +318,14 @@ fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agre
     let path = tmp.path().join("layerwise.toml");
     common::write_config(&config, &path);
     let log_path = tmp.path().join("daemon.log");
-    let child = common::spawn_build(
-        &path,
-        std::process::Stdio::from(std::fs::File::create(&log_path).expect("log")),
-    );
+    // Eight lanes on any machine: a layer's views are processed beside the next layer's, and a
+    // lane that finishes a later layer first must not have the earlier one inspected without
+    // the view still on its lane.
+    let child = common::run_command(&path)
+        .env("RAYON_NUM_THREADS", "8")
+        .stderr(std::fs::File::create(&log_path).expect("log"))
+        .spawn()
+        .expect("layerwise run starts");
     let wait_for_log = |text: &str| {
         let deadline = Instant::now() + Duration::from_secs(60);
         loop {
@@ -404,6 +408,15 @@ fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agre
         live.iter().map(|r| r.layer).collect::<Vec<_>>(),
         (1..=layers).collect::<Vec<_>>()
     );
+    for r in &live {
+        assert_eq!(
+            r.views.len(),
+            3,
+            "layer {} inspected with {:?}",
+            r.layer,
+            r.views
+        );
+    }
     let flagged: Vec<(u32, FlagKind, Option<i64>)> = live
         .iter()
         .flat_map(|r| r.flags.iter().map(move |f| (r.layer, f.kind, f.part)))
