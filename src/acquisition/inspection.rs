@@ -5,6 +5,7 @@
 //! ([`super::alarm`]). The capture path never waits for any of it.
 
 use super::alarm::{Alarm, AlarmThread};
+use super::model::ModelFlight;
 use crate::build_dir::inspection::{InspectionLog, InspectionRecord, Severity};
 use crate::clock::ms_since;
 use crate::clock::SharedClock;
@@ -196,9 +197,12 @@ impl FrameProcessor for InspectingSeries {
             return self.live.process_take_then(build_dir, shot, take, original);
         }
         let mut steps = StepTimes::default();
+        // Given up when dropped with a view still in it (the processing failed before the view
+        // was scanned, or before its cells landed).
+        let mut flight = Flight::begin(self, shot);
         let see = |rectified: &FrameLuma, steps: &mut StepTimes| {
             if let Some(model) = &self.model {
-                model.scan(shot.layer, shot.view(), rectified);
+                model.scan(shot.layer, shot.view(), rectified, flight.model.take());
             }
             let started = Instant::now();
             let cells = self
@@ -208,12 +212,14 @@ impl FrameProcessor for InspectingSeries {
             steps.cells_ms = ms_since(started);
             cells
         };
-        let mut flight = Flight::begin(self, shot);
         let (pending, cells) = self
             .live
             .write_original_seen(build_dir, shot, 1, original, &mut steps, see)?;
-        let records = match (cells, flight.0.take(), self.inspector.lock()) {
-            (Some(cells), Some(f), Ok(mut inspector)) => inspector.land(f, cells, self.clock.now()),
+        let records = match (flight.inspection.take(), self.inspector.lock()) {
+            (Some(f), Ok(mut inspector)) => match cells {
+                Some(cells) => inspector.land(f, cells, self.clock.now()),
+                None => inspector.give_up(f, self.clock.now()),
+            },
             _ => Vec::new(),
         };
         for record in &self.with_model(records, false) {
@@ -235,29 +241,45 @@ impl FrameProcessor for InspectingSeries {
     }
 }
 
-/// A view's place in the inspection while its frame is processed (other lanes may complete a
-/// later layer meanwhile): given up if the processing ends before the view's cells land.
-struct Flight<'s>(Option<InFlight>, &'s InspectingSeries);
+/// A view's place in the inspection and the model while its frame is processed (other lanes
+/// may complete a later layer meanwhile): given up if the processing ends before it lands.
+struct Flight<'s> {
+    series: &'s InspectingSeries,
+    inspection: Option<InFlight>,
+    model: Option<ModelFlight>,
+}
 
 impl<'s> Flight<'s> {
     fn begin(series: &'s InspectingSeries, shot: Shot) -> Flight<'s> {
-        let flight = match series.inspector.lock() {
+        let inspection = match series.inspector.lock() {
             Ok(mut inspector) => inspector.begin(shot.layer, shot.view()),
             Err(_) => None,
         };
-        Flight(flight, series)
+        let model = series
+            .model
+            .as_ref()
+            .and_then(|m| m.begin(shot.layer, shot.view()));
+        Flight {
+            series,
+            inspection,
+            model,
+        }
     }
 }
 
 impl Drop for Flight<'_> {
     fn drop(&mut self) {
-        let Some(flight) = self.0.take() else {
+        let series = self.series;
+        let (inspection, model) = (self.inspection.take(), self.model.take());
+        if inspection.is_none() && model.is_none() {
             return;
-        };
-        let series = self.1;
-        let records = match series.inspector.lock() {
-            Ok(mut inspector) => inspector.give_up(flight, series.clock.now()),
-            Err(_) => Vec::new(),
+        }
+        if let (Some(flight), Some(stage)) = (model, &series.model) {
+            stage.give_up(flight);
+        }
+        let records = match (inspection, series.inspector.lock()) {
+            (Some(flight), Ok(mut inspector)) => inspector.give_up(flight, series.clock.now()),
+            _ => Vec::new(),
         };
         for record in &series.with_model(records, false) {
             series.record(record);

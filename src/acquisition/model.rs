@@ -1,8 +1,9 @@
 //! The trained model in the processing worker (`[inspection.model]`): every view it looks at
 //! is classified tile by tile as soon as it is rectified (in the model's own threads); a
 //! layer's inspection record waits here until the model has seen that layer's views (or a later
-//! layer's arrive), then gets the model's flags after the classical ones, and each view's heat
-//! map is written to `model/<view>/L00042.png` for the page.
+//! layer's arrive while none of this layer's is still being processed on another lane), then
+//! gets the model's flags after the classical ones, and each view's heat map is written to
+//! `model/<view>/L00042.png` for the page.
 
 use crate::build_dir::inspection::InspectionRecord;
 use crate::learn::live::{heatmap_path, heatmap_png, LiveModel, ViewScan};
@@ -28,6 +29,27 @@ pub struct ModelStage {
 struct State {
     scans: BTreeMap<u32, Vec<ViewScan>>,
     waiting: BTreeMap<u32, InspectionRecord>,
+    /// Views being processed, per layer ([`ModelStage::begin`]).
+    in_flight: BTreeMap<u32, usize>,
+}
+
+impl State {
+    fn landed(&mut self, flight: ModelFlight) {
+        if let Some(n) = self.in_flight.get_mut(&flight.layer) {
+            *n -= 1;
+            if *n == 0 {
+                self.in_flight.remove(&flight.layer);
+            }
+        }
+    }
+}
+
+/// A view of a layer being processed that the model will look at: the layer's record waits for
+/// its scan ([`ModelStage::scan`]) or for it to be given up ([`ModelStage::give_up`]).
+#[must_use = "a view in flight holds back the records until it is scanned or given up"]
+#[derive(Debug)]
+pub struct ModelFlight {
+    layer: u32,
 }
 
 impl ModelStage {
@@ -57,9 +79,31 @@ impl ModelStage {
         }
     }
 
-    /// Classifies a rectified view of `layer` (when the model looks at it).
-    pub fn scan(&self, layer: u32, view: View, luma: &FrameLuma) {
+    /// Says that a view of `layer` is being processed, for [`ModelStage::scan`]; `None` if the
+    /// model does not look at it.
+    pub fn begin(&self, layer: u32, view: View) -> Option<ModelFlight> {
         if !self.wanted.contains(&view) {
+            return None;
+        }
+        let mut s = self.state.lock().ok()?;
+        *s.in_flight.entry(layer).or_default() += 1;
+        Some(ModelFlight { layer })
+    }
+
+    /// A view in flight whose processing failed before it could be scanned.
+    pub fn give_up(&self, flight: ModelFlight) {
+        if let Ok(mut s) = self.state.lock() {
+            s.landed(flight);
+        }
+    }
+
+    /// Classifies a rectified view of `layer` (when the model looks at it); `flight` is its
+    /// [`ModelStage::begin`], landed with the scan.
+    pub fn scan(&self, layer: u32, view: View, luma: &FrameLuma, flight: Option<ModelFlight>) {
+        if !self.wanted.contains(&view) {
+            if let Some(flight) = flight {
+                self.give_up(flight);
+            }
             return;
         }
         let scanned = self.live.install(|| {
@@ -91,10 +135,16 @@ impl ModelStage {
                 }
                 if let Ok(mut s) = self.state.lock() {
                     s.scans.entry(layer).or_default().push(scan);
+                    if let Some(flight) = flight {
+                        s.landed(flight);
+                    }
                 }
             }
             Err(e) => {
-                warn!(layer, view = %view, error = %Chain(&e), "model: cannot classify the view")
+                warn!(layer, view = %view, error = %Chain(&e), "model: cannot classify the view");
+                if let Some(flight) = flight {
+                    self.give_up(flight);
+                }
             }
         }
     }
@@ -109,12 +159,15 @@ impl ModelStage {
             s.waiting.insert(r.layer, r);
         }
         let newest = s.scans.keys().next_back().copied().unwrap_or(0);
+        let held_from = s.in_flight.keys().next().copied().unwrap_or(u32::MAX);
         let ready: Vec<u32> = s
             .waiting
             .keys()
             .copied()
             .filter(|l| {
-                flush || *l < newest || s.scans.get(l).map_or(0, |v| v.len()) >= self.wanted.len()
+                flush
+                    || (*l < newest && *l < held_from)
+                    || s.scans.get(l).map_or(0, |v| v.len()) >= self.wanted.len()
             })
             .collect();
         let mut out = Vec::new();
@@ -128,6 +181,9 @@ impl ModelStage {
                 record.flags.extend(self.live.flags(scan, &self.grid));
             }
             record.plate.insert("model_ms".into(), ms);
+            record
+                .plate
+                .insert("model_views".into(), scans.len() as f64);
             out.push(record);
         }
         // Scans of layers that never got a record (not inspected) are dropped once passed.

@@ -365,7 +365,7 @@ pub fn apply_offline(
 ) -> Vec<Unread> {
     let mut unread = Vec::new();
     for record in records.iter_mut() {
-        let mut ms = 0.0;
+        let (mut ms, mut views) = (0.0, 0usize);
         for (shot, path) in frames.iter().filter(|(s, _)| s.layer == record.layer) {
             if !live.wants(shot.view()) {
                 continue;
@@ -391,12 +391,14 @@ pub fn apply_offline(
             match scan {
                 Ok(scan) => {
                     ms += scan.ms;
+                    views += 1;
                     record.flags.extend(live.flags(&scan, grid));
                 }
                 Err(error) => unread.push(Unread { shot: *shot, error }),
             }
         }
         record.plate.insert("model_ms".into(), ms);
+        record.plate.insert("model_views".into(), views as f64);
     }
     unread
 }

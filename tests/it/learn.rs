@@ -371,6 +371,7 @@ fn the_daemon_runs_the_model_on_every_layer_after_the_classical_checks() {
     let mut model_flags = 0;
     for r in &records {
         assert!(r.plate.contains_key("model_ms"), "{r:?}");
+        assert_eq!(r.plate.get("model_views"), Some(&6.0), "layer {}", r.layer);
         for view in layerwise::config::ViewsConfig::default().all() {
             let heat = layerwise::learn::live::heatmap_path(&dir, &view.to_string(), r.layer);
             let png = image::open(&heat).unwrap_or_else(|e| panic!("{}: {e}", heat.display()));

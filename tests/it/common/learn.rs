@@ -86,7 +86,9 @@ pub fn model_build(tmp: &Path) -> (std::path::PathBuf, String) {
     );
     let path = tmp.join("layerwise.toml");
     write_config(&config, &path);
-    let out = run_build(&path);
+    // Eight lanes on any machine: a layer's views are processed beside the next layer's, and
+    // a layer's record must still wait for the model's scans of its views on other lanes.
+    let out = run_command(&path).env("RAYON_NUM_THREADS", "8").succeeds();
     (dir, String::from_utf8_lossy(&out.stderr).into_owned())
 }
 
