@@ -8,7 +8,8 @@
 //! pre-scan view in `elevation_light` over the previous layer's parts, fusion against the vectors
 //! and spatter on the post-scan view in `post_light`, drift of each part's metrics against its
 //! running baseline ([`drift`]). A layer is inspected once its views are in (or when a later
-//! layer's are, with what arrived), always in layer order. A trained model can join as one more
+//! layer's are, with what arrived, unless a view of it is still being processed on another
+//! lane: [`Inspector::begin`]), always in layer order. A trained model can join as one more
 //! detector on the same cells.
 
 pub mod axis;
