@@ -66,6 +66,15 @@ pub(super) struct TallyGuard<'a> {
     pub(super) state: &'a QueueState,
 }
 
+impl TallyGuard<'_> {
+    /// A frame that will not be counted: the layer lines it held back.
+    fn forget(&self, shot: &Shot) {
+        if let Ok(mut open) = self.tally.lock() {
+            log_layers(open.forget(shot), self.state.depth.load(Ordering::SeqCst));
+        }
+    }
+}
+
 impl Drop for TallyGuard<'_> {
     fn drop(&mut self) {
         if let Ok(mut open) = self.tally.lock() {
@@ -131,6 +140,7 @@ impl<'a> Ends<'a> {
                                 // on disk for the catch-up from the journal.
                                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, take, "processing: committing the frame's slice panicked; the frame waits on disk and is caught up");
                                 self.state.overflowed.store(true, Ordering::SeqCst);
+                                self.tally.forget(&shot);
                             }
                         }
                         Commit::Settled(done) => {

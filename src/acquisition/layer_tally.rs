@@ -2,6 +2,7 @@
 //! layer's phase as it ends, and the layer's line is logged once all its frames have.
 
 use crate::shot::{Phase, Shot};
+use std::collections::BTreeMap;
 use std::time::Duration;
 use tracing::info;
 
@@ -16,13 +17,16 @@ pub(super) struct Tally {
     lag: Option<Duration>,
 }
 
-/// The layers being processed (frames come in build order, two at a time): a layer's line is
-/// logged once all its frames are processed, or, a frame missing, once a later layer's are or
-/// the worker stops.
+/// The layers being processed (frames come in build order, one per lane at a time): a layer's
+/// line is logged once all its frames are processed, or, a frame missing, once a later layer's
+/// are (unless a frame of it is still being processed on another lane) or the worker stops.
+/// Lines come in build order.
 pub(super) struct LayerTally {
     /// The frames of one signal (the lights of a phase).
     complete: usize,
-    open: std::collections::BTreeMap<(u32, Phase), Tally>,
+    open: BTreeMap<(u32, Phase), Tally>,
+    /// Frames being processed ([`LayerTally::begin`]) and not counted yet.
+    in_flight: BTreeMap<(u32, Phase), usize>,
 }
 
 impl LayerTally {
@@ -30,7 +34,55 @@ impl LayerTally {
         LayerTally {
             complete: complete.max(1),
             open: Default::default(),
+            in_flight: Default::default(),
         }
+    }
+
+    /// A frame's processing starts: no line from its layer's on is logged before it is counted
+    /// ([`LayerTally::add`]) or forgotten ([`LayerTally::forget`]).
+    pub(super) fn begin(&mut self, shot: &Shot) {
+        *self.in_flight.entry((shot.layer, shot.phase)).or_default() += 1;
+    }
+
+    /// A frame that began and will not be counted (its commit panicked); returns the layers
+    /// this lets go.
+    pub(super) fn forget(&mut self, shot: &Shot) -> Vec<((u32, Phase), Tally)> {
+        self.landed((shot.layer, shot.phase));
+        self.ready()
+    }
+
+    fn landed(&mut self, key: (u32, Phase)) {
+        if let Some(n) = self.in_flight.get_mut(&key) {
+            *n -= 1;
+            if *n == 0 {
+                self.in_flight.remove(&key);
+            }
+        }
+    }
+
+    /// The open layers up to the last complete one, in build order, but none from the first
+    /// with a frame in flight on.
+    fn ready(&mut self) -> Vec<((u32, Phase), Tally)> {
+        let complete = self.complete;
+        let Some(last) = self
+            .open
+            .iter()
+            .rev()
+            .find(|(_, t)| t.frames >= complete)
+            .map(|(k, _)| *k)
+        else {
+            return Vec::new();
+        };
+        let held = self.in_flight.keys().next().copied();
+        let keys: Vec<(u32, Phase)> = self
+            .open
+            .range(..=last)
+            .map(|(k, _)| *k)
+            .take_while(|k| held.is_none_or(|h| *k < h))
+            .collect();
+        keys.into_iter()
+            .filter_map(|k| self.open.remove_entry(&k))
+            .collect()
     }
 
     /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns
@@ -43,6 +95,7 @@ impl LayerTally {
         lag: Option<Duration>,
     ) -> Vec<((u32, Phase), Tally)> {
         let key = (shot.layer, shot.phase);
+        self.landed(key);
         let tally = self.open.entry(key).or_insert(Tally {
             frames: 0,
             failed: 0,
@@ -55,16 +108,7 @@ impl LayerTally {
         tally.first_start = tally.first_start.min(start);
         tally.last_end = tally.last_end.max(end);
         tally.lag = lag;
-        if tally.frames < self.complete {
-            return Vec::new();
-        }
-        // This layer, after any earlier one still open (a frame of it missing).
-        let later = self.open.split_off(&key);
-        let mut done: Vec<_> = std::mem::replace(&mut self.open, later)
-            .into_iter()
-            .collect();
-        done.extend(self.open.remove_entry(&key));
-        done
+        self.ready()
     }
 
     /// Every layer still open, in build order.
@@ -181,5 +225,39 @@ mod tests {
         let rest: Vec<_> = tally.flush().iter().map(|(k, t)| (*k, t.frames)).collect();
         assert_eq!(rest, vec![((2, Phase::Post), 1)]);
         assert!(tally.flush().is_empty());
+    }
+
+    #[test]
+    fn a_layer_line_waits_for_its_frame_on_another_lane_and_lines_stay_in_build_order() {
+        let lights = [Light::Front, Light::Side, Light::Top];
+        for counted in [true, false] {
+            let mut tally = LayerTally::new(3);
+            let at = (ms(0), ms(1));
+            for light in &lights[..2] {
+                tally.add(&Shot::new(1, Phase::Post, *light), true, at, None);
+            }
+            // Layer 1 post's last frame is on one lane while three lanes finish layer 2 pre.
+            let late = Shot::new(1, Phase::Post, Light::Top);
+            tally.begin(&late);
+            for light in lights {
+                let shot = Shot::new(2, Phase::Pre, light);
+                tally.begin(&shot);
+                let told = tally.add(&shot, true, at, None);
+                assert!(
+                    told.is_empty(),
+                    "{:?}",
+                    told.iter().map(|t| t.0).collect::<Vec<_>>()
+                );
+            }
+            let told = if counted {
+                tally.add(&late, true, at, None)
+            } else {
+                tally.forget(&late)
+            };
+            let told: Vec<_> = told.iter().map(|(k, t)| (*k, t.frames)).collect();
+            let first = if counted { 3 } else { 2 };
+            assert_eq!(told, vec![((1, Phase::Post), first), ((2, Phase::Pre), 3)]);
+            assert!(tally.flush().is_empty());
+        }
     }
 }

@@ -439,6 +439,10 @@ impl<'a> Worker<'a> {
 
     /// Processes one take up to its slice's commit, and hands the rest to the commit thread.
     fn process(&self, shot: Shot, take: u32, original: &Path, submitted: Option<Duration>) {
+        // Its layer's line waits for it while other lanes finish later layers.
+        if let Ok(mut tally) = self.ends.tally.tally.lock() {
+            tally.begin(&shot);
+        }
         let start = self.clock.elapsed();
         let processor: &'a dyn FrameProcessor = self.processor;
         let outcome = processor.process_take_then(self.build_dir, shot, take, original);

@@ -194,6 +194,8 @@ fn demo_log(dir: &Path, name: &str, verbose: bool, rust_log: Option<&str>) -> St
     command
         .args(["demo", "--layers", "2", "--out"])
         .arg(dir.join(name))
+        // Eight lanes on any machine: a layer's line must wait for its frames on other lanes.
+        .env("RAYON_NUM_THREADS", "8")
         .env_remove("RUST_LOG");
     if let Some(filter) = rust_log {
         command.env("RUST_LOG", filter);
@@ -225,6 +227,22 @@ fn operator_log_has_signal_and_layer_lines_debug_on_request_and_no_ansi_or_debug
         .filter(|l| l.contains("layer processed"))
         .collect();
     assert_eq!(processed.len(), 4, "{log}");
+    let order: Vec<String> = processed
+        .iter()
+        .map(|l| {
+            let field = |k: &str| l.split(k).nth(1).and_then(|r| r.split(' ').next());
+            format!(
+                "{} {}",
+                field(" layer=").unwrap_or("?"),
+                field(" phase=").unwrap_or("?")
+            )
+        })
+        .collect();
+    assert_eq!(
+        order,
+        ["1 pre", "1 post", "2 pre", "2 post"],
+        "{processed:#?}"
+    );
     for key in [
         "frames=3",
         "failed=0",
