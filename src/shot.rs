@@ -206,6 +206,44 @@ impl fmt::Display for Shot {
     }
 }
 
+/// Frames being processed, counted by a key (a layer, a layer's phase). The lanes finish frames
+/// out of order, so what waits for a layer's frames (its inspection, the model's flags, its log
+/// line) asks whether a key is held: at or after the first key with a frame in flight.
+#[derive(Debug)]
+pub struct Flights<K> {
+    counts: std::collections::BTreeMap<K, usize>,
+}
+
+impl<K> Default for Flights<K> {
+    fn default() -> Self {
+        Flights {
+            counts: Default::default(),
+        }
+    }
+}
+
+impl<K: Ord + Copy> Flights<K> {
+    /// A frame of `key` is being processed.
+    pub fn begin(&mut self, key: K) {
+        *self.counts.entry(key).or_default() += 1;
+    }
+
+    /// A frame of `key` landed (or was given up).
+    pub fn land(&mut self, key: K) {
+        if let Some(n) = self.counts.get_mut(&key) {
+            *n -= 1;
+            if *n == 0 {
+                self.counts.remove(&key);
+            }
+        }
+    }
+
+    /// Whether `key` must wait: a frame of it or of an earlier key is in flight.
+    pub fn holds(&self, key: K) -> bool {
+        self.counts.keys().next().is_some_and(|first| *first <= key)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -256,5 +294,20 @@ mod tests {
             e.to_string(),
             "unknown light 'back': expected front, side or top"
         );
+    }
+
+    #[test]
+    fn flights_hold_their_key_and_the_later_ones_until_every_frame_lands() {
+        let mut f = Flights::default();
+        assert!(!f.holds(1));
+        f.begin(2);
+        f.begin(2);
+        assert!(!f.holds(1) && f.holds(2) && f.holds(3));
+        f.land(2);
+        assert!(f.holds(2));
+        f.land(2);
+        assert!(!f.holds(2) && !f.holds(3));
+        f.land(2);
+        assert!(!f.holds(2), "a landing never counted is ignored");
     }
 }

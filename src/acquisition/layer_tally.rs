@@ -1,7 +1,7 @@
 //! The operator's one line per layer signal: the processing worker counts each frame of a
 //! layer's phase as it ends, and the layer's line is logged once all its frames have.
 
-use crate::shot::{Phase, Shot};
+use crate::shot::{Flights, Phase, Shot};
 use std::collections::BTreeMap;
 use std::time::Duration;
 use tracing::info;
@@ -26,7 +26,7 @@ pub(super) struct LayerTally {
     complete: usize,
     open: BTreeMap<(u32, Phase), Tally>,
     /// Frames being processed ([`LayerTally::begin`]) and not counted yet.
-    in_flight: BTreeMap<(u32, Phase), usize>,
+    in_flight: Flights<(u32, Phase)>,
 }
 
 impl LayerTally {
@@ -41,23 +41,14 @@ impl LayerTally {
     /// A frame's processing starts: no line from its layer's on is logged before it is counted
     /// ([`LayerTally::add`]) or forgotten ([`LayerTally::forget`]).
     pub(super) fn begin(&mut self, shot: &Shot) {
-        *self.in_flight.entry((shot.layer, shot.phase)).or_default() += 1;
+        self.in_flight.begin((shot.layer, shot.phase));
     }
 
     /// A frame that began and will not be counted (its commit panicked); returns the layers
     /// this lets go.
     pub(super) fn forget(&mut self, shot: &Shot) -> Vec<((u32, Phase), Tally)> {
-        self.landed((shot.layer, shot.phase));
+        self.in_flight.land((shot.layer, shot.phase));
         self.ready()
-    }
-
-    fn landed(&mut self, key: (u32, Phase)) {
-        if let Some(n) = self.in_flight.get_mut(&key) {
-            *n -= 1;
-            if *n == 0 {
-                self.in_flight.remove(&key);
-            }
-        }
     }
 
     /// The open layers up to the last complete one, in build order, but none from the first
@@ -73,12 +64,11 @@ impl LayerTally {
         else {
             return Vec::new();
         };
-        let held = self.in_flight.keys().next().copied();
         let keys: Vec<(u32, Phase)> = self
             .open
             .range(..=last)
             .map(|(k, _)| *k)
-            .take_while(|k| held.is_none_or(|h| *k < h))
+            .take_while(|k| !self.in_flight.holds(*k))
             .collect();
         keys.into_iter()
             .filter_map(|k| self.open.remove_entry(&k))
@@ -95,7 +85,7 @@ impl LayerTally {
         lag: Option<Duration>,
     ) -> Vec<((u32, Phase), Tally)> {
         let key = (shot.layer, shot.phase);
-        self.landed(key);
+        self.in_flight.land(key);
         let tally = self.open.entry(key).or_insert(Tally {
             frames: 0,
             failed: 0,

@@ -30,18 +30,7 @@ struct State {
     scans: BTreeMap<u32, Vec<ViewScan>>,
     waiting: BTreeMap<u32, InspectionRecord>,
     /// Views being processed, per layer ([`ModelStage::begin`]).
-    in_flight: BTreeMap<u32, usize>,
-}
-
-impl State {
-    fn landed(&mut self, flight: ModelFlight) {
-        if let Some(n) = self.in_flight.get_mut(&flight.layer) {
-            *n -= 1;
-            if *n == 0 {
-                self.in_flight.remove(&flight.layer);
-            }
-        }
-    }
+    in_flight: crate::shot::Flights<u32>,
 }
 
 /// A view of a layer being processed that the model will look at: the layer's record waits for
@@ -86,14 +75,14 @@ impl ModelStage {
             return None;
         }
         let mut s = self.state.lock().ok()?;
-        *s.in_flight.entry(layer).or_default() += 1;
+        s.in_flight.begin(layer);
         Some(ModelFlight { layer })
     }
 
     /// A view in flight whose processing failed before it could be scanned.
     pub fn give_up(&self, flight: ModelFlight) {
         if let Ok(mut s) = self.state.lock() {
-            s.landed(flight);
+            s.in_flight.land(flight.layer);
         }
     }
 
@@ -136,7 +125,7 @@ impl ModelStage {
                 if let Ok(mut s) = self.state.lock() {
                     s.scans.entry(layer).or_default().push(scan);
                     if let Some(flight) = flight {
-                        s.landed(flight);
+                        s.in_flight.land(flight.layer);
                     }
                 }
             }
@@ -159,14 +148,13 @@ impl ModelStage {
             s.waiting.insert(r.layer, r);
         }
         let newest = s.scans.keys().next_back().copied().unwrap_or(0);
-        let held_from = s.in_flight.keys().next().copied().unwrap_or(u32::MAX);
         let ready: Vec<u32> = s
             .waiting
             .keys()
             .copied()
             .filter(|l| {
                 flush
-                    || (*l < newest && *l < held_from)
+                    || (*l < newest && !s.in_flight.holds(*l))
                     || s.scans.get(l).map_or(0, |v| v.len()) >= self.wanted.len()
             })
             .collect();

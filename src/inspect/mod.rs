@@ -86,7 +86,7 @@ pub struct Inspector {
     /// Views on their way to [`Inspector::land`], per layer: no layer from the first of these on
     /// is inspected before they land (or are given up), so that a layer completed by a faster
     /// lane never takes an earlier layer's view still being processed for missing.
-    in_flight: BTreeMap<u32, usize>,
+    in_flight: crate::shot::Flights<u32>,
     done: BTreeSet<u32>,
     plate_checks: PlateChecks,
     baseline: drift::Baseline,
@@ -139,7 +139,7 @@ impl Inspector {
             vectors,
             needed,
             pending: BTreeMap::new(),
-            in_flight: BTreeMap::new(),
+            in_flight: Default::default(),
             done: BTreeSet::new(),
             plate_checks: PlateChecks::new(cfg),
             baseline: drift::Baseline::new(
@@ -244,7 +244,7 @@ impl Inspector {
         if self.done.contains(&layer) || !self.needs(view) {
             return None;
         }
-        *self.in_flight.entry(layer).or_default() += 1;
+        self.in_flight.begin(layer);
         Some(InFlight { layer, view })
     }
 
@@ -255,24 +255,15 @@ impl Inspector {
         cells: Cells,
         at: DateTime<Utc>,
     ) -> Vec<InspectionRecord> {
-        self.landed(flight.layer);
+        self.in_flight.land(flight.layer);
         self.add(flight.layer, flight.view, cells, at)
     }
 
     /// A view in flight that will not come (its processing failed): the layers it held back are
     /// inspected if they may be now.
     pub fn give_up(&mut self, flight: InFlight, at: DateTime<Utc>) -> Vec<InspectionRecord> {
-        self.landed(flight.layer);
+        self.in_flight.land(flight.layer);
         self.ready(at)
-    }
-
-    fn landed(&mut self, layer: u32) {
-        if let Some(n) = self.in_flight.get_mut(&layer) {
-            *n -= 1;
-            if *n == 0 {
-                self.in_flight.remove(&layer);
-            }
-        }
     }
 
     /// Inspects, in order, every waiting layer up to the last complete one, but none from the
@@ -288,12 +279,11 @@ impl Inspector {
         else {
             return Vec::new();
         };
-        let held_from = self.in_flight.keys().next().copied().unwrap_or(u32::MAX);
         let ready: Vec<u32> = self
             .pending
             .range(..=last)
             .map(|(l, _)| *l)
-            .take_while(|l| *l < held_from)
+            .take_while(|l| !self.in_flight.holds(*l))
             .collect();
         ready
             .into_iter()
