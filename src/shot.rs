@@ -242,6 +242,32 @@ impl<K: Ord + Copy> Flights<K> {
     pub fn holds(&self, key: K) -> bool {
         self.counts.keys().next().is_some_and(|first| *first <= key)
     }
+
+    /// Takes out of `open`, in key order, the entries that are done: those up to the last
+    /// `complete` one (an earlier key's missing frames are not coming once a later key is
+    /// complete), stopping at the first key that [`holds`](Self::holds).
+    pub fn release<V>(
+        &self,
+        open: &mut std::collections::BTreeMap<K, V>,
+        complete: impl Fn(&V) -> bool,
+    ) -> Vec<(K, V)> {
+        let Some(last) = open
+            .iter()
+            .rev()
+            .find(|(_, v)| complete(v))
+            .map(|(k, _)| *k)
+        else {
+            return Vec::new();
+        };
+        let keys: Vec<K> = open
+            .range(..=last)
+            .map(|(k, _)| *k)
+            .take_while(|k| !self.holds(*k))
+            .collect();
+        keys.into_iter()
+            .filter_map(|k| open.remove_entry(&k))
+            .collect()
+    }
 }
 
 #[cfg(test)]
@@ -309,5 +335,20 @@ mod tests {
         assert!(!f.holds(2) && !f.holds(3));
         f.land(2);
         assert!(!f.holds(2), "a landing never counted is ignored");
+    }
+
+    #[test]
+    fn release_takes_up_to_the_last_complete_key_and_stops_at_a_held_one() {
+        let mut f = Flights::default();
+        let mut open: std::collections::BTreeMap<u32, usize> =
+            [(1, 2), (2, 3), (3, 1), (4, 3), (5, 1)].into();
+        let complete = |n: &usize| *n >= 3;
+        f.begin(3);
+        assert_eq!(f.release(&mut open, complete), vec![(1, 2), (2, 3)]);
+        assert_eq!(f.release(&mut open, complete), vec![], "3 is held");
+        f.land(3);
+        assert_eq!(f.release(&mut open, complete), vec![(3, 1), (4, 3)]);
+        assert_eq!(f.release(&mut open, complete), vec![], "5 is not complete");
+        assert_eq!(open.len(), 1);
     }
 }

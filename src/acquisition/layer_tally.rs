@@ -55,24 +55,8 @@ impl LayerTally {
     /// with a frame in flight on.
     fn ready(&mut self) -> Vec<((u32, Phase), Tally)> {
         let complete = self.complete;
-        let Some(last) = self
-            .open
-            .iter()
-            .rev()
-            .find(|(_, t)| t.frames >= complete)
-            .map(|(k, _)| *k)
-        else {
-            return Vec::new();
-        };
-        let keys: Vec<(u32, Phase)> = self
-            .open
-            .range(..=last)
-            .map(|(k, _)| *k)
-            .take_while(|k| !self.in_flight.holds(*k))
-            .collect();
-        keys.into_iter()
-            .filter_map(|k| self.open.remove_entry(&k))
-            .collect()
+        self.in_flight
+            .release(&mut self.open, |t| t.frames >= complete)
     }
 
     /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns

@@ -139,7 +139,8 @@ impl ModelStage {
     }
 
     /// Takes the classical records; returns the records that are complete, model flags added,
-    /// in layer order. `flush` completes every record waiting.
+    /// in layer order: a complete record waits behind an earlier one that is not. `flush`
+    /// completes every record waiting.
     pub fn complete(&self, records: Vec<InspectionRecord>, flush: bool) -> Vec<InspectionRecord> {
         let Ok(mut s) = self.state.lock() else {
             return records;
@@ -147,17 +148,7 @@ impl ModelStage {
         for r in records {
             s.waiting.insert(r.layer, r);
         }
-        let newest = s.scans.keys().next_back().copied().unwrap_or(0);
-        let ready: Vec<u32> = s
-            .waiting
-            .keys()
-            .copied()
-            .filter(|l| {
-                flush
-                    || (*l < newest && !s.in_flight.holds(*l))
-                    || s.scans.get(l).map_or(0, |v| v.len()) >= self.wanted.len()
-            })
-            .collect();
+        let ready = s.ready(self.wanted.len(), flush);
         let mut out = Vec::new();
         for layer in ready {
             let Some(mut record) = s.waiting.remove(&layer) else {
@@ -175,9 +166,77 @@ impl ModelStage {
             out.push(record);
         }
         // Scans of layers that never got a record (not inspected) are dropped once passed.
+        let newest = s.scans.keys().next_back().copied().unwrap_or(0);
         let oldest_waiting = s.waiting.keys().next().copied().unwrap_or(u32::MAX);
         s.scans
             .retain(|l, _| *l + 2 >= newest || *l >= oldest_waiting);
         out
+    }
+}
+
+impl State {
+    /// The waiting layers whose records are complete, in order, up to the first that is not:
+    /// the model has scanned its `wanted` views, or a later layer's scans arrived while none of
+    /// its views is still in flight (or `flush`).
+    fn ready(&self, wanted: usize, flush: bool) -> Vec<u32> {
+        let newest = self.scans.keys().next_back().copied().unwrap_or(0);
+        self.waiting
+            .keys()
+            .copied()
+            .take_while(|l| {
+                flush
+                    || (*l < newest && !self.in_flight.holds(*l))
+                    || self.scans.get(l).map_or(0, |v| v.len()) >= wanted
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(layer: u32) -> InspectionRecord {
+        InspectionRecord {
+            layer,
+            at: chrono::DateTime::UNIX_EPOCH,
+            ms: 0.0,
+            views: Vec::new(),
+            plate: BTreeMap::new(),
+            parts: Vec::new(),
+            flags: Vec::new(),
+            axis: None,
+            bed: None,
+            notes: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_complete_record_waits_behind_an_earlier_one_still_in_flight() {
+        let mut s = State::default();
+        s.waiting.insert(5, record(5));
+        s.waiting.insert(6, record(6));
+        s.in_flight.begin(5);
+        s.scans.entry(6).or_default().push(ViewScan {
+            view: View {
+                phase: crate::shot::Phase::Post,
+                light: crate::shot::Light::Top,
+            },
+            rows: 0,
+            cols: 0,
+            defect: Vec::new(),
+            best: Vec::new(),
+            tile_mm: 1.0,
+            ms: 0.0,
+        });
+        assert_eq!(
+            s.ready(1, false),
+            Vec::<u32>::new(),
+            "5 is held, so 6 waits"
+        );
+        s.in_flight.land(5);
+        assert_eq!(s.ready(1, false), vec![5, 6]);
+        s.in_flight.begin(5);
+        assert_eq!(s.ready(2, true), vec![5, 6], "flush takes every record");
     }
 }

@@ -270,27 +270,12 @@ impl Inspector {
     /// first layer with a view in flight on.
     fn ready(&mut self, at: DateTime<Utc>) -> Vec<InspectionRecord> {
         let needed = self.needed.len();
-        let Some(last) = self
-            .pending
-            .iter()
-            .rev()
-            .find(|(_, views)| views.len() >= needed)
-            .map(|(l, _)| *l)
-        else {
-            return Vec::new();
-        };
-        let ready: Vec<u32> = self
-            .pending
-            .range(..=last)
-            .map(|(l, _)| *l)
-            .take_while(|l| !self.in_flight.holds(*l))
-            .collect();
+        let ready = self
+            .in_flight
+            .release(&mut self.pending, |views| views.len() >= needed);
         ready
             .into_iter()
-            .filter_map(|l| {
-                let views = self.pending.remove(&l)?;
-                Some(self.inspect(l, &views, at))
-            })
+            .map(|(l, views)| self.inspect(l, &views, at))
             .collect()
     }
 
