@@ -1,7 +1,7 @@
 //! layerwise: layer-wise imaging of laser powder bed fusion builds, registered to the laser scan
 //! vectors and to post-build CT in one frame of reference (docs/frames.md).
 //!
-//! The modules form layers (docs/architecture.md; `tests/it/architecture.rs` enforces it): each uses
+//! The modules form layers (docs/architecture.md; `tests/it/architecture/` enforces it): each uses
 //! only modules of lower layers.
 //!
 //! | layer | modules | what |

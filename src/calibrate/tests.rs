@@ -1,4 +1,4 @@
-//! Unit tests of the registration glue (the accuracy tests are in tests/it/registration.rs).
+//! Unit tests of the registration glue (the accuracy tests are in tests/it/registration/).
 
 use super::pipeline::{grid_around, plate_grid, round_sig};
 use super::*;

@@ -1,7 +1,7 @@
 //! The simulated machine: a printer that sends layer signals from a script, lights that record
 //! what they are told, and a camera (`mock_camera`) that photographs the plate through a known
 //! homography, lit by whatever lamps are on. `layerwise demo`, the tests and the benchmarks run
-//! the daemon on it; production code never names this module (tests/it/architecture.rs checks it):
+//! the daemon on it; production code never names this module (tests/it/architecture/ checks it):
 //! the binary picks it when a configuration says `kind = "mock"`.
 
 pub mod camera;
