@@ -74,8 +74,10 @@ pub trait FrameProcessor: Send + Sync {
     }
 
     /// Called once by the processing worker when it ends (drained or stopped): a processor with
-    /// threads of its own (the inspection's alarm) stops them here.
-    fn finish(&self) {}
+    /// threads of its own (the inspection's alarm) stops them here. `ended`: the build is over
+    /// and every frame of it was processed, so what waits for frames that will not come (the
+    /// inspection of a last layer a view is missing from) can be completed now.
+    fn finish(&self, _ended: bool) {}
 
     /// Frames already processed that this processor wants again before new ones, with their
     /// take and the journal's file (the inspection's layers a stop left uninspected): the

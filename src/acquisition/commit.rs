@@ -26,6 +26,9 @@ pub(super) struct QueueState {
     pub(super) lag_ms: AtomicU64,
     /// Told each time a slice is written.
     pub(super) written: Option<OnWritten>,
+    /// Set by [`super::processing::ProcessingQueue::drain`]: the build ended, nothing more will
+    /// be handed over.
+    pub(super) build_over: AtomicBool,
 }
 
 impl QueueState {

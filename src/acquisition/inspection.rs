@@ -228,9 +228,23 @@ impl FrameProcessor for InspectingSeries {
         Ok(commit_then(pending, steps, shot))
     }
 
-    /// The alarm handles the last layers' records, then its thread ends.
-    fn finish(&self) {
-        for record in &self.with_model(Vec::new(), true) {
+    /// At the build's end the layers still waiting for a view (one the camera never gave) are
+    /// inspected with the views they have; the alarm handles the last layers' records, then its
+    /// thread ends. A run stopped before its build's end leaves them to the next start, which
+    /// inspects them with all their views.
+    fn finish(&self, ended: bool) {
+        let waiting = match (ended, self.inspector.lock()) {
+            (true, Ok(mut inspector)) => inspector.flush(self.clock.now()),
+            _ => Vec::new(),
+        };
+        if !waiting.is_empty() {
+            let layers: Vec<u32> = waiting.iter().map(|r| r.layer).collect();
+            info!(
+                ?layers,
+                "inspection: the build ended; its last layers are inspected with the views they have"
+            );
+        }
+        for record in &self.with_model(waiting, true) {
             self.record(record);
         }
         self.alarm.finish();

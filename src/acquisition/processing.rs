@@ -86,6 +86,7 @@ impl ProcessingQueue {
             pause_changed,
             lag_ms: AtomicU64::new(0),
             written,
+            build_over: AtomicBool::new(false),
         });
         let stop = Shutdown::new();
         let inbox = Inbox {
@@ -121,8 +122,12 @@ impl ProcessingQueue {
                     // The worker dropped here hangs up on the commit thread: it commits what
                     // it was handed, and the scope waits for it.
                 });
-                // A processor with threads of its own (the inspection's alarm) stops them now.
-                processor.finish();
+                // A processor with threads of its own (the inspection's alarm) stops them now;
+                // at the build's end, with every frame processed, what waits for frames that
+                // will not come is completed first.
+                let ended = worker_state.build_over.load(Ordering::SeqCst)
+                    && worker_state.depth.load(Ordering::SeqCst) == 0;
+                processor.finish(ended);
             })
             .map_err(
                 |e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"),
@@ -184,9 +189,11 @@ impl ProcessingQueue {
         self.state.paused()
     }
 
-    /// Waits until every submitted frame is processed, then stops the worker. A worker paused
-    /// for disk space stops at once: its frames wait on disk for the next start.
+    /// At the build's end: waits until every submitted frame is processed, then stops the
+    /// worker (the processor is told the build is over). A worker paused for disk space stops
+    /// at once: its frames wait on disk for the next start.
     pub fn drain(mut self) {
+        self.state.build_over.store(true, Ordering::SeqCst);
         self.sender.take();
         self.join();
     }
@@ -531,7 +538,7 @@ mod tests {
     }
 
     impl FrameProcessor for PanicsOnFront {
-        fn finish(&self) {
+        fn finish(&self, _ended: bool) {
             self.finished.store(true, Ordering::SeqCst);
         }
 
@@ -604,6 +611,39 @@ mod tests {
         assert_eq!(text.lines().count(), 2, "{text}");
         // The worker ended as it should (the alarm's flush ran), not by the panic.
         assert!(processor.finished.load(Ordering::SeqCst));
+    }
+
+    /// Records what the worker's end told it.
+    #[derive(Default)]
+    struct TellsTheEnd {
+        ended: Mutex<Option<bool>>,
+    }
+
+    impl FrameProcessor for TellsTheEnd {
+        fn finish(&self, ended: bool) {
+            *self.ended.lock().unwrap() = Some(ended);
+        }
+
+        fn process(&self, _: &Path, _: Shot, _: &Path) -> Result<(), ProcessError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn only_a_queue_drained_at_the_build_end_tells_the_processor_the_build_ended() {
+        let shot = Shot::new(1, Phase::Pre, Light::Top);
+        for drained in [true, false] {
+            let dir = tempfile::tempdir().unwrap();
+            let processor = Arc::new(TellsTheEnd::default());
+            let queue = queue(processor.clone(), dir.path());
+            queue.submit(shot, dir.path().join("x.jpg"), Duration::ZERO);
+            if drained {
+                queue.drain();
+            } else {
+                queue.stop(StopReason::Terminated(crate::shutdown::TermSignal::Term));
+            }
+            assert_eq!(*processor.ended.lock().unwrap(), Some(drained));
+        }
     }
 
     #[test]

@@ -635,3 +635,37 @@ fn each_processed_frame_says_what_its_steps_took_at_debug() {
         );
     }
 }
+
+/// The daemon through the binary: the last layer's post-scan top view never comes (the camera
+/// fails on it for good), so that layer waits for a view; at the build's end it is inspected with
+/// the views it has, and its record is in inspection.jsonl beside the complete layer's.
+#[test]
+fn at_the_build_end_a_last_layer_missing_a_view_is_inspected_with_the_views_it_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    let mut config = common::calibrated_config(&build, 2, layerwise::dicom::Compression::Deflate);
+    config.rectify.pixel_mm = 2.0;
+    common::add_fault(&mut config, "fail", 2, "post", "top", 0, 0);
+    let config_path = dir.path().join("layerwise.toml");
+    common::write_config(&config, &config_path);
+    let out = common::run_command(&config_path).output().unwrap();
+    common::assert_success(&out);
+    let log =
+        String::from_utf8_lossy(&out.stderr).into_owned() + &String::from_utf8_lossy(&out.stdout);
+    let records = layerwise::build_dir::inspection::InspectionLog::read(
+        &build.join(layerwise::build_dir::INSPECTION),
+    )
+    .expect("inspection.jsonl");
+    let views: Vec<(u32, Vec<String>)> =
+        records.iter().map(|r| (r.layer, r.views.clone())).collect();
+    assert_eq!(views.len(), 2, "{views:?}\n{log}");
+    assert_eq!(views[0].0, 1);
+    assert!(views[0].1.contains(&"post_top".to_string()), "{views:?}");
+    assert_eq!(views[1].0, 2);
+    assert!(!views[1].1.is_empty(), "{views:?}");
+    assert!(!views[1].1.contains(&"post_top".to_string()), "{views:?}");
+    assert!(
+        log.contains("the build ended; its last layers are inspected with the views they have"),
+        "{log}"
+    );
+}
