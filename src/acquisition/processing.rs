@@ -108,7 +108,7 @@ impl ProcessingQueue {
                     },
                     plant: &plan.plant,
                 };
-                std::thread::scope(|scope| {
+                let drained = std::thread::scope(|scope| {
                     let worker = Worker {
                         processor: processor.as_ref(),
                         state: &worker_state,
@@ -118,14 +118,16 @@ impl ProcessingQueue {
                         ends: &ends,
                         commits: ends.start_committing(scope),
                     };
-                    worker.run(inbox, plan.backlog, plan.take);
+                    worker.run(inbox, plan.backlog, plan.take)
                     // The worker dropped here hangs up on the commit thread: it commits what
                     // it was handed, and the scope waits for it.
                 });
                 // A processor with threads of its own (the inspection's alarm) stops them now;
-                // at the build's end, with every frame processed, what waits for frames that
-                // will not come is completed first.
+                // at the build's end, with every frame processed (the worker drained, not
+                // stopped or paused, and no frame counted as still to come), what waits for
+                // frames that will not come is completed first.
                 let ended = worker_state.build_over.load(Ordering::SeqCst)
+                    && drained
                     && worker_state.depth.load(Ordering::SeqCst) == 0;
                 processor.finish(ended);
             })
@@ -234,8 +236,9 @@ enum CatchUp {
 }
 
 impl<'a> Worker<'a> {
-    /// The backlog, then what is handed over, until stopped, or hung up and done.
-    fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, String)>, choice: SeriesTake) {
+    /// The backlog, then what is handed over, until stopped, or hung up and done; whether it
+    /// drained (hung up with nothing left waiting on disk), not stopped or paused.
+    fn run(&self, inbox: Inbox, backlog: Vec<(Shot, u32, String)>, choice: SeriesTake) -> bool {
         let state = self.state;
         if !backlog.is_empty() {
             info!(
@@ -245,7 +248,7 @@ impl<'a> Worker<'a> {
         }
         for (i, (shot, take, original)) in backlog.iter().enumerate() {
             if inbox.stop.is_requested() {
-                return;
+                return false;
             }
             if state.paused() {
                 // The rest waits on disk; the catch-up after the pause finds it in the journal.
@@ -263,17 +266,17 @@ impl<'a> Worker<'a> {
         let mut caught_up = std::collections::BTreeSet::new();
         loop {
             if inbox.stop.is_requested() {
-                return;
+                return false;
             }
             if state.paused() {
                 crossbeam_channel::select! {
                     recv(inbox.pause_changed) -> _ => {}
-                    recv(inbox.stop.receiver()) -> _ => return,
+                    recv(inbox.stop.receiver()) -> _ => return false,
                     recv(inbox.frames) -> item => match item {
                         // It waits on disk and is caught up from the journal after the pause.
                         Ok(_) => state.overflowed.store(true, Ordering::SeqCst),
                         // Hung up while paused: the frames wait on disk for the next start.
-                        Err(_) => return,
+                        Err(_) => return false,
                     },
                 }
                 continue;
@@ -283,19 +286,19 @@ impl<'a> Worker<'a> {
                     Ok(first) => self.batch(first, &inbox.frames, &mut caught_up),
                     Err(_) => {
                         if !state.overflowed.load(Ordering::SeqCst) {
-                            return;
+                            return true;
                         }
                     }
                 },
                 recv(inbox.pause_changed) -> _ => {}
-                recv(inbox.stop.receiver()) -> _ => return,
+                recv(inbox.stop.receiver()) -> _ => return false,
             }
             // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
             if !state.paused() && state.overflowed.swap(false, Ordering::SeqCst) {
                 match self.catch_up(&inbox, &mut caught_up, choice) {
                     CatchUp::Done => {}
                     CatchUp::Paused => state.overflowed.store(true, Ordering::SeqCst),
-                    CatchUp::Stopped => return,
+                    CatchUp::Stopped => return false,
                 }
             }
         }
