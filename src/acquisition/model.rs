@@ -195,27 +195,13 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn record(layer: u32) -> InspectionRecord {
-        InspectionRecord {
-            layer,
-            at: chrono::DateTime::UNIX_EPOCH,
-            ms: 0.0,
-            views: Vec::new(),
-            plate: BTreeMap::new(),
-            parts: Vec::new(),
-            flags: Vec::new(),
-            axis: None,
-            bed: None,
-            notes: Vec::new(),
-        }
-    }
+    use crate::build_dir::inspection::tests::record_with;
 
     #[test]
     fn a_complete_record_waits_behind_an_earlier_one_still_in_flight() {
         let mut s = State::default();
-        s.waiting.insert(5, record(5));
-        s.waiting.insert(6, record(6));
+        s.waiting.insert(5, record_with(5, vec![]));
+        s.waiting.insert(6, record_with(6, vec![]));
         s.in_flight.begin(5);
         s.scans.entry(6).or_default().push(ViewScan {
             view: View {
