@@ -9,14 +9,16 @@ use crate::logging::Chain;
 use crate::series::Then;
 use crate::shot::Shot;
 use crossbeam_channel::Sender;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tracing::error;
 
 /// What the queue and its worker share.
 pub(super) struct QueueState {
-    pub(super) depth: AtomicUsize,
+    /// The takes stored and not processed yet: the queue's depth.
+    pub(super) waiting: Waiting,
     pub(super) overflowed: AtomicBool,
     /// Derived data waits (the disk is low).
     pub(super) paused: AtomicBool,
@@ -42,6 +44,42 @@ impl QueueState {
 
     pub(super) fn paused(&self) -> bool {
         self.paused.load(Ordering::SeqCst)
+    }
+}
+
+/// The takes stored and not processed yet (queued, or waiting on disk for a catch-up), by shot
+/// and take: a set, not a count, so that what the worker does more than once (a frame that
+/// failed is tried again by each catch-up from the journal) or never (a first take a catch-up
+/// skips for the shot's retake) leaves no phantom backlog, nor hides one.
+#[derive(Default)]
+pub(super) struct Waiting(Mutex<BTreeSet<(Shot, u32)>>);
+
+impl Waiting {
+    pub(super) fn new(takes: impl IntoIterator<Item = (Shot, u32)>) -> Waiting {
+        Waiting(Mutex::new(takes.into_iter().collect()))
+    }
+
+    /// A take stored, to be processed.
+    pub(super) fn add(&self, shot: Shot, take: u32) {
+        if let Ok(mut waiting) = self.0.lock() {
+            waiting.insert((shot, take));
+        }
+    }
+
+    /// A take whose processing ended (its slice written, or failed; a retry of it later is not
+    /// waited for), or that the worker let go of (processed already): it, and the shot's
+    /// earlier takes its slice replaces, wait no more.
+    pub(super) fn done(&self, shot: Shot, take: u32) {
+        if let Ok(mut waiting) = self.0.lock() {
+            let ended: Vec<_> = waiting.range((shot, 0)..=(shot, take)).copied().collect();
+            for key in ended {
+                waiting.remove(&key);
+            }
+        }
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.0.lock().map_or(0, |waiting| waiting.len())
     }
 }
 
@@ -73,7 +111,7 @@ impl TallyGuard<'_> {
     /// A frame that will not be counted: the layer lines it held back.
     fn forget(&self, shot: &Shot) {
         if let Ok(mut open) = self.tally.lock() {
-            log_layers(open.forget(shot), self.state.depth.load(Ordering::SeqCst));
+            log_layers(open.forget(shot), self.state.waiting.len());
         }
     }
 }
@@ -81,7 +119,7 @@ impl TallyGuard<'_> {
 impl Drop for TallyGuard<'_> {
     fn drop(&mut self) {
         if let Ok(mut open) = self.tally.lock() {
-            log_layers(open.flush(), self.state.depth.load(Ordering::SeqCst));
+            log_layers(open.flush(), self.state.waiting.len());
         }
     }
 }
@@ -221,11 +259,7 @@ impl<'a> Ends<'a> {
         {
             written();
         }
-        let _ = state
-            .depth
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |d| {
-                Some(d.saturating_sub(1))
-            });
+        state.waiting.done(shot, take);
         let end = clock.elapsed();
         let lag = submitted.map(|at| end.saturating_sub(at));
         if let Some(lag) = lag {
@@ -234,10 +268,7 @@ impl<'a> Ends<'a> {
         self.plant.processed(end.saturating_sub(start), lag);
         let ok = !matches!(record, Record::ProcessingFailed { .. });
         if let Ok(mut open) = self.tally.tally.lock() {
-            log_layers(
-                open.add(&shot, ok, (start, end), lag),
-                state.depth.load(Ordering::SeqCst),
-            );
+            log_layers(open.add(&shot, ok, (start, end), lag), state.waiting.len());
         }
     }
 }

@@ -261,9 +261,17 @@ fn capture_loop(
         }
         crossbeam_channel::select! {
             recv(events.receiver()) -> event => match event {
-                Err(_) => {
-                    shutdown.request(StopReason::TriggerEnded);
-                }
+                // Hung up: the build's end if the trigger ended, a failure if its thread was
+                // lost (a stop requested meanwhile is taken above).
+                Err(_) => match events.lost() {
+                    Some(e) if shutdown.reason().is_none() => {
+                        error!(error = %Chain(&e), "trigger failed");
+                        return Err(e.into());
+                    }
+                    _ => {
+                        shutdown.request(StopReason::TriggerEnded);
+                    }
+                },
                 Ok(Err(e)) => {
                     error!(error = %Chain(&e), "trigger failed");
                     return Err(e.into());

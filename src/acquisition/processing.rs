@@ -13,7 +13,7 @@
 //! the lanes go on with the next frames instead of waiting for the disk's fsync.
 
 pub use super::commit::OnWritten;
-use super::commit::{disk_full, Commit, Ended, Ends, QueueState, TallyGuard};
+use super::commit::{disk_full, Commit, Ended, Ends, QueueState, TallyGuard, Waiting};
 use super::layer_tally::LayerTally;
 use crate::build_dir::Journal;
 use crate::clock::SharedClock;
@@ -24,7 +24,7 @@ use crate::shutdown::{Shutdown, StopReason};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -80,7 +80,7 @@ impl ProcessingQueue {
         let (sender, frames) = crossbeam_channel::bounded(capacity);
         let (pause_changed, pause_changes) = crossbeam_channel::bounded(1);
         let state = Arc::new(QueueState {
-            depth: AtomicUsize::new(plan.backlog.len()),
+            waiting: Waiting::new(plan.backlog.iter().map(|(shot, take, _)| (*shot, *take))),
             overflowed: AtomicBool::new(false),
             paused: AtomicBool::new(false),
             pause_changed,
@@ -128,7 +128,7 @@ impl ProcessingQueue {
                 // frames that will not come is completed first.
                 let ended = worker_state.build_over.load(Ordering::SeqCst)
                     && drained
-                    && worker_state.depth.load(Ordering::SeqCst) == 0;
+                    && worker_state.waiting.len() == 0;
                 processor.finish(ended);
             })
             .map_err(
@@ -155,7 +155,7 @@ impl ProcessingQueue {
         if take > 1 && self.take != SeriesTake::Last {
             return;
         }
-        self.state.depth.fetch_add(1, Ordering::SeqCst);
+        self.state.waiting.add(shot, take);
         let Some(sender) = &self.sender else { return };
         match sender.try_send((shot, take, original, Some(now))) {
             Ok(()) => {}
@@ -167,7 +167,7 @@ impl ProcessingQueue {
 
     /// Frames stored but not processed yet (in the queue or waiting on disk).
     pub fn depth(&self) -> usize {
-        self.state.depth.load(Ordering::SeqCst)
+        self.state.waiting.len()
     }
 
     /// How long the last frame processed waited from its capture to the end of its processing.
@@ -326,7 +326,7 @@ impl<'a> Worker<'a> {
             self.state.overflowed.store(true, Ordering::SeqCst);
             return;
         }
-        batch.retain(|(shot, take, _, _)| !caught_up.remove(&(*shot, *take)));
+        batch.retain(|(shot, take, _, _)| !self.processed_already(caught_up, *shot, *take));
         // The takes of one shot in order (a retake's slice replaces the first's), shots in
         // parallel.
         batch.sort_by_key(|(shot, take, _, _)| (*shot, *take));
@@ -356,7 +356,7 @@ impl<'a> Worker<'a> {
         // journal (a frame is journaled before it is handed over).
         let mut queued = Vec::new();
         while let Ok(item) = inbox.frames.try_recv() {
-            if !caught_up.remove(&(item.0, item.1)) {
+            if !self.processed_already(caught_up, item.0, item.1) {
                 queued.push(item);
             }
         }
@@ -385,6 +385,7 @@ impl<'a> Worker<'a> {
         // of a shot the pass processed is left out (the pass took the take the series shows).
         for (shot, take, original, at) in queued {
             if in_pass.contains(&shot) {
+                self.state.waiting.done(shot, take);
                 continue;
             }
             if let Some(end) = self.interrupted(inbox) {
@@ -393,6 +394,21 @@ impl<'a> Worker<'a> {
             self.process(shot, take, &original, at);
         }
         CatchUp::Done
+    }
+
+    /// Whether a take that came out of the queue was processed already by a catch-up pass (it is
+    /// let go of: handed over after the pass found it in the journal, it was counted again).
+    fn processed_already(
+        &self,
+        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
+        shot: Shot,
+        take: u32,
+    ) -> bool {
+        let already = caught_up.remove(&(shot, take));
+        if already {
+            self.state.waiting.done(shot, take);
+        }
+        already
     }
 
     /// How a catch-up ends early: stopped, or paused (what is left waits on disk; the journal
@@ -498,274 +514,4 @@ impl<'a> Worker<'a> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::series::ProcessError;
-    use crate::shot::{Light, Phase};
-
-    /// Tells each take processed and each commit; the first shot's commit waits to be
-    /// released.
-    struct Gated {
-        events: Sender<String>,
-        release: Receiver<()>,
-        held: Shot,
-    }
-
-    impl FrameProcessor for Gated {
-        fn process(&self, _: &Path, shot: Shot, _: &Path) -> Result<(), ProcessError> {
-            self.process_take_then(Path::new("."), shot, 1, Path::new("."))?()
-        }
-
-        fn process_take_then(
-            &self,
-            _: &Path,
-            shot: Shot,
-            _: u32,
-            _: &Path,
-        ) -> Result<Then<'_>, ProcessError> {
-            self.events.send(format!("processed {}", shot.light))?;
-            Ok(Box::new(move || {
-                if shot == self.held {
-                    self.release.recv()?;
-                }
-                self.events.send(format!("committed {}", shot.light))?;
-                Ok(())
-            }))
-        }
-    }
-
-    /// A commit that panics for the front view.
-    #[derive(Default)]
-    struct PanicsOnFront {
-        finished: AtomicBool,
-    }
-
-    impl FrameProcessor for PanicsOnFront {
-        fn finish(&self, _ended: bool) {
-            self.finished.store(true, Ordering::SeqCst);
-        }
-
-        fn process(&self, _: &Path, _: Shot, _: &Path) -> Result<(), ProcessError> {
-            Ok(())
-        }
-
-        fn process_take_then(
-            &self,
-            _: &Path,
-            shot: Shot,
-            _: u32,
-            _: &Path,
-        ) -> Result<Then<'_>, ProcessError> {
-            Ok(Box::new(move || {
-                assert!(shot.light != Light::Front, "a commit that panics");
-                Ok(())
-            }))
-        }
-    }
-
-    fn queue(processor: Arc<dyn FrameProcessor>, dir: &Path) -> ProcessingQueue {
-        let (journal, _) = Journal::open(&dir.join(crate::build_dir::JOURNAL), false).unwrap();
-        queue_on(processor, dir, 8, Arc::new(Mutex::new(journal)))
-    }
-
-    fn queue_on(
-        processor: Arc<dyn FrameProcessor>,
-        dir: &Path,
-        capacity: usize,
-        journal: Arc<Mutex<Journal>>,
-    ) -> ProcessingQueue {
-        ProcessingQueue::start(
-            processor,
-            capacity,
-            dir.to_path_buf(),
-            journal,
-            WorkerPlan {
-                backlog: Vec::new(),
-                take: SeriesTake::First,
-                frames_per_signal: 2,
-                plant: crate::plant::PlantSink::off(),
-            },
-            crate::clock::SystemClock::shared(),
-            None,
-        )
-    }
-
-    #[test]
-    fn a_commit_that_panics_leaves_its_frame_unjournaled_and_the_next_ones_go_on() {
-        let dir = tempfile::tempdir().unwrap();
-        let processor = Arc::new(PanicsOnFront::default());
-        let queue = queue(processor.clone(), dir.path());
-        let shots = [Light::Front, Light::Side, Light::Top].map(|l| Shot::new(1, Phase::Pre, l));
-        for shot in shots {
-            queue.submit(shot, dir.path().join("x.jpg"), Duration::ZERO);
-        }
-        queue.drain();
-        let path = dir.path().join(crate::build_dir::JOURNAL);
-        // The front frame is neither processed nor failed: it waits for the catch-up.
-        assert_eq!(
-            Journal::read(&path)
-                .unwrap()
-                .processed
-                .into_iter()
-                .collect::<Vec<_>>(),
-            shots[1..].to_vec()
-        );
-        let text = std::fs::read_to_string(&path).unwrap();
-        assert_eq!(text.lines().count(), 2, "{text}");
-        // The worker ended as it should (the alarm's flush ran), not by the panic.
-        assert!(processor.finished.load(Ordering::SeqCst));
-    }
-
-    /// Records what the worker's end told it.
-    #[derive(Default)]
-    struct TellsTheEnd {
-        ended: Mutex<Option<bool>>,
-    }
-
-    impl FrameProcessor for TellsTheEnd {
-        fn finish(&self, ended: bool) {
-            *self.ended.lock().unwrap() = Some(ended);
-        }
-
-        fn process(&self, _: &Path, _: Shot, _: &Path) -> Result<(), ProcessError> {
-            Ok(())
-        }
-    }
-
-    #[test]
-    fn only_a_queue_drained_at_the_build_end_tells_the_processor_the_build_ended() {
-        let shot = Shot::new(1, Phase::Pre, Light::Top);
-        for drained in [true, false] {
-            let dir = tempfile::tempdir().unwrap();
-            let processor = Arc::new(TellsTheEnd::default());
-            let queue = queue(processor.clone(), dir.path());
-            queue.submit(shot, dir.path().join("x.jpg"), Duration::ZERO);
-            if drained {
-                queue.drain();
-            } else {
-                queue.stop(StopReason::Terminated(crate::shutdown::TermSignal::Term));
-            }
-            assert_eq!(*processor.ended.lock().unwrap(), Some(drained));
-        }
-    }
-
-    #[test]
-    fn a_lane_goes_on_while_a_slice_commits_and_the_journal_waits_for_the_commit() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join(crate::build_dir::JOURNAL);
-        let (events, told) = crossbeam_channel::unbounded();
-        let (release, released) = crossbeam_channel::unbounded();
-        let (front, side) = (
-            Shot::new(1, Phase::Post, Light::Front),
-            Shot::new(1, Phase::Post, Light::Side),
-        );
-        let processor = Gated {
-            events,
-            release: released,
-            held: front,
-        };
-        let queue = queue(Arc::new(processor), dir.path());
-        let next = || told.recv_timeout(Duration::from_secs(10)).unwrap();
-        let journaled = || Journal::read(&path).unwrap().processed;
-
-        queue.submit(front, dir.path().join("a.jpg"), Duration::ZERO);
-        assert_eq!(next(), "processed front");
-        // The front slice's commit waits; the side frame is processed meanwhile (in the code
-        // before the commit thread the worker was held here, and this timed out).
-        queue.submit(side, dir.path().join("b.jpg"), Duration::ZERO);
-        assert_eq!(next(), "processed side");
-        // Neither is journaled before its commit (the side's comes after the front's).
-        assert!(journaled().is_empty());
-        assert_eq!(queue.depth(), 2);
-
-        release.send(()).unwrap();
-        assert_eq!(next(), "committed front");
-        assert_eq!(next(), "committed side");
-        // Draining waits for the commits and their records.
-        queue.drain();
-        assert_eq!(
-            journaled().into_iter().collect::<Vec<_>>(),
-            vec![front, side]
-        );
-        let text = std::fs::read_to_string(&path).unwrap();
-        let (at_front, at_side) = (text.find("front").unwrap(), text.find("side").unwrap());
-        assert!(at_front < at_side, "journaled in the order handed over");
-    }
-
-    /// Tells each take as its processing starts; the held shots wait to be released first.
-    struct Held {
-        events: Sender<Shot>,
-        release: Receiver<()>,
-        held: Vec<Shot>,
-    }
-
-    /// All its work before the commit: the defaults leave the commit nothing to do.
-    impl FrameProcessor for Held {
-        fn process(&self, _: &Path, shot: Shot, _: &Path) -> Result<(), ProcessError> {
-            self.events.send(shot)?;
-            if self.held.contains(&shot) {
-                self.release.recv()?;
-            }
-            Ok(())
-        }
-    }
-
-    #[test]
-    fn a_frame_that_overflowed_the_queue_is_processed_before_the_frames_queued_after_it() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join(crate::build_dir::JOURNAL);
-        let (journal, _) = Journal::open(&path, false).unwrap();
-        let journal = Arc::new(Mutex::new(journal));
-        let shots = [
-            (1, Light::Front),
-            (1, Light::Side),
-            (1, Light::Top),
-            (2, Light::Front),
-        ]
-        .map(|(layer, light)| Shot::new(layer, Phase::Post, light));
-        let (events, told) = crossbeam_channel::unbounded();
-        let (release, released) = crossbeam_channel::unbounded();
-        let processor = Held {
-            events,
-            release: released,
-            held: shots[..2].to_vec(),
-        };
-        let queue = queue_on(Arc::new(processor), dir.path(), 1, journal.clone());
-        let next = || told.recv_timeout(Duration::from_secs(10)).unwrap();
-        // Journaled, then handed over, as the recorder does.
-        let store = |shot: Shot| {
-            let file = format!("raw/{}.jpg", shot.take_stem(1));
-            let record = crate::build_dir::journal::Record::Frame {
-                layer: shot.layer,
-                phase: shot.phase,
-                light: shot.light,
-                file: file.clone(),
-                bytes: 1,
-                sha256: String::new(),
-                at: chrono::Utc::now(),
-            };
-            journal.lock().unwrap().append(&record).unwrap();
-            queue.submit(shot, dir.path().join(file), Duration::ZERO);
-        };
-
-        store(shots[0]);
-        assert_eq!(next(), shots[0]);
-        // Layer 1's side view waits in the queue (one place); its top view overflows it and
-        // waits on disk.
-        store(shots[1]);
-        store(shots[2]);
-        release.send(()).unwrap();
-        // The catch-up takes the side view; layer 2's front view is stored meanwhile, and the
-        // queue has room for it.
-        assert_eq!(next(), shots[1]);
-        store(shots[3]);
-        release.send(()).unwrap();
-        // Layer 1's top view comes before layer 2's front view (the code before took the queue
-        // first: layer 2 came before it, and the inspection took layer 1 as done without it).
-        assert_eq!(next(), shots[2]);
-        assert_eq!(next(), shots[3]);
-        queue.drain();
-        assert!(told.try_recv().is_err(), "each frame processed once");
-        assert_eq!(Journal::read(&path).unwrap().processed.len(), 4);
-    }
-}
+mod tests;

@@ -56,6 +56,15 @@ pub enum TriggerError {
         #[source]
         source: gpiocdev::Error,
     },
+    #[error("trigger: cannot start its thread")]
+    Thread {
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("trigger: its thread panicked ({message}); the printer's signals are no longer read")]
+    Panicked { message: String },
+    #[error("trigger: its thread ended without the trigger ending or failing")]
+    Lost,
     #[error("trigger: kind = \"mock\" belongs to the simulated machine (`layerwise demo`, tests); configure serial or gpio")]
     Simulated,
 }
@@ -505,6 +514,8 @@ pub const SHUTDOWN_LOOK: Duration = Duration::from_millis(500);
 /// The trigger's thread and its events.
 pub struct Events {
     receiver: crossbeam_channel::Receiver<Result<LayerEvent, TriggerError>>,
+    /// Set by the thread when its trigger says it has ended (`Ok(None)`).
+    ended: Arc<std::sync::atomic::AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -513,6 +524,13 @@ impl Events {
     /// error).
     pub fn receiver(&self) -> &crossbeam_channel::Receiver<Result<LayerEvent, TriggerError>> {
         &self.receiver
+    }
+
+    /// Why the events stopped, once [`Events::receiver`] is disconnected: none if the trigger
+    /// ended (its script is done, or the shutdown was requested), else the thread was lost
+    /// without saying why (its error, a panic's included, comes through the channel first).
+    pub fn lost(&self) -> Option<TriggerError> {
+        (!self.ended.load(std::sync::atomic::Ordering::SeqCst)).then_some(TriggerError::Lost)
     }
 
     /// Waits for the trigger's thread to end (it does once the shutdown is requested).
@@ -525,34 +543,69 @@ impl Events {
 
 /// Runs a trigger on its own thread, forwarding events into a channel (64 deep: a waiting
 /// trigger blocks, the printer's signals wait in its own buffer). The thread ends when the
-/// trigger ends, fails, or `shutdown` is requested. Every event's time goes into `health` (the
-/// one `Trigger::health` gave the daemon's status: its "last signal"), whatever the backend.
+/// trigger ends, fails, panics (an error: [`TriggerError::Panicked`]), or `shutdown` is
+/// requested; a thread that cannot start is an error too ([`TriggerError::Thread`]): neither is
+/// the build's end. Every event's time goes into `health` (the one `Trigger::health` gave the
+/// daemon's status: its "last signal"), whatever the backend.
 pub fn spawn(mut trigger: Box<dyn Trigger>, health: SharedHealth, shutdown: Shutdown) -> Events {
     let (tx, rx) = crossbeam_channel::bounded(64);
+    let ended = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let told = tx.clone();
+    let thread_ended = ended.clone();
     let spawned = std::thread::Builder::new()
         .name("trigger".into())
-        .spawn(move || loop {
-            match trigger.next_event(&shutdown) {
-                Ok(Some(event)) => {
-                    health.signal(event.at);
-                    crossbeam_channel::select! {
-                        send(tx, Ok(event)) -> sent => if sent.is_err() { return },
-                        recv(shutdown.receiver()) -> _ => return,
+        .spawn(move || {
+            // Each message waits for room (or the shutdown): an error is never dropped.
+            let send = |message: Result<LayerEvent, TriggerError>| {
+                crossbeam_channel::select! {
+                    send(tx, message) -> sent => sent.is_ok(),
+                    recv(shutdown.receiver()) -> _ => false,
+                }
+            };
+            let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| loop {
+                match trigger.next_event(&shutdown) {
+                    Ok(Some(event)) => {
+                        health.signal(event.at);
+                        if !send(Ok(event)) {
+                            return;
+                        }
+                    }
+                    Ok(None) => {
+                        thread_ended.store(true, std::sync::atomic::Ordering::SeqCst);
+                        return;
+                    }
+                    Err(e) => {
+                        send(Err(e));
+                        return;
                     }
                 }
-                Ok(None) => return,
-                Err(e) => {
-                    let _ = tx.try_send(Err(e));
-                    return;
-                }
+            }));
+            if let Err(panic) = read {
+                let message = panic_message(&*panic);
+                send(Err(TriggerError::Panicked { message }));
             }
         });
-    let thread = spawned
-        .map_err(|e| warn!(error = %e, "trigger: cannot start its thread"))
-        .ok();
+    let thread = match spawned {
+        Ok(thread) => Some(thread),
+        Err(source) => {
+            // The channel is empty: the error is its one message.
+            let _ = told.try_send(Err(TriggerError::Thread { source }));
+            None
+        }
+    };
     Events {
         receiver: rx,
+        ended,
         thread,
+    }
+}
+
+/// A panic's message, when it has one.
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    match (panic.downcast_ref::<&str>(), panic.downcast_ref::<String>()) {
+        (Some(text), _) => text.to_string(),
+        (_, Some(text)) => text.clone(),
+        _ => "no message".into(),
     }
 }
 
@@ -610,5 +663,92 @@ mod tests {
         let mut resumed = PulseCounter::new(GpioMode::Alternating, 1);
         resumed.resume_after(Some((6, Phase::Post)));
         assert_eq!(resumed.on_pulse(Pulse::Line), Some((7, Phase::Pre)));
+    }
+
+    /// Gives `signals` layer signals, then ends as told.
+    struct Scripted {
+        signals: u32,
+        then: fn() -> Result<Option<LayerEvent>, TriggerError>,
+    }
+
+    impl Trigger for Scripted {
+        fn next_event(&mut self, _: &Shutdown) -> Result<Option<LayerEvent>, TriggerError> {
+            if self.signals == 0 {
+                return (self.then)();
+            }
+            self.signals -= 1;
+            Ok(Some(LayerEvent {
+                layer: 1,
+                phase: Phase::Pre,
+                at: DateTime::<Utc>::UNIX_EPOCH,
+            }))
+        }
+    }
+
+    /// What the thread of a trigger giving `signals` signals, then `then`, sends: the count of
+    /// events, the error after them, and whether the trigger was lost.
+    fn spawned(
+        signals: u32,
+        then: fn() -> Result<Option<LayerEvent>, TriggerError>,
+    ) -> (usize, Option<String>, bool) {
+        let trigger = Box::new(Scripted { signals, then });
+        let events = spawn(trigger, SharedHealth::connected("test"), Shutdown::new());
+        // Read once the thread has queued what it can (64 at most), and then a little more
+        // (an error behind a full queue comes after that).
+        let queued = 64.min(signals as usize + 1);
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        let finished = |events: &Events| events.thread.as_ref().is_none_or(|t| t.is_finished());
+        while events.receiver().len() < queued
+            && !finished(&events)
+            && std::time::Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+        let (mut count, mut error) = (0, None);
+        for message in events.receiver().iter() {
+            match message {
+                Ok(_) => count += 1,
+                Err(e) => error = Some(crate::logging::chain(&e)),
+            }
+        }
+        let lost = events.lost().is_some();
+        events.join();
+        (count, error, lost)
+    }
+
+    #[test]
+    fn a_trigger_that_ends_ends_its_events() {
+        assert_eq!(spawned(3, || Ok(None)), (3, None, false));
+    }
+
+    #[test]
+    fn a_trigger_that_panics_is_an_error_not_the_end_of_its_signals() {
+        let (count, error, lost) = spawned(2, || panic!("a trigger that panics"));
+        assert_eq!(count, 2);
+        let error = error.expect("the panic is told");
+        assert!(
+            error.contains("panicked (a trigger that panics)"),
+            "{error}"
+        );
+        // Before, the thread's end hung up the channel as a trigger's end does.
+        assert!(lost);
+    }
+
+    #[test]
+    fn a_trigger_error_behind_a_full_queue_is_not_dropped() {
+        // 64 signals fill the channel before the error comes (before, it was tried once and
+        // dropped: the hang-up then read as the build's end).
+        let fails = || {
+            Err(TriggerError::Script {
+                path: "printer.txt".into(),
+                line: 65,
+                expected: "a signal",
+                found: "x".into(),
+            })
+        };
+        let (count, error, _) = spawned(64, fails);
+        assert_eq!(count, 64);
+        assert!(error.is_some_and(|e| e.contains("line 65")));
     }
 }

@@ -172,6 +172,60 @@ fn a_hung_camera_stops_the_daemon_with_lights_off() {
     );
 }
 
+/// Layer 1's two signals, then a panic on the trigger's thread.
+struct PanicsAfterLayerOne(Vec<Phase>);
+
+impl layerwise::hardware::trigger::Trigger for PanicsAfterLayerOne {
+    fn next_event(
+        &mut self,
+        _: &layerwise::shutdown::Shutdown,
+    ) -> Result<
+        Option<layerwise::hardware::trigger::LayerEvent>,
+        layerwise::hardware::trigger::TriggerError,
+    > {
+        let phase = self.0.pop().expect("a trigger that panics");
+        Ok(Some(layerwise::hardware::trigger::LayerEvent {
+            layer: 1,
+            phase,
+            at: chrono::Utc::now(),
+        }))
+    }
+}
+
+#[test]
+fn a_trigger_thread_that_panics_fails_the_run_instead_of_ending_the_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 3);
+    let (options, _) = options_with_log();
+    let result = run_daemon_with(&config, options, |machine, _| {
+        machine.trigger = Box::new(PanicsAfterLayerOne(vec![Phase::Post, Phase::Pre]));
+    });
+    // Before, the thread's end read as the trigger's: the run ended as a completed build.
+    let Err(AcquisitionError::Trigger(error)) = &result else {
+        panic!("{result:?}")
+    };
+    assert!(
+        error
+            .to_string()
+            .contains("panicked (a trigger that panics)"),
+        "{error}"
+    );
+    assert_eq!(replay(dir.path()).frames.len(), 6, "layer 1 was stored");
+    let stop = records(dir.path())
+        .into_iter()
+        .rev()
+        .find_map(|record| match record {
+            layerwise::build_dir::journal::Record::Stop { reason, .. } => Some(reason),
+            _ => None,
+        })
+        .expect("the journal says why the run stopped");
+    assert!(stop.contains("panicked"), "{stop}");
+    assert_eq!(
+        read_json(&dir.path().join("status.json"))["state"],
+        "failed"
+    );
+}
+
 #[test]
 fn a_restart_resumes_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
