@@ -78,6 +78,14 @@ impl Waiting {
         }
     }
 
+    /// Lets go of every take the journal shows processed: a take handed over just after a
+    /// catch-up processed it from its record would otherwise be counted again, and for good.
+    pub(super) fn settle_with(&self, replay: &crate::build_dir::journal::Replay) {
+        if let Ok(mut waiting) = self.0.lock() {
+            waiting.retain(|(shot, take)| replay.slice_take(shot) < *take);
+        }
+    }
+
     pub(super) fn len(&self) -> usize {
         self.0.lock().map_or(0, |waiting| waiting.len())
     }
@@ -254,12 +262,13 @@ impl<'a> Ends<'a> {
                 error!(error = %Chain(&e), "processing: cannot journal the result");
             }
         }
+        // Before anything else: journaled, it waits no more, whatever happens next.
+        state.waiting.done(shot, take);
         if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
             (&state.written, &record)
         {
             written();
         }
-        state.waiting.done(shot, take);
         let end = clock.elapsed();
         let lag = submitted.map(|at| end.saturating_sub(at));
         if let Some(lag) = lag {
@@ -270,5 +279,47 @@ impl<'a> Ends<'a> {
         if let Ok(mut open) = self.tally.tally.lock() {
             log_layers(open.add(&shot, ok, (start, end), lag), state.waiting.len());
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build_dir::journal::{Record, Replay};
+    use crate::shot::{Light, Phase};
+
+    #[test]
+    fn a_take_waits_until_it_or_a_later_take_of_its_shot_ends_or_the_journal_shows_it_processed() {
+        let [a, b] = [Light::Front, Light::Side].map(|l| Shot::new(1, Phase::Post, l));
+        let waiting = Waiting::new([(a, 1), (a, 2), (a, 3), (b, 1)]);
+        // A later take's slice replaces the earlier ones': they wait no more.
+        waiting.done(a, 2);
+        assert_eq!(waiting.len(), 2);
+        // Handed over after a catch-up processed it from its record: the journal lets it go,
+        // and keeps what it does not show processed.
+        waiting.add(b, 2);
+        let mut replay = Replay::default();
+        for record in [
+            Record::Processed {
+                layer: 1,
+                phase: Phase::Post,
+                light: Light::Side,
+                at: chrono::Utc::now(),
+            },
+            Record::SliceTake {
+                layer: 1,
+                phase: Phase::Post,
+                light: Light::Side,
+                take: 2,
+                at: chrono::Utc::now(),
+            },
+        ] {
+            replay.apply(&record);
+        }
+        waiting.settle_with(&replay);
+        assert_eq!(
+            waiting.0.lock().unwrap().iter().collect::<Vec<_>>(),
+            [&(a, 3)]
+        );
     }
 }

@@ -365,7 +365,9 @@ impl<'a> Worker<'a> {
         // What is still being committed is not in the journal yet.
         self.settle();
         let pass = self.unprocessed(choice);
-        let in_pass: std::collections::BTreeSet<Shot> = pass.iter().map(|p| p.0).collect();
+        // The take the pass processes, per shot.
+        let in_pass: std::collections::BTreeMap<Shot, u32> =
+            pass.iter().map(|p| (p.0, p.1)).collect();
         for (shot, take, recorded) in pass {
             if let Some(end) = self.interrupted(inbox) {
                 return end;
@@ -381,10 +383,11 @@ impl<'a> Worker<'a> {
                 }
             }
         }
-        // Queued takes the pass did not cover (the journal unreadable): in their order. A take
-        // of a shot the pass processed is left out (the pass took the take the series shows).
+        // Queued takes the pass did not cover (the journal unreadable, or missing a record the
+        // disk had no room for): in their order. An earlier take of a shot the pass processed is
+        // left out (the pass took the take the series shows).
         for (shot, take, original, at) in queued {
-            if in_pass.contains(&shot) {
+            if in_pass.get(&shot).is_some_and(|&passed| take <= passed) {
                 self.state.waiting.done(shot, take);
                 continue;
             }
@@ -437,6 +440,7 @@ impl<'a> Worker<'a> {
                 return Vec::new();
             }
         };
+        self.state.waiting.settle_with(&replay);
         replay
             .unprocessed_takes(choice)
             .into_iter()

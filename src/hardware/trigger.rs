@@ -527,8 +527,10 @@ impl Events {
     }
 
     /// Why the events stopped, once [`Events::receiver`] is disconnected: none if the trigger
-    /// ended (its script is done, or the shutdown was requested), else the thread was lost
-    /// without saying why (its error, a panic's included, comes through the channel first).
+    /// said it ended (its script is done, or it saw the shutdown), else the thread was lost
+    /// without saying why (its error, a panic's included, comes through the channel first), or
+    /// it quit waiting to send because the shutdown was requested: callers look at the shutdown
+    /// first.
     pub fn lost(&self) -> Option<TriggerError> {
         (!self.ended.load(std::sync::atomic::Ordering::SeqCst)).then_some(TriggerError::Lost)
     }
@@ -693,18 +695,24 @@ mod tests {
     ) -> (usize, Option<String>, bool) {
         let trigger = Box::new(Scripted { signals, then });
         let events = spawn(trigger, SharedHealth::connected("test"), Shutdown::new());
-        // Read once the thread has queued what it can (64 at most), and then a little more
-        // (an error behind a full queue comes after that).
+        // Read once the thread has queued what it can (64 at most) and then ended, or, with the
+        // queue full, waited 200 ms for room (the thread before dropped an error it could not
+        // queue at once, and ended).
         let queued = 64.min(signals as usize + 1);
-        let deadline = std::time::Instant::now() + Duration::from_secs(5);
         let finished = |events: &Events| events.thread.as_ref().is_none_or(|t| t.is_finished());
-        while events.receiver().len() < queued
-            && !finished(&events)
-            && std::time::Instant::now() < deadline
-        {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-        std::thread::sleep(Duration::from_millis(20));
+        let wait = |until: std::time::Instant, done: &dyn Fn() -> bool| {
+            while !done() && std::time::Instant::now() < until {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        };
+        let now = std::time::Instant::now();
+        wait(now + Duration::from_secs(5), &|| {
+            events.receiver().len() >= queued || finished(&events)
+        });
+        wait(
+            std::time::Instant::now() + Duration::from_millis(200),
+            &|| finished(&events),
+        );
         let (mut count, mut error) = (0, None);
         for message in events.receiver().iter() {
             match message {
