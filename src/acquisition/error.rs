@@ -18,6 +18,8 @@ pub enum AcquisitionError {
     CameraOpen(#[source] CameraError),
     #[error("camera hung; exiting so that systemd restarts the service")]
     CameraHung(#[source] CameraError),
+    #[error("camera lost; exiting so that systemd restarts the service")]
+    CameraLost(#[source] CameraError),
     #[error(transparent)]
     Trigger(#[from] TriggerError),
     #[error(transparent)]

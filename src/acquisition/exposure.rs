@@ -87,7 +87,7 @@ impl Exposure {
                 Exposed::Missing(reason)
             }
             Err(CaptureFailure::Hung(e)) => {
-                self.parts.capture_failed(shot, format!("camera hung: {e}"));
+                self.parts.capture_failed(shot, e.fatal_reason());
                 self.lights.all_off_logged();
                 Exposed::Hung(e)
             }

@@ -54,6 +54,8 @@ pub(super) struct Recorder {
     disk: DiskGuard,
     queue: Option<ProcessingQueue>,
     live: LiveStatus,
+    /// The processing backlog and lag status.json last showed: rewritten when they change.
+    shown_processing: (usize, Duration),
     summary: RunSummary,
     sink: StatusSink,
 }
@@ -68,6 +70,8 @@ impl Recorder {
         sink: StatusSink,
     ) -> Recorder {
         let build_dir = storage.root().to_path_buf();
+        // After a restart, the layer the build had reached, not "waiting for the first layer".
+        let (layer, phase) = progress.last_event.unzip();
         let mut recorder = Recorder {
             storage,
             journal,
@@ -77,8 +81,11 @@ impl Recorder {
             live: LiveStatus {
                 pid: std::process::id(),
                 last_frames: BTreeMap::new(),
+                layer,
+                phase,
                 ..LiveStatus::default()
             },
+            shown_processing: (0, Duration::ZERO),
             summary: RunSummary::new(build_dir),
             sink,
         };
@@ -323,8 +330,8 @@ impl Recorder {
         }
     }
 
-    /// Rewrites status.json when a part's health changed, and while the disk is not ok (called
-    /// about once a second while idle).
+    /// Rewrites status.json when a part's health or the processing backlog or lag changed, and
+    /// while the disk is not ok (called about once a second while idle).
     pub(super) fn refresh_health(&mut self, parts: &Parts) {
         let disk_changed = self.check_disk();
         let health = self.sink.trigger.get();
@@ -336,7 +343,13 @@ impl Recorder {
         }
         let disk_not_ok = self.disk.state() != DiskState::Ok;
         let paused = self.queue.as_ref().is_some_and(ProcessingQueue::paused);
-        if trigger_changed || disk_changed || disk_not_ok || paused {
+        // The backlog goes on emptying after a layer's last frame: shown as it changes, not
+        // left at that frame's count while the printer is idle.
+        let processing_changed = self
+            .queue
+            .as_ref()
+            .is_some_and(|queue| (queue.depth(), queue.lag()) != self.shown_processing);
+        if trigger_changed || disk_changed || disk_not_ok || paused || processing_changed {
             let state = self.live.state.clone();
             self.write_live(&state, parts);
         }
@@ -360,6 +373,7 @@ impl Recorder {
                 .map_or(Duration::ZERO, ProcessingQueue::lag),
             paused: self.queue.as_ref().is_some_and(ProcessingQueue::paused),
         };
+        self.shown_processing = (processing.backlog, processing.lag);
         let trigger = self.live.trigger.clone().unwrap_or_default();
         self.live.health = parts.health(clock.now(), &trigger, &processing, &disk);
         self.live.camera = Some(parts.camera_report());

@@ -7,6 +7,7 @@ use super::recorder::{self, Recorder};
 use super::{AcquisitionError, RunSummary};
 use crate::build_dir::IrregularSignal;
 use crate::clock::SharedClock;
+use crate::hardware::camera::CameraError;
 use crate::hardware::trigger::LayerEvent;
 use crate::shot::{Light, Phase, Shot, MAX_LAYER};
 use crate::shutdown::StopReason;
@@ -301,8 +302,11 @@ impl Sequencer {
                 Ok(())
             }
             Exposed::Hung(e) => {
-                self.missing(shot, format!("camera hung: {e}"))?;
-                Err(AcquisitionError::CameraHung(e))
+                self.missing(shot, e.fatal_reason())?;
+                Err(match e {
+                    CameraError::Lost(_) => AcquisitionError::CameraLost(e),
+                    e => AcquisitionError::CameraHung(e),
+                })
             }
         }
     }

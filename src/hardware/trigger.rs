@@ -583,7 +583,7 @@ pub fn spawn(mut trigger: Box<dyn Trigger>, health: SharedHealth, shutdown: Shut
                 }
             }));
             if let Err(panic) = read {
-                let message = panic_message(&*panic);
+                let message = crate::logging::panic_message(&*panic);
                 send(Err(TriggerError::Panicked { message }));
             }
         });
@@ -599,15 +599,6 @@ pub fn spawn(mut trigger: Box<dyn Trigger>, health: SharedHealth, shutdown: Shut
         receiver: rx,
         ended,
         thread,
-    }
-}
-
-/// A panic's message, when it has one.
-fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
-    match (panic.downcast_ref::<&str>(), panic.downcast_ref::<String>()) {
-        (Some(text), _) => text.to_string(),
-        (_, Some(text)) => text.clone(),
-        _ => "no message".into(),
     }
 }
 

@@ -227,6 +227,92 @@ fn a_trigger_thread_that_panics_fails_the_run_instead_of_ending_the_build() {
 }
 
 #[test]
+fn status_shows_the_backlog_emptied_while_the_printer_is_idle() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 3);
+    let (signals, events) = crossbeam_channel::unbounded();
+    let (options, _) = options_with_log();
+    let run = std::thread::spawn(move || {
+        run_daemon_with(&config, options, |machine, _| {
+            machine.trigger = Box::new(layerwise::sim::MockTrigger::from_channel(events));
+        })
+    });
+    for phase in [Phase::Pre, Phase::Post] {
+        let at = chrono::Utc::now();
+        let event = layerwise::hardware::trigger::LayerEvent {
+            layer: 1,
+            phase,
+            at,
+        };
+        signals.send(event).unwrap();
+    }
+    let journal = dir.path().join(layerwise::build_dir::JOURNAL);
+    wait_until("layer 1 processed", Duration::from_secs(60), || {
+        journal.exists() && replay(dir.path()).processed.len() == 6
+    });
+    // The printer is idle; within a few of the daemon's once-a-second looks, status.json shows
+    // the backlog empty (before, it kept the count written with layer 1's last frame: 1 or more,
+    // to the next layer).
+    let status = dir.path().join("status.json");
+    wait_until(
+        "status.json shows no backlog",
+        Duration::from_secs(5),
+        || read_json(&status)["queue_depth"] == 0,
+    );
+    assert_eq!(read_json(&status)["state"], "running");
+    drop(signals);
+    run.join().unwrap().unwrap();
+}
+
+/// A camera whose driver code panics on its first capture.
+struct PanickingCamera;
+
+impl layerwise::hardware::camera::Camera for PanickingCamera {
+    fn capture(
+        &mut self,
+        _: &Shot,
+    ) -> Result<layerwise::hardware::camera::Frame, layerwise::hardware::camera::CameraError> {
+        panic!("a driver that panics")
+    }
+    fn reopen(&mut self) -> Result<(), layerwise::hardware::camera::CameraError> {
+        Ok(())
+    }
+    fn settings(&self) -> std::collections::BTreeMap<String, String> {
+        Default::default()
+    }
+    fn describe(&self) -> String {
+        "panicking camera".into()
+    }
+}
+
+#[test]
+fn a_camera_thread_that_panics_stops_the_daemon_as_lost_not_hung() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 3);
+    let (options, _) = options_with_log();
+    let result = run_daemon_with(&config, options, |machine, _| {
+        machine.camera = Box::new(|| Ok(Box::new(PanickingCamera) as Box<_>));
+    });
+    assert!(
+        matches!(result, Err(AcquisitionError::CameraLost(_))),
+        "{result:?}"
+    );
+    // The first frame is missing for the right reason (before: "camera hung: camera call did
+    // not return within 60s", when nothing had hung), and nothing was retried.
+    let replay = replay(dir.path());
+    let reasons: Vec<&String> = replay.missing.values().collect();
+    assert_eq!(reasons.len(), 1, "{reasons:?}");
+    assert!(
+        reasons[0].starts_with("camera lost: ") && reasons[0].contains("a driver that panics"),
+        "{reasons:?}"
+    );
+    assert_eq!(
+        read_json(&dir.path().join("status.json"))["state"],
+        "failed"
+    );
+}
+
+#[test]
 fn a_restart_resumes_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
     let first = demo_config(dir.path(), 2);

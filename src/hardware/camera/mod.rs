@@ -38,6 +38,10 @@ pub enum CameraError {
     /// A call did not return within the bound: the thread is stuck in the driver.
     #[error("camera call did not return within {0:?}; the process must restart")]
     Hung(Duration),
+    /// The camera's thread is gone (a panic in the driver's code, its message kept): no call
+    /// can reach the camera again.
+    #[error("the camera's thread ended ({0}); the process must restart")]
+    Lost(String),
     #[error("camera setting `{key}`: {message}")]
     Setting { key: String, message: String },
     /// The camera refused a setting.
@@ -49,6 +53,23 @@ pub enum CameraError {
         #[source]
         source: DriverError,
     },
+}
+
+impl CameraError {
+    /// Whether no later call can succeed in this process (hung in the driver, or its thread
+    /// gone): the daemon exits for systemd to restart it.
+    pub fn is_fatal(&self) -> bool {
+        matches!(self, CameraError::Hung(_) | CameraError::Lost(_))
+    }
+
+    /// A fatal error in the words of the journal's missing record and the camera's health:
+    /// "camera hung: …" or "camera lost: …".
+    pub fn fatal_reason(&self) -> String {
+        match self {
+            CameraError::Lost(_) => format!("camera lost: {self}"),
+            _ => format!("camera hung: {self}"),
+        }
+    }
 }
 
 /// What the camera's driver said: libgphoto2's error kept whole, or our own words where we are the
@@ -140,13 +161,31 @@ impl CameraActor {
                         return;
                     }
                 };
+                // A panic ends the thread: its caller is told why (not that the call hung), and
+                // later calls find the thread gone.
+                let lost = |panic: Box<dyn std::any::Any + Send>| {
+                    let message = crate::logging::panic_message(&*panic);
+                    tracing::error!(%message, "camera: its thread panicked");
+                    CameraError::Lost(format!("panicked: {message}"))
+                };
                 for command in inbox {
+                    let mut call = std::panic::AssertUnwindSafe(&mut camera);
                     match command {
                         Command::Capture(shot, reply) => {
-                            let _ = reply.send(camera.capture(&shot));
+                            let result = std::panic::catch_unwind(move || call.capture(&shot));
+                            let failed = result.is_err();
+                            let _ = reply.send(result.unwrap_or_else(|p| Err(lost(p))));
+                            if failed {
+                                return;
+                            }
                         }
                         Command::Reopen(reply) => {
-                            let _ = reply.send(camera.reopen());
+                            let result = std::panic::catch_unwind(move || call.reopen());
+                            let failed = result.is_err();
+                            let _ = reply.send(result.unwrap_or_else(|p| Err(lost(p))));
+                            if failed {
+                                return;
+                            }
                         }
                     }
                 }
@@ -179,13 +218,16 @@ impl CameraActor {
         let deadline = self.clock.after(self.timeout);
         self.commands
             .send_timeout(make(tx), self.timeout)
-            .map_err(|_| CameraError::Hung(self.timeout))?;
+            .map_err(|e| match e {
+                crossbeam_channel::SendTimeoutError::Timeout(_) => CameraError::Hung(self.timeout),
+                crossbeam_channel::SendTimeoutError::Disconnected(_) => {
+                    CameraError::Lost("it is gone".into())
+                }
+            })?;
         match wait(&rx, deadline) {
             Waited::Answer(result) => result,
             Waited::TimedOut => Err(CameraError::Hung(self.timeout)),
-            Waited::Gone => Err(CameraError::Failed(DriverError::said(
-                "the camera thread ended",
-            ))),
+            Waited::Gone => Err(CameraError::Lost("it ended without answering".into())),
         }
     }
 
@@ -261,12 +303,12 @@ impl RetryPolicy {
     }
 }
 
-/// Why a frame could not be taken even after retries. `Hung` is fatal for the process.
 /// The camera thread could not be started.
 #[derive(Debug, thiserror::Error)]
 #[error("cannot start the camera thread")]
 struct CameraThread(#[source] std::io::Error);
 
+/// Why a frame could not be taken even after retries. `Hung` is fatal for the process.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureFailure {
     #[error("frame missing after {attempts} attempts")]
@@ -275,6 +317,7 @@ pub enum CaptureFailure {
         #[source]
         last: CameraError,
     },
+    /// Hung, or its thread lost ([`CameraError::is_fatal`]).
     #[error(transparent)]
     Hung(CameraError),
 }
@@ -292,7 +335,7 @@ pub fn capture_with_retries(
         attempts += 1;
         let error = match actor.capture(shot) {
             Ok(frame) => return Ok((frame, attempts)),
-            Err(e @ CameraError::Hung(_)) => return Err(CaptureFailure::Hung(e)),
+            Err(e) if e.is_fatal() => return Err(CaptureFailure::Hung(e)),
             Err(e) => e,
         };
         if attempts > policy.retries {
@@ -304,7 +347,7 @@ pub fn capture_with_retries(
         warn!(attempt = attempts, error = %crate::logging::Chain(&error), retry_in_ms = backoff.as_millis() as u64, "camera: capture failed, retrying");
         if let CameraError::Disconnected(_) = error {
             reopen(actor, policy, &mut backoff).map_err(|last| match last {
-                e @ CameraError::Hung(_) => CaptureFailure::Hung(e),
+                e if e.is_fatal() => CaptureFailure::Hung(e),
                 last => CaptureFailure::Missing { attempts, last },
             })?;
         } else {
@@ -334,7 +377,7 @@ fn reopen(
                 );
                 return Ok(());
             }
-            Err(e @ CameraError::Hung(_)) => return Err(e),
+            Err(e) if e.is_fatal() => return Err(e),
             Err(e) => {
                 warn!(attempt, error = %crate::logging::Chain(&e), "camera: reopen failed");
                 last = e;
@@ -470,6 +513,46 @@ mod tests {
             other => panic!("{other:?}"),
         }
         driver.join().unwrap();
+    }
+
+    /// A body whose driver code panics on capture.
+    struct Panics;
+
+    impl Camera for Panics {
+        fn capture(&mut self, _shot: &Shot) -> Result<Frame, CameraError> {
+            panic!("a driver that panics")
+        }
+        fn reopen(&mut self) -> Result<(), CameraError> {
+            Ok(())
+        }
+        fn settings(&self) -> BTreeMap<String, String> {
+            BTreeMap::new()
+        }
+        fn describe(&self) -> String {
+            "panics".into()
+        }
+    }
+
+    #[test]
+    fn a_camera_thread_that_panics_is_lost_not_hung_and_not_retried() {
+        let clock = Arc::new(ManualClock::new());
+        let open = || Ok(Box::new(Panics) as Box<dyn Camera>);
+        let actor = CameraActor::spawn(open, Duration::from_secs(30), clock.clone()).unwrap();
+        // The caller is told the panic's message at once, without retries.
+        match capture_with_retries(&actor, &policy(5), &SHOT) {
+            Err(CaptureFailure::Hung(e @ CameraError::Lost(_))) => {
+                let reason = e.fatal_reason();
+                assert!(reason.starts_with("camera lost: "), "{reason}");
+                assert!(reason.contains("a driver that panics"), "{reason}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // The thread is gone: the next call says so (before, "did not return within 30 s").
+        match actor.capture(&SHOT) {
+            Err(CameraError::Lost(why)) => assert!(!why.contains("panicked"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(clock.elapsed(), Duration::ZERO, "no backoff, no timeout");
     }
 
     #[test]
