@@ -205,6 +205,9 @@ pub struct Replay {
     pub irregular: Vec<IrregularEntry>,
     /// The take a shot's series slice shows when it is a retake (`Record::SliceTake`).
     pub slice_takes: BTreeMap<Shot, u32>,
+    /// Shots whose processing failed last (`Record::ProcessingFailed`, none since processed):
+    /// how many takes were stored then, and why.
+    pub failed: BTreeMap<Shot, (u32, String)>,
 }
 
 impl Replay {
@@ -231,9 +234,15 @@ impl Replay {
             }
             (Record::Processed { .. }, Some(shot)) => {
                 self.processed.insert(shot);
+                self.failed.remove(&shot);
             }
             (Record::SliceTake { take, .. }, Some(shot)) => {
                 self.slice_takes.insert(shot, *take);
+                self.failed.remove(&shot);
+            }
+            (Record::ProcessingFailed { reason, .. }, Some(shot)) => {
+                self.failed
+                    .insert(shot, (self.takes(&shot), reason.clone()));
             }
             (
                 Record::Retake {
@@ -302,6 +311,19 @@ impl Replay {
             .filter_map(|shot| {
                 let wanted = choice.shown(self.takes(shot));
                 (self.slice_take(shot) < wanted).then_some((*shot, wanted))
+            })
+            .collect()
+    }
+
+    /// Of [`Replay::unprocessed_takes`], those whose processing failed (the take `choice` picks
+    /// was stored when it did), with the reason: failures, not frames waiting. The next start
+    /// tries them again.
+    pub fn failed_takes(&self, choice: crate::shot::SeriesTake) -> Vec<(Shot, u32, &str)> {
+        self.unprocessed_takes(choice)
+            .into_iter()
+            .filter_map(|(shot, take)| {
+                let (stored, reason) = self.failed.get(&shot)?;
+                (*stored >= take).then_some((shot, take, reason.as_str()))
             })
             .collect()
     }

@@ -105,8 +105,13 @@ pub struct StatusReport {
     pub retakes: usize,
     /// Signals out of the expected order, oldest first: `L00003 post: repeated signal: …`.
     pub irregular: Vec<String>,
-    /// Frames whose series slice does not show the take `[series] take` picks yet.
+    /// Frames whose series slice does not show the take `[series] take` picks yet, those
+    /// whose processing failed left out.
     pub waiting_for_processing: usize,
+    /// Frames whose processing failed (`L00003_post_top: reason`), oldest layer first: their
+    /// originals are kept, and the next start tries them again.
+    #[serde(default)]
+    pub processing_failed: Vec<String>,
     pub queue_depth: usize,
     pub last_frames: BTreeMap<String, LastFrame>,
     pub bytes_stored: u64,
@@ -340,7 +345,16 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
     let now = Utc::now();
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
     let running = live.state == "running" && alive;
-    let waiting_for_processing = replay.unprocessed_takes(take).len();
+    // A frame whose processing failed is a failure, not backlog.
+    let processing_failed: Vec<String> = replay
+        .failed_takes(take)
+        .into_iter()
+        .map(|(shot, take, reason)| format!("{}: {reason}", shot.take_stem(take)))
+        .collect();
+    let waiting_for_processing = replay
+        .unprocessed_takes(take)
+        .len()
+        .saturating_sub(processing_failed.len());
     let health = super::health::shown(
         WrittenHealth {
             health: &live.health,
@@ -423,6 +437,7 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
             .map(|i| format!("L{:05} {}: {}: {}", i.layer, i.phase, i.signal, i.detail))
             .collect(),
         waiting_for_processing,
+        processing_failed,
         queue_depth: live.queue_depth,
         last_frames: live.last_frames,
         bytes_stored,
@@ -521,6 +536,14 @@ impl fmt::Display for StatusReport {
             "processing {} waiting (queue depth {})",
             self.waiting_for_processing, self.queue_depth
         )?;
+        if !self.processing_failed.is_empty() {
+            writeln!(
+                f,
+                "failed     {} frames' processing (originals kept; the next start tries again)",
+                self.processing_failed.len()
+            )?;
+            last_ten(f, &self.processing_failed)?;
+        }
         if let Some(t) = &self.trigger {
             let last = t
                 .last_signal_at

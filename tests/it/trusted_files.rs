@@ -5,7 +5,7 @@
 //! order cannot send the daemon out of `builds_dir`. Each command is run as a user runs it, under
 //! the memory and time limits of `common::bounded`.
 
-use crate::common::{bounded, demo_config, layerwise, mkfifo, refused, report, write_config};
+use crate::common::{bounded, demo_config, layerwise, mkfifo, refused, report, write_config, Run};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -295,6 +295,21 @@ fn journal_record_naming_another_builds_frame_is_not_trusted() {
         .filter(|l| l.contains("processing_failed") && l.contains("raw/L00002_post_top."))
         .count();
     assert_eq!(failed, 1, "the refusal is journaled once");
+    // `status` tells the failure as one, not as a frame waiting for processing.
+    let status = layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(&build)
+        .json_ok();
+    assert_eq!(status["waiting_for_processing"], 0, "{status}");
+    let failures = status["processing_failed"].as_array().unwrap();
+    assert_eq!(failures.len(), 1, "{status}");
+    let failure = failures[0].as_str().unwrap();
+    assert!(failure.starts_with("L00002_post_top: "), "{failure}");
+    let text = layerwise()
+        .args(["status", "--build"])
+        .arg(&build)
+        .stdout_ok();
+    assert!(text.contains("failed     1 frames' processing"), "{text}");
     // An original replaced in raw/ (its sidecar says otherwise) is refused by name.
     std::fs::copy(&foreign, build.join("raw/L00002_pre_top.jpg")).unwrap();
     refused(

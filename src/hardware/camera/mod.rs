@@ -38,8 +38,8 @@ pub enum CameraError {
     /// A call did not return within the bound: the thread is stuck in the driver.
     #[error("camera call did not return within {0:?}; the process must restart")]
     Hung(Duration),
-    /// The camera's thread is gone (a panic in the driver's code, its message kept): no call
-    /// can reach the camera again.
+    /// The camera's thread panicked in the driver's code (its message kept), or is gone: the
+    /// camera is not called again.
     #[error("the camera's thread ended ({0}); the process must restart")]
     Lost(String),
     #[error("camera setting `{key}`: {message}")]
@@ -134,6 +134,13 @@ pub struct CameraActor {
     settings: BTreeMap<String, String>,
 }
 
+/// A panic on the camera's thread, said at ERROR: the words of [`CameraError::Lost`].
+fn panicked(panic: Box<dyn std::any::Any + Send>) -> String {
+    let message = crate::logging::panic_message(&*panic);
+    tracing::error!(%message, "camera: its thread panicked in the driver's code");
+    format!("panicked: {message}")
+}
+
 impl CameraActor {
     /// Opens the camera with `open` on a new thread; every call (opening too) is bounded by
     /// `timeout` on `clock`.
@@ -161,31 +168,32 @@ impl CameraActor {
                         return;
                     }
                 };
-                // A panic ends the thread: its caller is told why (not that the call hung), and
-                // later calls find the thread gone.
-                let lost = |panic: Box<dyn std::any::Any + Send>| {
-                    let message = crate::logging::panic_message(&*panic);
-                    tracing::error!(%message, "camera: its thread panicked");
-                    CameraError::Lost(format!("panicked: {message}"))
-                };
+                // After a panic the camera is not called again: its caller and every later one
+                // are told why (not that the call hung), until the actor is dropped.
+                let mut lost: Option<String> = None;
                 for command in inbox {
+                    if let Some(why) = &lost {
+                        let error = CameraError::Lost(why.clone());
+                        match command {
+                            Command::Capture(_, reply) => {
+                                let _ = reply.send(Err(error));
+                            }
+                            Command::Reopen(reply) => {
+                                let _ = reply.send(Err(error));
+                            }
+                        }
+                        continue;
+                    }
                     let mut call = std::panic::AssertUnwindSafe(&mut camera);
+                    let mut lose = |panic| CameraError::Lost(lost.insert(panicked(panic)).clone());
                     match command {
                         Command::Capture(shot, reply) => {
                             let result = std::panic::catch_unwind(move || call.capture(&shot));
-                            let failed = result.is_err();
-                            let _ = reply.send(result.unwrap_or_else(|p| Err(lost(p))));
-                            if failed {
-                                return;
-                            }
+                            let _ = reply.send(result.unwrap_or_else(|panic| Err(lose(panic))));
                         }
                         Command::Reopen(reply) => {
                             let result = std::panic::catch_unwind(move || call.reopen());
-                            let failed = result.is_err();
-                            let _ = reply.send(result.unwrap_or_else(|p| Err(lost(p))));
-                            if failed {
-                                return;
-                            }
+                            let _ = reply.send(result.unwrap_or_else(|panic| Err(lose(panic))));
                         }
                     }
                 }
@@ -547,9 +555,10 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        // The thread is gone: the next call says so (before, "did not return within 30 s").
+        // The camera is not called again: the next call says why at once (before, "did not
+        // return within 30 s").
         match actor.capture(&SHOT) {
-            Err(CameraError::Lost(why)) => assert!(!why.contains("panicked"), "{why}"),
+            Err(CameraError::Lost(why)) => assert!(why.contains("a driver that panics"), "{why}"),
             other => panic!("{other:?}"),
         }
         assert_eq!(clock.elapsed(), Duration::ZERO, "no backoff, no timeout");
