@@ -72,8 +72,9 @@ impl Alarm {
         self
     }
 
-    /// Journals to `alarm.jsonl` in `build_dir`; a latched alarm the history leaves raised (the
-    /// daemon stopped before anyone acknowledged it) is switched on again.
+    /// Journals to `alarm.jsonl` in `build_dir`; an alarm the history leaves raised (the daemon
+    /// stopped before anyone acknowledged it, or before a clean layer cleared it) is switched on
+    /// again, and goes off as it would have: acknowledged, or, unless latched, at a clean layer.
     pub fn resume(&mut self, build_dir: &Path, fsync: bool) -> Result<(), JournalError> {
         let (log, events) = AlarmLog::open(&build_dir.join(crate::build_dir::ALARM), fsync)?;
         self.history = Some(log);
@@ -81,8 +82,12 @@ impl Alarm {
         if let AlarmState::Raised { layer, kind, .. } = AlarmState::replay(&events) {
             if self.latch {
                 warn!(layer, kind = %kind, "inspection alarm still raised from before the restart (acknowledge with `layerwise alarm ack`)");
-                self.switch(true);
+            } else {
+                warn!(layer, kind = %kind, "inspection alarm still raised from before the restart (off at the next clean layer, or with `layerwise alarm ack`)");
             }
+            self.switch(true);
+            // Raised, whether the light answered or not: as when it was raised.
+            self.on = true;
         }
         Ok(())
     }
@@ -424,5 +429,33 @@ mod tests {
             AlarmState::replay(&events),
             AlarmState::Raised { layer: 9, .. }
         ));
+    }
+
+    #[test]
+    fn an_alarm_not_latched_raised_before_a_restart_clears_at_the_next_clean_layer() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let config = AlarmConfig {
+            channel: Light::Top,
+            latch: false,
+            ..AlarmConfig::default()
+        };
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        drop(alarm);
+
+        // Restarted with layer 5's raise open: on again, and off at the first clean layer
+        // (before, the restarted alarm never knew it was on: raised for good).
+        lights.lock().unwrap().clear();
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(6, None), at());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true), (Light::Top, false)]
+        );
+        let events = AlarmLog::read(&dir.path().join(crate::build_dir::ALARM)).unwrap();
+        assert!(matches!(AlarmState::replay(&events), AlarmState::Off));
     }
 }
