@@ -122,11 +122,13 @@ pub fn run(
         alarm,
         alarm_message,
     } = machine;
+    let mut journal = journal;
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
     let timeout = Duration::from_secs(config.capture.call_timeout_s);
-    let camera =
-        CameraActor::spawn(camera, timeout, clock.clone()).map_err(AcquisitionError::CameraOpen)?;
+    let camera = CameraActor::spawn(camera, timeout, clock.clone())
+        .map_err(AcquisitionError::CameraOpen)
+        .map_err(|e| open::failed_start(&dir, &mut journal, &clock, e))?;
     info!(camera = camera.describe(), "camera open");
     trigger.resume_after(progress.last_event);
     let trigger_health = trigger.health();
@@ -136,7 +138,8 @@ pub fn run(
     plant.emit(|| build_started(config, &clock));
     let processor = match options.processor.take() {
         Some(p) => p,
-        None => default_processor(config, &manifest, (alarm, alarm_message), &clock, &plant)?,
+        None => default_processor(config, &manifest, (alarm, alarm_message), &clock, &plant)
+            .map_err(|e| open::failed_start(&dir, &mut journal, &clock, e))?,
     };
     // What the processor wants again (layers a stop left uninspected) goes first, in build
     // order with the backlog, so that layers complete in order.

@@ -181,3 +181,36 @@ fn remove_stale_temporaries(dir: &std::path::Path) -> Result<(), AcquisitionErro
     }
     Ok(())
 }
+
+/// A start that fails once the build is opened (the camera cannot be opened, the calibration or
+/// the model is refused): the stop is journaled and status.json says "failed", so that `status`
+/// and the page show this start's failure, not the run before it. Returns the error.
+pub(super) fn failed_start(
+    dir: &std::path::Path,
+    journal: &mut crate::build_dir::Journal,
+    clock: &crate::clock::SharedClock,
+    error: super::AcquisitionError,
+) -> super::AcquisitionError {
+    let reason = crate::shutdown::StopReason::failure_of(&error).to_string();
+    let stop = crate::build_dir::journal::Record::Stop {
+        reason,
+        at: clock.now(),
+    };
+    if let Err(e) = journal.append(&stop) {
+        tracing::error!(error = %crate::logging::Chain(&e), "cannot journal the failed start");
+    }
+    // What the run before left (its last frames, its parts' health), marked as this start's.
+    let path = dir.join(crate::build_dir::STATUS);
+    let mut live: crate::build_dir::status::LiveStatus = crate::build_dir::read_record_file(&path)
+        .ok()
+        .and_then(|bytes| serde_json::from_slice(&bytes).ok())
+        .unwrap_or_default();
+    live.pid = std::process::id();
+    live.state = "failed".into();
+    live.updated_at = Some(clock.now());
+    live.queue_depth = 0;
+    if let Err(e) = live.write(dir) {
+        tracing::warn!(error = %crate::logging::Chain(&e), "status: cannot write status.json");
+    }
+    error
+}

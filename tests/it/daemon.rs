@@ -313,6 +313,36 @@ fn a_camera_thread_that_panics_stops_the_daemon_as_lost_not_hung() {
 }
 
 #[test]
+fn a_start_whose_camera_cannot_be_opened_says_failed_not_the_run_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = demo_config(dir.path(), 1);
+    let (options, _) = options_with_log();
+    run_daemon_with(&config, options, |_, _| {}).unwrap();
+    let status = dir.path().join("status.json");
+    assert_ne!(read_json(&status)["state"], "failed");
+    // The restart cannot open the camera.
+    let (options, _) = options_with_log();
+    let result = run_daemon_with(&config, options, |machine, _| {
+        machine.camera = Box::new(|| {
+            Err(layerwise::hardware::camera::CameraError::Disconnected(
+                layerwise::hardware::camera::DriverError::said("no camera on usb:"),
+            ))
+        });
+    });
+    assert!(
+        matches!(result, Err(AcquisitionError::CameraOpen(_))),
+        "{result:?}"
+    );
+    // status.json and the journal say so (before: the run before's state, and no stop).
+    assert_eq!(read_json(&status)["state"], "failed");
+    let last = records(dir.path()).pop().unwrap();
+    let layerwise::build_dir::journal::Record::Stop { reason, .. } = last else {
+        panic!("{last:?}")
+    };
+    assert!(reason.contains("no camera on usb:"), "{reason}");
+}
+
+#[test]
 fn a_restart_resumes_without_duplicates() {
     let dir = tempfile::tempdir().unwrap();
     let first = demo_config(dir.path(), 2);
