@@ -111,7 +111,7 @@ pub fn run(
     let open::OpenedBuild {
         storage,
         manifest,
-        journal,
+        mut journal,
         mut progress,
     } = open::open_build(config, &clock)?;
 
@@ -122,7 +122,6 @@ pub fn run(
         alarm,
         alarm_message,
     } = machine;
-    let mut journal = journal;
     let mut lights = LightsGuard::new(lights);
     lights.all_off_logged();
     let timeout = Duration::from_secs(config.capture.call_timeout_s);

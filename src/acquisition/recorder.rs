@@ -54,8 +54,9 @@ pub(super) struct Recorder {
     disk: DiskGuard,
     queue: Option<ProcessingQueue>,
     live: LiveStatus,
-    /// The processing backlog and lag status.json last showed: rewritten when they change.
-    shown_processing: (usize, Duration),
+    /// The processing lag status.json last showed (its backlog is `live.queue_depth`): rewritten
+    /// when either changes.
+    shown_lag: Duration,
     summary: RunSummary,
     sink: StatusSink,
 }
@@ -85,7 +86,7 @@ impl Recorder {
                 phase,
                 ..LiveStatus::default()
             },
-            shown_processing: (0, Duration::ZERO),
+            shown_lag: Duration::ZERO,
             summary: RunSummary::new(build_dir),
             sink,
         };
@@ -345,10 +346,9 @@ impl Recorder {
         let paused = self.queue.as_ref().is_some_and(ProcessingQueue::paused);
         // The backlog goes on emptying after a layer's last frame: shown as it changes, not
         // left at that frame's count while the printer is idle.
-        let processing_changed = self
-            .queue
-            .as_ref()
-            .is_some_and(|queue| (queue.depth(), queue.lag()) != self.shown_processing);
+        let processing_changed = self.queue.as_ref().is_some_and(|queue| {
+            (queue.depth(), queue.lag()) != (self.live.queue_depth, self.shown_lag)
+        });
         if trigger_changed || disk_changed || disk_not_ok || paused || processing_changed {
             let state = self.live.state.clone();
             self.write_live(&state, parts);
@@ -373,7 +373,7 @@ impl Recorder {
                 .map_or(Duration::ZERO, ProcessingQueue::lag),
             paused: self.queue.as_ref().is_some_and(ProcessingQueue::paused),
         };
-        self.shown_processing = (processing.backlog, processing.lag);
+        self.shown_lag = processing.lag;
         let trigger = self.live.trigger.clone().unwrap_or_default();
         self.live.health = parts.health(clock.now(), &trigger, &processing, &disk);
         self.live.camera = Some(parts.camera_report());

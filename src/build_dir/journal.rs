@@ -315,17 +315,12 @@ impl Replay {
             .collect()
     }
 
-    /// Of [`Replay::unprocessed_takes`], those whose processing failed (the take `choice` picks
-    /// was stored when it did), with the reason: failures, not frames waiting. The next start
-    /// tries them again.
-    pub fn failed_takes(&self, choice: crate::shot::SeriesTake) -> Vec<(Shot, u32, &str)> {
-        self.unprocessed_takes(choice)
-            .into_iter()
-            .filter_map(|(shot, take)| {
-                let (stored, reason) = self.failed.get(&shot)?;
-                (*stored >= take).then_some((shot, take, reason.as_str()))
-            })
-            .collect()
+    /// Why the processing of take `take` of `shot` failed, if it did (the take was stored when
+    /// the failure was journaled, and nothing was processed since): a failure, not a frame
+    /// waiting. The next start tries it again.
+    pub fn failure(&self, shot: &Shot, take: u32) -> Option<&str> {
+        let (stored, reason) = self.failed.get(shot)?;
+        (*stored >= take).then_some(reason.as_str())
     }
 
     /// Stored frames not yet processed, in build order.

@@ -346,15 +346,15 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
     let alive = live.pid != 0 && Path::new(&format!("/proc/{}", live.pid)).exists();
     let running = live.state == "running" && alive;
     // A frame whose processing failed is a failure, not backlog.
-    let processing_failed: Vec<String> = replay
-        .failed_takes(take)
-        .into_iter()
-        .map(|(shot, take, reason)| format!("{}: {reason}", shot.take_stem(take)))
+    let unprocessed = replay.unprocessed_takes(take);
+    let processing_failed: Vec<String> = unprocessed
+        .iter()
+        .filter_map(|(shot, take)| {
+            let reason = replay.failure(shot, *take)?;
+            Some(format!("{}: {reason}", shot.take_stem(*take)))
+        })
         .collect();
-    let waiting_for_processing = replay
-        .unprocessed_takes(take)
-        .len()
-        .saturating_sub(processing_failed.len());
+    let waiting_for_processing = unprocessed.len() - processing_failed.len();
     let health = super::health::shown(
         WrittenHealth {
             health: &live.health,

@@ -125,6 +125,17 @@ enum Command {
     Reopen(crossbeam_channel::Sender<Result<(), CameraError>>),
 }
 
+impl Command {
+    /// Answers the command with `error`, without calling the camera.
+    fn fail(self, error: CameraError) {
+        // The caller gave up waiting if the reply has nowhere to go.
+        match self {
+            Command::Capture(_, reply) => drop(reply.send(Err(error))),
+            Command::Reopen(reply) => drop(reply.send(Err(error))),
+        }
+    }
+}
+
 /// Owns a camera on a dedicated thread; each call waits for its reply at most `timeout`.
 pub struct CameraActor {
     commands: crossbeam_channel::Sender<Command>,
@@ -173,15 +184,7 @@ impl CameraActor {
                 let mut lost: Option<String> = None;
                 for command in inbox {
                     if let Some(why) = &lost {
-                        let error = CameraError::Lost(why.clone());
-                        match command {
-                            Command::Capture(_, reply) => {
-                                let _ = reply.send(Err(error));
-                            }
-                            Command::Reopen(reply) => {
-                                let _ = reply.send(Err(error));
-                            }
-                        }
+                        command.fail(CameraError::Lost(why.clone()));
                         continue;
                     }
                     let mut call = std::panic::AssertUnwindSafe(&mut camera);
