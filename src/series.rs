@@ -85,6 +85,12 @@ pub trait FrameProcessor: Send + Sync {
     fn catch_up(&self) -> Vec<(Shot, u32, String)> {
         Vec::new()
     }
+
+    /// A fault of the processor's own parts that the operator must see in the build's health
+    /// (the inspection's alarm cannot switch its light, or stopped), while it lasts.
+    fn fault(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Keeps originals only.

@@ -16,7 +16,7 @@ use crate::shot::Light;
 use chrono::{DateTime, Utc};
 use crossbeam_channel::Sender;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tracing::{error, info, warn};
 
@@ -29,7 +29,13 @@ pub struct Alarm {
     channel: Light,
     level: Severity,
     latch: bool,
-    on: bool,
+    /// Raised: a flag at the alarm's level is open (what `alarm.jsonl` says).
+    raised: bool,
+    /// What the light was last switched to (taken as off at the start).
+    light: bool,
+    /// Why the light refused its last switch, until it answers again: logged once, tried
+    /// again at each poll, and shown in the lights' health ([`AlarmThread::fault`]).
+    fault: Arc<Mutex<Option<String>>>,
     message: Option<(Box<dyn MessageLink>, AlarmSerialConfig)>,
     history: Option<AlarmLog>,
     /// Events of the history already looked at.
@@ -48,7 +54,9 @@ impl Alarm {
                 AlarmSeverity::Critical => Severity::Critical,
             },
             latch: config.latch,
-            on: false,
+            raised: false,
+            light: false,
+            fault: Arc::default(),
             message: None,
             history: None,
             seen: 0,
@@ -85,22 +93,39 @@ impl Alarm {
             } else {
                 warn!(layer, kind = %kind, "inspection alarm still raised from before the restart (off at the next clean layer, or with `layerwise alarm ack`)");
             }
-            self.switch(true);
-            // Raised, whether the light answered or not: as when it was raised.
-            self.on = true;
+            self.raised = true;
+            self.drive_light();
         }
         Ok(())
     }
 
-    fn switch(&mut self, on: bool) -> bool {
+    /// Switches the light to what the alarm is (raised or not) unless it already is. A light
+    /// that refuses is logged once and tried again at the next poll and layer: the alarm's
+    /// state (the history, the plant, the next raise) does not wait on the relay.
+    fn drive_light(&mut self) {
+        let on = self.raised;
+        if self.light == on {
+            return;
+        }
         match self.output.switch(self.channel, on) {
             Ok(()) => {
-                self.on = on;
-                true
+                self.light = on;
+                if set_fault(&self.fault, None).is_some() {
+                    info!(on, "inspection alarm: the stack light answers again");
+                }
             }
             Err(e) => {
-                error!(error = %Chain(&e), on, "inspection alarm: cannot switch the stack light");
-                false
+                let fault = format!(
+                    "inspection alarm: cannot switch the stack light ({}) {}: {}; check the relay \
+                     board or GPIO line (tried again every {} ms)",
+                    self.channel,
+                    if on { "on" } else { "off" },
+                    Chain(&e),
+                    ACKNOWLEDGEMENT_POLL.as_millis()
+                );
+                if set_fault(&self.fault, Some(fault.clone())).is_none() {
+                    error!("{fault}");
+                }
             }
         }
     }
@@ -132,11 +157,10 @@ impl Alarm {
             .filter(at_level)
             .any(|f| f.since.is_some());
         match raised {
-            Some(flag) if !self.on => {
-                if self.switch(true) {
-                    warn!(layer = record.layer, kind = %flag.kind, channel = %self.channel, "inspection alarm ON: layer {}: {}", record.layer, flag.message);
-                }
-                self.on = true;
+            Some(flag) if !self.raised => {
+                self.raised = true;
+                self.drive_light();
+                warn!(layer = record.layer, kind = %flag.kind, channel = %self.channel, "inspection alarm ON: layer {}: {}", record.layer, flag.message);
                 if let Some((link, config)) = self.message.as_mut() {
                     let text = config.render(
                         record.layer,
@@ -161,7 +185,9 @@ impl Alarm {
                     message: flag.message.clone(),
                 });
             }
-            None if self.on && !self.latch && !persisting && self.switch(false) => {
+            None if self.raised && !self.latch && !persisting => {
+                self.raised = false;
+                self.drive_light();
                 info!(
                     layer = record.layer,
                     "inspection alarm off: layer {} is clean", record.layer
@@ -171,13 +197,15 @@ impl Alarm {
                     layer: record.layer,
                 });
             }
-            _ => {}
+            _ => self.drive_light(),
         }
     }
 
     /// Looks for acknowledgements appended to the history since the last look (by `layerwise
     /// alarm ack`) and switches off for one.
+    /// The light, if it refused its last switch, is tried again.
     pub fn poll_acknowledgements(&mut self, build_dir: &Path) {
+        self.drive_light();
         if self.history.is_none() {
             return;
         }
@@ -192,61 +220,96 @@ impl Alarm {
         self.seen = events.len();
         for event in new {
             if let AlarmEvent::Acknowledged { by, .. } = event {
-                if !self.on {
+                if !self.raised {
                     continue;
                 }
                 self.plant
                     .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
-                if self.switch(false) {
-                    info!(by = %by, "inspection alarm off: acknowledged by {by}");
-                }
+                self.raised = false;
+                self.drive_light();
+                info!(by = %by, "inspection alarm off: acknowledged by {by}");
             }
         }
     }
 }
 
+/// Sets the alarm's fault, returning the one before.
+fn set_fault(fault: &Mutex<Option<String>>, now: Option<String>) -> Option<String> {
+    std::mem::replace(&mut *fault.lock().unwrap_or_else(|e| e.into_inner()), now)
+}
+
 /// The alarm on its own thread: layers' records come in over a channel, acknowledgements are
 /// looked for every [`ACKNOWLEDGEMENT_POLL`] on the clock. It ends when its input hangs up
 /// ([`AlarmThread::finish`], when the processing worker ends), after the records it was sent.
+/// A thread that ends on a panic (a light's driver) or cannot start says why in its fault: the
+/// records sent to it after are lost, and the lights' health shows it until the service restarts.
 pub struct AlarmThread {
     records: Mutex<Option<Sender<InspectionRecord>>>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
+    fault: Arc<Mutex<Option<String>>>,
 }
 
 impl AlarmThread {
     pub fn spawn(mut alarm: Alarm, build_dir: PathBuf, clock: SharedClock) -> AlarmThread {
         let (records, inbox) = crossbeam_channel::unbounded::<InspectionRecord>();
+        let fault = alarm.fault.clone();
+        let thread_fault = fault.clone();
+        let run = move || {
+            let mut poll = clock.after(ACKNOWLEDGEMENT_POLL);
+            loop {
+                crossbeam_channel::select! {
+                    recv(inbox) -> record => match record {
+                        Ok(record) => alarm.after_layer(&record, clock.now()),
+                        Err(_) => {
+                            alarm.poll_acknowledgements(&build_dir);
+                            return;
+                        }
+                    },
+                    recv(poll) -> _ => poll = clock.after(ACKNOWLEDGEMENT_POLL),
+                }
+                alarm.poll_acknowledgements(&build_dir);
+            }
+        };
         let thread = std::thread::Builder::new()
             .name("alarm".into())
             .spawn(move || {
-                let mut poll = clock.after(ACKNOWLEDGEMENT_POLL);
-                loop {
-                    crossbeam_channel::select! {
-                        recv(inbox) -> record => match record {
-                            Ok(record) => alarm.after_layer(&record, clock.now()),
-                            Err(_) => {
-                                alarm.poll_acknowledgements(&build_dir);
-                                return;
-                            }
-                        },
-                        recv(poll) -> _ => poll = clock.after(ACKNOWLEDGEMENT_POLL),
-                    }
-                    alarm.poll_acknowledgements(&build_dir);
+                if let Err(panic) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(run)) {
+                    let why = crate::logging::panic_message(&*panic);
+                    stopped(&thread_fault, &format!("its thread panicked: {why}"));
                 }
-            })
-            .map_err(|e| error!(error = %e, "inspection alarm: cannot start its thread"))
-            .ok();
+            });
+        let thread = match thread {
+            Ok(thread) => Some(thread),
+            Err(e) => {
+                stopped(&fault, &format!("cannot start its thread: {e}"));
+                None
+            }
+        };
         AlarmThread {
             records: Mutex::new(Some(records)),
             thread: Mutex::new(thread),
+            fault,
         }
     }
 
+    /// Hands a layer's record to the alarm (never waits).
     pub fn after_layer(&self, record: &InspectionRecord) {
         let records = self.records.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(records) = records.as_ref() {
-            let _ = records.send(record.clone());
+            if records.send(record.clone()).is_err() {
+                error!(
+                    layer = record.layer,
+                    "inspection alarm stopped: layer {}'s flags reach neither the stack light nor \
+                     the printer (restart the service)",
+                    record.layer
+                );
+            }
         }
+    }
+
+    /// What keeps the alarm from working now (its light refuses, or it stopped), if anything.
+    pub fn fault(&self) -> Option<String> {
+        self.fault.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// Hangs up and waits for the thread to handle what it was sent.
@@ -262,6 +325,16 @@ impl AlarmThread {
             let _ = thread.join();
         }
     }
+}
+
+/// The alarm has stopped for good: logged, and kept as its fault.
+fn stopped(fault: &Mutex<Option<String>>, why: &str) {
+    let fault_text = format!(
+        "inspection alarm stopped ({why}): flags no longer switch the stack light or send the \
+         printer message; restart the service"
+    );
+    error!("{fault_text}");
+    set_fault(fault, Some(fault_text));
 }
 
 impl Drop for AlarmThread {
@@ -303,6 +376,18 @@ mod tests {
 
     fn at() -> DateTime<Utc> {
         chrono::DateTime::from_timestamp(0, 0).unwrap()
+    }
+
+    /// What `layerwise alarm ack` appends.
+    fn acknowledge(path: &Path) {
+        AlarmLog::append_only(path)
+            .unwrap()
+            .append(&AlarmEvent::Acknowledged {
+                at: at(),
+                by: "ana".into(),
+                note: None,
+            })
+            .unwrap();
     }
 
     fn record(layer: u32, severity: Option<Severity>) -> InspectionRecord {
@@ -396,14 +481,7 @@ mod tests {
         );
 
         let path = dir.path().join(crate::build_dir::ALARM);
-        AlarmLog::append_only(&path)
-            .unwrap()
-            .append(&AlarmEvent::Acknowledged {
-                at: at(),
-                by: "ana".into(),
-                note: None,
-            })
-            .unwrap();
+        acknowledge(&path);
         alarm.poll_acknowledgements(dir.path());
         assert_eq!(
             *lights.lock().unwrap(),
@@ -429,6 +507,106 @@ mod tests {
             AlarmState::replay(&events),
             AlarmState::Raised { layer: 9, .. }
         ));
+    }
+
+    /// Refuses the switches it is told to refuse, in order (`false`: refuse), then obeys.
+    struct Flaky {
+        log: Arc<Mutex<Vec<(Light, bool)>>>,
+        answers: Vec<bool>,
+    }
+
+    impl Lights for Flaky {
+        fn switch(&mut self, light: Light, on: bool) -> Result<(), LightsError> {
+            if !self.answers.is_empty() && !self.answers.remove(0) {
+                return Err(LightsError::Serial {
+                    port: "/dev/ttyUSB1".into(),
+                    source: std::io::Error::other("relay board busy"),
+                });
+            }
+            self.log.lock().unwrap().push((light, on));
+            Ok(())
+        }
+        fn all_off(&mut self) -> Result<(), LightsError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_light_that_refuses_the_acknowledgement_is_retried_and_the_next_flag_raises_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let sent = Arc::new(Mutex::new(Vec::new()));
+        let config: AlarmConfig =
+            toml::from_str(r#"serial = { port = "/dev/null", message = "ALARM {layer}\n" }"#)
+                .unwrap();
+        // On: obeyed; off at the acknowledgement: refused once.
+        let flaky = Flaky {
+            log: lights.clone(),
+            answers: vec![true, false],
+        };
+        let mut alarm = Alarm::new(Box::new(flaky), &config)
+            .with_message(Some(Box::new(Printer(sent.clone()))), &config);
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        let path = dir.path().join(crate::build_dir::ALARM);
+        acknowledge(&path);
+        alarm.poll_acknowledgements(dir.path());
+        let fault = alarm.fault.lock().unwrap().clone().expect("a fault");
+        assert!(
+            fault.contains("cannot switch the stack light (top) off: lights relay /dev/ttyUSB1"),
+            "{fault}"
+        );
+        assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
+
+        // The next poll switches it off; the next flag raises the alarm again (before, the
+        // alarm took itself as still on, so no later flag raised it).
+        alarm.poll_acknowledgements(dir.path());
+        assert_eq!(alarm.fault.lock().unwrap().clone(), None);
+        alarm.after_layer(&record(9, Some(Severity::Critical)), at());
+        assert_eq!(
+            *lights.lock().unwrap(),
+            vec![(Light::Top, true), (Light::Top, false), (Light::Top, true)]
+        );
+        assert_eq!(
+            String::from_utf8_lossy(&sent.lock().unwrap()),
+            "ALARM 5\nALARM 9\n"
+        );
+        let events = AlarmLog::read(&path).unwrap();
+        assert!(matches!(
+            AlarmState::replay(&events),
+            AlarmState::Raised { layer: 9, .. }
+        ));
+    }
+
+    /// Panics at its first switch.
+    struct Panics;
+
+    impl Lights for Panics {
+        fn switch(&mut self, _: Light, _: bool) -> Result<(), LightsError> {
+            panic!("driver bug")
+        }
+        fn all_off(&mut self) -> Result<(), LightsError> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn an_alarm_thread_that_panics_says_so_in_its_fault() {
+        let dir = tempfile::tempdir().unwrap();
+        let clock: SharedClock = Arc::new(crate::clock::ManualClock::new());
+        let thread = AlarmThread::spawn(
+            Alarm::new(Box::new(Panics), &AlarmConfig::default()),
+            dir.path().to_path_buf(),
+            clock,
+        );
+        assert_eq!(thread.fault(), None);
+        thread.after_layer(&record(3, Some(Severity::Critical)));
+        thread.finish();
+        let fault = thread.fault().expect("a fault");
+        assert!(
+            fault.starts_with("inspection alarm stopped (its thread panicked: driver bug)"),
+            "{fault}"
+        );
     }
 
     #[test]

@@ -19,6 +19,10 @@ use tracing::error;
 pub(super) struct QueueState {
     /// The takes stored and not processed yet: the queue's depth.
     pub(super) waiting: Waiting,
+    /// The takes whose processing failed this run: a catch-up from the journal does not try
+    /// them again (the same file fails the same way; the next start tries them), nor logs their
+    /// layer's line a second time.
+    pub(super) failed: Mutex<BTreeSet<(Shot, u32)>>,
     pub(super) overflowed: AtomicBool,
     /// Derived data waits (the disk is low).
     pub(super) paused: AtomicBool,
@@ -252,6 +256,7 @@ impl<'a> Ends<'a> {
                     layer: shot.layer,
                     phase: shot.phase,
                     light: shot.light,
+                    take: Some(take),
                     reason,
                     at: clock.now(),
                 }
@@ -264,6 +269,11 @@ impl<'a> Ends<'a> {
         }
         // Before anything else: journaled, it waits no more, whatever happens next.
         state.waiting.done(shot, take);
+        if matches!(record, Record::ProcessingFailed { .. }) {
+            if let Ok(mut failed) = state.failed.lock() {
+                failed.insert((shot, take));
+            }
+        }
         if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
             (&state.written, &record)
         {

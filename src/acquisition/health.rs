@@ -25,6 +25,9 @@ pub(super) struct Processing {
     pub(super) backlog: usize,
     pub(super) lag: Duration,
     pub(super) paused: bool,
+    /// The processor's own fault ([`crate::series::FrameProcessor::fault`]: the inspection
+    /// alarm's), shown with the lights.
+    pub(super) fault: Option<String>,
 }
 
 impl Parts {
@@ -74,14 +77,26 @@ impl Parts {
         }
     }
 
-    fn lights(&self) -> Health {
-        match &self.lights_error {
-            Some(error) => Health::raise(
+    /// The capture lights, and the inspection alarm's stack light (`alarm`: its fault).
+    fn lights(&self, alarm: Option<&str>) -> Health {
+        let capture = self.lights_error.as_ref().map(|error| {
+            format!("lights: {error}; check the relay board or GPIO lines and their wiring")
+        });
+        match (capture, alarm) {
+            (None, None) => Health::ok("switching".into()),
+            (Some(capture), None) => {
+                Health::raise(HealthState::Error, "switching failed".into(), capture)
+            }
+            (None, Some(alarm)) => Health::raise(
+                HealthState::Error,
+                "the inspection alarm is at fault".into(),
+                alarm.to_string(),
+            ),
+            (Some(capture), Some(alarm)) => Health::raise(
                 HealthState::Error,
                 "switching failed".into(),
-                format!("lights: {error}; check the relay board or GPIO lines and their wiring"),
+                format!("{capture}; {alarm}"),
             ),
-            None => Health::ok("switching".into()),
         }
     }
 
@@ -96,7 +111,10 @@ impl Parts {
         BTreeMap::from([
             ("trigger".to_string(), trigger.health(now)),
             ("camera".to_string(), self.camera(now)),
-            ("lights".to_string(), self.lights()),
+            (
+                "lights".to_string(),
+                self.lights(processing.fault.as_deref()),
+            ),
             ("processing".to_string(), processing_health(processing)),
             ("disk".to_string(), disk.health()),
         ])
@@ -145,6 +163,7 @@ mod tests {
             backlog: 2,
             lag: Duration::from_millis(1500),
             paused: false,
+            fault: None,
         };
         let shot = Shot {
             layer: 7,

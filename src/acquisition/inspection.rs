@@ -166,6 +166,10 @@ fn open_model(
 }
 
 impl FrameProcessor for InspectingSeries {
+    fn fault(&self) -> Option<String> {
+        self.alarm.fault()
+    }
+
     fn process(&self, build_dir: &Path, shot: Shot, original: &Path) -> Result<(), ProcessError> {
         self.process_take_then(build_dir, shot, 1, original)?()
     }

@@ -42,6 +42,8 @@ pub struct ProcessingQueue {
     worker: Option<JoinHandle<()>>,
     /// Which take a retaken shot's slice shows: retakes are processed only with `Last`.
     take: SeriesTake,
+    /// Asked for its faults ([`FrameProcessor::fault`]).
+    processor: Arc<dyn FrameProcessor>,
 }
 
 /// What the worker starts with, and how the build's frames come.
@@ -81,6 +83,7 @@ impl ProcessingQueue {
         let (pause_changed, pause_changes) = crossbeam_channel::bounded(1);
         let state = Arc::new(QueueState {
             waiting: Waiting::new(plan.backlog.iter().map(|(shot, take, _)| (*shot, *take))),
+            failed: Mutex::default(),
             overflowed: AtomicBool::new(false),
             paused: AtomicBool::new(false),
             pause_changed,
@@ -95,6 +98,7 @@ impl ProcessingQueue {
             stop: stop.clone(),
         };
         let worker_state = state.clone();
+        let worker_processor = processor.clone();
         let worker = std::thread::Builder::new()
             .name("processing".into())
             .spawn(move || {
@@ -110,7 +114,7 @@ impl ProcessingQueue {
                 };
                 let drained = std::thread::scope(|scope| {
                     let worker = Worker {
-                        processor: processor.as_ref(),
+                        processor: worker_processor.as_ref(),
                         state: &worker_state,
                         build_dir: &build_dir,
                         journal: &journal,
@@ -129,7 +133,7 @@ impl ProcessingQueue {
                 let ended = worker_state.build_over.load(Ordering::SeqCst)
                     && drained
                     && worker_state.waiting.len() == 0;
-                processor.finish(ended);
+                worker_processor.finish(ended);
             })
             .map_err(
                 |e| error!(error = %e, "processing: cannot start the worker; frames stay on disk"),
@@ -141,6 +145,7 @@ impl ProcessingQueue {
             stop,
             worker,
             take,
+            processor,
         }
     }
 
@@ -168,6 +173,16 @@ impl ProcessingQueue {
     /// Frames stored but not processed yet (in the queue or waiting on disk).
     pub fn depth(&self) -> usize {
         self.state.waiting.len()
+    }
+
+    /// What of the processor's own parts is at fault now ([`FrameProcessor::fault`]).
+    pub fn fault(&self) -> Option<String> {
+        self.processor.fault()
+    }
+
+    /// The processor, to ask for its faults once the queue is gone.
+    pub(super) fn processor(&self) -> Arc<dyn FrameProcessor> {
+        self.processor.clone()
     }
 
     /// How long the last frame processed waited from its capture to the end of its processing.
@@ -441,9 +456,16 @@ impl<'a> Worker<'a> {
             }
         };
         self.state.waiting.settle_with(&replay);
+        let failed = self
+            .state
+            .failed
+            .lock()
+            .map(|f| f.clone())
+            .unwrap_or_default();
         replay
             .unprocessed_takes(choice)
             .into_iter()
+            .filter(|take| !failed.contains(take))
             .filter_map(|(shot, take)| {
                 let entry = replay.take_entry(&shot, take)?;
                 Some((shot, take, entry.file.clone()))

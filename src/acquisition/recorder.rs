@@ -57,6 +57,9 @@ pub(super) struct Recorder {
     /// The processing lag status.json last showed (its backlog is `live.queue_depth`): rewritten
     /// when either changes.
     shown_lag: Duration,
+    /// The processor's fault status.json last showed ([`ProcessingQueue::fault`]); after the
+    /// queue has ended, the one it ended with.
+    shown_fault: Option<String>,
     summary: RunSummary,
     sink: StatusSink,
 }
@@ -87,6 +90,7 @@ impl Recorder {
                 ..LiveStatus::default()
             },
             shown_lag: Duration::ZERO,
+            shown_fault: None,
             summary: RunSummary::new(build_dir),
             sink,
         };
@@ -123,17 +127,22 @@ impl Recorder {
         Ok(())
     }
 
-    /// A frame not taken: journaled, counted, logged.
+    /// A frame not taken: journaled, counted, logged. A retake not taken of a shot already
+    /// stored (or already missing) is journaled and logged, but neither counted again nor told
+    /// the plant as missing, as `status` reads the journal: the shot has its frame.
     pub(super) fn missing(&mut self, shot: Shot, reason: String) -> Result<(), AcquisitionError> {
         error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, %reason, "frame missing");
         let at = self.sink.clock.now();
-        self.sink
-            .plant
-            .emit(|| crate::plant::PlantEvent::FrameMissing {
-                shot,
-                reason: reason.clone(),
-                at,
-            });
+        let counted = self.progress.is_done(&shot);
+        if !counted {
+            self.sink
+                .plant
+                .emit(|| crate::plant::PlantEvent::FrameMissing {
+                    shot,
+                    reason: reason.clone(),
+                    at,
+                });
+        }
         self.journal(&Record::Missing {
             layer: shot.layer,
             phase: shot.phase,
@@ -141,7 +150,9 @@ impl Recorder {
             reason,
             at,
         })?;
-        self.summary.missing += 1;
+        if !counted {
+            self.summary.missing += 1;
+        }
         Ok(())
     }
 
@@ -348,6 +359,7 @@ impl Recorder {
         // left at that frame's count while the printer is idle.
         let processing_changed = self.queue.as_ref().is_some_and(|queue| {
             (queue.depth(), queue.lag()) != (self.live.queue_depth, self.shown_lag)
+                || queue.fault() != self.shown_fault
         });
         if trigger_changed || disk_changed || disk_not_ok || paused || processing_changed {
             let state = self.live.state.clone();
@@ -372,8 +384,13 @@ impl Recorder {
                 .as_ref()
                 .map_or(Duration::ZERO, ProcessingQueue::lag),
             paused: self.queue.as_ref().is_some_and(ProcessingQueue::paused),
+            fault: match &self.queue {
+                Some(queue) => queue.fault(),
+                None => self.shown_fault.clone(),
+            },
         };
         self.shown_lag = processing.lag;
+        self.shown_fault = processing.fault.clone();
         let trigger = self.live.trigger.clone().unwrap_or_default();
         self.live.health = parts.health(clock.now(), &trigger, &processing, &disk);
         self.live.camera = Some(parts.camera_report());
@@ -417,12 +434,15 @@ impl Recorder {
         parts: &Parts,
     ) -> RunSummary {
         if let Some(queue) = self.queue.take() {
+            let processor = queue.processor();
             if drain {
                 info!(frames = queue.depth(), "processing the remaining frames");
                 queue.drain();
             } else {
                 queue.stop(reason.clone());
             }
+            // Its light may be left stuck on: the last status says so.
+            self.shown_fault = processor.fault();
         }
         if let Err(e) = self.journal(&Record::Stop {
             reason: reason.to_string(),

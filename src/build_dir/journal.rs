@@ -51,6 +51,11 @@ pub enum Record {
         layer: u32,
         phase: Phase,
         light: Light,
+        /// The take whose processing failed; absent in journals written before it was
+        /// recorded, which are read as before (the takes stored when the failure was
+        /// journaled).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        take: Option<u32>,
         reason: String,
         at: DateTime<Utc>,
     },
@@ -206,7 +211,7 @@ pub struct Replay {
     /// The take a shot's series slice shows when it is a retake (`Record::SliceTake`).
     pub slice_takes: BTreeMap<Shot, u32>,
     /// Shots whose processing failed last (`Record::ProcessingFailed`, none since processed):
-    /// how many takes were stored then, and why.
+    /// the take that failed, and why.
     pub failed: BTreeMap<Shot, (u32, String)>,
 }
 
@@ -240,9 +245,9 @@ impl Replay {
                 self.slice_takes.insert(shot, *take);
                 self.failed.remove(&shot);
             }
-            (Record::ProcessingFailed { reason, .. }, Some(shot)) => {
-                self.failed
-                    .insert(shot, (self.takes(&shot), reason.clone()));
+            (Record::ProcessingFailed { take, reason, .. }, Some(shot)) => {
+                let take = take.unwrap_or_else(|| self.takes(&shot));
+                self.failed.insert(shot, (take, reason.clone()));
             }
             (
                 Record::Retake {
@@ -315,9 +320,9 @@ impl Replay {
             .collect()
     }
 
-    /// Why the processing of take `take` of `shot` failed, if it did (the take was stored when
-    /// the failure was journaled, and nothing was processed since): a failure, not a frame
-    /// waiting. The next start tries it again.
+    /// Why the processing of take `take` of `shot` failed, if it did (that take or a later one
+    /// failed, and nothing was processed since): a failure, not a frame waiting. The next start
+    /// tries it again.
     pub fn failure(&self, shot: &Shot, take: u32) -> Option<&str> {
         let (stored, reason) = self.failed.get(shot)?;
         (*stored >= take).then_some(reason.as_str())
@@ -617,5 +622,45 @@ mod tests {
         });
         r.apply(&frame(1));
         assert!(r.missing.is_empty() && r.frames.contains_key(&shot));
+    }
+
+    #[test]
+    fn a_failure_is_the_take_that_failed_and_an_old_record_without_it_reads_as_before() {
+        let shot = Shot::new(2, Phase::Post, Light::Top);
+        let at = chrono::Utc::now();
+        let retake = Record::Retake {
+            layer: 2,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: 2,
+            file: "raw/L00002_post_top.r2.jpg".into(),
+            bytes: 1,
+            sha256: "00".into(),
+            at,
+        };
+        // Take 1 failed; its record was journaled after the retake was stored (the commit
+        // thread is behind the capture): take 2 still waits (before, it read as failed).
+        let failed = Record::ProcessingFailed {
+            layer: 2,
+            phase: Phase::Post,
+            light: Light::Top,
+            take: Some(1),
+            reason: "truncated".into(),
+            at,
+        };
+        let mut replay = Replay::default();
+        for record in [frame(2), retake.clone(), failed] {
+            replay.apply(&record);
+        }
+        assert_eq!(replay.failure(&shot, 1), Some("truncated"));
+        assert_eq!(replay.failure(&shot, 2), None);
+        // A journal written before the take was recorded: the takes stored then.
+        let old = r#"{"kind":"processing_failed","layer":2,"phase":"post","light":"top","reason":"truncated","at":"2026-12-01T00:00:00Z"}"#;
+        let old: Record = serde_json::from_str(old).unwrap();
+        let mut replay = Replay::default();
+        for record in [frame(2), retake, old] {
+            replay.apply(&record);
+        }
+        assert_eq!(replay.failure(&shot, 2), Some("truncated"));
     }
 }

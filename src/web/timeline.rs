@@ -247,7 +247,14 @@ impl Timeline {
             (Record::Processed { at, .. }, Some(shot)) => {
                 let v = self.view_mut(shot);
                 v.state = "processed";
+                v.reason = None;
                 v.lag_ms = v.captured_at.map(|c| (*at - c).num_milliseconds());
+            }
+            // A retake's slice written: processed, whatever the first take's processing gave.
+            (Record::SliceTake { .. }, Some(shot)) => {
+                let v = self.view_mut(shot);
+                v.state = "processed";
+                v.reason = None;
             }
             (Record::ProcessingFailed { reason, .. }, Some(shot)) => {
                 let v = self.view_mut(shot);
@@ -352,6 +359,57 @@ mod tests {
         std::fs::write(&path, "").unwrap();
         timeline.refresh().unwrap();
         assert!(timeline.layers.is_empty());
+    }
+
+    #[test]
+    fn a_retake_whose_slice_is_written_shows_processed_after_the_first_take_failed() {
+        let dir = tempfile::tempdir().unwrap();
+        let (layer, phase, light, at) = (3, Phase::Post, Light::Top, Utc::now());
+        let records = [
+            Record::Frame {
+                layer,
+                phase,
+                light,
+                file: "raw/L00003_post_top.jpg".into(),
+                bytes: 1,
+                sha256: "00".into(),
+                at,
+            },
+            Record::ProcessingFailed {
+                layer,
+                phase,
+                light,
+                take: Some(1),
+                reason: "truncated JPEG".into(),
+                at,
+            },
+            Record::Retake {
+                layer,
+                phase,
+                light,
+                take: 2,
+                file: "raw/L00003_post_top.r2.jpg".into(),
+                bytes: 1,
+                sha256: "00".into(),
+                at,
+            },
+            Record::SliceTake {
+                layer,
+                phase,
+                light,
+                take: 2,
+                at,
+            },
+        ];
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        std::fs::write(&path, records.iter().map(line).collect::<String>()).unwrap();
+        let mut timeline = Timeline::new(dir.path());
+        timeline.refresh().unwrap();
+        let summary = timeline.layers[&3].summary();
+        // Before, the page kept the first take's failure for good.
+        assert_eq!((summary.processed, summary.failed), (1, 0));
+        let view = timeline.layers[&3].views.values().next().unwrap();
+        assert_eq!((view.retakes, view.reason.as_deref()), (1, None));
     }
 
     #[test]

@@ -275,3 +275,73 @@ fn lights_that_fail_mid_build_show_in_status_and_sd_notify() {
     assert!(last.contains("lights ERROR"), "{last}");
     printer.stop();
 }
+
+/// The simulated camera, failing every capture of a shot it has taken once (each retake).
+struct FailsRetakes {
+    inner: Box<dyn layerwise::hardware::camera::Camera>,
+    taken: std::collections::BTreeSet<layerwise::shot::Shot>,
+}
+
+impl layerwise::hardware::camera::Camera for FailsRetakes {
+    fn capture(
+        &mut self,
+        shot: &layerwise::shot::Shot,
+    ) -> Result<layerwise::hardware::camera::Frame, layerwise::hardware::camera::CameraError> {
+        use layerwise::hardware::camera::{CameraError, DriverError};
+        if !self.taken.insert(*shot) {
+            return Err(CameraError::Failed(DriverError::said("shutter stuck")));
+        }
+        self.inner.capture(shot)
+    }
+    fn reopen(&mut self) -> Result<(), layerwise::hardware::camera::CameraError> {
+        self.inner.reopen()
+    }
+    fn settings(&self) -> std::collections::BTreeMap<String, String> {
+        self.inner.settings()
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+}
+
+#[test]
+fn a_retake_the_camera_fails_is_not_counted_missing_by_the_run_or_the_plant() {
+    use layerwise::hardware::camera::CameraError;
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = demo_config(dir.path(), 1);
+    let script = dir.path().join("printer.txt");
+    // Layer 1's post signal comes twice: its three views are taken again, and fail.
+    std::fs::write(&script, "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n").unwrap();
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script);
+    }
+    let mut options = layerwise::acquisition::RunOptions::new();
+    options.drain_at_end = true;
+    let summary = run_daemon_with(&config, options, |machine, _| {
+        let open = std::mem::replace(
+            &mut machine.camera,
+            Box::new(|| Err(CameraError::Lost("replaced".into()))),
+        );
+        machine.camera = Box::new(move || {
+            Ok(Box::new(FailsRetakes {
+                inner: open()?,
+                taken: Default::default(),
+            }) as Box<_>)
+        });
+    })
+    .unwrap();
+    // Before, the run's summary (its last log line, STATUS=) and the plant counted 3 missing
+    // frames that `status` did not: each shot has its frame.
+    assert_eq!(
+        (summary.stored, summary.retakes, summary.missing),
+        (6, 0, 0)
+    );
+    let status = layerwise()
+        .args(["status", "--json", "--build"])
+        .arg(dir.path())
+        .json_ok();
+    assert_eq!(status["frames_missing"], 0, "{status}");
+    // The failed retakes are journaled all the same.
+    let text = std::fs::read_to_string(dir.path().join("journal.jsonl")).unwrap();
+    assert_eq!(text.matches(r#""kind":"missing""#).count(), 3, "{text}");
+}

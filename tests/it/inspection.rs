@@ -269,6 +269,94 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(0.0)
 }
 
+/// A calibrated mock build of `layers` layers in `dir` whose part 3 is left unfused on layer 6,
+/// with its vectors, the alarm on a mock light, and the printer's script ending in `tail`.
+fn unfused_part_build(
+    tmp: &std::path::Path,
+    dir: &std::path::Path,
+    layers: u32,
+    tail: &str,
+) -> layerwise::config::Config {
+    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
+    let mut config = common::calibrated_config(dir, layers, layerwise::dicom::Compression::None);
+    let (w, h) = (640, 427);
+    if let CameraConfig::Mock(mock) = &mut config.camera {
+        mock.width = w;
+        mock.height = h;
+        mock.inject = vec!["no-fusion@6/part=3".parse().expect("injection")];
+    }
+    config.calibration.file = Some(common::write_true_calibration(
+        tmp,
+        &mock_camera::Homography::oblique_view(w, h),
+    ));
+    let vectors = tmp.join("demo.cli");
+    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
+    config.build.vectors = Some(vectors);
+    let script: String = (1..=layers)
+        .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
+        .collect::<String>()
+        + tail;
+    let script_path = tmp.join("printer.txt");
+    std::fs::write(&script_path, script).expect("script");
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.script = Some(script_path);
+    }
+    config.inspection.alarm.output = LightsConfig::Mock;
+    config
+}
+
+/// A stack light whose relay never answers.
+struct DeadRelay;
+
+impl layerwise::hardware::lights::Lights for DeadRelay {
+    fn switch(
+        &mut self,
+        _: Light,
+        _: bool,
+    ) -> Result<(), layerwise::hardware::lights::LightsError> {
+        Err(layerwise::hardware::lights::LightsError::Serial {
+            port: "/dev/ttyUSB9".into(),
+            source: std::io::Error::other("no answer"),
+        })
+    }
+    fn all_off(&mut self) -> Result<(), layerwise::hardware::lights::LightsError> {
+        Ok(())
+    }
+}
+
+/// The alarm raised on a stack light that refuses: the build goes on, the alarm is raised in
+/// its history, and the lights' health says the alarm's light is at fault (before: a line in
+/// the log, and every part of the status "ok").
+#[test]
+fn an_alarm_light_that_refuses_shows_in_the_lights_health() {
+    use crate::common::Run;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().join("build");
+    let config = unfused_part_build(tmp.path(), &dir, 8, "");
+    let mut options = layerwise::acquisition::RunOptions::new();
+    options.drain_at_end = true;
+    let summary = common::run_daemon_with(&config, options, |machine, _| {
+        machine.alarm = Box::new(DeadRelay);
+    })
+    .expect("the build runs to its end");
+    assert_eq!(summary.missing, 0);
+    let status = common::read_json(&dir.join("status.json"));
+    let lights = &status["health"]["lights"];
+    assert_eq!(lights["state"], "error", "{status}");
+    let warning = lights["warning"].as_str().unwrap_or_default();
+    assert!(
+        warning.starts_with(
+            "inspection alarm: cannot switch the stack light (top) on: lights relay /dev/ttyUSB9"
+        ),
+        "{warning}"
+    );
+    let shown = common::layerwise()
+        .args(["status", "--build"])
+        .arg(&dir)
+        .stdout_ok();
+    assert!(shown.contains("RAISED since layer 6"), "{shown}");
+}
+
 /// The daemon through the binary: a part left unfused on layer 6 shows in inspection.jsonl, as a
 /// WARN line in the log, in `layerwise status`, and raises the alarm: the (mock) stack light goes
 /// on, the printer gets one message on its serial line (a pty pair), `status` says it is raised,
@@ -278,38 +366,14 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn the_daemon_flags_an_unfused_part_everywhere_raises_the_alarm_and_inspect_agrees() {
     use crate::common::pty::{PtyPair, PtyReader};
     use crate::common::Run;
-    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
     use std::time::{Duration, Instant};
     let tmp = tempfile::tempdir().expect("tmp");
     let pair = PtyPair::start(tmp.path());
     let printer = PtyReader::start(&pair.printer);
     let dir = tmp.path().join("build");
     let layers = 8;
-    let mut config = common::calibrated_config(&dir, layers, layerwise::dicom::Compression::None);
-    let (w, h) = (640, 427);
-    if let CameraConfig::Mock(mock) = &mut config.camera {
-        mock.width = w;
-        mock.height = h;
-        mock.inject = vec!["no-fusion@6/part=3".parse().expect("injection")];
-    }
-    config.calibration.file = Some(common::write_true_calibration(
-        tmp.path(),
-        &mock_camera::Homography::oblique_view(w, h),
-    ));
-    let vectors = tmp.path().join("demo.cli");
-    layerwise::sim::inject::write_demo_vectors(&vectors, layers).expect("vectors");
-    config.build.vectors = Some(vectors);
     // The printer keeps the daemon waiting after the last layer, as a real build between layers.
-    let script: String = (1..=layers)
-        .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
-        .collect::<String>()
-        + "WAIT 120000\n";
-    let script_path = tmp.path().join("printer.txt");
-    std::fs::write(&script_path, script).expect("script");
-    if let TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script_path);
-    }
-    config.inspection.alarm.output = LightsConfig::Mock;
+    let mut config = unfused_part_build(tmp.path(), &dir, layers, "WAIT 120000\n");
     config.inspection.alarm.serial = Some(layerwise::config::inspection::AlarmSerialConfig {
         port: pair.daemon.display().to_string(),
         baud: 9600,

@@ -368,7 +368,7 @@ fn a_frame_that_overflowed_the_queue_is_processed_before_the_frames_queued_after
 }
 
 #[test]
-fn a_failed_frame_tried_again_by_a_catch_up_does_not_hide_the_frames_still_waiting() {
+fn a_failed_frame_is_not_tried_again_by_a_catch_up_nor_hides_the_frames_still_waiting() {
     let [failing, held, probed, last] = posts(&[
         (1, Light::Front),
         (1, Light::Side),
@@ -392,16 +392,32 @@ fn a_failed_frame_tried_again_by_a_catch_up_does_not_hide_the_frames_still_waiti
     rig.store(probed, 1);
     rig.store(last, 1);
     rig.release.send(()).unwrap();
-    // The catch-up tries the failed frame again (the journal has it unprocessed), then the
-    // rest in build order.
-    assert_eq!(rig.next(), (failing, 1));
+    // The catch-up leaves the failed frame (the journal has it unprocessed, but it failed this
+    // run: the next start tries it) and takes the rest in build order. Before, each catch-up
+    // decoded it again, journaled a second failure and logged its layer's line again.
     assert_eq!(rig.next(), (probed, 1));
     assert_eq!(rig.next(), (last, 1));
-    let processor = rig.processor.clone();
-    assert_eq!(rig.drain().0, 0);
-    // At the probed frame's commit, it and the last frame still waited (before, the retry
-    // took one more off the count: 1).
+    let Rig {
+        dir,
+        queue,
+        processor,
+        told,
+        ..
+    } = rig;
+    let state = queue.state.clone();
+    queue.drain();
+    assert!(told.try_recv().is_err(), "each take processed once");
+    assert_eq!(state.waiting.len(), 0);
+    // At the probed frame's commit, it and the last frame still waited.
     assert_eq!(*processor.seen.lock().unwrap(), Some(2));
+    let path = dir.path().join(crate::build_dir::JOURNAL);
+    let journal = Journal::read(&path).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert_eq!(text.matches("processing_failed").count(), 1, "{text}");
+    assert_eq!(journal.failure(&failing, 1), Some("a frame that fails"));
+    assert!(journal
+        .unprocessed_takes(SeriesTake::First)
+        .contains(&(failing, 1)));
 }
 
 #[test]
