@@ -202,6 +202,9 @@ impl Record {
 pub struct Replay {
     pub frames: BTreeMap<Shot, FrameEntry>,
     pub missing: BTreeMap<Shot, String>,
+    /// Every shot ever recorded missing while it had no frame, including those a retake stored
+    /// later: what only grows (the missing frames counter of `/metrics`).
+    pub ever_missing: BTreeSet<Shot>,
     pub processed: BTreeSet<Shot>,
     pub last_event: Option<(u32, Phase)>,
     pub starts: u32,
@@ -236,6 +239,7 @@ impl Replay {
             }
             (Record::Missing { reason, .. }, Some(shot)) if !self.frames.contains_key(&shot) => {
                 self.missing.insert(shot, reason.clone());
+                self.ever_missing.insert(shot);
             }
             (Record::Processed { .. }, Some(shot)) => {
                 self.processed.insert(shot);

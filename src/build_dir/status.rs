@@ -147,11 +147,14 @@ pub struct StatusReport {
     pub warning: Option<String>,
 }
 
-/// One view's frames: stored (first takes) and recorded missing.
+/// One view's frames: stored (first takes) and missing.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct ViewCounts {
     pub stored: usize,
+    /// Missing now (a retake that stored the frame later takes it off).
     pub missing: usize,
+    /// Ever recorded missing: only grows (the `/metrics` counter).
+    pub recorded_missing: usize,
 }
 
 /// Frames stored and missing per view.
@@ -162,6 +165,12 @@ fn frames_by_view(replay: &super::journal::Replay) -> BTreeMap<String, ViewCount
     }
     for shot in replay.missing.keys() {
         views.entry(shot.view().to_string()).or_default().missing += 1;
+    }
+    for shot in &replay.ever_missing {
+        views
+            .entry(shot.view().to_string())
+            .or_default()
+            .recorded_missing += 1;
     }
     views
 }

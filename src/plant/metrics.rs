@@ -416,7 +416,9 @@ impl Collector for State {
             views().map(|(v, n)| {
                 (
                     vec![("view", v.clone())],
-                    ConstCounter::new(n.missing as u64),
+                    // Ever recorded: a counter never goes down (a frame a retake stored
+                    // later stays counted; Prometheus would read a drop as a reset).
+                    ConstCounter::new(n.recorded_missing as u64),
                 )
             }),
         )?;
@@ -612,7 +614,29 @@ mod tests {
                 at,
             })
             .unwrap();
+        // Missing, then stored by the retake of a repeated signal: counted all the same.
+        for record in [
+            Record::Missing {
+                layer: 2,
+                phase: Phase::Post,
+                light: Light::Front,
+                reason: "camera busy".into(),
+                at,
+            },
+            Record::Frame {
+                layer: 2,
+                phase: Phase::Post,
+                light: Light::Front,
+                file: "raw/L00002_post_front.jpg".into(),
+                bytes: 10,
+                sha256: "00".into(),
+                at,
+            },
+        ] {
+            journal.append(&record).unwrap();
+        }
         let report = crate::build_dir::status::report(dir.path(), Default::default()).unwrap();
+        assert_eq!(report.frames_missing, 1);
         let views = [View {
             phase: Phase::Post,
             light: Light::Top,
@@ -626,6 +650,7 @@ mod tests {
             "layerwise_layer 3.0",
             "layerwise_frames_stored_total{view=\"post_top\"} 3",
             "layerwise_frames_missing_total{view=\"post_side\"} 1",
+            "layerwise_frames_missing_total{view=\"post_front\"} 1",
             "layerwise_alarm_state{state=\"off\"} 1",
             "layerwise_processing_duration_seconds_count 1",
             "layerwise_processing_lag_seconds_bucket{le=\"3.2\"} 1",
