@@ -19,6 +19,10 @@
 //! `LAYERWISE_BENCH_ONLY=plant` only 4; `LAYERWISE_BENCH_MODEL=MODEL` adds that defect model to
 //! the "on" builds (issue 26: the capture path's overhead must not move with a model on).
 
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 #[path = "support/builds.rs"]
 mod builds;
 #[path = "support/prerecorded.rs"]

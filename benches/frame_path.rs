@@ -9,6 +9,10 @@
 //! LAYERWISE_BENCH_DICOM=deflate (or none, jpegls; comma-separated) runs only those transfer
 //! syntaxes and no NEF, for profiling one of them (`perf record`).
 
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 #[path = "support/views.rs"]
 mod bench_views;
 

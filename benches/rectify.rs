@@ -3,6 +3,10 @@
 //! `cargo bench --bench rectify`.
 //! Uses all rayon threads; `RAYON_NUM_THREADS=1` for per-core figures.
 
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 use std::hint::black_box;
 use std::time::Duration;
 

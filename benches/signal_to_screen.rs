@@ -24,6 +24,10 @@
 //! between signals (default 3000). Without `--bench` (`cargo test --benches`): a quick check
 //! with frames a tenth the size, 2 layers.
 
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 #[path = "support/views.rs"]
 mod bench_views;
 #[path = "support/builds.rs"]

@@ -13,6 +13,10 @@
 //!
 //! Times are wall clock on all cores, as the daemon runs them.
 
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 use std::path::Path;
 use std::process::ExitCode;
 use std::time::Instant;

@@ -8,7 +8,12 @@
 //! the allocator to the state a long-running process is in) as
 //! `warp_ms_median=<ms>`; decoding and encoding are not timed. Each run
 //! allocates a fresh output image, unless `--reuse` is given: then 8-bit
-//! grey/RGB input is warped into one output buffer reused across runs.
+//! grey/RGB input is warped into one output buffer reused across runs. It runs on the
+//! `layerwise` binary's allocator (`layerwise::alloc`), as the binary does.
+
+/// The binary's allocator (`layerwise::alloc`), so that this measures what it does.
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
 
 use std::process::ExitCode;
 use std::time::Instant;

@@ -31,6 +31,7 @@
 //! | the defect model | [`learn`] (training, the model file, `learn predict/eval`, [`learn::live`]: per-tile flags and heat maps), [`config::model`] (`[inspection.model]`), [`acquisition::inspection`] (after the classical checks), [`web`] (verdicts, heat maps) |
 
 pub mod acquisition;
+pub mod alloc;
 pub mod build_dir;
 pub mod calibrate;
 pub mod clock;

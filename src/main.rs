@@ -4,6 +4,10 @@ mod cli;
 
 use clap::Parser;
 
+/// The last large block freed serves the next allocation of its size (`layerwise::alloc`).
+#[global_allocator]
+static ALLOCATOR: layerwise::alloc::LargeBlockCache = layerwise::alloc::LargeBlockCache::new();
+
 fn main() {
     // Like other command-line tools: `layerwise dicom info DIR | head` ends quietly.
     // SAFETY: restoring the default disposition of SIGPIPE before any thread starts.

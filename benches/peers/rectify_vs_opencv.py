@@ -17,7 +17,10 @@ with the lowest figures (least outside load) is also reported.
 
 Two modes: "alloc" (each call allocates its output: cv2 without dst, our
 rectify_dynamic) and "reuse" (output buffer reused: cv2 with dst=, our
-rectify_*_into).
+rectify_*_into). Each side allocates as its program does: numpy's allocator
+(huge pages for large arrays) for OpenCV, the layerwise binary's for ours
+(src/alloc.rs: the last large block freed serves the next allocation of its
+size).
 
 Usage: python3 benches/peers/rectify_vs_opencv.py [--keep] [--rounds N]
 (from the crate root; honours CARGO_TARGET_DIR)

@@ -17,7 +17,9 @@ mod lexer;
 /// The layers of docs/architecture.md, bottom first. A module may use any module of a lower
 /// layer, none of its own or a higher one.
 const LAYERS: &[&[&str]] = &[
-    &["fsutil", "clock", "shutdown", "geometry", "logging"],
+    &[
+        "alloc", "fsutil", "clock", "shutdown", "geometry", "logging",
+    ],
     &["shot", "vectors", "dicom", "optics"],
     &["build_dir", "config", "raster"],
     &["rectify", "tsdf"],
