@@ -105,6 +105,14 @@ impl Alarm {
     fn drive_light(&mut self) {
         let on = self.raised;
         if self.light == on {
+            // Where it should be (a light that refused to go on, then acknowledged): nothing
+            // is at fault now.
+            if set_fault(&self.fault, None).is_some() {
+                info!(
+                    on,
+                    "inspection alarm: the stack light is as the alarm is again"
+                );
+            }
             return;
         }
         match self.output.switch(self.channel, on) {
@@ -576,6 +584,26 @@ mod tests {
             AlarmState::replay(&events),
             AlarmState::Raised { layer: 9, .. }
         ));
+    }
+
+    #[test]
+    fn a_light_that_refused_to_go_on_is_no_fault_once_the_alarm_is_acknowledged() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let flaky = Flaky {
+            log: lights.clone(),
+            // Refuses the raise, and the poll's retry before the acknowledgement is read.
+            answers: vec![false, false],
+        };
+        let mut alarm = Alarm::new(Box::new(flaky), &AlarmConfig::default());
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        assert!(alarm.fault.lock().unwrap().is_some());
+        acknowledge(&dir.path().join(crate::build_dir::ALARM));
+        alarm.poll_acknowledgements(dir.path());
+        // Off, as the light is: not left at fault until the service restarts.
+        assert_eq!(alarm.fault.lock().unwrap().clone(), None);
+        assert!(lights.lock().unwrap().is_empty());
     }
 
     /// Panics at its first switch.
