@@ -104,22 +104,21 @@ impl Alarm {
     /// state (the history, the plant, the next raise) does not wait on the relay.
     fn drive_light(&mut self) {
         let on = self.raised;
-        if self.light == on {
-            // Where it should be (a light that refused to go on, then acknowledged): nothing
-            // is at fault now.
-            if set_fault(&self.fault, None).is_some() {
-                info!(
-                    on,
-                    "inspection alarm: the stack light is as the alarm is again"
-                );
-            }
-            return;
-        }
-        match self.output.switch(self.channel, on) {
+        // A light already where it should be (one that refused to go on, then acknowledged) is
+        // not switched, and nothing is at fault.
+        let switched = if self.light == on {
+            Ok(())
+        } else {
+            self.output.switch(self.channel, on)
+        };
+        match switched {
             Ok(()) => {
                 self.light = on;
                 if set_fault(&self.fault, None).is_some() {
-                    info!(on, "inspection alarm: the stack light answers again");
+                    info!(
+                        on,
+                        "inspection alarm: the stack light is as the alarm is again"
+                    );
                 }
             }
             Err(e) => {
@@ -210,8 +209,7 @@ impl Alarm {
     }
 
     /// Looks for acknowledgements appended to the history since the last look (by `layerwise
-    /// alarm ack`) and switches off for one.
-    /// The light, if it refused its last switch, is tried again.
+    /// alarm ack`) and switches off for one; a light that refused its last switch is tried again.
     pub fn poll_acknowledgements(&mut self, build_dir: &Path) {
         self.drive_light();
         if self.history.is_none() {

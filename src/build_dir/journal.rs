@@ -328,8 +328,8 @@ impl Replay {
     /// failed, and nothing was processed since): a failure, not a frame waiting. The next start
     /// tries it again.
     pub fn failure(&self, shot: &Shot, take: u32) -> Option<&str> {
-        let (stored, reason) = self.failed.get(shot)?;
-        (*stored >= take).then_some(reason.as_str())
+        let (failed_take, reason) = self.failed.get(shot)?;
+        (*failed_take >= take).then_some(reason.as_str())
     }
 
     /// Stored frames not yet processed, in build order.
