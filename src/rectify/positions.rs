@@ -9,9 +9,9 @@ mod quad;
 use line::finish;
 pub(crate) use line::Line;
 
-pub(crate) use quad::QuadBlock;
 #[cfg(target_arch = "x86_64")]
 pub(crate) use quad::{Finish8, Lanes8};
+pub(crate) use quad::{QuadBlock, QF};
 
 /// Phase 1: fixed-point source positions of grid pixels `col0..col0 + n` of `row`.
 #[inline(always)]

@@ -163,11 +163,11 @@ mod tests {
         );
     }
 
-    /// The grey row kernel, which positions and samples blocks in registers, and phase 1's
-    /// SIMD lanes give exactly phase 1 pixel by pixel then the scalar kernel, row by row, on
-    /// views whose rows take the quadratic
+    /// The grey row kernels (AVX2, and AVX-512 where the CPU has it), which position and
+    /// sample blocks in registers, and phase 1's SIMD lanes give exactly phase 1 pixel by pixel
+    /// then the scalar kernel, row by row, on views whose rows take the quadratic
     /// path whole, in shorter blocks, the f32 path and the exact one, with grids overhanging
-    /// the frame and runs that are not a multiple of 8 pixels.
+    /// the frame and runs that are not a multiple of 8 or 16 pixels.
     #[test]
     fn gray8_rows_match_phase_1_then_scalar() {
         use crate::geometry::{homography_from_points, mat3};

@@ -89,18 +89,18 @@ impl QuadBlock {
         c[0] + j * (c[1] + j * c[2])
     }
 
-    /// Eight lanes for block pixels `j0..j0 + 8`: values, their first differences for a step
-    /// of 8 pixels, and the (constant) second difference.
+    /// `N` lanes for block pixels `j0..j0 + N`: values, their first differences for a step
+    /// of `N` pixels, and the (constant) second difference, `2·N²·c2`.
     #[inline(always)]
-    pub(crate) fn lanes(c: &[i64; 3], j0: usize) -> ([i64; 8], [i64; 8], i64) {
-        let mut v = [0i64; 8];
-        let mut d = [0i64; 8];
-        for k in 0..8 {
+    pub(crate) fn lanes<const N: usize>(c: &[i64; 3], j0: usize) -> ([i64; N], [i64; N], i64) {
+        let mut v = [0i64; N];
+        let mut d = [0i64; N];
+        for k in 0..N {
             let j = (j0 + k) as i64;
             v[k] = Self::value(c, j);
-            d[k] = Self::value(c, j + 8) - v[k];
+            d[k] = Self::value(c, j + N as i64) - v[k];
         }
-        (v, d, 128 * c[2])
+        (v, d, 2 * (N * N) as i64 * c[2])
     }
 
     /// (ix, iy, fx, fy) of block pixel `j` ([`finish`]).
@@ -127,8 +127,8 @@ impl QuadBlock {
     /// [`QuadBlock::fill`] without SIMD.
     #[inline(always)]
     pub(crate) fn fill_scalar<T>(&self, job: &Job<'_, T>, j0: usize, len: usize, co: &mut Coords) {
-        let (mut vx, mut dx, ddx) = Self::lanes(&self.x, 0);
-        let (mut vy, mut dy, ddy) = Self::lanes(&self.y, 0);
+        let (mut vx, mut dx, ddx) = Self::lanes::<8>(&self.x, 0);
+        let (mut vy, mut dy, ddy) = Self::lanes::<8>(&self.y, 0);
         let ix = &mut co.ix[j0..j0 + len];
         let iy = &mut co.iy[j0..j0 + len];
         let fx = &mut co.fx[j0..j0 + len];
@@ -180,8 +180,8 @@ impl Lanes8 {
                 _mm256_setr_epi64x(v[2], v[3], v[6], v[7]),
             ]
         };
-        let (vx, dx, ddx) = QuadBlock::lanes(&b.x, 0);
-        let (vy, dy, ddy) = QuadBlock::lanes(&b.y, 0);
+        let (vx, dx, ddx) = QuadBlock::lanes::<8>(&b.x, 0);
+        let (vy, dy, ddy) = QuadBlock::lanes::<8>(&b.y, 0);
         Lanes8 {
             x: split(&vx),
             dx: split(&dx),

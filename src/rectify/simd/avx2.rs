@@ -43,8 +43,30 @@ pub(super) fn row_8bit<const CN: usize>(
 /// Other blocks, and rows with distortion, are phase 1 then [`gray8_run`].
 #[target_feature(enable = "avx2")]
 pub(super) fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: &mut Coords) {
+    gray8_row(
+        job,
+        row,
+        out,
+        co,
+        |j, b, o, c| gray8_quad(j, b, o, c),
+        |j, c, o| gray8_run(j, c, o),
+    )
+}
+
+/// A grey row, block by block as phase 1 plans them without distortion: `quad` positions and
+/// samples a block of the quadratic path ([`Plan::Quad`]) in registers, `run` samples the other
+/// blocks, and rows with distortion, from phase 1's coordinates.
+#[inline(always)]
+pub(super) fn gray8_row(
+    job: &Job<'_, u8>,
+    row: usize,
+    out: &mut [u8],
+    co: &mut Coords,
+    quad: impl Fn(&Job<'_, u8>, &QuadBlock, &mut [u8], &mut Coords),
+    run: impl Fn(&Job<'_, u8>, &Coords, &mut [u8]),
+) {
     if job.map.is_some() || job.dist.is_some() {
-        return row_8bit::<1>(job, row, out, co, |j, c, o| gray8_run(j, c, o));
+        return row_8bit::<1>(job, row, out, co, run);
     }
     let line = Line::of_row(&job.m, row);
     let mut col0 = 0;
@@ -55,11 +77,11 @@ pub(super) fn row_gray8_avx2(job: &Job<'_, u8>, row: usize, out: &mut [u8], co: 
             let (plan, len) = plan_block(job, &line, col0 + j0, chunk.len() - j0);
             let part = &mut chunk[j0..j0 + len];
             match plan {
-                Plan::Quad(b) => gray8_quad(job, &b, part, co),
+                Plan::Quad(b) => quad(job, &b, part, co),
                 // (The f32 path fused here measured no faster: its float work is the cost.)
                 Plan::Near(_) | Plan::Outside | Plan::Exact => {
                     map_run(job, row, col0 + j0, len, co);
-                    gray8_run(job, co, part);
+                    run(job, co, part);
                 }
             }
             j0 += len;
