@@ -416,11 +416,7 @@ fn capture_never_waits_for_processing() {
 fn bad_trigger_script_fails_with_its_line() {
     let dir = tempfile::tempdir().unwrap();
     let mut config = demo_config(dir.path(), 1);
-    let script = dir.path().join("printer.txt");
-    std::fs::write(&script, "LAYER 1 PRE\nLAYER one POST\n").unwrap();
-    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script);
-    }
+    mock_printer(&mut config, dir.path(), "LAYER 1 PRE\nLAYER one POST\n");
     let (options, slot) = options_with_log();
     let err = run_logged(&config, options, &slot).unwrap_err().to_string();
     assert!(
@@ -438,16 +434,12 @@ fn bad_trigger_script_fails_with_its_line() {
 fn irregular_signals_are_journaled_and_no_original_is_overwritten() {
     let dir = tempfile::tempdir().unwrap();
     let mut config = demo_config(dir.path(), 1);
-    let script = dir.path().join("printer.txt");
     // A repeated signal, a skipped layer, one going backwards and one no printer sends.
-    std::fs::write(
-        &script,
+    mock_printer(
+        &mut config,
+        dir.path(),
         "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\nLAYER 3 PRE\nLAYER 2 PRE\nLAYER 0 POST\n",
-    )
-    .unwrap();
-    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script);
-    }
+    );
     let mut options = RunOptions::new();
     options.drain_at_end = true;
     let summary = run_daemon(&config, options).unwrap();
@@ -579,11 +571,11 @@ fn retaken_build(dir: &Path, take: &str) -> std::path::PathBuf {
     let mut config = calibrated_config(&build, 1, layerwise::dicom::Compression::Deflate);
     config.rectify.pixel_mm = 2.0;
     config.series.take = serde_json::from_value(serde_json::json!(take)).unwrap();
-    let script = dir.join("printer.txt");
-    std::fs::write(&script, "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n").unwrap();
-    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script);
-    }
+    mock_printer(
+        &mut config,
+        dir,
+        "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n",
+    );
     let config_path = dir.join("layerwise.toml");
     write_config(&config, &config_path);
     let text = std::fs::read_to_string(&config_path).unwrap();

@@ -309,12 +309,12 @@ fn a_retake_the_camera_fails_is_not_counted_missing_by_the_run_or_the_plant() {
     use layerwise::hardware::camera::CameraError;
     let dir = tempfile::tempdir().unwrap();
     let mut config = demo_config(dir.path(), 1);
-    let script = dir.path().join("printer.txt");
     // Layer 1's post signal comes twice: its three views are taken again, and fail.
-    std::fs::write(&script, "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n").unwrap();
-    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script);
-    }
+    mock_printer(
+        &mut config,
+        dir.path(),
+        "LAYER 1 PRE\nLAYER 1 POST\nLAYER 1 POST\n",
+    );
     let mut options = layerwise::acquisition::RunOptions::new();
     options.drain_at_end = true;
     let summary = run_daemon_with(&config, options, |machine, _| {

@@ -277,7 +277,7 @@ fn unfused_part_build(
     layers: u32,
     tail: &str,
 ) -> layerwise::config::Config {
-    use layerwise::config::{CameraConfig, LightsConfig, TriggerConfig};
+    use layerwise::config::{CameraConfig, LightsConfig};
     let mut config = common::calibrated_config(dir, layers, layerwise::dicom::Compression::None);
     let (w, h) = (640, 427);
     if let CameraConfig::Mock(mock) = &mut config.camera {
@@ -296,11 +296,7 @@ fn unfused_part_build(
         .map(|n| format!("LAYER {n} PRE\nLAYER {n} POST\n"))
         .collect::<String>()
         + tail;
-    let script_path = tmp.join("printer.txt");
-    std::fs::write(&script_path, script).expect("script");
-    if let TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(script_path);
-    }
+    common::mock_printer(&mut config, tmp, &script);
     config.inspection.alarm.output = LightsConfig::Mock;
     config
 }

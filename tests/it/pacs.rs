@@ -4,7 +4,9 @@
 //! layerwise) and every request it makes stays inside.
 
 use crate::common;
-use crate::common::{calibrated_config, layerwise, private_network, wait_until, write_config, Run};
+use crate::common::{
+    calibrated_config, layerwise, mock_printer, private_network, wait_until, write_config, Run,
+};
 use layerwise::config::pacs::PacsDestination;
 use layerwise::dicom::Compression;
 use std::collections::BTreeMap;
@@ -593,12 +595,8 @@ fn a_slice_replaced_by_a_retake_is_pushed_as_a_new_instance() {
     config.rectify.pixel_mm = 2.0;
     config.series.take = layerwise::config::series::SeriesTake::Last;
     config.pacs = vec![stow("web", &web)];
-    let script = tmp.path().join("printer.txt");
     let set_script = |config: &mut layerwise::config::Config, text: &str| {
-        std::fs::write(&script, text).unwrap();
-        if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
-            mock.script = Some(script.clone());
-        }
+        mock_printer(config, tmp.path(), text);
         let config_path = tmp.path().join("layerwise.toml");
         write_config(config, &config_path);
         config_path

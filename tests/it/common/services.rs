@@ -56,12 +56,21 @@ pub fn printer_script(config: &mut Config, dir: &Path, layers: u32, pause_ms: u6
         .map(|n| format!("LAYER {n} PRE\nWAIT {pause_ms}\nLAYER {n} POST\nWAIT {pause_ms}\n"))
         .collect::<String>()
         + &format!("WAIT {hold_ms}\n");
+    mock_printer(config, dir, &script);
+    if let TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.layers = layers;
+    }
+}
+
+/// The mock trigger's printer plays `script` (`LAYER n PRE|POST`, `WAIT ms` lines), written to
+/// `dir/printer.txt`; returns that path.
+pub fn mock_printer(config: &mut Config, dir: &Path, script: &str) -> PathBuf {
     let path = dir.join("printer.txt");
     std::fs::write(&path, script).expect("printer script");
     if let TriggerConfig::Mock(mock) = &mut config.trigger {
-        mock.script = Some(path);
-        mock.layers = layers;
+        mock.script = Some(path.clone());
     }
+    path
 }
 
 /// The largest resident memory a process has had, in bytes (`VmHWM`).
