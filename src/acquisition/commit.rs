@@ -234,6 +234,8 @@ impl<'a> Ends<'a> {
                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %Chain(&*reason), "processing: the disk is full; derived data paused, the frame waits");
                 state.set_paused(true);
                 state.overflowed.store(true, Ordering::SeqCst);
+                // Its layer's line (and every later one) no longer waits for it.
+                self.tally.forget(&shot);
                 return;
             }
             Ok(()) if take > 1 => Record::SliceTake {
@@ -297,6 +299,58 @@ mod tests {
     use super::*;
     use crate::build_dir::journal::{Record, Replay};
     use crate::shot::{Light, Phase};
+
+    #[test]
+    fn a_frame_the_full_disk_left_for_the_catch_up_does_not_hold_the_layer_lines_after_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let (journal, _) = Journal::open(&path, false).unwrap();
+        let (pause_changed, _changes) = crossbeam_channel::bounded(1);
+        let state = QueueState {
+            waiting: Waiting::default(),
+            failed: Mutex::default(),
+            overflowed: AtomicBool::new(false),
+            paused: AtomicBool::new(false),
+            pause_changed,
+            lag_ms: AtomicU64::new(0),
+            written: None,
+            build_over: AtomicBool::new(false),
+        };
+        let ends = Ends {
+            state: &state,
+            journal: &Mutex::new(journal),
+            clock: &crate::clock::SystemClock::shared(),
+            tally: TallyGuard {
+                tally: Mutex::new(LayerTally::new(2)),
+                state: &state,
+            },
+            plant: &crate::plant::PlantSink::off(),
+        };
+        let full = || -> crate::series::ProcessError {
+            Box::new(std::io::Error::from_raw_os_error(libc::ENOSPC))
+        };
+        let shots = [(1, Light::Front), (1, Light::Side), (2, Light::Front)]
+            .map(|(layer, light)| Shot::new(layer, Phase::Post, light));
+        for (k, shot) in shots.into_iter().enumerate() {
+            ends.tally.tally.lock().unwrap().begin(&shot);
+            let result = if k == 0 { Err(full()) } else { Ok(()) };
+            ends.conclude(shot, 1, Duration::ZERO, result, None);
+        }
+        assert!(state.paused(), "derived data paused");
+        // Layer 1's line (one frame processed, one deferred) is logged; before, the deferred
+        // frame stayed in flight for good and held every later layer's line.
+        let open = ends.tally.tally.lock().unwrap().open_layers();
+        assert_eq!(open, [(2, Phase::Post)]);
+        // The catch-up processes it later: its line comes with the next complete layer.
+        for shot in [shots[0], Shot::new(2, Phase::Post, Light::Side)] {
+            ends.tally.tally.lock().unwrap().begin(&shot);
+            ends.conclude(shot, 1, Duration::ZERO, Ok(()), None);
+        }
+        assert!(ends.tally.tally.lock().unwrap().open_layers().is_empty());
+        let replay = Journal::read(&path).unwrap();
+        assert!(replay.processed.contains(&shots[0]));
+        assert_eq!(replay.processed.len(), 4);
+    }
 
     #[test]
     fn a_take_waits_until_it_or_a_later_take_of_its_shot_ends_or_the_journal_shows_it_processed() {

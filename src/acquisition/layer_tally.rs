@@ -10,11 +10,28 @@ use tracing::info;
 pub(super) struct Tally {
     frames: usize,
     failed: usize,
+    /// Frames whose processing was left for a catch-up from the journal (the disk full at their
+    /// slice's write, or their commit panicked): each comes in a line of its own once caught up.
+    deferred: usize,
     /// From the start of its first frame's processing to the end of its last.
     first_start: Duration,
     last_end: Duration,
     /// From the last frame's hand-over to the end of its processing (none for a catch-up).
     lag: Option<Duration>,
+}
+
+impl Tally {
+    /// No frame counted yet (its times are set by the first).
+    fn empty() -> Tally {
+        Tally {
+            frames: 0,
+            failed: 0,
+            deferred: 0,
+            first_start: Duration::MAX,
+            last_end: Duration::ZERO,
+            lag: None,
+        }
+    }
 }
 
 /// The layers being processed (frames come in build order, one per lane at a time): a layer's
@@ -44,19 +61,22 @@ impl LayerTally {
         self.in_flight.begin((shot.layer, shot.phase));
     }
 
-    /// A frame that began and will not be counted (its commit panicked); returns the layers
-    /// this lets go.
+    /// A frame that began and is left for a catch-up from the journal (the disk was full at its
+    /// slice's write, or its commit panicked): counted as deferred; returns the layers this lets
+    /// go.
     pub(super) fn forget(&mut self, shot: &Shot) -> Vec<((u32, Phase), Tally)> {
-        self.in_flight.land((shot.layer, shot.phase));
+        let key = (shot.layer, shot.phase);
+        self.in_flight.land(key);
+        self.open.entry(key).or_insert_with(Tally::empty).deferred += 1;
         self.ready()
     }
 
-    /// The open layers up to the last complete one, in build order, but none from the first
-    /// with a frame in flight on.
+    /// The open layers up to the last complete one (each of its frames processed or deferred),
+    /// in build order, but none from the first with a frame in flight on.
     fn ready(&mut self) -> Vec<((u32, Phase), Tally)> {
         let complete = self.complete;
         self.in_flight
-            .release(&mut self.open, |t| t.frames >= complete)
+            .release(&mut self.open, |t| t.frames + t.deferred >= complete)
     }
 
     /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns
@@ -70,19 +90,19 @@ impl LayerTally {
     ) -> Vec<((u32, Phase), Tally)> {
         let key = (shot.layer, shot.phase);
         self.in_flight.land(key);
-        let tally = self.open.entry(key).or_insert(Tally {
-            frames: 0,
-            failed: 0,
-            first_start: start,
-            last_end: end,
-            lag: None,
-        });
+        let tally = self.open.entry(key).or_insert_with(Tally::empty);
         tally.frames += 1;
         tally.failed += usize::from(!ok);
         tally.first_start = tally.first_start.min(start);
         tally.last_end = tally.last_end.max(end);
         tally.lag = lag;
         self.ready()
+    }
+
+    /// The layers whose line is not logged yet, in build order.
+    #[cfg(test)]
+    pub(super) fn open_layers(&self) -> Vec<(u32, Phase)> {
+        self.open.keys().copied().collect()
     }
 
     /// Every layer still open, in build order.
@@ -108,6 +128,7 @@ fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
         phase = %phase,
         frames = tally.frames,
         failed = tally.failed,
+        deferred = tally.deferred,
         processing_ms,
         lag_ms = %lag,
         backlog,
@@ -228,9 +249,18 @@ mod tests {
             } else {
                 tally.forget(&late)
             };
-            let told: Vec<_> = told.iter().map(|(k, t)| (*k, t.frames)).collect();
-            let first = if counted { 3 } else { 2 };
-            assert_eq!(told, vec![((1, Phase::Post), first), ((2, Phase::Pre), 3)]);
+            let told: Vec<_> = told
+                .iter()
+                .map(|(k, t)| (*k, t.frames, t.deferred))
+                .collect();
+            let first = if counted { (3, 0) } else { (2, 1) };
+            assert_eq!(
+                told,
+                vec![
+                    ((1, Phase::Post), first.0, first.1),
+                    ((2, Phase::Pre), 3, 0)
+                ]
+            );
             assert!(tally.flush().is_empty());
         }
     }
