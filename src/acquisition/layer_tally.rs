@@ -1,8 +1,8 @@
 //! The operator's one line per layer signal: the processing worker counts each frame of a
 //! layer's phase as it ends, and the layer's line is logged once all its frames have.
 
-use crate::shot::{Flights, Phase, Shot};
-use std::collections::BTreeMap;
+use crate::shot::{Flights, Light, Phase, Shot};
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 use tracing::info;
 
@@ -10,9 +10,10 @@ use tracing::info;
 pub(super) struct Tally {
     frames: usize,
     failed: usize,
-    /// Frames whose processing was left for a catch-up from the journal (the disk full at their
-    /// slice's write, or their commit panicked): each comes in a line of its own once caught up.
-    deferred: usize,
+    /// The lights whose frame was left for a catch-up from the journal (the disk full at its
+    /// slice's write, or its commit panicked) and is not processed yet: counted for the layer's
+    /// line once caught up while it is open, else told in a line of its own.
+    deferred: BTreeSet<Light>,
     /// From the start of its first frame's processing to the end of its last.
     first_start: Duration,
     last_end: Duration,
@@ -26,7 +27,7 @@ impl Tally {
         Tally {
             frames: 0,
             failed: 0,
-            deferred: 0,
+            deferred: BTreeSet::new(),
             first_start: Duration::MAX,
             last_end: Duration::ZERO,
             lag: None,
@@ -67,7 +68,8 @@ impl LayerTally {
     pub(super) fn forget(&mut self, shot: &Shot) -> Vec<((u32, Phase), Tally)> {
         let key = (shot.layer, shot.phase);
         self.in_flight.land(key);
-        self.open.entry(key).or_insert_with(Tally::empty).deferred += 1;
+        let tally = self.open.entry(key).or_insert_with(Tally::empty);
+        tally.deferred.insert(shot.light);
         self.ready()
     }
 
@@ -76,7 +78,7 @@ impl LayerTally {
     fn ready(&mut self) -> Vec<((u32, Phase), Tally)> {
         let complete = self.complete;
         self.in_flight
-            .release(&mut self.open, |t| t.frames + t.deferred >= complete)
+            .release(&mut self.open, |t| t.frames + t.deferred.len() >= complete)
     }
 
     /// Counts one frame processed (`ok`: its slice written) between `start` and `end`; returns
@@ -91,6 +93,8 @@ impl LayerTally {
         let key = (shot.layer, shot.phase);
         self.in_flight.land(key);
         let tally = self.open.entry(key).or_insert_with(Tally::empty);
+        // A deferred frame caught up while its layer is open is one of its frames now.
+        tally.deferred.remove(&shot.light);
         tally.frames += 1;
         tally.failed += usize::from(!ok);
         tally.first_start = tally.first_start.min(start);
@@ -120,15 +124,17 @@ pub(super) fn log_layers(layers: Vec<((u32, Phase), Tally)>, backlog: usize) {
 
 fn log_layer((layer, phase): (u32, Phase), tally: &Tally, backlog: usize) {
     let processing_ms = tally.last_end.saturating_sub(tally.first_start).as_millis() as u64;
-    let lag = tally
-        .lag
-        .map_or_else(|| "catch-up".to_string(), |l| l.as_millis().to_string());
+    let lag = match tally.lag {
+        Some(lag) => lag.as_millis().to_string(),
+        None if tally.frames == 0 => "-".to_string(),
+        None => "catch-up".to_string(),
+    };
     info!(
         layer,
         phase = %phase,
         frames = tally.frames,
         failed = tally.failed,
-        deferred = tally.deferred,
+        deferred = tally.deferred.len(),
         processing_ms,
         lag_ms = %lag,
         backlog,
@@ -251,7 +257,7 @@ mod tests {
             };
             let told: Vec<_> = told
                 .iter()
-                .map(|(k, t)| (*k, t.frames, t.deferred))
+                .map(|(k, t)| (*k, t.frames, t.deferred.len()))
                 .collect();
             let first = if counted { (3, 0) } else { (2, 1) };
             assert_eq!(
@@ -263,5 +269,32 @@ mod tests {
             );
             assert!(tally.flush().is_empty());
         }
+    }
+
+    #[test]
+    fn a_deferred_frame_caught_up_while_its_layer_is_open_is_counted_once() {
+        let [a, b, c] =
+            [Light::Front, Light::Side, Light::Top].map(|l| Shot::new(1, Phase::Post, l));
+        let at = (ms(0), ms(1));
+        let mut tally = LayerTally::new(3);
+        tally.add(&a, true, at, None);
+        // B's slice found the disk full, twice (the first take and a catch-up): one deferred.
+        for _ in 0..2 {
+            tally.begin(&b);
+            assert!(tally.forget(&b).is_empty());
+        }
+        // Caught up while the layer waits for C: one of its frames now, not a deferred one too.
+        tally.begin(&b);
+        assert!(
+            tally.add(&b, true, at, None).is_empty(),
+            "C is still to come"
+        );
+        let told = tally.add(&c, true, at, None);
+        let told: Vec<_> = told
+            .iter()
+            .map(|(k, t)| (*k, t.frames, t.deferred.len()))
+            .collect();
+        assert_eq!(told, vec![((1, Phase::Post), 3, 0)]);
+        assert!(tally.flush().is_empty());
     }
 }

@@ -287,9 +287,9 @@ fn fill_avx2<T>(b: &QuadBlock, job: &Job<'_, T>, j0: usize, len: usize, co: &mut
 mod tests {
     use super::*;
 
-    /// Stepping 8 lanes by their differences gives the quadratic's exact values at every pixel,
-    /// for block lengths that are and are not multiples of 8, and the block is refused where the
-    /// bound is over [`MAX_ERR`].
+    /// Stepping 8 lanes (and 16) by their differences gives the quadratic's exact values at every
+    /// pixel, for block lengths that are and are not multiples of 8, and the block is refused
+    /// where the bound is over [`MAX_ERR`].
     #[test]
     fn stepped_lanes_give_the_direct_values() {
         let data = vec![0u8; 64 * 48];
@@ -315,6 +315,17 @@ mod tests {
                     let at = 3.min(co.ix.len() - len);
                     b.fill(&job, at, len, &mut co);
                     b.fill_scalar(&job, at, len, &mut scalar);
+                    // The 16 lanes the AVX-512 grey row steps: the same values.
+                    for c in [&b.x, &b.y] {
+                        let (mut v, mut d, dd) = QuadBlock::lanes::<16>(c, 0);
+                        for j0 in (0..len - 15).step_by(16) {
+                            for k in 0..16 {
+                                assert_eq!(v[k], QuadBlock::value(c, (j0 + k) as i64));
+                                v[k] += d[k];
+                                d[k] += dd;
+                            }
+                        }
+                    }
                     for j in 0..len {
                         for c in [&co, &scalar] {
                             let k = at + j;
