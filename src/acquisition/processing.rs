@@ -46,6 +46,12 @@ pub struct ProcessingQueue {
     processor: Arc<dyn FrameProcessor>,
 }
 
+/// A frame whose processing panicked: journaled as its failure (the original is kept, the next
+/// start tries it again), and the worker goes on.
+#[derive(Debug, thiserror::Error)]
+#[error("its processing panicked: {0}")]
+struct ProcessingPanicked(String);
+
 /// What the worker starts with, and how the build's frames come.
 pub struct WorkerPlan {
     /// The frames the journal says are not processed yet, with their take and file
@@ -497,7 +503,15 @@ impl<'a> Worker<'a> {
         }
         let start = self.clock.elapsed();
         let processor: &'a dyn FrameProcessor = self.processor;
-        let outcome = processor.process_take_then(self.build_dir, shot, take, original);
+        // A panic is this frame's failure, not the worker's end: on a lane it would end the
+        // worker for good, and with it every later frame's slice, inspection and alarm.
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            processor.process_take_then(self.build_dir, shot, take, original)
+        }))
+        .unwrap_or_else(|panic| {
+            let message = crate::logging::panic_message(&*panic);
+            Err(Box::new(ProcessingPanicked(message)))
+        });
         self.end(Ended {
             shot,
             take,

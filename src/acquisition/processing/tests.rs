@@ -35,10 +35,11 @@ impl FrameProcessor for Gated {
     }
 }
 
-/// A commit that panics for the front view.
+/// Panics for the front view: in its commit, or (`early`) in its processing before it.
 #[derive(Default)]
 struct PanicsOnFront {
     finished: AtomicBool,
+    early: bool,
 }
 
 impl FrameProcessor for PanicsOnFront {
@@ -57,11 +58,49 @@ impl FrameProcessor for PanicsOnFront {
         _: u32,
         _: &Path,
     ) -> Result<Then<'_>, ProcessError> {
+        let front = shot.light == Light::Front;
+        assert!(!(self.early && front), "a frame whose processing panics");
         Ok(Box::new(move || {
-            assert!(shot.light != Light::Front, "a commit that panics");
+            assert!(!front, "a commit that panics");
             Ok(())
         }))
     }
+}
+
+#[test]
+fn a_frame_whose_processing_panics_is_journaled_failed_and_the_worker_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let processor = Arc::new(PanicsOnFront {
+        early: true,
+        ..PanicsOnFront::default()
+    });
+    let queue = queue(processor.clone(), dir.path());
+    let shots: Vec<Shot> = (1..=3)
+        .flat_map(|layer| [Light::Front, Light::Side].map(|l| Shot::new(layer, Phase::Pre, l)))
+        .collect();
+    for shot in &shots {
+        queue.submit(*shot, dir.path().join("x.jpg"), Duration::ZERO);
+    }
+    queue.drain();
+    // Before, the panic ended the worker on its lane: no later frame had a slice or a record.
+    let journal = Journal::read(&dir.path().join(crate::build_dir::JOURNAL)).unwrap();
+    let sides: Vec<Shot> = shots
+        .iter()
+        .copied()
+        .filter(|s| s.light == Light::Side)
+        .collect();
+    assert_eq!(journal.processed.iter().copied().collect::<Vec<_>>(), sides);
+    for front in shots.iter().filter(|s| s.light == Light::Front) {
+        let reason = journal.failure(front, 1).unwrap_or_default();
+        assert!(
+            reason.contains("its processing panicked: a frame whose processing panics"),
+            "{reason}"
+        );
+    }
+    assert!(
+        processor.finished.load(Ordering::SeqCst),
+        "the worker ended as it should"
+    );
 }
 
 fn queue(processor: Arc<dyn FrameProcessor>, dir: &Path) -> ProcessingQueue {
