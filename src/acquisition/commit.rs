@@ -23,9 +23,15 @@ pub(super) struct QueueState {
     /// them again (the same file fails the same way; the next start tries them), nor logs their
     /// layer's line a second time.
     pub(super) failed: Mutex<BTreeSet<(Shot, u32)>>,
+    /// The takes the full disk left unwritten this run: the next catch-up processes them, with
+    /// what the journal says is not processed.
+    pub(super) again: Mutex<BTreeSet<(Shot, u32)>>,
     pub(super) overflowed: AtomicBool,
     /// Derived data waits (the disk is low).
     pub(super) paused: AtomicBool,
+    /// A slice found the disk full (the worker paused itself): for the disk guard, which then
+    /// holds the pause until the free space grows ([`super::disk::DiskGuard::derived_filled`]).
+    pub(super) slice_found_disk_full: AtomicBool,
     /// Told each change of `paused` (a channel of one: changes coalesce).
     pub(super) pause_changed: Sender<()>,
     /// From submission to the end of processing, for the last frame processed.
@@ -38,6 +44,26 @@ pub(super) struct QueueState {
 }
 
 impl QueueState {
+    /// Nothing failed, paused or overflowed yet; `waiting`: the takes the worker starts with.
+    pub(super) fn new(
+        waiting: Waiting,
+        pause_changed: Sender<()>,
+        written: Option<OnWritten>,
+    ) -> QueueState {
+        QueueState {
+            waiting,
+            failed: Mutex::default(),
+            again: Mutex::default(),
+            overflowed: AtomicBool::new(false),
+            paused: AtomicBool::new(false),
+            slice_found_disk_full: AtomicBool::new(false),
+            pause_changed,
+            lag_ms: AtomicU64::new(0),
+            written,
+            build_over: AtomicBool::new(false),
+        }
+    }
+
     pub(super) fn set_paused(&self, paused: bool) -> bool {
         let was = self.paused.swap(paused, Ordering::SeqCst);
         if was != paused {
@@ -93,6 +119,13 @@ impl Waiting {
     pub(super) fn len(&self) -> usize {
         self.0.lock().map_or(0, |waiting| waiting.len())
     }
+
+    /// Whether take `take` of `shot` still waits (not journaled yet).
+    pub(super) fn holds(&self, shot: Shot, take: u32) -> bool {
+        self.0
+            .lock()
+            .is_ok_and(|waiting| waiting.contains(&(shot, take)))
+    }
 }
 
 /// Called, without blocking, each time a frame's slice is written (e.g. wakes the PACS push).
@@ -135,6 +168,11 @@ impl Drop for TallyGuard<'_> {
         }
     }
 }
+
+/// A take whose slice's commit panicked: journaled as its failure.
+#[derive(Debug, thiserror::Error)]
+#[error("committing its slice panicked: {0}")]
+struct CommitPanicked(String);
 
 /// A take processed up to its slice's commit: the rest, or why it failed.
 pub(super) struct Ended<'a> {
@@ -185,15 +223,20 @@ impl<'a> Ends<'a> {
                     match commit {
                         Commit::Take(ended) => {
                             let (shot, take) = (ended.shot, ended.take);
-                            let committed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(
+                            let concluded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(
                                 || self.commit(ended),
                             ));
-                            if committed.is_err() {
-                                // The thread goes on with the takes behind it; this one waits
-                                // on disk for the catch-up from the journal.
-                                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, take, "processing: committing the frame's slice panicked; the frame waits on disk and is caught up");
-                                self.state.overflowed.store(true, Ordering::SeqCst);
-                                self.tally.forget(&shot);
+                            if concluded.is_err() {
+                                // Only concluding the take is left to panic here (a panic in
+                                // its slice's commit is its failure, journaled). The thread goes
+                                // on with the takes behind it; a take not journaled yet waits
+                                // on disk for the next start (not a catch-up now, which could
+                                // panic the same way, again and again), and its layer's line
+                                // no longer waits for it.
+                                error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, take, "processing: concluding the frame panicked");
+                                if self.state.waiting.holds(shot, take) {
+                                    self.tally.forget(&shot);
+                                }
                             }
                         }
                         Commit::Settled(done) => {
@@ -211,9 +254,16 @@ impl<'a> Ends<'a> {
         }
     }
 
-    /// Commits a take's slice (the rest of its processing), then concludes it.
+    /// Commits a take's slice (the rest of its processing), then concludes it. A panic in the
+    /// commit is the take's failure, journaled with its message (the next start tries it again),
+    /// as a panic before it is ([`super::processing`]).
     pub(super) fn commit(&self, ended: Ended<'_>) {
-        let result = ended.outcome.and_then(|then| then());
+        let result = ended.outcome.and_then(|then| {
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(then)).unwrap_or_else(|panic| {
+                let message = crate::logging::panic_message(&*panic);
+                Err(Box::new(CommitPanicked(message)))
+            })
+        });
         self.conclude(ended.shot, ended.take, ended.start, result, ended.submitted);
     }
 
@@ -232,8 +282,17 @@ impl<'a> Ends<'a> {
                 // Not a failure of the frame: it waits (paused) and is caught up from the
                 // journal once the disk has room again.
                 error!(layer = shot.layer, phase = %shot.phase, light = %shot.light, error = %Chain(&*reason), "processing: the disk is full; derived data paused, the frame waits");
+                // The worker said so at once if the slice's write found it (not its commit).
+                if !state.paused() {
+                    state.slice_found_disk_full.store(true, Ordering::SeqCst);
+                }
                 state.set_paused(true);
                 state.overflowed.store(true, Ordering::SeqCst);
+                // The catch-up takes it again, even where the journal counts it processed (a
+                // take processed again for the inspection a stop left undone).
+                if let Ok(mut again) = state.again.lock() {
+                    again.insert((shot, take));
+                }
                 // Its layer's line (and every later one) no longer waits for it.
                 self.tally.forget(&shot);
                 return;
@@ -269,28 +328,29 @@ impl<'a> Ends<'a> {
                 error!(error = %Chain(&e), "processing: cannot journal the result");
             }
         }
-        // Before anything else: journaled, it waits no more, whatever happens next.
+        // Before anything else: journaled, it waits no more and is counted for its layer's
+        // line, whatever happens next (the callbacks after them).
         state.waiting.done(shot, take);
-        if matches!(record, Record::ProcessingFailed { .. }) {
+        let ok = !matches!(record, Record::ProcessingFailed { .. });
+        if !ok {
             if let Ok(mut failed) = state.failed.lock() {
                 failed.insert((shot, take));
             }
-        }
-        if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
-            (&state.written, &record)
-        {
-            written();
         }
         let end = clock.elapsed();
         let lag = submitted.map(|at| end.saturating_sub(at));
         if let Some(lag) = lag {
             state.lag_ms.store(lag.as_millis() as u64, Ordering::SeqCst);
         }
-        self.plant.processed(end.saturating_sub(start), lag);
-        let ok = !matches!(record, Record::ProcessingFailed { .. });
         if let Ok(mut open) = self.tally.tally.lock() {
             log_layers(open.add(&shot, ok, (start, end), lag), state.waiting.len());
         }
+        if let (Some(written), Record::Processed { .. } | Record::SliceTake { .. }) =
+            (&state.written, &record)
+        {
+            written();
+        }
+        self.plant.processed(end.saturating_sub(start), lag);
     }
 }
 
@@ -305,17 +365,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(crate::build_dir::JOURNAL);
         let (journal, _) = Journal::open(&path, false).unwrap();
-        let (pause_changed, _changes) = crossbeam_channel::bounded(1);
-        let state = QueueState {
-            waiting: Waiting::default(),
-            failed: Mutex::default(),
-            overflowed: AtomicBool::new(false),
-            paused: AtomicBool::new(false),
-            pause_changed,
-            lag_ms: AtomicU64::new(0),
-            written: None,
-            build_over: AtomicBool::new(false),
-        };
+        let (state, _changes) = queue_state(None);
         let ends = Ends {
             state: &state,
             journal: &Mutex::new(journal),
@@ -337,6 +387,12 @@ mod tests {
             ends.conclude(shot, 1, Duration::ZERO, result, None);
         }
         assert!(state.paused(), "derived data paused");
+        assert!(
+            state.slice_found_disk_full.load(Ordering::SeqCst),
+            "said to the guard"
+        );
+        let again = state.again.lock().unwrap().clone();
+        assert_eq!(again, BTreeSet::from([(shots[0], 1)]), "taken again");
         // Layer 1's line (one frame processed, one deferred) is logged; before, the deferred
         // frame stayed in flight for good and held every later layer's line.
         let open = ends.tally.tally.lock().unwrap().open_layers();
@@ -350,6 +406,52 @@ mod tests {
         let replay = Journal::read(&path).unwrap();
         assert!(replay.processed.contains(&shots[0]));
         assert_eq!(replay.processed.len(), 4);
+    }
+
+    fn queue_state(written: Option<OnWritten>) -> (QueueState, crossbeam_channel::Receiver<()>) {
+        let (pause_changed, changes) = crossbeam_channel::bounded(1);
+        let state = QueueState::new(Waiting::default(), pause_changed, written);
+        (state, changes)
+    }
+
+    #[test]
+    fn a_take_journaled_is_counted_for_its_layer_line_before_a_callback_can_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let (journal, _) = Journal::open(&path, false).unwrap();
+        let woken = AtomicBool::new(false);
+        let wake = move || {
+            assert!(
+                woken.swap(true, Ordering::SeqCst),
+                "a wake that panics once"
+            )
+        };
+        let (state, _changes) = queue_state(Some(Arc::new(wake)));
+        let ends = Ends {
+            state: &state,
+            journal: &Mutex::new(journal),
+            clock: &crate::clock::SystemClock::shared(),
+            tally: TallyGuard {
+                tally: Mutex::new(LayerTally::new(1)),
+                state: &state,
+            },
+            plant: &crate::plant::PlantSink::off(),
+        };
+        let shot = Shot::new(1, Phase::Post, Light::Top);
+        state.waiting.add(shot, 1);
+        ends.tally.tally.lock().unwrap().begin(&shot);
+        let concluded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            ends.conclude(shot, 1, Duration::ZERO, Ok(()), None)
+        }));
+        assert!(concluded.is_err());
+        assert!(Journal::read(&path).unwrap().processed.contains(&shot));
+        assert!(!state.waiting.holds(shot, 1));
+        // Its layer's line is logged, so the next layer's comes as soon as it is processed:
+        // before, the wake came first, and layer 1 stayed in flight, holding every later line.
+        let next = Shot::new(2, Phase::Post, Light::Top);
+        ends.tally.tally.lock().unwrap().begin(&next);
+        ends.conclude(next, 1, Duration::ZERO, Ok(()), None);
+        assert!(ends.tally.tally.lock().unwrap().open_layers().is_empty());
     }
 
     #[test]

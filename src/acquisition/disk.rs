@@ -38,6 +38,10 @@ pub struct DiskGuard {
     next_probe: Duration,
     since: Option<DateTime<Utc>>,
     missed: u64,
+    /// The free space when a slice (derived data) could not be written for want of space
+    /// while the guard saw room: the derived data waits until the free space has grown past
+    /// it (by [`RESERVE_BYTES`]), rather than trying the slice again each second.
+    derived_full_at: Option<u64>,
     clock: SharedClock,
 }
 
@@ -61,6 +65,7 @@ impl DiskGuard {
             next_probe: Duration::ZERO,
             since: None,
             missed: 0,
+            derived_full_at: None,
             clock,
         };
         if let Err(e) = guard.make_reserve() {
@@ -104,7 +109,29 @@ impl DiskGuard {
 
     /// Whether derived data (series, inspection) may be written.
     pub fn derived_allowed(&self) -> bool {
-        self.state == DiskState::Ok
+        self.state == DiskState::Ok && self.derived_full_at.is_none()
+    }
+
+    /// A slice could not be written for want of space (the processing worker paused itself):
+    /// the derived data waits until the free space grows (probed by [`DiskGuard::poll`]), even
+    /// while the free space stays above `storage.min_free_gb`. Returns whether this is news.
+    pub fn derived_filled(&mut self) -> bool {
+        let free = self.probe.free_bytes(&self.dir).ok().or(self.free);
+        self.free = free.or(self.free);
+        let free = free.unwrap_or(0);
+        let news = self.derived_full_at.is_none();
+        self.derived_full_at = Some(self.derived_full_at.map_or(free, |at| at.min(free)));
+        // Low or full, the guard's own state says why the derived data waits.
+        if news && self.state == DiskState::Ok {
+            error!(
+                free_mb = free / 1_000_000,
+                "disk: a slice found the disk full ({} free): DICOM series and inspection wait \
+                 until the free space grows (originals are still captured); free space on the \
+                 build disk",
+                crate::build_dir::health::mb(free)
+            );
+        }
+        news
     }
 
     /// An original of `bytes` was stored.
@@ -134,6 +161,17 @@ impl DiskGuard {
             }
         };
         self.free = Some(free);
+        if self
+            .derived_full_at
+            .is_some_and(|at| free >= at.saturating_add(RESERVE_BYTES))
+        {
+            self.derived_full_at = None;
+            info!(
+                free_mb = free / 1_000_000,
+                "disk: the free space has grown since a slice found the disk full: catching up \
+                 the derived data"
+            );
+        }
         // Leaving "low" wants the reserve's worth above the limit, so the state does not flap
         // with every frame written.
         let above_min = match self.state {
@@ -233,17 +271,23 @@ mod tests {
         }
     }
 
-    #[test]
-    fn low_full_and_back_with_a_reserve_and_backoff() {
-        let dir = tempfile::tempdir().unwrap();
+    /// A guard of a limit of 50 MB over a probe that says 100 MB free, on a clock tests move.
+    fn guard(dir: &Path) -> (DiskGuard, Arc<AtomicU64>, Arc<ManualClock>) {
         let free = Arc::new(AtomicU64::new(100_000_000));
         let clock = Arc::new(ManualClock::new());
-        let mut guard = DiskGuard::open(
-            dir.path().to_path_buf(),
+        let guard = DiskGuard::open(
+            dir.to_path_buf(),
             Arc::new(Probe(free.clone())),
             50_000_000,
             clock.clone(),
         );
+        (guard, free, clock)
+    }
+
+    #[test]
+    fn low_full_and_back_with_a_reserve_and_backoff() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut guard, free, clock) = guard(dir.path());
         let reserve = dir.path().join(crate::build_dir::DISK_RESERVE);
         assert_eq!(std::fs::metadata(&reserve).unwrap().len(), RESERVE_BYTES);
         assert_eq!(guard.state(), DiskState::Ok);
@@ -274,5 +318,36 @@ mod tests {
         clock.advance(Duration::from_millis(1));
         assert_eq!(guard.poll(), Some(DiskState::Ok));
         assert!(reserve.exists() && guard.derived_allowed());
+    }
+
+    #[test]
+    fn a_slice_that_found_the_disk_full_holds_the_derived_data_until_the_free_space_grows() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut guard, free, _clock) = guard(dir.path());
+        assert!(guard.derived_allowed());
+        // Above storage.min_free_gb, yet a slice could not be written.
+        assert!(guard.derived_filled(), "news once");
+        free.store(99_000_000, Ordering::SeqCst);
+        assert!(!guard.derived_filled(), "said once");
+        assert!(!guard.derived_allowed() && guard.may_capture());
+        assert_eq!(guard.state(), DiskState::Ok);
+        let health = guard.health();
+        assert!(health.derived_paused);
+        let warning = health.health().warning.unwrap();
+        assert!(warning.contains("a slice found the disk full"), "{warning}");
+        // Probing on: the free space falls (originals), then grows a little: still held.
+        free.store(90_000_000, Ordering::SeqCst);
+        assert_eq!(guard.poll(), None);
+        free.store(99_500_000, Ordering::SeqCst);
+        guard.poll();
+        assert!(
+            !guard.derived_allowed(),
+            "not above the lowest free space by the reserve"
+        );
+        // Room made: the derived data goes on.
+        free.store(99_000_000 + RESERVE_BYTES, Ordering::SeqCst);
+        guard.poll();
+        assert!(guard.derived_allowed());
+        assert!(guard.health().health().warning.is_none());
     }
 }

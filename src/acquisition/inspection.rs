@@ -23,8 +23,8 @@ use tracing::{error, info, warn};
 /// The live series plus the inspection of every layer.
 pub struct InspectingSeries {
     live: LiveSeries,
-    /// The first takes of the layers processed before a stop but never inspected: the
-    /// worker processes them again first ([`FrameProcessor::catch_up`]).
+    /// The takes the slices show of the layers processed before a stop but never inspected:
+    /// the worker processes them again first ([`FrameProcessor::catch_up`]).
     missed: Vec<(Shot, u32, String)>,
     reducer: Reducer,
     inspector: Mutex<Inspector>,
@@ -305,9 +305,10 @@ impl Drop for Flight<'_> {
     }
 }
 
-/// The first takes, in the views the inspection uses, of every layer the journal has processed
-/// views of but `inspection.jsonl` has no record of: a stop (a kill -9 between a layer's last
-/// slice and its record) left them uninspected. Said at WARN with the layers.
+/// The takes their series slices show, in the views the inspection uses, of every layer the
+/// journal has processed views of but `inspection.jsonl` has no record of: a stop (a kill -9
+/// between a layer's last slice and its record) left them uninspected. Said at WARN with the
+/// layers.
 fn missed_layers(
     build_dir: &Path,
     inspector: &Inspector,
@@ -318,34 +319,146 @@ fn missed_layers(
         return Ok(Vec::new());
     }
     let replay = crate::build_dir::Journal::read(&journal)?;
-    let uninspected: std::collections::BTreeSet<u32> = replay
-        .processed
-        .iter()
-        .filter(|shot| inspector.needs(shot.view()) && !inspector.is_done(shot.layer))
-        .map(|shot| shot.layer)
-        .collect();
-    let (Some(first), Some(last)) = (uninspected.first(), uninspected.last()) else {
+    let (layers, takes) = missed_takes(
+        &replay,
+        |view| inspector.needs(view),
+        |layer| inspector.is_done(layer),
+        views,
+    );
+    let (Some(first), Some(last)) = (layers.first(), layers.last()) else {
         return Ok(Vec::new());
     };
     warn!(
-        layers = uninspected.len(),
+        layers = layers.len(),
         first,
         last,
         "inspection: {} layers were processed before the stop but never inspected (layers \
          {first} to {last}); inspecting them now",
-        uninspected.len()
+        layers.len()
     );
-    Ok(uninspected
+    Ok(takes)
+}
+
+/// The layers `replay` has slices of in views `needs` wants but `done` has no record of, and
+/// the take each of their slices shows (with `[series] take = "last"`, a retake: processing the
+/// first take again would put it back in the series), with its file. Their views without a slice
+/// are left to the backlog.
+fn missed_takes(
+    replay: &crate::build_dir::journal::Replay,
+    needs: impl Fn(crate::shot::View) -> bool,
+    done: impl Fn(u32) -> bool,
+    views: &[crate::shot::View],
+) -> (Vec<u32>, Vec<(Shot, u32, String)>) {
+    let shown = |shot: &Shot| replay.slice_take(shot);
+    let uninspected: std::collections::BTreeSet<u32> = replay
+        .frames
+        .keys()
+        .filter(|shot| shown(shot) > 0 && needs(shot.view()) && !done(shot.layer))
+        .map(|shot| shot.layer)
+        .collect();
+    let takes = uninspected
         .iter()
         .flat_map(|&layer| {
             views
                 .iter()
                 .map(move |view| Shot::new(layer, view.phase, view.light))
         })
-        .filter(|shot| inspector.needs(shot.view()))
+        .filter(|shot| needs(shot.view()))
         .filter_map(|shot| {
-            let entry = replay.frames.get(&shot)?;
-            Some((shot, 1, entry.file.clone()))
+            // A view with no slice yet is in the backlog already.
+            let take = shown(&shot);
+            let entry = replay.take_entry(&shot, take)?;
+            Some((shot, take, entry.file.clone()))
         })
-        .collect())
+        .collect();
+    (uninspected.into_iter().collect(), takes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build_dir::journal::{Record, Replay};
+    use crate::shot::{Light, Phase, View};
+
+    fn frame(layer: u32, light: Light, file: &str) -> Record {
+        Record::Frame {
+            layer,
+            phase: Phase::Post,
+            light,
+            file: file.into(),
+            bytes: 1,
+            sha256: String::new(),
+            at: chrono::Utc::now(),
+        }
+    }
+
+    #[test]
+    fn a_missed_layer_is_inspected_with_the_take_its_slices_show() {
+        let now = chrono::Utc::now();
+        let (top, side) = (Light::Top, Light::Side);
+        let mut replay = Replay::default();
+        for layer in [1, 2] {
+            replay.apply(&frame(layer, top, &format!("L{layer}_top.jpg")));
+            replay.apply(&frame(layer, side, &format!("L{layer}_side.jpg")));
+        }
+        // Layer 1: top retaken and its slice shows the retake; side processed as taken.
+        replay.apply(&Record::Retake {
+            layer: 1,
+            phase: Phase::Post,
+            light: top,
+            take: 2,
+            file: "L1_top.r2.jpg".into(),
+            bytes: 1,
+            sha256: String::new(),
+            at: now,
+        });
+        for light in [top, side] {
+            replay.apply(&Record::Processed {
+                layer: 1,
+                phase: Phase::Post,
+                light,
+                at: now,
+            });
+        }
+        replay.apply(&Record::SliceTake {
+            layer: 1,
+            phase: Phase::Post,
+            light: top,
+            take: 2,
+            at: now,
+        });
+        // Layer 2: only side processed; top waits in the backlog.
+        replay.apply(&Record::Processed {
+            layer: 2,
+            phase: Phase::Post,
+            light: side,
+            at: now,
+        });
+        let views = [
+            View {
+                phase: Phase::Post,
+                light: top,
+            },
+            View {
+                phase: Phase::Post,
+                light: side,
+            },
+        ];
+        let (layers, takes) = missed_takes(&replay, |_| true, |_| false, &views);
+        assert_eq!(layers, vec![1, 2]);
+        let named: Vec<(u32, Light, u32, &str)> = takes
+            .iter()
+            .map(|(shot, take, file)| (shot.layer, shot.light, *take, file.as_str()))
+            .collect();
+        assert_eq!(
+            named,
+            vec![
+                (1, top, 2, "L1_top.r2.jpg"),
+                (1, side, 1, "L1_side.jpg"),
+                (2, side, 1, "L2_side.jpg"),
+            ]
+        );
+        let (layers, takes) = missed_takes(&replay, |_| true, |layer| layer == 1, &views);
+        assert_eq!((layers, takes.len()), (vec![2], 1), "layer 1 inspected");
+    }
 }

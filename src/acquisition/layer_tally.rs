@@ -10,8 +10,8 @@ use tracing::info;
 pub(super) struct Tally {
     frames: usize,
     failed: usize,
-    /// The lights whose frame was left for a catch-up from the journal (the disk full at its
-    /// slice's write, or its commit panicked) and is not processed yet: counted for the layer's
+    /// The lights whose frame was left for a catch-up (the disk full at its slice's write) or
+    /// the next start (concluding it panicked) and is not processed yet: counted for the layer's
     /// line once caught up while it is open, else told in a line of its own.
     deferred: BTreeSet<Light>,
     /// From the start of its first frame's processing to the end of its last.
@@ -62,8 +62,8 @@ impl LayerTally {
         self.in_flight.begin((shot.layer, shot.phase));
     }
 
-    /// A frame that began and is left for a catch-up from the journal (the disk was full at its
-    /// slice's write, or its commit panicked): counted as deferred; returns the layers this lets
+    /// A frame that began and is left for a catch-up (the disk was full at its slice's write)
+    /// or the next start (concluding it panicked): counted as deferred; returns the layers this lets
     /// go.
     pub(super) fn forget(&mut self, shot: &Shot) -> Vec<((u32, Phase), Tally)> {
         let key = (shot.layer, shot.phase);

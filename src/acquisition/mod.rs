@@ -142,9 +142,10 @@ pub fn run(
     };
     // What the processor wants again (layers a stop left uninspected) goes first, in build
     // order with the backlog, so that layers complete in order.
+    // One take per shot: the backlog's, a later take than the slice shows, where both name it.
     backlog.extend(processor.catch_up());
-    backlog.sort_by_key(|a| (a.0, a.1));
-    backlog.dedup_by(|a, b| (a.0, a.1) == (b.0, b.1));
+    backlog.sort_by_key(|a| (a.0, std::cmp::Reverse(a.1)));
+    backlog.dedup_by(|a, b| a.0 == b.0);
     let journal = Arc::new(Mutex::new(journal));
     let queue = ProcessingQueue::start(
         processor,

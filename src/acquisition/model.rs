@@ -27,7 +27,9 @@ pub struct ModelStage {
 
 #[derive(Default)]
 struct State {
-    scans: BTreeMap<u32, Vec<ViewScan>>,
+    /// Per layer, the newest scan of each view: a view processed again (a retake the series
+    /// shows, a frame caught up after a pause) replaces its scan rather than counting twice.
+    scans: BTreeMap<u32, BTreeMap<View, ViewScan>>,
     waiting: BTreeMap<u32, InspectionRecord>,
     /// Views being processed, per layer ([`ModelStage::begin`]).
     in_flight: crate::shot::Flights<u32>,
@@ -123,7 +125,7 @@ impl ModelStage {
                     }
                 }
                 if let Ok(mut s) = self.state.lock() {
-                    s.scans.entry(layer).or_default().push(scan);
+                    s.add(layer, scan);
                     if let Some(flight) = flight {
                         s.in_flight.land(flight.layer);
                     }
@@ -155,8 +157,8 @@ impl ModelStage {
                 continue;
             };
             let scans = s.scans.remove(&layer).unwrap_or_default();
-            let ms: f64 = scans.iter().map(|v| v.ms).sum();
-            for scan in &scans {
+            let ms: f64 = scans.values().map(|v| v.ms).sum();
+            for scan in scans.values() {
                 record.flags.extend(self.live.flags(scan, &self.grid));
             }
             record.plate.insert("model_ms".into(), ms);
@@ -175,6 +177,11 @@ impl ModelStage {
 }
 
 impl State {
+    /// A view's scan of `layer`, in place of any earlier one of that view.
+    fn add(&mut self, layer: u32, scan: ViewScan) {
+        self.scans.entry(layer).or_default().insert(scan.view, scan);
+    }
+
     /// The waiting layers whose records are complete, in order, up to the first that is not:
     /// the model has scanned its `wanted` views, or a later layer's scans arrived while none of
     /// its views is still in flight (or `flush`).
@@ -196,6 +203,30 @@ impl State {
 mod tests {
     use super::*;
     use crate::build_dir::inspection::tests::record_with;
+    use crate::shot::{Light, Phase};
+
+    fn scan_of(view: View) -> ViewScan {
+        ViewScan {
+            view,
+            rows: 0,
+            cols: 0,
+            defect: Vec::new(),
+            best: Vec::new(),
+            tile_mm: 1.0,
+            ms: 0.0,
+        }
+    }
+
+    fn view(light: Light) -> View {
+        View {
+            phase: Phase::Post,
+            light,
+        }
+    }
+
+    fn add(s: &mut State, layer: u32, view: View) {
+        s.add(layer, scan_of(view));
+    }
 
     #[test]
     fn a_complete_record_waits_behind_an_earlier_one_still_in_flight() {
@@ -203,18 +234,7 @@ mod tests {
         s.waiting.insert(5, record_with(5, vec![]));
         s.waiting.insert(6, record_with(6, vec![]));
         s.in_flight.begin(5);
-        s.scans.entry(6).or_default().push(ViewScan {
-            view: View {
-                phase: crate::shot::Phase::Post,
-                light: crate::shot::Light::Top,
-            },
-            rows: 0,
-            cols: 0,
-            defect: Vec::new(),
-            best: Vec::new(),
-            tile_mm: 1.0,
-            ms: 0.0,
-        });
+        add(&mut s, 6, view(Light::Top));
         assert_eq!(
             s.ready(1, false),
             Vec::<u32>::new(),
@@ -224,5 +244,25 @@ mod tests {
         assert_eq!(s.ready(1, false), vec![5, 6]);
         s.in_flight.begin(5);
         assert_eq!(s.ready(2, true), vec![5, 6], "flush takes every record");
+    }
+
+    #[test]
+    fn a_view_scanned_twice_counts_once_and_its_newest_scan_is_kept() {
+        let mut s = State::default();
+        s.waiting.insert(5, record_with(5, vec![]));
+        add(&mut s, 5, view(Light::Top));
+        // The same view again (a retake the series shows, or a frame caught up after a pause).
+        let mut again = scan_of(view(Light::Top));
+        again.ms = 7.0;
+        s.add(5, again);
+        assert_eq!(
+            s.ready(2, false),
+            Vec::<u32>::new(),
+            "one view of two wanted: the record waits for the other"
+        );
+        assert_eq!(s.scans[&5].len(), 1);
+        assert_eq!(s.scans[&5][&view(Light::Top)].ms, 7.0, "the newest scan");
+        add(&mut s, 5, view(Light::Side));
+        assert_eq!(s.ready(2, false), vec![5]);
     }
 }

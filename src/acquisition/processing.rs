@@ -23,8 +23,9 @@ use crate::shot::{SeriesTake, Shot};
 use crate::shutdown::{Shutdown, StopReason};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use rayon::prelude::*;
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -33,6 +34,9 @@ use tracing::{error, info};
 /// A stored frame handed over: its shot, take (1: the frame, more: a retake), file, and when
 /// (on the clock's monotonic time) it was.
 type Item = (Shot, u32, PathBuf, Option<Duration>);
+
+/// A take the journal names: its shot, take and the file its record names.
+type Recorded = (Shot, u32, String);
 
 pub struct ProcessingQueue {
     sender: Option<Sender<Item>>,
@@ -87,16 +91,8 @@ impl ProcessingQueue {
         let take = plan.take;
         let (sender, frames) = crossbeam_channel::bounded(capacity);
         let (pause_changed, pause_changes) = crossbeam_channel::bounded(1);
-        let state = Arc::new(QueueState {
-            waiting: Waiting::new(plan.backlog.iter().map(|(shot, take, _)| (*shot, *take))),
-            failed: Mutex::default(),
-            overflowed: AtomicBool::new(false),
-            paused: AtomicBool::new(false),
-            pause_changed,
-            lag_ms: AtomicU64::new(0),
-            written,
-            build_over: AtomicBool::new(false),
-        });
+        let waiting = Waiting::new(plan.backlog.iter().map(|(shot, take, _)| (*shot, *take)));
+        let state = Arc::new(QueueState::new(waiting, pause_changed, written));
         let stop = Shutdown::new();
         let inbox = Inbox {
             frames,
@@ -199,17 +195,34 @@ impl ProcessingQueue {
     /// Pauses the derived data (the disk is low) or resumes it; on resuming, the frames left
     /// waiting are caught up from the journal.
     pub fn set_paused(&self, paused: bool) {
+        let held = || self.state.slice_found_disk_full.load(Ordering::SeqCst);
         if !paused {
+            // A slice found the disk full since the caller asked: its pause stays until the
+            // disk guard has been told ([`ProcessingQueue::slice_found_disk_full`]).
+            if held() {
+                return;
+            }
             // Set before the worker is woken, so it catches up.
             if self.state.paused() {
                 self.state.overflowed.store(true, Ordering::SeqCst);
             }
         }
         self.state.set_paused(paused);
+        // The worker says a full disk before it pauses: one said meanwhile pauses again.
+        if !paused && held() {
+            self.state.set_paused(true);
+        }
     }
 
     pub fn paused(&self) -> bool {
         self.state.paused()
+    }
+
+    /// Whether a slice found the disk full since the last call (the worker paused itself).
+    pub fn slice_found_disk_full(&self) -> bool {
+        self.state
+            .slice_found_disk_full
+            .swap(false, Ordering::SeqCst)
     }
 
     /// At the build's end: waits until every submitted frame is processed, then stops the
@@ -267,16 +280,19 @@ impl<'a> Worker<'a> {
                 "processing: catching up on frames stored before the restart"
             );
         }
+        // The backlog's rest a pause left: the catch-up after it takes it with the journal's
+        // (the journal alone would not name the takes a processor wants again).
+        let mut left = Vec::new();
         for (i, (shot, take, original)) in backlog.iter().enumerate() {
             if inbox.stop.is_requested() {
                 return false;
             }
             if state.paused() {
-                // The rest waits on disk; the catch-up after the pause finds it in the journal.
                 info!(
                     frames = backlog.len() - i,
                     "processing: disk low, catching up later"
                 );
+                left = backlog[i..].to_vec();
                 state.overflowed.store(true, Ordering::SeqCst);
                 break;
             }
@@ -284,7 +300,7 @@ impl<'a> Worker<'a> {
         }
         // Shots a catch-up pass processed while they were still queued: skipped when they come
         // out.
-        let mut caught_up = std::collections::BTreeSet::new();
+        let mut caught_up = BTreeSet::new();
         loop {
             if inbox.stop.is_requested() {
                 return false;
@@ -302,6 +318,16 @@ impl<'a> Worker<'a> {
                 }
                 continue;
             }
+            // The queue overflowed, or a pause ended: what waits on disk is picked up from the
+            // journal now, not once the next frame comes.
+            if state.overflowed.swap(false, Ordering::SeqCst) {
+                match self.catch_up(&inbox, &mut caught_up, &mut left, choice) {
+                    CatchUp::Done => {}
+                    CatchUp::Paused => state.overflowed.store(true, Ordering::SeqCst),
+                    CatchUp::Stopped => return false,
+                }
+                continue;
+            }
             crossbeam_channel::select! {
                 recv(inbox.frames) -> first => match first {
                     Ok(first) => self.batch(first, &inbox.frames, &mut caught_up),
@@ -314,24 +340,11 @@ impl<'a> Worker<'a> {
                 recv(inbox.pause_changed) -> _ => {}
                 recv(inbox.stop.receiver()) -> _ => return false,
             }
-            // The queue overflowed: once it is empty, pick up what waits on disk from the journal.
-            if !state.paused() && state.overflowed.swap(false, Ordering::SeqCst) {
-                match self.catch_up(&inbox, &mut caught_up, choice) {
-                    CatchUp::Done => {}
-                    CatchUp::Paused => state.overflowed.store(true, Ordering::SeqCst),
-                    CatchUp::Stopped => return false,
-                }
-            }
         }
     }
 
     /// `first` and whatever else is queued, one frame per core.
-    fn batch(
-        &self,
-        first: Item,
-        frames: &Receiver<Item>,
-        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
-    ) {
+    fn batch(&self, first: Item, frames: &Receiver<Item>, caught_up: &mut BTreeSet<(Shot, u32)>) {
         // One frame per core at a time: decoding a frame is single-threaded, so a second frame
         // keeps the other core busy.
         let mut batch = vec![first];
@@ -367,10 +380,14 @@ impl<'a> Worker<'a> {
     /// and a layer's views must come before a later layer's, or the inspection would take the
     /// later layer's completion for the end of the earlier one's and inspect it without the
     /// views still waiting on disk.
+    /// `left`: the start's backlog a pause interrupted, taken with the journal's takes and the
+    /// takes the full disk left unwritten (one take per shot, the later); what of them an
+    /// interruption leaves is kept there.
     fn catch_up(
         &self,
         inbox: &Inbox,
-        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
+        caught_up: &mut BTreeSet<(Shot, u32)>,
+        left: &mut Vec<Recorded>,
         choice: SeriesTake,
     ) -> CatchUp {
         // Taken out of the channel, to be processed in the journal's order. Each one is in the
@@ -385,17 +402,30 @@ impl<'a> Worker<'a> {
         caught_up.clear();
         // What is still being committed is not in the journal yet.
         self.settle();
-        let pass = self.unprocessed(choice);
+        let again = self
+            .state
+            .again
+            .lock()
+            .map(|mut again| std::mem::take(&mut *again))
+            .unwrap_or_default();
+        let (mut pass, again) = self.unprocessed(choice, again);
+        // Takes the journal counts processed that are wanted again: the start's backlog a
+        // pause left, and the takes the full disk left unwritten.
+        let held: BTreeSet<Recorded> = std::mem::take(left).into_iter().chain(again).collect();
+        pass.extend(held.iter().cloned());
+        pass.sort_by_key(|p| (p.0, std::cmp::Reverse(p.1)));
+        pass.dedup_by(|a, b| a.0 == b.0);
         // The take the pass processes, per shot.
         let in_pass: std::collections::BTreeMap<Shot, u32> =
             pass.iter().map(|p| (p.0, p.1)).collect();
-        for (shot, take, recorded) in pass {
+        for (i, (shot, take, recorded)) in pass.iter().cloned().enumerate() {
             if let Some(end) = self.interrupted(inbox) {
+                left.extend(pass[i..].iter().filter(|p| held.contains(p)).cloned());
                 return end;
             }
             match queued.iter().position(|q| q.0 == shot && q.1 == take) {
-                Some(i) => {
-                    let (_, _, original, at) = queued.remove(i);
+                Some(q) => {
+                    let (_, _, original, at) = queued.remove(q);
                     self.process(shot, take, &original, at);
                 }
                 None => {
@@ -424,7 +454,7 @@ impl<'a> Worker<'a> {
     /// let go of: handed over after the pass found it in the journal, it was counted again).
     fn processed_already(
         &self,
-        caught_up: &mut std::collections::BTreeSet<(Shot, u32)>,
+        caught_up: &mut BTreeSet<(Shot, u32)>,
         shot: Shot,
         take: u32,
     ) -> bool {
@@ -448,17 +478,28 @@ impl<'a> Worker<'a> {
     }
 
     /// The takes the journal says are not processed, in build order, with the file each record
-    /// names; none if the journal cannot be read (said at ERROR).
-    fn unprocessed(&self, choice: SeriesTake) -> Vec<(Shot, u32, String)> {
+    /// names, and those of `again` (the takes the full disk left unwritten) the same way; none
+    /// if the journal cannot be read (said at ERROR; `again` is kept for the next catch-up).
+    fn unprocessed(
+        &self,
+        choice: SeriesTake,
+        again: BTreeSet<(Shot, u32)>,
+    ) -> (Vec<Recorded>, Vec<Recorded>) {
+        let keep = |again: BTreeSet<(Shot, u32)>| {
+            if let Ok(mut kept) = self.state.again.lock() {
+                kept.extend(again);
+            }
+            (Vec::new(), Vec::new())
+        };
         // The path only: the recorder journals under the lock, and must not wait for the read.
         let Ok(path) = self.journal.lock().map(|j| j.path().to_path_buf()) else {
-            return Vec::new();
+            return keep(again);
         };
         let replay = match Journal::read(&path) {
             Ok(replay) => replay,
             Err(e) => {
                 error!(error = %Chain(&e), "processing: cannot read the journal to catch up");
-                return Vec::new();
+                return keep(again);
             }
         };
         self.state.waiting.settle_with(&replay);
@@ -468,15 +509,20 @@ impl<'a> Worker<'a> {
             .lock()
             .map(|f| f.clone())
             .unwrap_or_default();
-        replay
-            .unprocessed_takes(choice)
-            .into_iter()
-            .filter(|take| !failed.contains(take))
-            .filter_map(|(shot, take)| {
-                let entry = replay.take_entry(&shot, take)?;
-                Some((shot, take, entry.file.clone()))
-            })
-            .collect()
+        let recorded = |takes: Vec<(Shot, u32)>| -> Vec<Recorded> {
+            takes
+                .into_iter()
+                .filter(|take| !failed.contains(take))
+                .filter_map(|(shot, take)| {
+                    let entry = replay.take_entry(&shot, take)?;
+                    Some((shot, take, entry.file.clone()))
+                })
+                .collect()
+        };
+        (
+            recorded(replay.unprocessed_takes(choice)),
+            recorded(again.into_iter().collect()),
+        )
     }
 
     /// Processes the take a journal record names: only its own file in `raw/`
@@ -526,7 +572,11 @@ impl<'a> Worker<'a> {
     fn end(&self, ended: Ended<'a>) {
         if matches!(&ended.outcome, Err(reason) if disk_full(reason)) {
             // Paused at once, not once the commit thread comes to it: the lanes must not fill
-            // the room the originals need with more slices meanwhile.
+            // the room the originals need with more slices meanwhile. The disk guard is told
+            // first, so that it holds the pause rather than lift it at its next probe.
+            self.state
+                .slice_found_disk_full
+                .store(true, Ordering::SeqCst);
             self.state.set_paused(true);
             self.state.overflowed.store(true, Ordering::SeqCst);
         }

@@ -326,9 +326,7 @@ impl Recorder {
     }
 
     fn apply_disk(&mut self) {
-        if let Some(queue) = &self.queue {
-            queue.set_paused(!self.disk.derived_allowed());
-        }
+        // The records held first: a catch-up the end of a pause starts reads the journal.
         if self.disk.may_capture() {
             if let Ok(mut journal) = self.journal.lock() {
                 if journal.held() > 0 {
@@ -339,6 +337,15 @@ impl Recorder {
                     }
                 }
             }
+        }
+        if let Some(queue) = &self.queue {
+            // A slice that found the disk full holds the pause until the free space grows: the
+            // guard alone, seeing room above storage.min_free_gb, would lift it at once, and
+            // the worker would try the same slice again every second.
+            if queue.slice_found_disk_full() {
+                self.disk.derived_filled();
+            }
+            queue.set_paused(!self.disk.derived_allowed());
         }
     }
 

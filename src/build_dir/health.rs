@@ -240,6 +240,17 @@ impl DiskHealth {
     pub fn health(&self) -> Health {
         let free = self.free_bytes.map_or_else(|| "? MB".into(), mb);
         match self.state {
+            // A slice found the disk full while the free space looked enough (a quota, or a
+            // slice larger than the room left): the derived data waits for it to grow.
+            DiskState::Ok if self.derived_paused => Health::raise(
+                HealthState::Warning,
+                format!("{free} free, a slice found it full"),
+                format!(
+                    "disk: a slice found the disk full ({free} free): DICOM series and \
+                     inspection paused until the free space grows (caught up then), originals \
+                     still captured; free space on the build disk"
+                ),
+            ),
             DiskState::Ok => Health::ok(format!("{free} free")),
             DiskState::Low => Health::raise(
                 HealthState::Warning,

@@ -307,3 +307,98 @@ fn disk_low_keeps_originals_and_the_next_start_catches_up_the_series() {
     let status = read_json(&build.join("status.json"));
     assert_eq!(status["disk"]["state"], "ok");
 }
+
+/// Stands in for a slice that does not fit: the first frame's processing finds the disk full
+/// (ENOSPC) while `full` holds; every try counted.
+struct SliceDoesNotFit {
+    first: layerwise::shot::Shot,
+    full: std::sync::atomic::AtomicBool,
+    tries: std::sync::atomic::AtomicUsize,
+}
+
+impl layerwise::series::FrameProcessor for SliceDoesNotFit {
+    fn process(
+        &self,
+        _: &Path,
+        shot: layerwise::shot::Shot,
+        _: &Path,
+    ) -> Result<(), layerwise::series::ProcessError> {
+        use std::sync::atomic::Ordering::SeqCst;
+        if shot != self.first {
+            return Ok(());
+        }
+        self.tries.fetch_add(1, SeqCst);
+        match self.full.load(SeqCst) {
+            true => Err(Box::new(std::io::Error::from_raw_os_error(28))),
+            false => Ok(()),
+        }
+    }
+}
+
+/// A slice that finds the disk full while the free space the guard measures stays above
+/// `storage.min_free_gb` (a quota, a slice larger than the room left): the series and the
+/// inspection wait until the free space grows, and status says why, rather than the slice being
+/// tried again at every probe of the disk (each second) for as long as the disk stays so.
+#[test]
+fn a_slice_that_finds_the_disk_full_waits_for_the_free_space_to_grow() {
+    use std::sync::atomic::Ordering::SeqCst;
+    let dir = tempfile::tempdir().unwrap();
+    let build = dir.path().join("build");
+    // 24 signals 400 ms apart: the build goes on well after the free space grows.
+    let mut config = small_calibrated(&build, 12);
+    if let layerwise::config::TriggerConfig::Mock(mock) = &mut config.trigger {
+        mock.interval_ms = 400;
+    }
+    let disk = layerwise::sim::disk::SimulatedDisk::with_free(100_000_000_000);
+    let processor = Arc::new(SliceDoesNotFit {
+        first: layerwise::shot::Shot::new(
+            1,
+            layerwise::shot::Phase::Pre,
+            layerwise::shot::Light::Front,
+        ),
+        full: true.into(),
+        tries: 0.into(),
+    });
+    let mut options = RunOptions::new();
+    options.drain_at_end = true;
+    options.free_space = Arc::new(disk.clone());
+    options.processor = Some(processor.clone());
+    let daemon = {
+        let config = config.clone();
+        std::thread::spawn(move || run_daemon(&config, options))
+    };
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while processor.tries.load(SeqCst) == 0 {
+        assert!(Instant::now() < deadline, "the first frame never processed");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Three probes of the disk later, the slice is still not tried again (before: once each).
+    std::thread::sleep(Duration::from_millis(3200));
+    assert_eq!(
+        processor.tries.load(SeqCst),
+        1,
+        "tried again on a full disk"
+    );
+    let status = read_json(&build.join("status.json"));
+    assert_eq!(status["disk"]["state"], "ok", "{status:#}");
+    assert_eq!(status["disk"]["derived_paused"], true, "{status:#}");
+    assert_eq!(status["health"]["disk"]["state"], "warning", "{status:#}");
+    let warning = status["health"]["disk"]["warning"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(
+        warning.contains("a slice found the disk full"),
+        "{status:#}"
+    );
+
+    // Room made: the derived data is caught up, the slice tried once more.
+    processor.full.store(false, SeqCst);
+    disk.set_free(100_100_000_000);
+    let summary = daemon.join().unwrap().unwrap();
+    assert_eq!(processor.tries.load(SeqCst), 2);
+    let caught_up = replay(&build);
+    assert_eq!(caught_up.processed.len() as u64, summary.stored);
+    assert_eq!(summary.stored, 72);
+    let status = read_json(&build.join("status.json"));
+    assert_eq!(status["disk"]["derived_paused"], false, "{status:#}");
+}

@@ -3,6 +3,7 @@
 use super::*;
 use crate::series::ProcessError;
 use crate::shot::{Light, Phase};
+use std::sync::atomic::AtomicBool;
 
 /// Tells each take processed and each commit; the first shot's commit waits to be
 /// released.
@@ -121,13 +122,24 @@ fn queue_on(
     journal: Arc<Mutex<Journal>>,
     take: SeriesTake,
 ) -> ProcessingQueue {
+    queue_with(processor, dir, capacity, journal, take, Vec::new())
+}
+
+fn queue_with(
+    processor: Arc<dyn FrameProcessor>,
+    dir: &Path,
+    capacity: usize,
+    journal: Arc<Mutex<Journal>>,
+    take: SeriesTake,
+    backlog: Vec<(Shot, u32, String)>,
+) -> ProcessingQueue {
     ProcessingQueue::start(
         processor,
         capacity,
         dir.to_path_buf(),
         journal,
         WorkerPlan {
-            backlog: Vec::new(),
+            backlog,
             take,
             frames_per_signal: 2,
             plant: crate::plant::PlantSink::off(),
@@ -138,7 +150,7 @@ fn queue_on(
 }
 
 #[test]
-fn a_commit_that_panics_leaves_its_frame_unjournaled_and_the_next_ones_go_on() {
+fn a_commit_that_panics_is_journaled_failed_and_the_next_ones_go_on() {
     let dir = tempfile::tempdir().unwrap();
     let processor = Arc::new(PanicsOnFront::default());
     let queue = queue(processor.clone(), dir.path());
@@ -146,19 +158,24 @@ fn a_commit_that_panics_leaves_its_frame_unjournaled_and_the_next_ones_go_on() {
     for shot in shots {
         queue.submit(shot, dir.path().join("x.jpg"), Duration::ZERO);
     }
+    let state = queue.state.clone();
     queue.drain();
     let path = dir.path().join(crate::build_dir::JOURNAL);
-    // The front frame is neither processed nor failed: it waits for the catch-up.
+    let journal = Journal::read(&path).unwrap();
     assert_eq!(
-        Journal::read(&path)
-            .unwrap()
-            .processed
-            .into_iter()
-            .collect::<Vec<_>>(),
+        journal.processed.iter().copied().collect::<Vec<_>>(),
         shots[1..].to_vec()
     );
-    let text = std::fs::read_to_string(&path).unwrap();
-    assert_eq!(text.lines().count(), 2, "{text}");
+    // The front frame failed, with the panic's message: a catch-up does not try it again (before,
+    // it waited for one, and a commit that always panics was tried at every catch-up; the next
+    // start tries it).
+    let reason = journal.failure(&shots[0], 1).unwrap_or_default();
+    assert_eq!(
+        reason,
+        "committing its slice panicked: a commit that panics"
+    );
+    assert!(state.failed.lock().unwrap().contains(&(shots[0], 1)));
+    assert_eq!(state.waiting.len(), 0);
     // The worker ended as it should (the alarm's flush ran), not by the panic.
     assert!(processor.finished.load(Ordering::SeqCst));
 }
@@ -249,6 +266,8 @@ struct Scripted {
     release: Option<Receiver<()>>,
     held: Vec<Shot>,
     fails: Vec<Shot>,
+    /// Find the disk full (ENOSPC) the first time.
+    full_once: Mutex<Vec<Shot>>,
     probe: Option<Shot>,
     state: std::sync::OnceLock<Arc<QueueState>>,
     seen: Mutex<Option<usize>>,
@@ -275,6 +294,11 @@ impl FrameProcessor for Scripted {
         if self.fails.contains(&shot) {
             return Err("a frame that fails".into());
         }
+        let mut full = self.full_once.lock().unwrap();
+        if let Some(k) = full.iter().position(|s| *s == shot) {
+            full.remove(k);
+            return Err(Box::new(std::io::Error::from_raw_os_error(libc::ENOSPC)));
+        }
         Ok(Box::new(move || {
             if self.probe == Some(shot) {
                 *self.seen.lock().unwrap() = self.state.get().map(|state| state.waiting.len());
@@ -296,9 +320,43 @@ struct Rig {
 
 impl Rig {
     fn new(processor: Scripted, take: SeriesTake) -> Rig {
+        Rig::after_restart(processor, take, &[])
+    }
+
+    /// A rig whose journal has first takes of `stored` (the `true` ones journaled processed)
+    /// from before a restart, the worker starting on all of them as its backlog.
+    fn after_restart(processor: Scripted, take: SeriesTake, stored: &[(Shot, bool)]) -> Rig {
+        use crate::build_dir::journal::Record;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(crate::build_dir::JOURNAL);
-        let (journal, _) = Journal::open(&path, false).unwrap();
+        let (mut journal, _) = Journal::open(&path, false).unwrap();
+        let mut backlog = Vec::new();
+        for &(shot, processed) in stored {
+            let file = format!("raw/{}.jpg", shot.take_stem(1));
+            let (layer, phase, light, at) =
+                (shot.layer, shot.phase, shot.light, chrono::Utc::now());
+            let (bytes, sha256) = (1, String::new());
+            let frame = Record::Frame {
+                layer,
+                phase,
+                light,
+                file: file.clone(),
+                bytes,
+                sha256,
+                at,
+            };
+            journal.append(&frame).unwrap();
+            if processed {
+                let record = Record::Processed {
+                    layer,
+                    phase,
+                    light,
+                    at,
+                };
+                journal.append(&record).unwrap();
+            }
+            backlog.push((shot, 1, file));
+        }
         let journal = Arc::new(Mutex::new(journal));
         let (events, told) = crossbeam_channel::unbounded();
         let (release, released) = crossbeam_channel::unbounded();
@@ -307,7 +365,14 @@ impl Rig {
             release: Some(released),
             ..processor
         });
-        let queue = queue_on(processor.clone(), dir.path(), 1, journal.clone(), take);
+        let queue = queue_with(
+            processor.clone(),
+            dir.path(),
+            1,
+            journal.clone(),
+            take,
+            backlog,
+        );
         let _ = processor.state.set(queue.state.clone());
         Rig {
             dir,
@@ -487,4 +552,72 @@ fn a_first_take_the_catch_up_skips_for_its_retake_is_not_left_counted_as_waiting
     let (waiting, journal) = rig.drain();
     assert_eq!(waiting, 0);
     assert_eq!(journal.slice_takes.get(&retaken), Some(&2));
+}
+
+#[test]
+fn a_take_the_start_wants_again_is_processed_after_a_pause_that_interrupted_the_backlog() {
+    let [first, inspected_again, unprocessed] =
+        posts(&[(1, Light::Front), (1, Light::Side), (2, Light::Front)])[..]
+    else {
+        unreachable!()
+    };
+    let processor = Scripted {
+        held: vec![first],
+        ..Scripted::default()
+    };
+    // The middle take is processed already; the processor wants it again (the inspection of a
+    // layer a stop left uninspected).
+    let stored = [
+        (first, false),
+        (inspected_again, true),
+        (unprocessed, false),
+    ];
+    let rig = Rig::after_restart(processor, SeriesTake::First, &stored);
+    assert_eq!(rig.next(), (first, 1));
+    // The disk runs low while the first take is processed: the rest of the backlog waits.
+    rig.queue.set_paused(true);
+    rig.release.send(()).unwrap();
+    assert!(
+        rig.told.recv_timeout(Duration::from_millis(300)).is_err(),
+        "paused"
+    );
+    // Space is back: the catch-up takes the rest of the backlog with the journal's, at once
+    // (no frame handed over). Before, the journal alone named what to catch up, and the take
+    // it has processed already was never processed again.
+    rig.queue.set_paused(false);
+    assert_eq!(rig.next(), (inspected_again, 1));
+    assert_eq!(rig.next(), (unprocessed, 1));
+    let (waiting, journal) = rig.drain();
+    assert_eq!((waiting, journal.processed.len()), (0, 3));
+}
+
+#[test]
+fn a_take_wanted_again_whose_slice_finds_the_disk_full_is_taken_again_after_the_pause() {
+    let [again, next] = posts(&[(1, Light::Front), (2, Light::Front)])[..] else {
+        unreachable!()
+    };
+    let processor = Scripted {
+        full_once: Mutex::new(vec![again]),
+        ..Scripted::default()
+    };
+    // Processed before the stop, wanted again (its layer never inspected).
+    let rig = Rig::after_restart(processor, SeriesTake::First, &[(again, true)]);
+    assert_eq!(rig.next(), (again, 1));
+    // Its slice found the disk full: the worker paused itself, and holds the pause until the
+    // disk guard is told.
+    assert!(
+        rig.told.recv_timeout(Duration::from_millis(300)).is_err(),
+        "paused"
+    );
+    rig.queue.set_paused(false);
+    assert!(rig.queue.paused(), "held until the guard is told");
+    assert!(rig.queue.slice_found_disk_full());
+    rig.store(next, 1);
+    // Room again: the catch-up takes it again, though the journal counts it processed (before,
+    // the journal alone named what to catch up, and it was never processed again this run).
+    rig.queue.set_paused(false);
+    assert_eq!(rig.next(), (again, 1));
+    assert_eq!(rig.next(), (next, 1));
+    let (waiting, journal) = rig.drain();
+    assert_eq!((waiting, journal.processed.len()), (0, 2));
 }
