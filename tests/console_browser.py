@@ -2,27 +2,30 @@
 WebDriver over plain HTTP, no client library); tests/it/console.rs serves a finished build with
 a raised alarm and flags on FIRST and SECOND, behind a token, and runs this.
 
-usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND
+usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND SERVER_PID
 
 Checks: a deep link #layer=FIRST opens that layer; the health of the stopped daemon that wrote
 the build is shown nowhere green and says "daemon stopped"; its three flags or more have no two labels
 overlapping and each says what to do; a view zoomed shows a crop at 1:1 (full resolution) and
 at 2:1 with +; the trends of part 2 have a value for every layer and a baseline band; a link to a view and a flag opens that view with the flag marked; the next flag is SECOND and the previous one
 FIRST again; the alarm acknowledged on one page (name, note, the button) clears the banner of
-the other open page within 2 s; the history on the page lists the acknowledgement. Keeps
-screenshots: console-alarm.png (the banner with the button), console-acknowledged.png,
-console-flags.png (layer FIRST), console-trends.png, console-zoom.png.
+the other open page within 2 s; the history on the page lists the acknowledgement; the page
+server stopped (SIGSTOP to SERVER_PID), the page says it is stale within 30 s, and clears that
+once the server goes on. Keeps screenshots: console-alarm.png (the banner with the button),
+console-acknowledged.png, console-flags.png (layer FIRST), console-trends.png,
+console-zoom.png, console-stale.png.
 """
 import base64
 import os
+import signal
 import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from webdriver import start, wait_for  # noqa: E402
 
-page, chromedriver, artifacts, first, second = sys.argv[1:6]
-first, second = int(first), int(second)
+page, chromedriver, artifacts, first, second, server_pid = sys.argv[1:7]
+first, second, server_pid = int(first), int(second), int(server_pid)
 
 
 driver, call = start(chromedriver)
@@ -230,6 +233,23 @@ try:
         "return document.getElementById('ack-result').textContent") or None)
     assert result.startswith("alarm acknowledged by ana"), result
     linked.screenshot("console-acknowledged.png")
+
+    # The page server stuck (stopped): within the page's 15 s the page says it is stale, with
+    # since when, above everything it shows; once the server goes on, the banner clears.
+    os.kill(server_pid, signal.SIGSTOP)
+    stopped = time.time()
+    try:
+        stale = wait_for("the stale banner", lambda: linked.js(
+            "const s = document.getElementById('stale'); return s.hidden ? null : s.textContent"), timeout=30.0)
+        waited = time.time() - stopped
+        assert stale.startswith("STALE: nothing heard from the page server since "), stale
+        assert waited >= 10.0, f"stale after {waited:.1f} s: updates come every 5 s at most"
+        print(f"stale banner {waited:.1f} s after the server stopped: {stale}")
+        linked.screenshot("console-stale.png")
+    finally:
+        os.kill(server_pid, signal.SIGCONT)
+    wait_for("the stale banner to clear", lambda: linked.js("return document.getElementById('stale').hidden"), timeout=30.0)
+    print(f"stale banner cleared {time.time() - stopped:.1f} s after the stop")
 finally:
     for w in windows:
         try:

@@ -25,6 +25,8 @@ pub enum FileKind {
     Frame,
     /// A PNG the calibration page wrote.
     Overlay,
+    /// A model's heat map (one grey pixel per tile).
+    HeatMap,
 }
 
 impl FileKind {
@@ -34,6 +36,8 @@ impl FileKind {
             // A 60-megapixel raw frame uncompressed at 16 bits is 120 MB.
             FileKind::Frame => 256 << 20,
             FileKind::Overlay => 64 << 20,
+            // A tile per pixel: a plate of 500 x 500 mm in 1 mm tiles is 250 kB at most.
+            FileKind::HeatMap => 16 << 20,
         }
     }
 
@@ -41,6 +45,7 @@ impl FileKind {
         match self {
             FileKind::Frame => "frame",
             FileKind::Overlay => "overlay",
+            FileKind::HeatMap => "heat map",
         }
     }
 }

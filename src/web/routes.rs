@@ -390,7 +390,7 @@ fn original_path(shared: &PageState, n: u32, view: View) -> Result<BuildFile, Ap
 
 /// The answer to a file the page will not read: 404 when it is not there, 403 when it is there
 /// and refused (a link, a FIFO, a device, too large), 500 when it cannot be read.
-fn file_error(e: &FileError) -> ApiError {
+pub(super) fn file_error(e: &FileError) -> ApiError {
     let status = match e {
         FileError::NotFound { .. } | FileError::BadName { .. } => StatusCode::NOT_FOUND,
         FileError::Link { .. } | FileError::NotRegular { .. } | FileError::TooLarge { .. } => {

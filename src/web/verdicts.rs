@@ -182,8 +182,20 @@ pub(crate) async fn heatmap(
             "a layer number and a view, e.g. /api/layers/12/pre_top/heatmap.png",
         );
     };
-    let path = crate::learn::live::heatmap_path(&shared.dir, &view, n);
-    match tokio::task::spawn_blocking(move || std::fs::read(path)).await {
+    // Through the page's one way to the disk, as every file it serves: a link, a FIFO or a
+    // device planted as a heat map is refused, never followed, waited on or read without end.
+    let dir = shared.dir.clone();
+    let name = format!("L{n:05}.png");
+    let folder = view.clone();
+    let read = move || {
+        let parts = [
+            crate::learn::live::HEATMAP_DIR,
+            folder.as_str(),
+            name.as_str(),
+        ];
+        super::files::read(&dir, &parts, super::files::FileKind::HeatMap)
+    };
+    match tokio::task::spawn_blocking(read).await {
         Ok(Ok(bytes)) => (
             [
                 (header::CONTENT_TYPE, "image/png"),
@@ -192,9 +204,14 @@ pub(crate) async fn heatmap(
             bytes,
         )
             .into_response(),
-        _ => answer(
+        Ok(Err(e)) if e.is_not_found() => answer(
             StatusCode::NOT_FOUND,
             format!("no heat map of layer {n} {view} (no [inspection.model], or not yet)"),
+        ),
+        Ok(Err(e)) => super::routes::file_error(&e).into_response(),
+        Err(e) => answer(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            format!("request failed: {e}"),
         ),
     }
 }

@@ -600,7 +600,7 @@ fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
     assert!(shown.contains("RAISED"), "{shown}");
     let token = tmp.path().join("token");
     std::fs::write(&token, "console-token-0123456789\n").unwrap();
-    let (_served, addr) = serve(&build, &["--token-file", token.to_str().unwrap()]);
+    let (served, addr) = serve(&build, &["--token-file", token.to_str().unwrap()]);
     // Without the token the page refuses an acknowledgement.
     let (code, _) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"mallory"}"#);
     assert_eq!(code, 401);
@@ -612,6 +612,7 @@ fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
         .arg(chromedriver)
         .arg(&artifacts)
         .args([first, second].map(|l| l.to_string()))
+        .arg(served.pid().to_string())
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", report(&out));

@@ -41,6 +41,30 @@ fn peak_rss_mb(pid: u32) -> f64 {
     kb / 1024.0
 }
 
+/// `path` answered 403 within 10 s, saying why, with none of `secrets` (the files a link
+/// points at) in the answer; `zero`: how `/dev/zero` was planted.
+fn refused_at_once(addr: std::net::SocketAddr, path: &str, zero: &str, secrets: &[Vec<u8>]) {
+    let started = Instant::now();
+    let (status, body) = http(addr, "GET", path, b"");
+    let text = String::from_utf8_lossy(&body);
+    assert_eq!(status, 403, "{path} ({zero}): {text:.300}");
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "{path}: {:?}",
+        started.elapsed()
+    );
+    assert!(
+        text.contains("symbolic link") || text.contains("not a regular file"),
+        "{path}: {text}"
+    );
+    for secret in secrets {
+        assert!(
+            secret.is_empty() || !body.windows(secret.len()).any(|w| w == secret),
+            "{path} served another file"
+        );
+    }
+}
+
 #[test]
 fn planted_links_fifos_and_devices_in_raw_are_refused_and_block_nobody() {
     let tmp = tempfile::tempdir().unwrap();
@@ -74,25 +98,7 @@ fn planted_links_fifos_and_devices_in_raw_are_refused_and_block_nobody() {
                 "picture.jpg?kind=rectified",
             ] {
                 let path = format!("/api/layers/{layer}/{view}/{what}");
-                let started = Instant::now();
-                let (status, body) = http(addr, "GET", &path, b"");
-                let text = String::from_utf8_lossy(&body);
-                assert_eq!(status, 403, "{path} ({zero}): {text:.300}");
-                assert!(
-                    started.elapsed() < Duration::from_secs(10),
-                    "{path}: {:?}",
-                    started.elapsed()
-                );
-                assert!(
-                    text.contains("symbolic link") || text.contains("not a regular file"),
-                    "{path}: {text}"
-                );
-                for secret in &secrets {
-                    assert!(
-                        secret.is_empty() || !body.windows(secret.len()).any(|w| w == secret),
-                        "{path} served another file"
-                    );
-                }
+                refused_at_once(addr, &path, zero, &secrets);
             }
         }
     }
@@ -110,6 +116,54 @@ fn planted_links_fifos_and_devices_in_raw_are_refused_and_block_nobody() {
     let (status, _) = http(addr, "GET", "/api/layers/2/pre_top/picture.jpg", b"");
     assert_eq!(status, 200);
     // /dev/zero was never read: the server is as small as a page server is.
+    let peak = peak_rss_mb(served.pid());
+    assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
+    drop(served);
+}
+
+/// The model's heat maps go through the same opener: before, the route read them with
+/// `std::fs::read`, following a link to any file the service could read, waiting on a FIFO (four
+/// of them took every blocking thread) and reading `/dev/zero` until the page was killed.
+#[test]
+fn planted_heat_maps_are_refused_and_a_real_one_is_served() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 2);
+    let maps = dir.join(layerwise::learn::live::HEATMAP_DIR);
+    for view in ["post_top", "post_front", "post_side"] {
+        std::fs::create_dir_all(maps.join(view)).unwrap();
+    }
+    let png = {
+        let mut bytes = Vec::new();
+        image::GrayImage::from_pixel(4, 3, image::Luma([200u8]))
+            .write_to(
+                &mut std::io::Cursor::new(&mut bytes),
+                image::ImageFormat::Png,
+            )
+            .unwrap();
+        bytes
+    };
+    std::fs::write(maps.join("post_top/L00002.png"), &png).unwrap();
+    symlink("/etc/passwd", maps.join("post_top/L00001.png")).unwrap();
+    mkfifo(&maps.join("post_front/L00001.png"));
+    let zero = dev_zero(&maps.join("post_side/L00001.png"));
+    symlink("/dev/zero", maps.join("post_front/L00002.png")).unwrap();
+    let passwd = std::fs::read("/etc/passwd").unwrap_or_default();
+
+    let (served, addr) = serve(&dir, &[]);
+    let planted = [
+        (1, "post_top"),
+        (1, "post_front"),
+        (1, "post_side"),
+        (2, "post_front"),
+    ];
+    for (layer, view) in planted {
+        let path = format!("/api/layers/{layer}/{view}/heatmap.png");
+        refused_at_once(addr, &path, zero, std::slice::from_ref(&passwd));
+    }
+    let (status, body) = http(addr, "GET", "/api/layers/2/post_top/heatmap.png", b"");
+    assert_eq!((status, body), (200, png));
+    let (status, _) = http(addr, "GET", "/api/layers/2/post_side/heatmap.png", b"");
+    assert_eq!(status, 404, "none written");
     let peak = peak_rss_mb(served.pid());
     assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
     drop(served);

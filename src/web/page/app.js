@@ -589,9 +589,35 @@ async function refresh(status) {
   if (again) { again = false; refresh(null); }
 }
 
-const events = new EventSource("/api/events");
-events.addEventListener("update", (e) => refresh(JSON.parse(e.data).status));
-events.onerror = () => { $("state").textContent = "connection to the daemon lost; retrying"; };
+// The page server sends an update at least every 5 s (the status remade). A page that has heard
+// nothing for STALE_MS is stale: a half-open connection (a laptop woken, Wi-Fi), a server that
+// is stuck, or an event stream the browser closed for good (a refusal: 401, 503). It says so
+// above everything it shows, with since when, and connects again; the first update clears it.
+const STALE_MS = 15000;
+let events = null, heard = Date.now(), connected = 0;
+function connect() {
+  if (events) events.close();
+  connected = Date.now();
+  events = new EventSource("/api/events");
+  events.addEventListener("update", (e) => {
+    heard = Date.now();
+    $("stale").hidden = true;
+    refresh(JSON.parse(e.data).status);
+  });
+  events.onerror = () => { $("state").textContent = "connection to the daemon lost; retrying"; };
+}
+function watchStale() {
+  const now = Date.now(), quiet = now - heard;
+  if (quiet >= STALE_MS) {
+    $("stale").textContent = "STALE: nothing heard from the page server since " + new Date(heard).toLocaleTimeString() +
+      " (" + Math.round(quiet / 1000) + " s); what this page shows may be out of date. Reconnecting\u2026";
+    $("stale").hidden = false;
+  }
+  const closed = events.readyState === EventSource.CLOSED;
+  if ((closed && now - connected >= 5000) || (quiet >= STALE_MS && now - connected >= STALE_MS)) connect();
+}
+connect();
+setInterval(watchStale, 1000);
 const linked = layerFromHash();
 if (linked) { setFollow(false); state.linked = linked; }
 refresh(null);
