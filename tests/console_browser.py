@@ -2,7 +2,7 @@
 WebDriver over plain HTTP, no client library); tests/it/console.rs serves a finished build with
 a raised alarm and flags on FIRST and SECOND, behind a token, and runs this.
 
-usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND SERVER_PID
+usage: console_browser.py PAGE_URL_WITH_TOKEN CHROMEDRIVER ARTIFACT_DIR FIRST SECOND SERVER_PID BUILD_DIR
 
 Checks: a deep link #layer=FIRST opens that layer; the health of the stopped daemon that wrote
 the build is shown nowhere green and says "daemon stopped"; its three flags or more have no two labels
@@ -11,11 +11,13 @@ at 2:1 with +; the trends of part 2 have a value for every layer and a baseline 
 FIRST again; the alarm acknowledged on one page (name, note, the button) clears the banner of
 the other open page within 2 s; the history on the page lists the acknowledgement; the page
 server stopped (SIGSTOP to SERVER_PID), the page says it is stale within 30 s, and clears that
-once the server goes on. Keeps screenshots: console-alarm.png (the banner with the button),
+once the server goes on; the build's UID changed in BUILD_DIR (another build there), the page
+reloads. Keeps screenshots: console-alarm.png (the banner with the button),
 console-acknowledged.png, console-flags.png (layer FIRST), console-trends.png,
 console-zoom.png, console-stale.png.
 """
 import base64
+import json
 import os
 import signal
 import sys
@@ -24,7 +26,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from webdriver import start, wait_for  # noqa: E402
 
-page, chromedriver, artifacts, first, second, server_pid = sys.argv[1:7]
+page, chromedriver, artifacts, first, second, server_pid, build_dir = sys.argv[1:8]
 first, second, server_pid = int(first), int(second), int(server_pid)
 
 
@@ -250,6 +252,21 @@ try:
         os.kill(server_pid, signal.SIGCONT)
     wait_for("the stale banner to clear", lambda: linked.js("return document.getElementById('stale').hidden"), timeout=30.0)
     print(f"stale banner cleared {time.time() - stopped:.1f} s after the stop")
+
+    # Another build in the same folder (its manifest's UID another): the open page reloads, so
+    # nothing it held of the build before (layers, vectors, pictures) is shown for the new one.
+    loaded = linked.js("return window.layerwisePageLoadedAt")
+    manifest_path = os.path.join(build_dir, "build.json")
+    with open(manifest_path) as f:
+        manifest = json.load(f)
+    manifest["study_instance_uid"] += ".9"
+    with open(manifest_path + ".tmp", "w") as f:
+        json.dump(manifest, f)
+    os.replace(manifest_path + ".tmp", manifest_path)
+    changed = time.time()
+    wait_for("the page to reload for the other build", lambda: linked.js(
+        "return window.layerwisePageLoadedAt !== arguments[0] && window.layerwisePageLoadedAt", loaded), timeout=30.0)
+    print(f"page reloaded {time.time() - changed:.1f} s after the build's UID changed")
 finally:
     for w in windows:
         try:

@@ -195,6 +195,11 @@ pub enum AckError {
     NotABuild(#[from] super::NotABuild),
     #[error("{}: the alarm is not raised (it is {state}); nothing to acknowledge", dir.display())]
     NotRaised { dir: PathBuf, state: AlarmState },
+    #[error(
+        "the alarm raised now is for layer {raised}, not layer {seen} the acknowledgement was for \
+         (it was raised again meanwhile): look at layer {raised}, then acknowledge it"
+    )]
+    Another { raised: u32, seen: u32 },
     #[error("{field} {problem}")]
     Invalid {
         field: &'static str,
@@ -208,12 +213,14 @@ pub enum AckError {
 /// checked or decided, `note`): the running daemon switches the stack light off; the next flag
 /// at the alarm's severity raises it again. Refused when `dir` is not a build, when the alarm is
 /// not raised (or its history cannot be read), and for a name or note with control characters
-/// or beyond [`MAX_BY_CHARS`] / [`MAX_NOTE_CHARS`]. Returns the state after it.
+/// or beyond [`MAX_BY_CHARS`] / [`MAX_NOTE_CHARS`], and when `seen` (the layer whose raise the
+/// operator saw, as the page sends it) is not the layer raised now. Returns the state after it.
 pub fn acknowledge(
     dir: &Path,
     by: &str,
     note: Option<&str>,
     at: DateTime<Utc>,
+    seen: Option<u32>,
 ) -> Result<AlarmState, AckError> {
     super::require_build(dir)?;
     let by = by.trim();
@@ -246,6 +253,14 @@ pub fn acknowledge(
             dir: dir.to_path_buf(),
             state,
         });
+    }
+    if let (AlarmState::Raised { layer, .. }, Some(seen)) = (&state, seen) {
+        if *layer != seen {
+            return Err(AckError::Another {
+                raised: *layer,
+                seen,
+            });
+        }
     }
     let ack = AlarmEvent::Acknowledged {
         at,
@@ -321,10 +336,10 @@ mod tests {
     #[test]
     fn acknowledge_checks_the_build_the_state_and_the_text_and_a_damaged_log_is_unknown() {
         let dir = tempfile::tempdir().unwrap();
-        let err = acknowledge(dir.path(), "ana", None, at(1)).unwrap_err();
+        let err = acknowledge(dir.path(), "ana", None, at(1), None).unwrap_err();
         assert!(matches!(err, AckError::NotABuild(_)), "{err}");
         std::fs::write(dir.path().join(crate::build_dir::JOURNAL), "").unwrap();
-        let err = acknowledge(dir.path(), "ana", None, at(1)).unwrap_err();
+        let err = acknowledge(dir.path(), "ana", None, at(1), None).unwrap_err();
         assert!(err.to_string().contains("not raised (it is off)"), "{err}");
         let path = dir.path().join(crate::build_dir::ALARM);
         AlarmLog::append_only(&path)
@@ -332,10 +347,17 @@ mod tests {
             .append(&raised(4))
             .unwrap();
         for (by, note) in [("", None), ("a\u{1b}[2J", None), ("ana", Some("x\u{7}"))] {
-            let err = acknowledge(dir.path(), by, note, at(2)).unwrap_err();
+            let err = acknowledge(dir.path(), by, note, at(2), None).unwrap_err();
             assert!(matches!(err, AckError::Invalid { .. }), "{err}");
         }
-        let now = acknowledge(dir.path(), " ana ", Some("  checked  "), at(3)).unwrap();
+        // A page that showed the raise of layer 2 does not acknowledge layer 4's.
+        let err = acknowledge(dir.path(), "ana", None, at(2), Some(2)).unwrap_err();
+        assert!(
+            matches!(err, AckError::Another { raised: 4, seen: 2 }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("look at layer 4"), "{err}");
+        let now = acknowledge(dir.path(), " ana ", Some("  checked  "), at(3), Some(4)).unwrap();
         assert_eq!(
             now,
             AlarmState::Acknowledged {

@@ -86,6 +86,10 @@ pub enum StatusError {
 pub struct StatusReport {
     pub build_dir: PathBuf,
     pub name: Option<String>,
+    /// The build's study instance UID, new for every build (the manifest's): another build in
+    /// the same folder has another. The page reloads when it changes.
+    #[serde(default)]
+    pub build_uid: Option<String>,
     pub state: String,
     /// Whether the daemon that writes this build is running now (its pid alive, its state
     /// `running`).
@@ -423,6 +427,7 @@ pub fn report(dir: &Path, settings: ReportSettings) -> Result<StatusReport, Stat
     let warning = (!warnings.is_empty()).then(|| warnings.join("; "));
     Ok(StatusReport {
         build_dir: dir.to_path_buf(),
+        build_uid: manifest.as_ref().map(|m| m.study_instance_uid.clone()),
         name: manifest.map(|m| m.name),
         state,
         running,

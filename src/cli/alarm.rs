@@ -43,7 +43,8 @@ impl AlarmArgs {
                     .or_else(|| std::env::var("USER").ok())
                     .filter(|b| !b.trim().is_empty())
                     .unwrap_or_else(|| "an operator".into());
-                let state = alarm::acknowledge(&build, &by, note.as_deref(), chrono::Utc::now())?;
+                let state =
+                    alarm::acknowledge(&build, &by, note.as_deref(), chrono::Utc::now(), None)?;
                 println!("alarm {state}");
                 Ok(())
             }

@@ -39,6 +39,10 @@ pub(super) struct AckRequest {
     by: String,
     #[serde(default)]
     note: Option<String>,
+    /// The layer whose raise the page showed: refused (409) when the alarm raised now is
+    /// another's (a page that had not yet shown the new raise).
+    #[serde(default)]
+    layer: Option<u32>,
 }
 
 /// The alarm's history, oldest first, and where it leaves the alarm.
@@ -64,6 +68,7 @@ pub(super) async fn acknowledge(
             &request.by,
             request.note.as_deref(),
             chrono::Utc::now(),
+            request.layer,
         );
         s.refresh_status();
         state
@@ -71,7 +76,7 @@ pub(super) async fn acknowledge(
     .await?
     .map_err(|e| {
         let status = match e {
-            AckError::NotRaised { .. } => StatusCode::CONFLICT,
+            AckError::NotRaised { .. } | AckError::Another { .. } => StatusCode::CONFLICT,
             AckError::Invalid { .. } => StatusCode::BAD_REQUEST,
             AckError::NotABuild(_) => StatusCode::NOT_FOUND,
             AckError::Log(_) => StatusCode::INTERNAL_SERVER_ERROR,

@@ -79,6 +79,19 @@ pub enum FileError {
 }
 
 impl FileError {
+    /// The HTTP answer to a file the page will not read: 404 when it is not there, 403 when it
+    /// is there and refused (a link, a FIFO, a device, too large), 500 when it cannot be read.
+    pub fn status(&self) -> axum::http::StatusCode {
+        use axum::http::StatusCode;
+        match self {
+            FileError::NotFound { .. } | FileError::BadName { .. } => StatusCode::NOT_FOUND,
+            FileError::Link { .. } | FileError::NotRegular { .. } | FileError::TooLarge { .. } => {
+                StatusCode::FORBIDDEN
+            }
+            FileError::Read { .. } => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
     /// Whether the file is simply not there (else: it is there and refused, or unreadable).
     pub fn is_not_found(&self) -> bool {
         matches!(self, FileError::NotFound { .. })

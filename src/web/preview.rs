@@ -9,9 +9,30 @@ use crate::rectify::{self, Calibration, Interpolation, Rectifier, RectifyError};
 use axum::body::Bytes;
 use image::DynamicImage;
 use std::collections::{BTreeMap, VecDeque};
-#[cfg(test)]
 use std::path::Path;
 use std::sync::{Arc, Mutex};
+
+/// A picture's validator (its HTTP ETag): the original it is made of (device, inode, size and
+/// modification time: a frame of another build, even at the same address, layer and view, is
+/// another file), how it is made (kind, region) and whether a calibration rectifies it. The
+/// page's pictures are sent `no-cache` with it, so a browser asks again (304 when nothing
+/// changed) rather than keep showing a picture of another build. `None`: the file is not there.
+pub fn validator(original: &Path, kind: Kind, region: Region, rectified: bool) -> Option<String> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::symlink_metadata(original).ok()?;
+    let key = format!(
+        "{}:{}:{}:{}.{}:{kind:?}:{region:?}:{rectified}",
+        m.dev(),
+        m.ino(),
+        m.size(),
+        m.mtime(),
+        m.mtime_nsec()
+    );
+    Some(format!(
+        "\"{}\"",
+        &crate::fsutil::sha256_hex(key.as_bytes())[..32]
+    ))
+}
 
 /// Which picture of a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

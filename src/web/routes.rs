@@ -151,6 +151,20 @@ pub fn parse_view(text: &str) -> Result<View, ApiError> {
 /// Bearer token from the Authorization header, or the cookie the page sets from `?token=`.
 async fn authorize(State(shared): State<Arc<PageState>>, request: Request, next: Next) -> Response {
     let Some(token) = &shared.token else {
+        // Without a token the page listens on loopback only (web.token_file is required beyond
+        // it), so its browsers name it by a loopback address or `localhost`. Another name is a
+        // site whose name was made to resolve to 127.0.0.1 (DNS rebinding): its script would
+        // read the build and acknowledge the alarm as the operator's page does.
+        if !loopback_host(request.headers()) {
+            return ApiError(
+                StatusCode::FORBIDDEN,
+                "without web.token_file the page answers only to 127.0.0.1, [::1] or localhost \
+                 (a page under another name is refused: DNS rebinding); set web.token_file to \
+                 serve it under a name, or have the reverse proxy send Host: 127.0.0.1"
+                    .into(),
+            )
+            .into_response();
+        }
         return next.run(request).await;
     };
     let headers = request.headers();
@@ -188,6 +202,25 @@ async fn authorize(State(shared): State<Arc<PageState>>, request: Request, next:
         "this page needs the token of web.token_file: open it as /?token=… or send Authorization: Bearer …".into(),
     )
     .into_response()
+}
+
+/// Whether the request's Host names the machine itself: a loopback IP address or `localhost`,
+/// with or without a port (none at all: an HTTP/1.0 client, which no browser is).
+fn loopback_host(headers: &HeaderMap) -> bool {
+    let Some(host) = headers.get(header::HOST) else {
+        return true;
+    };
+    let Ok(host) = host.to_str() else {
+        return false;
+    };
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or_default(),
+        None => host.rsplit_once(':').map_or(host, |(name, _)| name),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 /// Compares in time independent of where the first difference is.
@@ -388,17 +421,9 @@ fn original_path(shared: &PageState, n: u32, view: View) -> Result<BuildFile, Ap
     ))
 }
 
-/// The answer to a file the page will not read: 404 when it is not there, 403 when it is there
-/// and refused (a link, a FIFO, a device, too large), 500 when it cannot be read.
-pub(super) fn file_error(e: &FileError) -> ApiError {
-    let status = match e {
-        FileError::NotFound { .. } | FileError::BadName { .. } => StatusCode::NOT_FOUND,
-        FileError::Link { .. } | FileError::NotRegular { .. } | FileError::TooLarge { .. } => {
-            StatusCode::FORBIDDEN
-        }
-        FileError::Read { .. } => StatusCode::INTERNAL_SERVER_ERROR,
-    };
-    ApiError(status, chain(e))
+/// The answer to a file the page will not read ([`FileError::status`]).
+fn file_error(e: &FileError) -> ApiError {
+    ApiError(e.status(), chain(e))
 }
 
 #[derive(Deserialize)]
@@ -414,6 +439,7 @@ async fn picture(
     State(shared): State<Arc<PageState>>,
     Path((layer, view)): Path<(String, String)>,
     Query(q): Query<PictureQuery>,
+    headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let (n, view) = (parse_layer(&layer)?, parse_view(&view)?);
     let kind: Kind = q
@@ -430,15 +456,35 @@ async fn picture(
         _ => return Err(bad("a crop needs all of x, y, w and h")),
     };
     let path = original_path(&shared, n, view)?;
+    let tag = {
+        let (s, original) = (shared.clone(), path.path());
+        let rectified = move || s.info().is_some_and(|i| i.rectification.is_some());
+        blocking(move || preview::validator(&original, kind, region, rectified())).await?
+    };
+    let tag = tag.and_then(|t| HeaderValue::from_str(&t).ok());
+    let cache = (
+        header::CACHE_CONTROL,
+        HeaderValue::from_static("private, no-cache"),
+    );
+    if let Some(tag) = &tag {
+        if headers.get(header::IF_NONE_MATCH) == Some(tag) {
+            let etag = (header::ETAG, tag.clone());
+            return Ok((StatusCode::NOT_MODIFIED, [cache, etag]).into_response());
+        }
+    }
     let jpeg = make_picture(&shared, path, kind, region).await?;
-    Ok((
+    let mut answer = (
         [
-            (header::CONTENT_TYPE, "image/jpeg"),
-            (header::CACHE_CONTROL, "private, max-age=600"),
+            (header::CONTENT_TYPE, HeaderValue::from_static("image/jpeg")),
+            cache,
         ],
         jpeg,
     )
-        .into_response())
+        .into_response();
+    if let Some(tag) = tag {
+        answer.headers_mut().insert(header::ETAG, tag);
+    }
+    Ok(answer)
 }
 
 /// The picture from the cache, else made on the blocking pool, one at a time.

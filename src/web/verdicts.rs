@@ -208,7 +208,7 @@ pub(crate) async fn heatmap(
             StatusCode::NOT_FOUND,
             format!("no heat map of layer {n} {view} (no [inspection.model], or not yet)"),
         ),
-        Ok(Err(e)) => super::routes::file_error(&e).into_response(),
+        Ok(Err(e)) => answer(e.status(), crate::logging::chain(&e)),
         Err(e) => answer(
             StatusCode::INTERNAL_SERVER_ERROR,
             format!("request failed: {e}"),

@@ -354,6 +354,40 @@ fn serve_clears_the_alarm_banner_after_alarm_ack_without_a_restart() {
     }
 }
 
+/// A page's acknowledgement names the raise it showed: a page that had not yet shown the alarm
+/// raised again for another layer does not switch that one off unseen; and a page under another
+/// name than the machine's own is refused (DNS rebinding).
+#[test]
+fn a_page_acknowledgement_of_an_earlier_raise_does_not_acknowledge_the_new_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let build = finished(tmp.path());
+    raise_alarm(&build);
+    let (_served, addr) = serve(&build, &[]);
+    assert_eq!(get_json(addr, "/api/status")["alarm"]["layer"], 2);
+    let (code, body) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"ana","layer":1}"#);
+    let text = String::from_utf8_lossy(&body);
+    assert_eq!(code, 409, "{text}");
+    assert!(
+        text.contains("raised now is for layer 2, not layer 1"),
+        "{text}"
+    );
+    assert_eq!(get_json(addr, "/api/status")["alarm"]["state"], "raised");
+    // A site whose name resolves to 127.0.0.1 (DNS rebinding) is refused, without a token too.
+    let ack = br#"{"by":"mallory","layer":2}"#;
+    for path in ["/api/status", "/api/alarm/ack"] {
+        let method = if path.ends_with("ack") { "POST" } else { "GET" };
+        let (code, _, body) = http_with(addr, method, path, "Host: evil.example:80\r\n", ack);
+        let text = String::from_utf8_lossy(&body);
+        assert_eq!(code, 403, "{path}: {text}");
+        assert!(text.contains("DNS rebinding"), "{text}");
+    }
+    let port = format!("Host: 127.0.0.1:{}\r\n", addr.port());
+    assert_eq!(http_with(addr, "GET", "/api/status", &port, b"").0, 200);
+    let (code, body) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"ana","layer":2}"#);
+    assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
+    assert_eq!(get_json(addr, "/api/status")["alarm"]["by"], "ana");
+}
+
 #[test]
 fn push_forget_drops_a_mistaken_destination_from_status() {
     use layerwise::build_dir::pushlog::{log_path, PushLog, PushRecord};
@@ -613,6 +647,7 @@ fn a_browser_acknowledges_the_alarm_and_steps_between_flags() {
         .arg(&artifacts)
         .args([first, second].map(|l| l.to_string()))
         .arg(served.pid().to_string())
+        .arg(&build)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", report(&out));

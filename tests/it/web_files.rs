@@ -169,6 +169,56 @@ fn planted_heat_maps_are_refused_and_a_real_one_is_served() {
     drop(served);
 }
 
+/// A picture carries its original's identity (ETag) and is to be asked for again (`no-cache`):
+/// another build served at the same address has other pictures for the same layer and view,
+/// and a browser that kept build A's layer 1 sees build B's. Before, pictures were sent
+/// `max-age=600` by layer and view alone: a page kept showing the build before's pictures for up
+/// to ten minutes, reloads included.
+#[test]
+fn a_picture_is_asked_for_again_and_another_builds_is_not_taken_for_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let builds = ["a", "b"].map(|name| {
+        let at = tmp.path().join(name);
+        std::fs::create_dir(&at).unwrap();
+        finished_build(&at, 1)
+    });
+    let path = "/api/layers/1/post_top/picture.jpg";
+    let tag_of = |head: &str| -> String {
+        let line = head.lines().find_map(|l| l.strip_prefix("etag: "));
+        line.unwrap_or_else(|| panic!("no etag: {head}"))
+            .to_string()
+    };
+    let (served, addr) = serve(&builds[0], &[]);
+    let (status, head, body) = http_with(addr, "GET", path, "", b"");
+    assert_eq!(status, 200, "{head}");
+    assert!(head.contains("cache-control: private, no-cache"), "{head}");
+    assert!(!body.is_empty());
+    let tag = tag_of(&head);
+    let asked = format!("If-None-Match: {tag}\r\n");
+    let (status, head, body) = http_with(addr, "GET", path, &asked, b"");
+    assert_eq!((status, body.len()), (304, 0), "{head}");
+    assert_eq!(tag_of(&head), tag);
+    // Another kind of picture of the same frame is another picture.
+    let raw = format!("{path}?kind=raw");
+    assert_eq!(http_with(addr, "GET", &raw, &asked, b"").0, 200);
+    drop(served);
+    // Build B at an address a page knew build A at: its layer 1 is sent whole.
+    let (served, addr) = serve(&builds[1], &[]);
+    let (status, head, body) = http_with(addr, "GET", path, &asked, b"");
+    assert_eq!(status, 200, "{head}");
+    assert!(!body.is_empty());
+    assert_ne!(tag_of(&head), tag);
+    // The status names the build, so a page open at this address reloads for build B.
+    let uid = |at: &std::path::Path| {
+        read_json(&at.join(layerwise::build_dir::MANIFEST))["study_instance_uid"].clone()
+    };
+    let (_, status) = http(addr, "GET", "/api/status", b"");
+    let status: serde_json::Value = serde_json::from_slice(&status).unwrap();
+    assert_eq!(status["build_uid"], uid(&builds[1]));
+    assert_ne!(uid(&builds[0]), uid(&builds[1]));
+    drop(served);
+}
+
 #[test]
 fn a_crop_smaller_than_a_pixel_is_a_bad_request_not_a_server_error() {
     let tmp = tempfile::tempdir().unwrap();

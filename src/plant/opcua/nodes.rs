@@ -74,7 +74,7 @@ impl MonitorNodes {
             }
             alarm.build_dir.clone().ok_or(StatusCode::BadInvalidState)?
         };
-        match acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now()) {
+        match acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now(), None) {
             Ok(_) => {
                 info!(by = %by, "inspection alarm acknowledged over OPC UA");
                 let _ = self.acks.try_send((by, note));

@@ -28,6 +28,10 @@ function dd(dl, key, value, cls) {
 
 function showStatus(s) {
   if (!s) return;
+  // Another build served at this address (a new build in the same folder, another `serve`):
+  // what this page holds of the one before (its layers, vectors, pictures) goes with a reload.
+  if (s.build_uid && state.buildUid && s.build_uid !== state.buildUid) { location.reload(); return; }
+  if (s.build_uid) state.buildUid = s.build_uid;
   $("build-name").textContent = s.name || "layerwise";
   $("state").textContent = "daemon " + s.state + (s.pid ? " (pid " + s.pid + ")" : "") + (!s.running && s.last_update ? ", " + s.last_update : "");
   const w = $("warning");
@@ -38,6 +42,7 @@ function showStatus(s) {
   const banner = [alarm, s.warning].filter(Boolean).join(" \u2014 ");
   w.hidden = !banner; $("warning-text").textContent = banner;
   $("ack-form").hidden = !(s.alarm && s.alarm.state === "raised");
+  state.alarmLayer = s.alarm && s.alarm.state === "raised" ? s.alarm.layer : undefined;
   $("ack-cli").textContent = raised ? "or: layerwise alarm ack --build " + s.build_dir : "";
   const alarmKey = JSON.stringify(s.alarm || null);
   if (alarmKey !== state.alarmKey) { state.alarmKey = alarmKey; loadAlarmHistory(); }
@@ -96,7 +101,8 @@ $("ack-form").addEventListener("submit", async (e) => {
   localStorage.setItem("layerwise-operator", by);
   const r = await fetch("/api/alarm/ack", {
     method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/json" },
-    body: JSON.stringify({ by, note: $("ack-note").value }),
+    // The raise this page shows: refused if the alarm was raised again for another layer since.
+    body: JSON.stringify({ by, note: $("ack-note").value, layer: state.alarmLayer }),
   });
   const answer = await r.json().catch(() => ({}));
   $("ack-result").textContent = r.ok ? "alarm " + answer.shown : "not acknowledged: " + (answer.error || r.status);
