@@ -205,8 +205,9 @@ fn scrape(addr: std::net::SocketAddr, done: Arc<AtomicBool>) -> std::thread::Joi
         let mut answers = 0;
         while !done.load(Ordering::SeqCst) {
             if let Ok(mut stream) = std::net::TcpStream::connect(addr) {
-                let _ = stream
-                    .write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+                let _ = stream.write_all(
+                    b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n",
+                );
                 let mut answer = Vec::new();
                 if stream.read_to_end(&mut answer).is_ok() && answer.starts_with(b"HTTP/1.1 200") {
                     answers += 1;

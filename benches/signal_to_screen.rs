@@ -115,7 +115,11 @@ fn watch_page(
     stream
         .set_read_timeout(Some(Duration::from_millis(200)))
         .expect("timeout");
-    write!(stream, "GET /api/events HTTP/1.1\r\nHost: x\r\n\r\n").expect("request");
+    write!(
+        stream,
+        "GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+    )
+    .expect("request");
     std::thread::spawn(move || {
         let mut reader = BufReader::new(stream);
         let mut line = String::new();

@@ -57,7 +57,7 @@ fn get(addr: SocketAddr, path: &str) -> Vec<u8> {
     let _ = s.set_read_timeout(Some(Duration::from_secs(30)));
     let _ = write!(
         s,
-        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
     );
     let mut out = Vec::new();
     let _ = s.read_to_end(&mut out);
@@ -74,7 +74,10 @@ fn client(addr: SocketAddr, stop: Arc<AtomicBool>, pictures: Arc<AtomicU64>) {
         return;
     };
     let _ = events.set_read_timeout(Some(Duration::from_millis(200)));
-    let _ = write!(events, "GET /api/events HTTP/1.1\r\nHost: x\r\n\r\n");
+    let _ = write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+    );
     let mut reader = BufReader::new(events);
     let mut line = String::new();
     while !stop.load(Ordering::SeqCst) {

@@ -110,11 +110,11 @@ def main():
                 alive.append(s)
                 n += 1
                 if kind == "streams":
-                    send(s, b"GET /api/events HTTP/1.1\r\nHost: x\r\n\r\n")
+                    send(s, b"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
                 elif kind == "slow":
                     length = 1_000_000_000 if n % 2 else 60_000
                     head = (
-                        "POST /api/calibration HTTP/1.1\r\nHost: x\r\n"
+                        "POST /api/calibration HTTP/1.1\r\nHost: 127.0.0.1\r\n"
                         f"Content-Type: application/json\r\nContent-Length: {length}\r\n\r\n"
                     )
                     send(s, head.encode())

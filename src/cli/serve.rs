@@ -24,6 +24,10 @@ pub struct ServeArgs {
     /// Let the calibration page save new points files (and calibrations) in the build directory.
     #[arg(long)]
     calibration_page: bool,
+    /// A name besides 127.0.0.1, [::1] and localhost the page answers to without a token (one a
+    /// reverse proxy sends as Host), as `[web] allowed_hosts`; repeatable.
+    #[arg(long = "allowed-host", value_name = "NAME")]
+    allowed_hosts: Vec<String>,
     /// Seconds a connection may sit idle (nothing read or written, no request being answered)
     /// before it is closed, as `[web] idle_timeout_s`.
     #[arg(long, default_value_t = WebConfig::default().idle_timeout_s)]
@@ -71,6 +75,7 @@ impl ServeArgs {
             listen: self.listen.clone(),
             token_file: self.token_file.clone(),
             calibration_page: self.calibration_page,
+            allowed_hosts: self.allowed_hosts.clone(),
             idle_timeout_s: self.idle_timeout_s,
             header_timeout_s: self.header_timeout_s,
             body_timeout_s: self.body_timeout_s,

@@ -52,6 +52,10 @@ pub struct WebConfig {
     /// The calibration page may save a new points file in the build directory (never
     /// overwriting one) and run the registration.
     pub calibration_page: bool,
+    /// Names besides 127.0.0.1, [::1] and localhost the page answers to (as a request's `Host`)
+    /// without a token: those a reverse proxy on this machine sends. Any other name is refused
+    /// (a site made to resolve to 127.0.0.1: DNS rebinding). With a token, every name is.
+    pub allowed_hosts: Vec<String>,
 }
 
 impl Default for WebConfig {
@@ -69,6 +73,7 @@ impl Default for WebConfig {
             preview_px: 1024,
             cache_mb: 64,
             calibration_page: false,
+            allowed_hosts: Vec::new(),
         }
     }
 }

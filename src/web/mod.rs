@@ -17,6 +17,7 @@ pub mod calibration;
 pub mod clients;
 pub mod files;
 pub mod harness;
+mod host;
 pub mod listener;
 pub mod preview;
 mod priority;

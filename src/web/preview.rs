@@ -14,14 +14,20 @@ use std::sync::{Arc, Mutex};
 
 /// A picture's validator (its HTTP ETag): the original it is made of (device, inode, size and
 /// modification time: a frame of another build, even at the same address, layer and view, is
-/// another file), how it is made (kind, region) and whether a calibration rectifies it. The
-/// page's pictures are sent `no-cache` with it, so a browser asks again (304 when nothing
-/// changed) rather than keep showing a picture of another build. `None`: the file is not there.
-pub fn validator(original: &Path, kind: Kind, region: Region, rectified: bool) -> Option<String> {
+/// another file), which part and kind, and what it is made with (`made_with`: the grid, the
+/// calibration and the program, as [`super::state::BuildInfo`] says; `max_px`). The page's
+/// pictures are sent `no-cache` with it, so a browser asks again (304 when nothing changed)
+/// rather than keep showing a picture of another build or calibration. `None`: no such file.
+pub fn validator(
+    original: &Path,
+    (kind, region): (Kind, Region),
+    made_with: &str,
+    max_px: u32,
+) -> Option<String> {
     use std::os::unix::fs::MetadataExt;
     let m = std::fs::symlink_metadata(original).ok()?;
     let key = format!(
-        "{}:{}:{}:{}.{}:{kind:?}:{region:?}:{rectified}",
+        "{}:{}:{}:{}.{}:{kind:?}:{region:?}:{made_with}:{max_px}",
         m.dev(),
         m.ino(),
         m.size(),

@@ -155,12 +155,12 @@ async fn authorize(State(shared): State<Arc<PageState>>, request: Request, next:
         // it), so its browsers name it by a loopback address or `localhost`. Another name is a
         // site whose name was made to resolve to 127.0.0.1 (DNS rebinding): its script would
         // read the build and acknowledge the alarm as the operator's page does.
-        if !loopback_host(request.headers()) {
+        if !super::host::own_host(request.headers(), &shared.config.allowed_hosts) {
             return ApiError(
                 StatusCode::FORBIDDEN,
-                "without web.token_file the page answers only to 127.0.0.1, [::1] or localhost \
-                 (a page under another name is refused: DNS rebinding); set web.token_file to \
-                 serve it under a name, or have the reverse proxy send Host: 127.0.0.1"
+                "without web.token_file the page answers only to 127.0.0.1, [::1], localhost and \
+                 web.allowed_hosts (a page under another name is refused: DNS rebinding); add \
+                 the name a reverse proxy sends to web.allowed_hosts, or set web.token_file"
                     .into(),
             )
             .into_response();
@@ -202,25 +202,6 @@ async fn authorize(State(shared): State<Arc<PageState>>, request: Request, next:
         "this page needs the token of web.token_file: open it as /?token=… or send Authorization: Bearer …".into(),
     )
     .into_response()
-}
-
-/// Whether the request's Host names the machine itself: a loopback IP address or `localhost`,
-/// with or without a port (none at all: an HTTP/1.0 client, which no browser is).
-fn loopback_host(headers: &HeaderMap) -> bool {
-    let Some(host) = headers.get(header::HOST) else {
-        return true;
-    };
-    let Ok(host) = host.to_str() else {
-        return false;
-    };
-    let name = match host.strip_prefix('[') {
-        Some(v6) => v6.split(']').next().unwrap_or_default(),
-        None => host.rsplit_once(':').map_or(host, |(name, _)| name),
-    };
-    name.eq_ignore_ascii_case("localhost")
-        || name
-            .parse::<std::net::IpAddr>()
-            .is_ok_and(|ip| ip.is_loopback())
 }
 
 /// Compares in time independent of where the first difference is.
@@ -458,8 +439,12 @@ async fn picture(
     let path = original_path(&shared, n, view)?;
     let tag = {
         let (s, original) = (shared.clone(), path.path());
-        let rectified = move || s.info().is_some_and(|i| i.rectification.is_some());
-        blocking(move || preview::validator(&original, kind, region, rectified())).await?
+        blocking(move || {
+            let made_with = s.info().map(|i| i.made_with.clone()).unwrap_or_default();
+            let max_px = s.config.preview_px;
+            preview::validator(&original, (kind, region), &made_with, max_px)
+        })
+        .await?
     };
     let tag = tag.and_then(|t| HeaderValue::from_str(&t).ok());
     let cache = (

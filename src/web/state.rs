@@ -20,6 +20,10 @@ pub(crate) struct BuildInfo {
     pub views: Vec<View>,
     pub grid: Grid,
     pub rectification: Option<Rectification>,
+    /// What the pictures are made with (the grid, the calibration, this program's version), as
+    /// a digest: part of each picture's validator, so a calibration changed since is another
+    /// picture.
+    pub made_with: String,
     pub vectors_file: Option<PathBuf>,
     /// How printer layers pair with the vector file's layers (docs/frames.md).
     pub numbering: crate::vectors::LayerNumbering,
@@ -33,7 +37,14 @@ pub(crate) struct BuildInfo {
 impl BuildInfo {
     fn open(dir: &Path) -> Option<BuildInfo> {
         let record = BuildRecord::open(dir).ok()?;
+        let made_with = format!(
+            "{:?}|{:?}|{}",
+            record.grid,
+            record.calibration,
+            env!("CARGO_PKG_VERSION")
+        );
         Some(BuildInfo {
+            made_with: crate::fsutil::sha256_hex(made_with.as_bytes()),
             views: record.config.views.all(),
             grid: record.grid,
             rectification: record.calibration.map(|calibration| Rectification {

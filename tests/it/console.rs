@@ -383,6 +383,12 @@ fn a_page_acknowledgement_of_an_earlier_raise_does_not_acknowledge_the_new_one()
     }
     let port = format!("Host: 127.0.0.1:{}\r\n", addr.port());
     assert_eq!(http_with(addr, "GET", "/api/status", &port, b"").0, 200);
+    // The name a reverse proxy sends, when allowed.
+    let (_proxied, behind) = serve(&build, &["--allowed-host", "printer-7.shop.example"]);
+    let proxy = "Host: Printer-7.shop.example:443\r\n";
+    assert_eq!(http_with(behind, "GET", "/api/status", proxy, b"").0, 200);
+    let other = "Host: evil.example\r\n";
+    assert_eq!(http_with(behind, "GET", "/api/status", other, b"").0, 403);
     let (code, body) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"ana","layer":2}"#);
     assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
     assert_eq!(get_json(addr, "/api/status")["alarm"]["by"], "ana");

@@ -530,12 +530,12 @@ fn page_request_seeds() -> Vec<Vec<u8>> {
         get("/api/events?token=0123456789abcdef0123", ""),
         get("/api/calibration/20260101T000000000/overlay.png", ""),
         format!(
-            "POST /api/calibration HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+            "POST /api/calibration HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
             body.len()
         )
         .into_bytes(),
         format!(
-            "POST /api/calibration HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n{:x}\r\n{body}\r\n0\r\n\r\n",
+            "POST /api/calibration HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n{:x}\r\n{body}\r\n0\r\n\r\n",
             body.len()
         )
         .into_bytes(),

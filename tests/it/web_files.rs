@@ -169,9 +169,30 @@ fn planted_heat_maps_are_refused_and_a_real_one_is_served() {
     drop(served);
 }
 
+/// Moves the first number of the build's calibration copy by a millionth of itself.
+fn nudge_calibration(build: &Path) {
+    fn nudge(value: &mut toml::Value) -> bool {
+        match value {
+            toml::Value::Float(f) => {
+                *f += f.abs().max(1.0) * 1e-6;
+                true
+            }
+            toml::Value::Array(items) => items.iter_mut().any(nudge),
+            toml::Value::Table(table) => table.iter_mut().any(|(_, v)| nudge(v)),
+            _ => false,
+        }
+    }
+    let path = build.join(layerwise::build_dir::CALIBRATION_COPY);
+    let mut calibration: toml::Value =
+        toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert!(nudge(&mut calibration), "a number in {}", path.display());
+    std::fs::write(&path, toml::to_string(&calibration).unwrap()).unwrap();
+}
+
 /// A picture carries its original's identity (ETag) and is to be asked for again (`no-cache`):
 /// another build served at the same address has other pictures for the same layer and view,
-/// and a browser that kept build A's layer 1 sees build B's. Before, pictures were sent
+/// and a browser that kept build A's layer 1 sees build B's; a calibration changed since is
+/// another picture too. Before, pictures were sent
 /// `max-age=600` by layer and view alone: a page kept showing the build before's pictures for up
 /// to ten minutes, reloads included.
 #[test]
@@ -201,6 +222,14 @@ fn a_picture_is_asked_for_again_and_another_builds_is_not_taken_for_it() {
     // Another kind of picture of the same frame is another picture.
     let raw = format!("{path}?kind=raw");
     assert_eq!(http_with(addr, "GET", &raw, &asked, b"").0, 200);
+    drop(served);
+    // Build A served again with its calibration changed (a restart with a new one): the
+    // rectified picture is another, though its original is the same file.
+    nudge_calibration(&builds[0]);
+    let (served, addr) = serve(&builds[0], &[]);
+    let (status, head, _) = http_with(addr, "GET", path, &asked, b"");
+    assert_eq!(status, 200, "{head}");
+    assert_ne!(tag_of(&head), tag);
     drop(served);
     // Build B at an address a page knew build A at: its layer 1 is sent whole.
     let (served, addr) = serve(&builds[1], &[]);

@@ -24,7 +24,10 @@ pub fn http_with(
 ) -> (u16, String, Vec<u8>) {
     let mut s = TcpStream::connect(addr).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-    let host = match headers.to_ascii_lowercase().contains("host:") {
+    let own_host = headers
+        .split("\r\n")
+        .any(|line| line.to_ascii_lowercase().starts_with("host:"));
+    let host = match own_host {
         true => "",
         false => "Host: localhost\r\n",
     };
