@@ -226,6 +226,13 @@ impl Pictures {
         }
     }
 
+    /// Forgets every picture made (the calibration or grid they were made with changed).
+    pub fn forget_all(&self) {
+        let mut cache = lock(&self.cache);
+        cache.entries.clear();
+        cache.bytes = 0;
+    }
+
     /// Whether the picture is cached already.
     pub fn cached(&self, original: &BuildFile, kind: Kind, region: Region) -> Option<Bytes> {
         let key = (original.clone(), kind, region.key());

@@ -78,7 +78,9 @@ pub(crate) struct PageState {
     pub token: Option<String>,
     pub timeline: RwLock<Timeline>,
     pub status: RwLock<Option<Arc<StatusReport>>>,
-    pub(super) info: Mutex<Option<Arc<BuildInfo>>>,
+    /// The build's settings as last read, with the identity of the files they were read from
+    /// and when ([`PageState::info`]).
+    pub(super) info: Mutex<Option<ReadInfo>>,
     pub pictures: Pictures,
     /// Pictures are made one at a time: the page never takes more than one core.
     pub encode: Semaphore,
@@ -90,14 +92,55 @@ pub(crate) struct PageState {
     pub stop: Shutdown,
 }
 
+/// A file as it is on disk: device, inode, size, modification time (s, ns).
+type FileIdentity = (u64, u64, u64, i64, i64);
+
+/// The build's settings as read: from which files (the configuration snapshot and the
+/// calibration copy, as they were), when, and what they gave.
+pub(crate) struct ReadInfo {
+    files: [Option<FileIdentity>; 2],
+    at: std::time::Instant,
+    info: Option<Arc<BuildInfo>>,
+}
+
+/// How long settings that could not be read are not tried again (each request would read them
+/// again meanwhile, a vector file among them).
+const RETRY_SETTINGS: std::time::Duration = std::time::Duration::from_secs(5);
+
 impl PageState {
-    /// The build's configuration snapshot, read once it exists.
+    /// The build's configuration snapshot and calibration, read again when either file changes
+    /// (a daemon started again with a new calibration; a new build writes the configuration
+    /// first, the calibration after it). Settings that could not be read are tried again after
+    /// [`RETRY_SETTINGS`]. Pictures made with other settings are forgotten.
     pub fn info(&self) -> Option<Arc<BuildInfo>> {
-        let mut info = self.info.lock().unwrap_or_else(|e| e.into_inner());
-        if info.is_none() {
-            *info = BuildInfo::open(&self.dir).map(Arc::new);
+        use std::os::unix::fs::MetadataExt;
+        let identity = |name: &str| {
+            let m = std::fs::metadata(self.dir.join(name)).ok()?;
+            Some((m.dev(), m.ino(), m.size(), m.mtime(), m.mtime_nsec()))
+        };
+        let files = [
+            identity(crate::build_dir::CONFIG_SNAPSHOT),
+            identity(crate::build_dir::CALIBRATION_COPY),
+        ];
+        let mut read = self.info.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(r) = read.as_ref() {
+            if r.files == files && (r.info.is_some() || r.at.elapsed() < RETRY_SETTINGS) {
+                return r.info.clone();
+            }
         }
-        info.clone()
+        let info = BuildInfo::open(&self.dir).map(Arc::new);
+        let made_with = |r: &ReadInfo| r.info.as_ref().map(|i| i.made_with.clone());
+        let before = read.as_ref().and_then(made_with);
+        let now = ReadInfo {
+            files,
+            at: std::time::Instant::now(),
+            info: info.clone(),
+        };
+        if before.is_some() && before != made_with(&now) {
+            self.pictures.forget_all();
+        }
+        *read = Some(now);
+        info
     }
 
     /// The build's settings for its status report (the configuration's defaults until its

@@ -248,6 +248,28 @@ fn a_picture_is_asked_for_again_and_another_builds_is_not_taken_for_it() {
     drop(served);
 }
 
+/// The page reads the build's settings again when their files change: a new build writes its
+/// configuration first and its calibration after it, and a page that looked in between showed
+/// raw frames only, for the page's whole life (the settings were read once).
+#[test]
+fn a_calibration_that_comes_after_the_page_started_is_used() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 1);
+    let copy = dir.join(layerwise::build_dir::CALIBRATION_COPY);
+    let aside = tmp.path().join("calibration.toml");
+    std::fs::rename(&copy, &aside).unwrap();
+    let (served, addr) = serve(&dir, &[]);
+    let rectified = || get_json(addr, "/api/layers")["rectified"].clone();
+    let picture = "/api/layers/1/post_top/picture.jpg?kind=rectified";
+    assert_eq!(rectified(), false);
+    assert_eq!(http(addr, "GET", picture, b"").0, 404);
+    std::fs::rename(&aside, &copy).unwrap();
+    assert_eq!(rectified(), true);
+    let (status, body) = http(addr, "GET", picture, b"");
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    drop(served);
+}
+
 #[test]
 fn a_crop_smaller_than_a_pixel_is_a_bad_request_not_a_server_error() {
     let tmp = tempfile::tempdir().unwrap();
