@@ -71,6 +71,7 @@ pub fn outline(bed: &BedRecord, grid: &Grid) -> Vec<[f64; 2]> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::timeline::Tails;
     use super::*;
 
     /// A bed of cells 10..=29 (columns) x 5..=14 (rows) on a 1 mm inspection grid over
@@ -149,8 +150,8 @@ mod tests {
         })
         .collect();
         std::fs::write(dir.path().join(crate::build_dir::INSPECTION), lines).unwrap();
-        let mut timeline = Timeline::new(dir.path());
-        timeline.refresh().unwrap();
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
+        timeline.refresh(&mut tails).unwrap();
         let grid = Grid::plate();
         let at = |n| layer_bed(&timeline, n, Some(&grid)).map(|b| (b.layer, b.bbox_mm[2]));
         assert_eq!(at(1), None, "a provisional bed is not shown");
@@ -170,7 +171,7 @@ mod tests {
             (serde_json::to_string(&again).unwrap() + "\n").as_bytes(),
         )
         .unwrap();
-        timeline.refresh().unwrap();
+        timeline.refresh(&mut tails).unwrap();
         let at = |n| layer_bed(&timeline, n, Some(&grid)).map(|b| (b.layer, b.bbox_mm[2]));
         assert_eq!(at(11), Some((3, 65.0)));
     }

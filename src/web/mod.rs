@@ -41,7 +41,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicUsize;
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant, SystemTime};
-use timeline::Timeline;
+use timeline::{Tails, Timeline};
 use tokio::sync::{watch, Semaphore};
 use tracing::warn;
 
@@ -188,8 +188,8 @@ fn page_state(dir: &Path, config: &WebConfig, stop: Shutdown) -> Result<Arc<Page
     limits.max_connections = process::connection_room(limits.max_connections);
     limits.per_client = limits.per_client.min(limits.max_connections);
     // What is on disk already is read before the first request is answered.
-    let mut timeline = Timeline::new(dir);
-    if let Err(e) = timeline.refresh() {
+    let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir));
+    if let Err(e) = timeline.refresh(&mut tails) {
         warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
     }
     Ok(Arc::new(PageState {
@@ -197,6 +197,7 @@ fn page_state(dir: &Path, config: &WebConfig, stop: Shutdown) -> Result<Arc<Page
         config: config.clone(),
         token,
         timeline: RwLock::new(timeline),
+        tails: Mutex::new(tails),
         status: RwLock::new(None),
         info: Mutex::new(None),
         pictures: Pictures::new(config.preview_px, config.cache_mb as usize * 1_000_000),
@@ -257,11 +258,17 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
     let mut pending = true;
     let mut warned = false;
     let preparing = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // A log longer than one read is read on at once.
+    let mut again = false;
     loop {
-        tokio::select! {
-            _ = tick.tick() => {}
-            _ = changed() => {}
-            _ = stop.requested() => return,
+        if !std::mem::take(&mut again) {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = changed() => {}
+                _ = stop.requested() => return,
+            }
+        } else if stop.is_requested() {
+            return;
         }
         let s = shared.clone();
         let looked = tokio::task::spawn_blocking(move || {
@@ -272,23 +279,27 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
                 + stamp(crate::build_dir::ALARM).map_or(0, |m| m.len());
             let journal = stamp(crate::build_dir::JOURNAL).map_or(0, |m| m.len());
             let status = stamp(crate::build_dir::STATUS).and_then(|m| m.modified().ok());
-            let changed = s
-                .timeline
+            // Read and parsed before the timeline is locked: the page's requests wait only
+            // for what was read to be taken in.
+            let (appended, error) = s.tails.lock().unwrap_or_else(|e| e.into_inner()).read();
+            let more = appended.more;
+            s.timeline
                 .write()
                 .unwrap_or_else(|e| e.into_inner())
-                .refresh();
-            (journal, logs, status, changed)
+                .apply(appended);
+            (journal, logs, status, error.map_or(Ok(more), Err))
         })
         .await;
-        let Ok((journal, logs, status_time, changed)) = looked else {
+        let Ok((journal, logs, status_time, read)) = looked else {
             continue;
         };
-        match changed {
+        match read {
             Err(e) if !warned => {
                 warn!(dir = %shared.dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal");
                 warned = true;
             }
-            _ => {}
+            Ok(more) => again = more,
+            Err(_) => {}
         }
         let looks = (journal, logs, status_time);
         // A grown inspection or alarm log is what the operator must see without delay.

@@ -2,7 +2,7 @@
 //! timeline, the status report, the picture cache and the open event streams.
 
 use super::preview::{Pictures, Rectification};
-use super::timeline::Timeline;
+use super::timeline::{Tails, Timeline};
 use crate::build_dir::status::{self, StatusReport};
 use crate::config::WebConfig;
 use crate::geometry::Grid;
@@ -77,6 +77,8 @@ pub(crate) struct PageState {
     pub config: WebConfig,
     pub token: Option<String>,
     pub timeline: RwLock<Timeline>,
+    /// The logs' readers: only the watch reads, outside the timeline's lock.
+    pub tails: Mutex<Tails>,
     pub status: RwLock<Option<Arc<StatusReport>>>,
     /// The build's settings as last read, with the identity of the files they were read from
     /// and when ([`PageState::info`]).

@@ -81,48 +81,182 @@ impl LayerState {
     }
 }
 
+/// At most this much of a log is read in one look: the first look at a long build's journal
+/// reads it in steps, not in one allocation of its size.
+const MAX_READ: u64 = 16 << 20;
+
 /// A file of JSON lines read as it grows.
 #[derive(Debug)]
 struct Tail {
     path: PathBuf,
     offset: u64,
+    /// [`MAX_READ`], smaller in tests.
+    max_read: u64,
+    /// Inside a line longer than a whole read, skipping it.
+    skipping: bool,
+}
+
+/// What one look at a log found: the complete lines appended since the last look, parsed.
+#[derive(Debug)]
+struct Lines<T> {
+    records: Vec<T>,
+    /// Lines that did not parse (a newer format, or a line over [`MAX_READ`]); skipped.
+    unreadable: usize,
+    /// The file shrank (a torn tail cut on restart): `records` start from its beginning again.
+    restarted: bool,
 }
 
 impl Tail {
-    /// The complete lines appended since the last call, and whether the file shrank (a torn
-    /// tail cut on restart) so that they are the whole file again. A line still being written
-    /// is read on the next call.
-    fn read(&mut self) -> std::io::Result<Option<(Vec<u8>, bool)>> {
-        let mut file = match std::fs::File::open(&self.path) {
+    /// The complete lines appended since the last call (at most [`MAX_READ`] bytes of them),
+    /// whether there is more to read, and whether the file shrank so that they are the whole
+    /// file again. A line still being written is read on the next call. Only a regular file is
+    /// read, and never through a symbolic link (as the daemon writes it): a FIFO planted in its
+    /// place is refused at once, never waited on.
+    fn read<T: serde::de::DeserializeOwned>(
+        &mut self,
+    ) -> std::io::Result<(Option<Lines<T>>, bool)> {
+        let mut file = match crate::fsutil::open_regular_nofollow(&self.path) {
             Ok(f) => f,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((None, false)),
             Err(e) => return Err(e),
         };
         let len = file.metadata()?.len();
         let restarted = len < self.offset;
         if restarted {
             self.offset = 0;
+            self.skipping = false;
         }
-        if len == self.offset {
-            return Ok(restarted.then(|| (Vec::new(), true)));
-        }
-        file.seek(SeekFrom::Start(self.offset))?;
-        let mut data = Vec::with_capacity((len - self.offset) as usize);
-        file.take(len - self.offset).read_to_end(&mut data)?;
-        let Some(end) = data.iter().rposition(|&b| b == b'\n') else {
-            return Ok(restarted.then(|| (Vec::new(), true)));
+        let nothing = |restarted: bool| {
+            restarted.then(|| Lines {
+                records: Vec::new(),
+                unreadable: 0,
+                restarted: true,
+            })
         };
-        self.offset += end as u64 + 1;
-        data.truncate(end);
-        Ok(Some((data, restarted)))
+        if len == self.offset {
+            return Ok((nothing(restarted), false));
+        }
+        let want = (len - self.offset).min(self.max_read);
+        file.seek(SeekFrom::Start(self.offset))?;
+        let mut data = Vec::with_capacity(want as usize);
+        file.take(want).read_to_end(&mut data)?;
+        let mut unreadable = 0;
+        // The rest of a line longer than a whole read: skipped up to its end.
+        let mut start = 0;
+        if self.skipping {
+            match data.iter().position(|&b| b == b'\n') {
+                Some(nl) => {
+                    start = nl + 1;
+                    self.skipping = false;
+                }
+                None => {
+                    let full = want == self.max_read;
+                    if full {
+                        self.offset += want;
+                    }
+                    return Ok((None, full));
+                }
+            }
+        }
+        match data[start..].iter().rposition(|&b| b == b'\n') {
+            Some(end) => {
+                self.offset += (start + end) as u64 + 1;
+                data.truncate(start + end);
+                data.drain(..start);
+            }
+            // A line longer than a whole read is no record: skipped, counted once.
+            None if start == 0 && want == self.max_read => {
+                self.offset += want;
+                self.skipping = true;
+                data.clear();
+                unreadable += 1;
+            }
+            // The rest is a line still being written.
+            None => {
+                self.offset += start as u64;
+                return Ok((nothing(restarted), false));
+            }
+        }
+        let mut records = Vec::new();
+        for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+            match serde_json::from_slice::<T>(line) {
+                Ok(record) => records.push(record),
+                Err(_) => unreadable += 1,
+            }
+        }
+        let lines = Lines {
+            records,
+            unreadable,
+            restarted,
+        };
+        // More only past a whole read: what is left after a shorter one is a line being written.
+        Ok((Some(lines), want == self.max_read && self.offset < len))
+    }
+}
+
+/// The readers of the journal and the inspection log: they read and parse outside the
+/// timeline's lock (a log on a stalled disk stalls the watch, never the page's requests).
+#[derive(Debug)]
+pub struct Tails {
+    journal: Tail,
+    inspection: Tail,
+}
+
+/// What [`Tails::read`] found, for [`Timeline::apply`].
+#[derive(Debug)]
+pub struct Appended {
+    journal: Option<Lines<Record>>,
+    inspection: Option<Lines<InspectionRecord>>,
+    /// A log has more than one read took: look again at once.
+    pub more: bool,
+}
+
+impl Tails {
+    pub fn new(build_dir: &Path) -> Tails {
+        let tail = |name: &str| Tail {
+            path: build_dir.join(name),
+            offset: 0,
+            max_read: MAX_READ,
+            skipping: false,
+        };
+        Tails {
+            journal: tail(crate::build_dir::JOURNAL),
+            inspection: tail(crate::build_dir::INSPECTION),
+        }
+    }
+
+    /// Reads what was appended to the journal and the inspection log since the last call. A
+    /// file that shrank (a torn tail cut on restart) is read again from the start. Only complete
+    /// lines are taken. What one log gave is kept when the other cannot be read (the error).
+    pub fn read(&mut self) -> (Appended, Option<std::io::Error>) {
+        fn take<T>(
+            read: std::io::Result<(Option<Lines<T>>, bool)>,
+            error: &mut Option<std::io::Error>,
+        ) -> (Option<Lines<T>>, bool) {
+            read.unwrap_or_else(|e| {
+                error.get_or_insert(e);
+                (None, false)
+            })
+        }
+        let mut error = None;
+        let (journal, more_journal) = take(self.journal.read::<Record>(), &mut error);
+        // A journal read again from its start clears the layers, their flags with them.
+        if journal.as_ref().is_some_and(|j| j.restarted) {
+            self.inspection.offset = 0;
+        }
+        let (inspection, more_inspection) = take(self.inspection.read(), &mut error);
+        let appended = Appended {
+            journal,
+            inspection,
+            more: more_journal || more_inspection,
+        };
+        (appended, error)
     }
 }
 
 /// The journal and inspection log read so far, as layers.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct Timeline {
-    journal: Tail,
-    inspection: Tail,
     pub layers: BTreeMap<u32, LayerState>,
     /// The powder beds the inspection settled, by the layer each settled on (the record that
     /// carries its outline); a layer shows the latest one settled at or before it.
@@ -132,59 +266,50 @@ pub struct Timeline {
 }
 
 impl Timeline {
-    pub fn new(build_dir: &Path) -> Timeline {
-        Timeline {
-            journal: Tail {
-                path: build_dir.join(crate::build_dir::JOURNAL),
-                offset: 0,
-            },
-            inspection: Tail {
-                path: build_dir.join(crate::build_dir::INSPECTION),
-                offset: 0,
-            },
-            layers: BTreeMap::new(),
-            beds: BTreeMap::new(),
-            unreadable: 0,
+    /// Reads with `tails` to the logs' ends, [`MAX_READ`] at a time, and applies what they
+    /// found: true when anything changed.
+    pub fn refresh(&mut self, tails: &mut Tails) -> std::io::Result<bool> {
+        let mut changed = false;
+        loop {
+            let (appended, error) = tails.read();
+            let more = appended.more;
+            changed |= self.apply(appended);
+            match error {
+                Some(e) => return Err(e),
+                None if !more => return Ok(changed),
+                None => {}
+            }
         }
     }
 
-    /// Reads what was appended to the journal and the inspection log since the last call; true
-    /// when anything changed. A file that shrank (a torn tail cut on restart) is read again from
-    /// the start. Only complete lines are taken.
-    pub fn refresh(&mut self) -> std::io::Result<bool> {
+    /// Takes in what [`Tails::read`] found; true when anything changed.
+    pub fn apply(&mut self, appended: Appended) -> bool {
         let mut changed = false;
-        if let Some((data, restarted)) = self.journal.read()? {
-            if restarted {
+        if let Some(lines) = appended.journal {
+            if lines.restarted {
                 self.layers.clear();
                 self.beds.clear();
-                self.inspection.offset = 0;
             }
-            for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
-                match serde_json::from_slice::<Record>(line) {
-                    Ok(record) => self.apply(&record),
-                    Err(_) => self.unreadable += 1,
-                }
+            for record in &lines.records {
+                self.apply_record(record);
             }
+            self.unreadable += lines.unreadable;
             changed = true;
         }
-        if let Some((data, restarted)) = self.inspection.read()? {
-            if restarted {
+        if let Some(lines) = appended.inspection {
+            if lines.restarted {
                 self.layers.values_mut().for_each(|l| l.inspection.clear());
                 self.beds.clear();
             }
-            for line in data.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
-                match serde_json::from_slice::<InspectionRecord>(line) {
-                    // A layer inspected again (`layerwise inspect`) shows its newest flags.
-                    Ok(record) => {
-                        self.settle_bed(record.layer, record.bed);
-                        self.layer_mut(record.layer).inspection = record.flags;
-                    }
-                    Err(_) => self.unreadable += 1,
-                }
+            for record in lines.records {
+                // A layer inspected again (`layerwise inspect`) shows its newest flags.
+                self.settle_bed(record.layer, record.bed);
+                self.layer_mut(record.layer).inspection = record.flags;
             }
+            self.unreadable += lines.unreadable;
             changed = true;
         }
-        Ok(changed)
+        changed
     }
 
     /// Keeps the bed a record settled (the one with an outline). A bed settled again at an
@@ -217,7 +342,7 @@ impl Timeline {
         })
     }
 
-    fn apply(&mut self, record: &Record) {
+    fn apply_record(&mut self, record: &Record) {
         let shot = record.shot();
         match (record, shot) {
             (Record::Event { layer, phase, at }, _)
@@ -335,10 +460,10 @@ mod tests {
             light: Light::Top,
             at: at + chrono::Duration::milliseconds(250),
         };
-        let mut timeline = Timeline::new(dir.path());
-        assert!(!timeline.refresh().unwrap(), "no journal yet");
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
+        assert!(!timeline.refresh(&mut tails).unwrap(), "no journal yet");
         std::fs::write(&path, line(&frame)).unwrap();
-        assert!(timeline.refresh().unwrap());
+        assert!(timeline.refresh(&mut tails).unwrap());
         assert_eq!(timeline.layers[&3].summary().stored, 1);
         assert_eq!(timeline.newest_with_frames(), Some(3));
         assert_eq!(timeline.newest_complete(1), Some(3));
@@ -350,15 +475,58 @@ mod tests {
             .open(&path)
             .unwrap();
         file.write_all(head.as_bytes()).unwrap();
-        assert!(!timeline.refresh().unwrap(), "half a line is not read");
+        assert!(
+            !timeline.refresh(&mut tails).unwrap(),
+            "half a line is not read"
+        );
         file.write_all(tail.as_bytes()).unwrap();
-        assert!(timeline.refresh().unwrap());
+        assert!(timeline.refresh(&mut tails).unwrap());
         let summary = timeline.layers[&3].summary();
         assert_eq!((summary.processed, summary.lag_ms), (1, Some(250)));
         // A journal cut shorter (torn tail removed on restart) is read again.
         std::fs::write(&path, "").unwrap();
-        timeline.refresh().unwrap();
+        timeline.refresh(&mut tails).unwrap();
         assert!(timeline.layers.is_empty());
+    }
+
+    #[test]
+    fn a_long_journal_is_read_in_steps_and_a_line_longer_than_a_step_is_skipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let event = |layer| Record::Event {
+            layer,
+            phase: Phase::Pre,
+            at: Utc::now(),
+        };
+        let mut text: String = (1..=40).map(|l| line(&event(l))).collect();
+        text.push_str(&format!("{{\"junk\": \"{}\"}}\n", "x".repeat(1000)));
+        text.push_str(&line(&event(41)));
+        std::fs::write(&path, &text).unwrap();
+        let mut tails = Tails::new(dir.path());
+        tails.journal.max_read = 300;
+        let mut timeline = Timeline::default();
+        let (first, error) = tails.read();
+        assert!(error.is_none());
+        assert!(first.more, "one step of 300 bytes is not the whole journal");
+        timeline.apply(first);
+        let partial = timeline.layers.len();
+        assert!((1..40).contains(&partial), "{partial}");
+        assert!(timeline.refresh(&mut tails).unwrap());
+        assert_eq!(timeline.layers.len(), 41);
+        // The line of over 300 bytes: skipped, counted once.
+        assert_eq!(timeline.unreadable, 1);
+        assert!(!timeline.refresh(&mut tails).unwrap(), "nothing new");
+        // A whole line and half of the next: the half waits for its end.
+        let next = line(&event(42)) + &line(&event(43))[..20];
+        let mut file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&path)
+            .unwrap();
+        file.write_all(next.as_bytes()).unwrap();
+        let (appended, _) = tails.read();
+        assert!(!appended.more, "half a line is not more to read now");
+        timeline.apply(appended);
+        assert_eq!(timeline.layers.len(), 42);
     }
 
     #[test]
@@ -403,8 +571,8 @@ mod tests {
         ];
         let path = dir.path().join(crate::build_dir::JOURNAL);
         std::fs::write(&path, records.iter().map(line).collect::<String>()).unwrap();
-        let mut timeline = Timeline::new(dir.path());
-        timeline.refresh().unwrap();
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
+        timeline.refresh(&mut tails).unwrap();
         let summary = timeline.layers[&3].summary();
         // Before, the page kept the first take's failure for good.
         assert_eq!((summary.processed, summary.failed), (1, 0));
@@ -423,7 +591,7 @@ mod tests {
                 .map(|r| serde_json::to_string(r).unwrap() + "\n")
                 .collect::<String>()
         };
-        let mut timeline = Timeline::new(dir.path());
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
         std::fs::write(
             &path,
             text(&[
@@ -432,21 +600,21 @@ mod tests {
             ]),
         )
         .unwrap();
-        assert!(timeline.refresh().unwrap());
+        assert!(timeline.refresh(&mut tails).unwrap());
         let summary = timeline.layers[&4].summary();
         assert_eq!(
             (summary.flags, summary.worst),
             (2, Some(Severity::Critical))
         );
         assert_eq!(timeline.layers[&5].summary().worst, None);
-        assert!(!timeline.refresh().unwrap(), "nothing new");
+        assert!(!timeline.refresh(&mut tails).unwrap(), "nothing new");
         let mut file = std::fs::OpenOptions::new()
             .append(true)
             .open(&path)
             .unwrap();
         file.write_all(text(&[record(4, vec![flag(Severity::Warning)])]).as_bytes())
             .unwrap();
-        assert!(timeline.refresh().unwrap());
+        assert!(timeline.refresh(&mut tails).unwrap());
         assert_eq!(
             timeline.layers[&4].inspection,
             vec![flag(Severity::Warning)]

@@ -366,3 +366,64 @@ fn a_self_pointing_tiff_as_a_frame_is_refused_and_the_page_goes_on() {
     let peak = peak_rss_mb(served.pid());
     assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
 }
+
+/// The page reads the journal and the inspection log as the daemon writes them: regular files,
+/// never through a link. Before, a FIFO planted as the journal while the page served held every
+/// request that shows the layers for good: the watch's read waited on the FIFO with the
+/// timeline locked.
+#[test]
+fn a_fifo_planted_as_the_journal_holds_up_no_request() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = finished_build(tmp.path(), 2);
+    let journal = dir.join(layerwise::build_dir::JOURNAL);
+    let inspection = dir.join(layerwise::build_dir::INSPECTION);
+    let (served, addr) = serve(&dir, &[]);
+    let count = || {
+        let layers = get_json(addr, "/api/layers");
+        layers["layers"].as_array().map(Vec::len)
+    };
+    assert_eq!(count(), Some(2));
+
+    let aside = tmp.path().join("journal.jsonl");
+    std::fs::rename(&journal, &aside).unwrap();
+    mkfifo(&journal);
+    let _ = std::fs::remove_file(&inspection);
+    let zero = dev_zero(&inspection);
+    // The watch looks every 250 ms and when the directory changes.
+    std::thread::sleep(Duration::from_secs(1));
+    for _ in 0..3 {
+        let started = Instant::now();
+        assert_eq!(count(), Some(2), "{zero}");
+        assert!(
+            started.elapsed() < Duration::from_secs(10),
+            "{:?}",
+            started.elapsed()
+        );
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    // The journal back as a file, with a layer more: the page reads on.
+    std::fs::remove_file(&journal).unwrap();
+    std::fs::rename(&aside, &journal).unwrap();
+    let more = layerwise::build_dir::Record::Event {
+        layer: 3,
+        phase: layerwise::shot::Phase::Pre,
+        at: chrono::Utc::now(),
+    };
+    let mut file = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&journal)
+        .unwrap();
+    std::io::Write::write_all(
+        &mut file,
+        (serde_json::to_string(&more).unwrap() + "\n").as_bytes(),
+    )
+    .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while count() != Some(3) {
+        assert!(Instant::now() < deadline, "layer 3 never shown");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let peak = peak_rss_mb(served.pid());
+    assert!(peak < 400.0, "peak resident memory {peak:.0} MB");
+    drop(served);
+}
