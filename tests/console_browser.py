@@ -247,6 +247,10 @@ try:
         assert stale.startswith("STALE: nothing heard from the page server since "), stale
         assert waited >= 10.0, f"stale after {waited:.1f} s: updates come every 5 s at most"
         print(f"stale banner {waited:.1f} s after the server stopped: {stale}")
+        # It asks the server why (5 s without an answer) and says so.
+        why = wait_for("the stale banner's reason", lambda: (lambda t: "does not answer" in t and t)(linked.js(
+            "return document.getElementById('stale').textContent")), timeout=20.0)
+        print(f"stale banner {time.time() - stopped:.1f} s after the stop: {why}")
         linked.screenshot("console-stale.png")
     finally:
         os.kill(server_pid, signal.SIGCONT)

@@ -196,10 +196,14 @@ pub enum AckError {
     #[error("{}: the alarm is not raised (it is {state}); nothing to acknowledge", dir.display())]
     NotRaised { dir: PathBuf, state: AlarmState },
     #[error(
-        "the alarm raised now is for layer {raised}, not layer {seen} the acknowledgement was for \
-         (it was raised again meanwhile): look at layer {raised}, then acknowledge it"
+        "the alarm was raised again (layer {raised}, at {raised_at}) after the raise of layer \
+         {seen} the acknowledgement was for: look at layer {raised}, then acknowledge it"
     )]
-    Another { raised: u32, seen: u32 },
+    Another {
+        raised: u32,
+        raised_at: DateTime<Utc>,
+        seen: u32,
+    },
     #[error("{field} {problem}")]
     Invalid {
         field: &'static str,
@@ -207,20 +211,23 @@ pub enum AckError {
     },
     #[error("cannot record the acknowledgement")]
     Log(#[source] JournalError),
+    #[error("cannot record the acknowledgement")]
+    Locked(#[source] super::lines::AppendIfError),
 }
 
 /// Records that `by` acknowledged the raised alarm of the build `dir` at `at` (with what was
 /// checked or decided, `note`): the running daemon switches the stack light off; the next flag
 /// at the alarm's severity raises it again. Refused when `dir` is not a build, when the alarm is
 /// not raised (or its history cannot be read), and for a name or note with control characters
-/// or beyond [`MAX_BY_CHARS`] / [`MAX_NOTE_CHARS`], and when `seen` (the layer whose raise the
-/// operator saw, as the page sends it) is not the layer raised now. Returns the state after it.
+/// or beyond [`MAX_BY_CHARS`] / [`MAX_NOTE_CHARS`], and when `seen` (the raise the operator saw,
+/// as the page sends it) is not the raise now. The check and the append are one step for the
+/// log's other writers ([`AlarmLog::append_if`]). Returns the state after it.
 pub fn acknowledge(
     dir: &Path,
     by: &str,
     note: Option<&str>,
     at: DateTime<Utc>,
-    seen: Option<u32>,
+    seen: Option<SeenRaise>,
 ) -> Result<AlarmState, AckError> {
     super::require_build(dir)?;
     let by = by.trim();
@@ -246,33 +253,46 @@ pub fn acknowledge(
         );
     }
     let path = dir.join(super::ALARM);
-    let events = AlarmLog::read(&path).map_err(AckError::Log)?;
-    let state = AlarmState::replay(&events);
-    if !state.is_raised() {
-        return Err(AckError::NotRaised {
-            dir: dir.to_path_buf(),
-            state,
-        });
-    }
-    if let (AlarmState::Raised { layer, .. }, Some(seen)) = (&state, seen) {
-        if *layer != seen {
-            return Err(AckError::Another {
-                raised: *layer,
-                seen,
-            });
-        }
-    }
     let ack = AlarmEvent::Acknowledged {
         at,
         by: by.to_string(),
         note: note.map(str::to_string),
     };
-    AlarmLog::append_only(&path)
-        .and_then(|mut log| log.append(&ack))
-        .map_err(AckError::Log)?;
-    let mut events = events;
+    // The raise is checked and the acknowledgement appended under the log's lock: a raise the
+    // daemon appends meanwhile waits, and is never taken as acknowledged unseen.
+    let check = |events: &[AlarmEvent]| {
+        let state = AlarmState::replay(events);
+        match (&state, seen) {
+            (AlarmState::Raised { layer, at, .. }, Some(seen))
+                if *layer != seen.layer || seen.at.is_some_and(|s| s != *at) =>
+            {
+                Err(AckError::Another {
+                    raised: *layer,
+                    raised_at: *at,
+                    seen: seen.layer,
+                })
+            }
+            _ if !state.is_raised() => Err(AckError::NotRaised {
+                dir: dir.to_path_buf(),
+                state,
+            }),
+            _ => Ok(()),
+        }
+    };
+    let mut events = AlarmLog::append_only(&path)
+        .map_err(AckError::Log)?
+        .append_if(&ack, check)
+        .map_err(AckError::Locked)??;
     events.push(ack);
     Ok(AlarmState::replay(&events))
+}
+
+/// The raise an acknowledgement answers, as the page showed it: its layer, and when it was
+/// raised (a raise of the same layer again is another).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SeenRaise {
+    pub layer: u32,
+    pub at: Option<DateTime<Utc>>,
 }
 
 #[cfg(test)]
@@ -350,14 +370,42 @@ mod tests {
             let err = acknowledge(dir.path(), by, note, at(2), None).unwrap_err();
             assert!(matches!(err, AckError::Invalid { .. }), "{err}");
         }
-        // A page that showed the raise of layer 2 does not acknowledge layer 4's.
-        let err = acknowledge(dir.path(), "ana", None, at(2), Some(2)).unwrap_err();
+        // A page that showed the raise of layer 2 does not acknowledge layer 4's, nor one that
+        // showed an earlier raise of layer 4.
+        let seen = |layer, at| Some(SeenRaise { layer, at });
+        let err = acknowledge(dir.path(), "ana", None, at(2), seen(2, None)).unwrap_err();
         assert!(
-            matches!(err, AckError::Another { raised: 4, seen: 2 }),
+            matches!(
+                err,
+                AckError::Another {
+                    raised: 4,
+                    seen: 2,
+                    ..
+                }
+            ),
             "{err}"
         );
         assert!(err.to_string().contains("look at layer 4"), "{err}");
-        let now = acknowledge(dir.path(), " ana ", Some("  checked  "), at(3), Some(4)).unwrap();
+        let err = acknowledge(dir.path(), "ana", None, at(2), seen(4, Some(at(3)))).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                AckError::Another {
+                    raised: 4,
+                    seen: 4,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        let now = acknowledge(
+            dir.path(),
+            " ana ",
+            Some("  checked  "),
+            at(3),
+            seen(4, Some(at(4))),
+        )
+        .unwrap();
         assert_eq!(
             now,
             AlarmState::Acknowledged {

@@ -242,8 +242,154 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
         Ok(records)
     }
 
-    /// Appends one record as one line, in one write (fsynced when the log was opened so).
+    /// Appends one record as one line, in one write (fsynced when the log was opened so), under
+    /// the log's lock ([`LinesLog::append_if`]). A lock another process holds past [`LOCK_WAIT`]
+    /// is not waited for: the record is appended all the same (a raise is never held back).
     pub fn append(&mut self, record: &T) -> Result<(), JournalError> {
-        append_line(&mut self.file, &self.path, self.fsync, record)
+        let locked = self.try_lock()?;
+        let written = append_line(&mut self.file, &self.path, self.fsync, record);
+        if locked {
+            self.unlock();
+        }
+        written
+    }
+
+    /// Takes the log's exclusive advisory lock (`flock`), waiting at most [`LOCK_WAIT`]: every
+    /// writer of the log appends under it. False when another process kept it.
+    fn try_lock(&mut self) -> Result<bool, JournalError> {
+        use std::os::fd::AsRawFd;
+        let waited = std::time::Instant::now();
+        loop {
+            // SAFETY: flock on a descriptor this log owns.
+            if unsafe { libc::flock(self.file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+                return Ok(true);
+            }
+            let e = std::io::Error::last_os_error();
+            match e.raw_os_error() {
+                Some(libc::EWOULDBLOCK) if waited.elapsed() < LOCK_WAIT => {
+                    std::thread::sleep(std::time::Duration::from_millis(5));
+                }
+                Some(libc::EWOULDBLOCK) => return Ok(false),
+                Some(libc::EINTR) => {}
+                _ => {
+                    return Err(JournalError::Io {
+                        path: self.path.clone(),
+                        source: e,
+                    })
+                }
+            }
+        }
+    }
+
+    fn unlock(&mut self) {
+        use std::os::fd::AsRawFd;
+        // SAFETY: flock on a descriptor this log owns.
+        unsafe { libc::flock(self.file.as_raw_fd(), libc::LOCK_UN) };
+    }
+
+    /// Appends `record` when `check` passes on the log's records as they are, both under the
+    /// log's lock: no other writer appends between the check and the append (what `check` saw is
+    /// what the record answers). Returns the records `check` saw; refused
+    /// ([`AppendIfError::Busy`]) when another process keeps the lock past [`LOCK_WAIT`].
+    pub fn append_if<E>(
+        &mut self,
+        record: &T,
+        check: impl FnOnce(&[T]) -> Result<(), E>,
+    ) -> Result<Result<Vec<T>, E>, AppendIfError> {
+        if !self.try_lock().map_err(AppendIfError::Log)? {
+            return Err(AppendIfError::Busy {
+                path: self.path.clone(),
+            });
+        }
+        let outcome = Self::read(&self.path)
+            .map_err(AppendIfError::Log)
+            .and_then(|records| match check(&records) {
+                Err(e) => Ok(Err(e)),
+                Ok(()) => append_line(&mut self.file, &self.path, self.fsync, record)
+                    .map(|()| Ok(records))
+                    .map_err(AppendIfError::Log),
+            });
+        self.unlock();
+        outcome
+    }
+}
+
+/// How long a writer waits for another's lock on a log ([`LinesLog::append`]): a check and an
+/// append take milliseconds.
+pub const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Why [`LinesLog::append_if`] appended nothing, besides its check.
+#[derive(Debug, thiserror::Error)]
+pub enum AppendIfError {
+    #[error(transparent)]
+    Log(JournalError),
+    #[error(
+        "{}: another process has held the log's lock for over 2 s; try again (a process stopped \
+         half-way holds it: `fuser` names the processes that have the file open)",
+        path.display()
+    )]
+    Busy { path: PathBuf },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::{json, Value};
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn a_check_and_its_append_are_one_step_for_the_other_writers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("alarm.jsonl");
+        let (mut daemon, _) = LinesLog::<Value>::open(&path, false).unwrap();
+        assert!(daemon.try_lock().unwrap());
+        // The page checks and appends while the daemon holds the lock: it waits.
+        let page = {
+            let path = path.clone();
+            std::thread::spawn(move || {
+                LinesLog::<Value>::append_only(&path)
+                    .unwrap()
+                    .append_if(&json!({"ack": 1}), |seen| {
+                        if seen.is_empty() {
+                            Ok(())
+                        } else {
+                            Err(seen.len())
+                        }
+                    })
+                    .unwrap()
+            })
+        };
+        std::thread::sleep(Duration::from_millis(200));
+        append_line(&mut daemon.file, &path, false, &json!({"raise": 2})).unwrap();
+        daemon.unlock();
+        // The page's check saw the raise appended under the lock, and appended nothing.
+        assert_eq!(page.join().unwrap(), Err(1));
+        assert_eq!(LinesLog::<Value>::read(&path).unwrap().len(), 1);
+        // Nobody holding it: appended.
+        let seen = LinesLog::<Value>::append_only(&path)
+            .unwrap()
+            .append_if(&json!({"ack": 2}), |_| Ok::<(), ()>(()))
+            .unwrap();
+        assert_eq!(seen, Ok(vec![json!({"raise": 2})]));
+        assert_eq!(LinesLog::<Value>::read(&path).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_lock_kept_past_the_wait_refuses_a_check_and_lets_an_append_through() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("alarm.jsonl");
+        let (mut stopped, _) = LinesLog::<Value>::open(&path, false).unwrap();
+        assert!(stopped.try_lock().unwrap());
+        let started = Instant::now();
+        let err = LinesLog::<Value>::append_only(&path)
+            .unwrap()
+            .append_if(&json!({"ack": 1}), |_| Ok::<(), ()>(()))
+            .unwrap_err();
+        assert!(started.elapsed() >= LOCK_WAIT, "{:?}", started.elapsed());
+        assert!(err.to_string().contains("try again"), "{err}");
+        // A raise is not held back by it.
+        let mut daemon = LinesLog::<Value>::append_only(&path).unwrap();
+        daemon.append(&json!({"raise": 3})).unwrap();
+        assert_eq!(LinesLog::<Value>::read(&path).unwrap().len(), 1);
     }
 }

@@ -43,6 +43,10 @@ pub(super) struct AckRequest {
     /// another's (a page that had not yet shown the new raise).
     #[serde(default)]
     layer: Option<u32>,
+    /// When that raise was raised (the status's `alarm.at`): a raise of the same layer again is
+    /// another.
+    #[serde(default)]
+    raised_at: Option<chrono::DateTime<chrono::Utc>>,
 }
 
 /// The alarm's history, oldest first, and where it leaves the alarm.
@@ -68,7 +72,10 @@ pub(super) async fn acknowledge(
             &request.by,
             request.note.as_deref(),
             chrono::Utc::now(),
-            request.layer,
+            request.layer.map(|layer| alarm::SeenRaise {
+                layer,
+                at: request.raised_at,
+            }),
         );
         s.refresh_status();
         state
@@ -80,6 +87,7 @@ pub(super) async fn acknowledge(
             AckError::Invalid { .. } => StatusCode::BAD_REQUEST,
             AckError::NotABuild(_) => StatusCode::NOT_FOUND,
             AckError::Log(_) => StatusCode::INTERNAL_SERVER_ERROR,
+            AckError::Locked(_) => StatusCode::SERVICE_UNAVAILABLE,
         };
         AlarmError(status, crate::logging::chain(&e))
     })?;

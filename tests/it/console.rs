@@ -354,8 +354,8 @@ fn serve_clears_the_alarm_banner_after_alarm_ack_without_a_restart() {
     }
 }
 
-/// A page's acknowledgement names the raise it showed: a page that had not yet shown the alarm
-/// raised again for another layer does not switch that one off unseen; and a page under another
+/// A page's acknowledgement names the raise it showed (its layer and time): a page that had not
+/// yet shown the alarm raised again does not switch that one off unseen; and a page under another
 /// name than the machine's own is refused (DNS rebinding).
 #[test]
 fn a_page_acknowledgement_of_an_earlier_raise_does_not_acknowledge_the_new_one() {
@@ -368,7 +368,7 @@ fn a_page_acknowledgement_of_an_earlier_raise_does_not_acknowledge_the_new_one()
     let text = String::from_utf8_lossy(&body);
     assert_eq!(code, 409, "{text}");
     assert!(
-        text.contains("raised now is for layer 2, not layer 1"),
+        text.contains("raised again (layer 2, at") && text.contains("raise of layer 1"),
         "{text}"
     );
     assert_eq!(get_json(addr, "/api/status")["alarm"]["state"], "raised");
@@ -389,7 +389,13 @@ fn a_page_acknowledgement_of_an_earlier_raise_does_not_acknowledge_the_new_one()
     assert_eq!(http_with(behind, "GET", "/api/status", proxy, b"").0, 200);
     let other = "Host: evil.example\r\n";
     assert_eq!(http_with(behind, "GET", "/api/status", other, b"").0, 403);
-    let (code, body) = http(addr, "POST", "/api/alarm/ack", br#"{"by":"ana","layer":2}"#);
+    // The same layer raised at another time is another raise.
+    let earlier = br#"{"by":"ana","layer":2,"raised_at":"2020-01-01T00:00:00Z"}"#;
+    let (code, body) = http(addr, "POST", "/api/alarm/ack", earlier);
+    assert_eq!(code, 409, "{}", String::from_utf8_lossy(&body));
+    let at = get_json(addr, "/api/status")["alarm"]["at"].clone();
+    let ack = serde_json::json!({"by": "ana", "layer": 2, "raised_at": at}).to_string();
+    let (code, body) = http(addr, "POST", "/api/alarm/ack", ack.as_bytes());
     assert_eq!(code, 200, "{}", String::from_utf8_lossy(&body));
     assert_eq!(get_json(addr, "/api/status")["alarm"]["by"], "ana");
 }

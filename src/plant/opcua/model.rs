@@ -345,7 +345,14 @@ impl Model {
         };
         let text = format!("layer {layer}: {kind}: {message}");
         let event_id = self.condition(true, false, weight, &text, at);
-        self.alarm.lock().unwrap_or_else(|e| e.into_inner()).pending = Some(event_id.clone());
+        {
+            let mut alarm = self.alarm.lock().unwrap_or_else(|e| e.into_inner());
+            alarm.pending = Some(event_id.clone());
+            alarm.raise = Some(crate::build_dir::alarm::SeenRaise {
+                layer,
+                at: Some(at),
+            });
+        }
         self.set(vec![
             (format!("{ALARM}.Active"), Variant::from(true)),
             (format!("{ALARM}.Acknowledged"), Variant::from(false)),

@@ -29,6 +29,9 @@ pub struct AlarmShared {
     pub build_dir: Option<PathBuf>,
     /// The event id of the raise waiting for an acknowledgement.
     pub pending: Option<ByteString>,
+    /// That raise as alarm.jsonl has it: an acknowledgement of it is refused once the alarm
+    /// was raised again (the check and the append are one step in the log).
+    pub raise: Option<crate::build_dir::alarm::SeenRaise>,
 }
 
 /// An acknowledgement a client recorded: who, and the note.
@@ -65,16 +68,17 @@ impl MonitorNodes {
             Some(_) => return Err(StatusCode::BadTypeMismatch),
         }
         .filter(|n| !n.trim().is_empty());
-        let dir = {
+        let (dir, raise) = {
             let alarm = self.alarm.lock().unwrap_or_else(|e| e.into_inner());
             match &alarm.pending {
                 None => return Err(StatusCode::BadConditionBranchAlreadyAcked),
                 Some(pending) if *pending != event_id => return Err(StatusCode::BadEventIdUnknown),
                 Some(_) => {}
             }
-            alarm.build_dir.clone().ok_or(StatusCode::BadInvalidState)?
+            let dir = alarm.build_dir.clone().ok_or(StatusCode::BadInvalidState)?;
+            (dir, alarm.raise)
         };
-        match acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now(), None) {
+        match acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now(), raise) {
             Ok(_) => {
                 info!(by = %by, "inspection alarm acknowledged over OPC UA");
                 let _ = self.acks.try_send((by, note));
@@ -82,6 +86,8 @@ impl MonitorNodes {
             }
             Err(AckError::NotRaised { .. }) => Err(StatusCode::BadConditionBranchAlreadyAcked),
             Err(AckError::Invalid { .. }) => Err(StatusCode::BadInvalidArgument),
+            // Raised again since the event the client acknowledges.
+            Err(AckError::Another { .. }) => Err(StatusCode::BadEventIdUnknown),
             Err(e) => {
                 warn!(error = %crate::logging::Chain(&e), "OPC UA acknowledgement not recorded");
                 Err(StatusCode::BadInternalError)

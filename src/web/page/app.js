@@ -43,6 +43,7 @@ function showStatus(s) {
   w.hidden = !banner; $("warning-text").textContent = banner;
   $("ack-form").hidden = !(s.alarm && s.alarm.state === "raised");
   state.alarmLayer = s.alarm && s.alarm.state === "raised" ? s.alarm.layer : undefined;
+  state.alarmAt = s.alarm && s.alarm.state === "raised" ? s.alarm.at : undefined;
   $("ack-cli").textContent = raised ? "or: layerwise alarm ack --build " + s.build_dir : "";
   const alarmKey = JSON.stringify(s.alarm || null);
   if (alarmKey !== state.alarmKey) { state.alarmKey = alarmKey; loadAlarmHistory(); }
@@ -102,7 +103,7 @@ $("ack-form").addEventListener("submit", async (e) => {
   const r = await fetch("/api/alarm/ack", {
     method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/json" },
     // The raise this page shows: refused if the alarm was raised again for another layer since.
-    body: JSON.stringify({ by, note: $("ack-note").value, layer: state.alarmLayer }),
+    body: JSON.stringify({ by, note: $("ack-note").value, layer: state.alarmLayer, raised_at: state.alarmAt }),
   });
   const answer = await r.json().catch(() => ({}));
   $("ack-result").textContent = r.ok ? "alarm " + answer.shown : "not acknowledged: " + (answer.error || r.status);
@@ -612,13 +613,33 @@ function connect() {
   });
   events.onerror = () => { $("state").textContent = "connection to the daemon lost; retrying"; };
 }
+// Why a stale page hears nothing, asked of the server beside the event stream (which says
+// nothing of why it failed): no answer within 5 s, or its refusal with the server's reason.
+let staleWhy = "", probing = false;
+async function probeStale() {
+  if (probing) return;
+  probing = true;
+  const abort = new AbortController(), timer = setTimeout(() => abort.abort(), 5000);
+  try {
+    const r = await fetch("/api/status", { credentials: "same-origin", cache: "no-store", signal: abort.signal });
+    let reason = "";
+    if (!r.ok) { try { reason = (await r.json()).error || ""; } catch (e) { reason = ""; } }
+    staleWhy = r.ok ? "" : "The page server refuses this page (HTTP " + r.status + (reason ? ": " + reason.slice(0, 300) : "") + ").";
+  } catch (e) {
+    staleWhy = "The page server does not answer (stopped, stuck or out of reach).";
+  } finally {
+    clearTimeout(timer);
+    probing = false;
+  }
+}
 function watchStale() {
   const now = Date.now(), quiet = now - heard;
   if (quiet >= STALE_MS) {
+    if (!probing && now - connected >= 5000) probeStale();
     $("stale").textContent = "STALE: nothing heard from the page server since " + new Date(heard).toLocaleTimeString() +
-      " (" + Math.round(quiet / 1000) + " s); what this page shows may be out of date. Reconnecting\u2026";
+      " (" + Math.round(quiet / 1000) + " s); what this page shows may be out of date. " + (staleWhy ? staleWhy + " " : "") + "Reconnecting\u2026";
     $("stale").hidden = false;
-  }
+  } else staleWhy = "";
   const closed = events.readyState === EventSource.CLOSED;
   if ((closed && now - connected >= 5000) || (quiet >= STALE_MS && now - connected >= STALE_MS)) connect();
 }
