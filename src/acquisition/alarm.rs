@@ -152,6 +152,11 @@ impl Alarm {
     /// off after a clean layer unless latched. A flag that persists from an earlier layer
     /// (`since`) keeps the alarm from clearing but does not raise it again once acknowledged.
     pub fn after_layer(&mut self, record: &InspectionRecord, now: DateTime<Utc>) {
+        // An acknowledgement appended since the last poll counts first: the flag it left behind
+        // raises the alarm again, rather than finding it raised and being switched off with it.
+        if let Some(path) = self.history.as_ref().map(|h| h.path().to_path_buf()) {
+            self.read_acknowledgements(&path);
+        }
         let at_level = |f: &&crate::build_dir::inspection::Flag| f.severity >= self.level;
         let raised = record
             .flags
@@ -215,7 +220,12 @@ impl Alarm {
         if self.history.is_none() {
             return;
         }
-        let events = match AlarmLog::read(&build_dir.join(crate::build_dir::ALARM)) {
+        self.read_acknowledgements(&build_dir.join(crate::build_dir::ALARM));
+    }
+
+    /// Takes in the acknowledgements appended to the history at `path` since the last look.
+    fn read_acknowledgements(&mut self, path: &Path) {
+        let events = match AlarmLog::read(path) {
             Ok(events) => events,
             Err(e) => {
                 error!(error = %Chain(&e), "inspection alarm: cannot read its history");
@@ -513,6 +523,30 @@ mod tests {
             AlarmState::replay(&events),
             AlarmState::Raised { layer: 9, .. }
         ));
+    }
+
+    /// Before, the flag of the layer after an acknowledgement that the half-second poll had not
+    /// read yet found the alarm raised, raised nothing, and the poll then switched it off.
+    #[test]
+    fn an_acknowledgement_not_polled_yet_does_not_swallow_the_next_layers_flag() {
+        let dir = tempfile::tempdir().unwrap();
+        let lights = Arc::new(Mutex::new(Vec::new()));
+        let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
+        alarm.resume(dir.path(), false).unwrap();
+        alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+        let path = dir.path().join(crate::build_dir::ALARM);
+        acknowledge(&path);
+        alarm.after_layer(&record(6, Some(Severity::Critical)), at());
+        alarm.poll_acknowledgements(dir.path());
+        let events = AlarmLog::read(&path).unwrap();
+        assert!(
+            matches!(
+                AlarmState::replay(&events),
+                AlarmState::Raised { layer: 6, .. }
+            ),
+            "{events:?}"
+        );
+        assert_eq!(lights.lock().unwrap().last(), Some(&(Light::Top, true)));
     }
 
     /// Refuses the switches it is told to refuse, in order (`false`: refuse), then obeys.

@@ -279,10 +279,22 @@ pub fn acknowledge(
             _ => Ok(()),
         }
     };
+    // Nothing to acknowledge is said without opening the log for writing (no empty log is
+    // made, and a reader without write rights hears why).
+    let state = AlarmState::replay(&AlarmLog::read(&path).map_err(AckError::Log)?);
+    if !state.is_raised() {
+        return Err(AckError::NotRaised {
+            dir: dir.to_path_buf(),
+            state,
+        });
+    }
     let mut events = AlarmLog::append_only(&path)
         .map_err(AckError::Log)?
         .append_if(&ack, check)
-        .map_err(AckError::Locked)??;
+        .map_err(|e| match e {
+            super::lines::AppendIfError::Log(e) => AckError::Log(e),
+            busy => AckError::Locked(busy),
+        })??;
     events.push(ack);
     Ok(AlarmState::replay(&events))
 }

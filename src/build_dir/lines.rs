@@ -201,6 +201,8 @@ pub struct LinesLog<T> {
     path: PathBuf,
     file: File,
     fsync: bool,
+    /// A lock refused by the file system was logged once.
+    lock_failed: bool,
     records: std::marker::PhantomData<fn(&T)>,
 }
 
@@ -217,6 +219,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
             path: path.to_path_buf(),
             file,
             fsync,
+            lock_failed: false,
             records: std::marker::PhantomData,
         }
     }
@@ -242,11 +245,26 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
         Ok(records)
     }
 
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Appends one record as one line, in one write (fsynced when the log was opened so), under
     /// the log's lock ([`LinesLog::append_if`]). A lock another process holds past [`LOCK_WAIT`]
-    /// is not waited for: the record is appended all the same (a raise is never held back).
+    /// is not waited for, nor a file system that has no locks: the record is appended all the
+    /// same (a raise is never held back).
     pub fn append(&mut self, record: &T) -> Result<(), JournalError> {
-        let locked = self.try_lock()?;
+        let locked = match self.try_lock() {
+            Ok(locked) => locked,
+            Err(e) => {
+                if !self.lock_failed {
+                    self.lock_failed = true;
+                    warn!(file = %self.path.display(), error = %crate::logging::Chain(&e), "cannot lock the log; appending without its lock");
+                }
+                false
+            }
+        };
         let written = append_line(&mut self.file, &self.path, self.fsync, record);
         if locked {
             self.unlock();

@@ -283,14 +283,15 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
             // for what was read to be taken in.
             let (appended, error) = s.tails.lock().unwrap_or_else(|e| e.into_inner()).read();
             let more = appended.more;
-            s.timeline
+            let applied = s
+                .timeline
                 .write()
                 .unwrap_or_else(|e| e.into_inner())
                 .apply(appended);
-            (journal, logs, status, error.map_or(Ok(more), Err))
+            (journal, logs, status, applied, error.map_or(Ok(more), Err))
         })
         .await;
-        let Ok((journal, logs, status_time, read)) = looked else {
+        let Ok((journal, logs, status_time, applied, read)) = looked else {
             continue;
         };
         match read {
@@ -304,7 +305,10 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
         let looks = (journal, logs, status_time);
         // A grown inspection or alarm log is what the operator must see without delay.
         let urgent = seen.is_some_and(|(_, before, _)| before != logs);
-        if seen != Some(looks) || status_at.is_some_and(|t| t.elapsed() >= STATUS_STALE) {
+        // What was read changed the timeline (the rest of a log read in steps, too): the pages
+        // are told, even when the files looked the same as at the last look.
+        if seen != Some(looks) || applied || status_at.is_some_and(|t| t.elapsed() >= STATUS_STALE)
+        {
             seen = Some(looks);
             pending = true;
         }

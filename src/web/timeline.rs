@@ -92,6 +92,9 @@ struct Tail {
     offset: u64,
     /// [`MAX_READ`], smaller in tests.
     max_read: u64,
+    /// The largest such log the daemon reads back: a larger one is refused, not read on
+    /// without end.
+    max_bytes: u64,
     /// Inside a line longer than a whole read, skipping it.
     skipping: bool,
 }
@@ -121,6 +124,9 @@ impl Tail {
             Err(e) => return Err(e),
         };
         let len = file.metadata()?.len();
+        if len > self.max_bytes {
+            return Err(crate::fsutil::too_large(len, self.max_bytes));
+        }
         let restarted = len < self.offset;
         if restarted {
             self.offset = 0;
@@ -140,6 +146,9 @@ impl Tail {
         file.seek(SeekFrom::Start(self.offset))?;
         let mut data = Vec::with_capacity(want as usize);
         file.take(want).read_to_end(&mut data)?;
+        // A whole read: there may be more after it (a file cut meanwhile gives less).
+        let full = data.len() as u64 == self.max_read;
+        let got = data.len() as u64;
         let mut unreadable = 0;
         // The rest of a line longer than a whole read: skipped up to its end.
         let mut start = 0;
@@ -150,11 +159,10 @@ impl Tail {
                     self.skipping = false;
                 }
                 None => {
-                    let full = want == self.max_read;
                     if full {
-                        self.offset += want;
+                        self.offset += got;
                     }
-                    return Ok((None, full));
+                    return Ok((None, full && self.offset < len));
                 }
             }
         }
@@ -165,16 +173,16 @@ impl Tail {
                 data.drain(..start);
             }
             // A line longer than a whole read is no record: skipped, counted once.
-            None if start == 0 && want == self.max_read => {
-                self.offset += want;
+            None if start == 0 && full => {
+                self.offset += got;
                 self.skipping = true;
                 data.clear();
                 unreadable += 1;
             }
-            // The rest is a line still being written.
+            // The rest is a line still being written, or, after a whole read, more to read.
             None => {
                 self.offset += start as u64;
-                return Ok((nothing(restarted), false));
+                return Ok((nothing(restarted), full && self.offset < len));
             }
         }
         let mut records = Vec::new();
@@ -190,7 +198,7 @@ impl Tail {
             restarted,
         };
         // More only past a whole read: what is left after a shorter one is a line being written.
-        Ok((Some(lines), want == self.max_read && self.offset < len))
+        Ok((Some(lines), full && self.offset < len))
     }
 }
 
@@ -213,15 +221,17 @@ pub struct Appended {
 
 impl Tails {
     pub fn new(build_dir: &Path) -> Tails {
-        let tail = |name: &str| Tail {
+        use crate::build_dir::lines::{MAX_JOURNAL_BYTES, MAX_LOG_BYTES};
+        let tail = |name: &str, max_bytes| Tail {
             path: build_dir.join(name),
             offset: 0,
             max_read: MAX_READ,
+            max_bytes,
             skipping: false,
         };
         Tails {
-            journal: tail(crate::build_dir::JOURNAL),
-            inspection: tail(crate::build_dir::INSPECTION),
+            journal: tail(crate::build_dir::JOURNAL, MAX_JOURNAL_BYTES),
+            inspection: tail(crate::build_dir::INSPECTION, MAX_LOG_BYTES),
         }
     }
 
@@ -243,6 +253,7 @@ impl Tails {
         // A journal read again from its start clears the layers, their flags with them.
         if journal.as_ref().is_some_and(|j| j.restarted) {
             self.inspection.offset = 0;
+            self.inspection.skipping = false;
         }
         let (inspection, more_inspection) = take(self.inspection.read(), &mut error);
         let appended = Appended {
@@ -527,6 +538,44 @@ mod tests {
         assert!(!appended.more, "half a line is not more to read now");
         timeline.apply(appended);
         assert_eq!(timeline.layers.len(), 42);
+
+        // A skipped line that ends inside a whole read, and a record after it that does not:
+        // the rest is still read to the end.
+        let dir = tempfile::tempdir().unwrap();
+        let frame = Record::Frame {
+            layer: 7,
+            phase: Phase::Post,
+            light: Light::Top,
+            file: format!("raw/{}.jpg", "x".repeat(120)),
+            bytes: 1,
+            sha256: "00".into(),
+            at: Utc::now(),
+        };
+        let junk = format!("{{\"junk\": \"{}\"}}\n", "y".repeat(390));
+        let frame = line(&frame);
+        assert!((200..300).contains(&frame.len()), "{}", frame.len());
+        let text = junk + &frame + &line(&event(8));
+        std::fs::write(dir.path().join(crate::build_dir::JOURNAL), text).unwrap();
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
+        tails.journal.max_read = 300;
+        assert!(timeline.refresh(&mut tails).unwrap());
+        assert_eq!(timeline.layers.keys().copied().collect::<Vec<_>>(), [7, 8]);
+        assert_eq!(timeline.unreadable, 1);
+    }
+
+    /// Before, a log of any size was read on, 16 MiB at a time, without end (a sparse file of a
+    /// terabyte: the page's start read it all).
+    #[test]
+    fn a_log_larger_than_the_daemon_reads_back_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(crate::build_dir::JOURNAL);
+        let file = std::fs::File::create(&path).unwrap();
+        file.set_len(crate::build_dir::lines::MAX_JOURNAL_BYTES + 1)
+            .unwrap();
+        let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
+        let err = timeline.refresh(&mut tails).unwrap_err();
+        assert!(err.to_string().contains("larger than"), "{err}");
+        assert_eq!(tails.journal.offset, 0, "nothing read");
     }
 
     #[test]

@@ -51,7 +51,7 @@ impl MonitorNodes {
     /// The Acknowledge method: `EventId` of the raise, `Comment` the note. Recorded in the
     /// build's alarm.jsonl as `layerwise alarm ack` records it, by the client's user
     /// (`opcua:<user>`, or `opcua:anonymous`).
-    fn acknowledge(&self, user: &str, args: &[Variant]) -> Result<(), StatusCode> {
+    async fn acknowledge(&self, user: &str, args: &[Variant]) -> Result<(), StatusCode> {
         let by = match user.strip_prefix(USER_TOKEN) {
             Some(name) => format!("opcua:{name}"),
             None if self.anonymous_acknowledges => "opcua:anonymous".to_string(),
@@ -78,7 +78,17 @@ impl MonitorNodes {
             let dir = alarm.build_dir.clone().ok_or(StatusCode::BadInvalidState)?;
             (dir, alarm.raise)
         };
-        match acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now(), raise) {
+        // On a blocking thread: the log's lock may be waited for (up to 2 s), and the server's
+        // runtime has one thread for every session.
+        let recorded = {
+            let (by, note) = (by.clone(), note.clone());
+            tokio::task::spawn_blocking(move || {
+                acknowledge(&dir, &by, note.as_deref(), chrono::Utc::now(), raise)
+            })
+            .await
+            .map_err(|_| StatusCode::BadInternalError)?
+        };
+        match recorded {
             Ok(_) => {
                 info!(by = %by, "inspection alarm acknowledged over OPC UA");
                 let _ = self.acks.try_send((by, note));
@@ -124,7 +134,7 @@ impl InMemoryNodeManagerImpl for MonitorNodes {
                 method.set_status(StatusCode::BadMethodInvalid);
                 continue;
             }
-            match self.acknowledge(&context.token.0, method.arguments()) {
+            match self.acknowledge(&context.token.0, method.arguments()).await {
                 Ok(()) => {
                     method.set_outputs(Vec::new());
                     method.set_status(StatusCode::Good);
