@@ -155,7 +155,9 @@ impl Alarm {
         // An acknowledgement appended since the last poll counts first: the flag it left behind
         // raises the alarm again, rather than finding it raised and being switched off with it.
         if let Some(path) = self.history.as_ref().map(|h| h.path().to_path_buf()) {
-            self.read_acknowledgements(&path);
+            // The light is switched once, below, as the layer leaves the alarm (not off, then on
+            // again for a new flag).
+            self.read_acknowledgements(&path, false);
         }
         let at_level = |f: &&crate::build_dir::inspection::Flag| f.severity >= self.level;
         let raised = record
@@ -220,11 +222,12 @@ impl Alarm {
         if self.history.is_none() {
             return;
         }
-        self.read_acknowledgements(&build_dir.join(crate::build_dir::ALARM));
+        self.read_acknowledgements(&build_dir.join(crate::build_dir::ALARM), true);
     }
 
-    /// Takes in the acknowledgements appended to the history at `path` since the last look.
-    fn read_acknowledgements(&mut self, path: &Path) {
+    /// Takes in the acknowledgements appended to the history at `path` since the last look, and
+    /// switches the light off for one when `drive`.
+    fn read_acknowledgements(&mut self, path: &Path, drive: bool) {
         let events = match AlarmLog::read(path) {
             Ok(events) => events,
             Err(e) => {
@@ -242,7 +245,9 @@ impl Alarm {
                 self.plant
                     .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
                 self.raised = false;
-                self.drive_light();
+                if drive {
+                    self.drive_light();
+                }
                 info!(by = %by, "inspection alarm off: acknowledged by {by}");
             }
         }
@@ -546,7 +551,8 @@ mod tests {
             ),
             "{events:?}"
         );
-        assert_eq!(lights.lock().unwrap().last(), Some(&(Light::Top, true)));
+        // On for layer 5, and on still for layer 6: not switched off and on again between.
+        assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
     }
 
     /// Refuses the switches it is told to refuse, in order (`false`: refuse), then obeys.

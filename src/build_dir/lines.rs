@@ -314,11 +314,23 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
         record: &T,
         check: impl FnOnce(&[T]) -> Result<(), E>,
     ) -> Result<Result<Vec<T>, E>, AppendIfError> {
-        if !self.try_lock().map_err(AppendIfError::Log)? {
-            return Err(AppendIfError::Busy {
-                path: self.path.clone(),
-            });
-        }
+        let locked = match self.try_lock() {
+            Ok(true) => true,
+            Ok(false) => {
+                return Err(AppendIfError::Busy {
+                    path: self.path.clone(),
+                })
+            }
+            // A file system without locks (NFS without lockd): checked and appended as before
+            // there were locks, with a warning.
+            Err(JournalError::Io { source, .. })
+                if matches!(source.raw_os_error(), Some(libc::ENOLCK | libc::EOPNOTSUPP)) =>
+            {
+                warn!(file = %self.path.display(), error = %crate::logging::Chain(&source), "cannot lock the log; the check and the append are not one step");
+                false
+            }
+            Err(e) => return Err(AppendIfError::Log(e)),
+        };
         let outcome = Self::read(&self.path)
             .map_err(AppendIfError::Log)
             .and_then(|records| match check(&records) {
@@ -327,7 +339,9 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
                     .map(|()| Ok(records))
                     .map_err(AppendIfError::Log),
             });
-        self.unlock();
+        if locked {
+            self.unlock();
+        }
         outcome
     }
 }
