@@ -279,15 +279,9 @@ pub fn acknowledge(
             _ => Ok(()),
         }
     };
-    // Nothing to acknowledge is said without opening the log for writing (no empty log is
-    // made, and a reader without write rights hears why).
-    let state = AlarmState::replay(&AlarmLog::read(&path).map_err(AckError::Log)?);
-    if !state.is_raised() {
-        return Err(AckError::NotRaised {
-            dir: dir.to_path_buf(),
-            state,
-        });
-    }
+    // What refuses it is said without opening the log for writing (no empty log is made, and
+    // a reader without write rights hears why); the check is made again under the lock.
+    check(&AlarmLog::read(&path).map_err(AckError::Log)?)?;
     let mut events = AlarmLog::append_only(&path)
         .map_err(AckError::Log)?
         .append_if(&ack, check)
