@@ -260,7 +260,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
             Err(e) => {
                 if !self.lock_failed {
                     self.lock_failed = true;
-                    warn!(file = %self.path.display(), error = %crate::logging::Chain(&e), "cannot lock the log; appending without its lock");
+                    warn!(file = %self.path.display(), error = %e, "cannot lock the log; appending without its lock");
                 }
                 false
             }
@@ -274,7 +274,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
 
     /// Takes the log's exclusive advisory lock (`flock`), waiting at most [`LOCK_WAIT`]: every
     /// writer of the log appends under it. False when another process kept it.
-    fn try_lock(&mut self) -> Result<bool, JournalError> {
+    fn try_lock(&mut self) -> std::io::Result<bool> {
         use std::os::fd::AsRawFd;
         let waited = std::time::Instant::now();
         loop {
@@ -289,12 +289,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
                 }
                 Some(libc::EWOULDBLOCK) => return Ok(false),
                 Some(libc::EINTR) => {}
-                _ => {
-                    return Err(JournalError::Io {
-                        path: self.path.clone(),
-                        source: e,
-                    })
-                }
+                _ => return Err(e),
             }
         }
     }
@@ -323,13 +318,16 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
             }
             // A file system without locks (NFS without lockd): checked and appended as before
             // there were locks, with a warning.
-            Err(JournalError::Io { source, .. })
-                if matches!(source.raw_os_error(), Some(libc::ENOLCK | libc::EOPNOTSUPP)) =>
-            {
-                warn!(file = %self.path.display(), error = %crate::logging::Chain(&source), "cannot lock the log; the check and the append are not one step");
+            Err(e) if matches!(e.raw_os_error(), Some(libc::ENOLCK | libc::EOPNOTSUPP)) => {
+                warn!(file = %self.path.display(), error = %e, "cannot lock the log; the check and the append are not one step");
                 false
             }
-            Err(e) => return Err(AppendIfError::Log(e)),
+            Err(source) => {
+                return Err(AppendIfError::Log(JournalError::Io {
+                    path: self.path.clone(),
+                    source,
+                }))
+            }
         };
         let outcome = Self::read(&self.path)
             .map_err(AppendIfError::Log)

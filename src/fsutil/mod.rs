@@ -2,9 +2,11 @@
 //! leaves the whole file or nothing under the final name), SHA-256 of file contents, and TOML
 //! files parsed with errors that name the file, the line and the key.
 
+mod identity;
 mod pending;
 mod writeback;
 
+pub use identity::FileIdentity;
 pub use pending::{write_pending_with, Pending};
 pub use writeback::WriteBehind;
 

@@ -190,7 +190,7 @@ fn page_state(dir: &Path, config: &WebConfig, stop: Shutdown) -> Result<Arc<Page
     // What is on disk already is read before the first request is answered.
     let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir));
     if let Err(e) = timeline.refresh(&mut tails) {
-        warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal yet");
+        warn!(dir = %dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the build's logs yet");
     }
     Ok(Arc::new(PageState {
         dir: dir.to_path_buf(),
@@ -296,7 +296,7 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
         };
         match read {
             Err(e) if !warned => {
-                warn!(dir = %shared.dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the journal");
+                warn!(dir = %shared.dir.display(), error = %crate::logging::Chain(&e), "page server: cannot read the build's logs");
                 warned = true;
             }
             Ok(more) => again = more,

@@ -24,15 +24,10 @@ pub fn validator(
     made_with: &str,
     max_px: u32,
 ) -> Option<String> {
-    use std::os::unix::fs::MetadataExt;
     let m = std::fs::symlink_metadata(original).ok()?;
     let key = format!(
-        "{}:{}:{}:{}.{}:{kind:?}:{region:?}:{made_with}:{max_px}",
-        m.dev(),
-        m.ino(),
-        m.size(),
-        m.mtime(),
-        m.mtime_nsec()
+        "{}:{kind:?}:{region:?}:{made_with}:{max_px}",
+        crate::fsutil::FileIdentity::of(&m)
     );
     Some(format!(
         "\"{}\"",

@@ -5,6 +5,7 @@ use super::preview::{Pictures, Rectification};
 use super::timeline::{Tails, Timeline};
 use crate::build_dir::status::{self, StatusReport};
 use crate::config::WebConfig;
+use crate::fsutil::FileIdentity;
 use crate::geometry::Grid;
 use crate::series::BuildRecord;
 use crate::shot::View;
@@ -94,9 +95,6 @@ pub(crate) struct PageState {
     pub stop: Shutdown,
 }
 
-/// A file as it is on disk: device, inode, size, modification time (s, ns).
-type FileIdentity = (u64, u64, u64, i64, i64);
-
 /// The build's settings as read: from which files (the configuration snapshot and the
 /// calibration copy, as they were), when, and what they gave.
 pub(crate) struct ReadInfo {
@@ -115,10 +113,9 @@ impl PageState {
     /// first, the calibration after it). Settings that could not be read are tried again after
     /// [`RETRY_SETTINGS`]. Pictures made with other settings are forgotten.
     pub fn info(&self) -> Option<Arc<BuildInfo>> {
-        use std::os::unix::fs::MetadataExt;
         let identity = |name: &str| {
             let m = std::fs::metadata(self.dir.join(name)).ok()?;
-            Some((m.dev(), m.ino(), m.size(), m.mtime(), m.mtime_nsec()))
+            Some(FileIdentity::of(&m))
         };
         let files = [
             identity(crate::build_dir::CONFIG_SNAPSHOT),

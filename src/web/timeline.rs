@@ -3,6 +3,8 @@
 //! full replay per update.
 
 use crate::build_dir::inspection::{BedRecord, Flag, InspectionRecord, Severity};
+use crate::build_dir::lines::open_read;
+use crate::build_dir::JournalError;
 use crate::build_dir::Record;
 use crate::shot::{Shot, View};
 use chrono::{DateTime, Utc};
@@ -117,16 +119,15 @@ impl Tail {
     /// place is refused at once, never waited on.
     fn read<T: serde::de::DeserializeOwned>(
         &mut self,
-    ) -> std::io::Result<(Option<Lines<T>>, bool)> {
-        let mut file = match crate::fsutil::open_regular_nofollow(&self.path) {
-            Ok(f) => f,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((None, false)),
-            Err(e) => return Err(e),
+    ) -> Result<(Option<Lines<T>>, bool), JournalError> {
+        let Some(mut file) = open_read(&self.path, self.max_bytes)? else {
+            return Ok((None, false));
         };
-        let len = file.metadata()?.len();
-        if len > self.max_bytes {
-            return Err(crate::fsutil::too_large(len, self.max_bytes));
-        }
+        let io = |source| JournalError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let len = file.metadata().map_err(io)?.len();
         let restarted = len < self.offset;
         if restarted {
             self.offset = 0;
@@ -143,9 +144,9 @@ impl Tail {
             return Ok((nothing(restarted), false));
         }
         let want = (len - self.offset).min(self.max_read);
-        file.seek(SeekFrom::Start(self.offset))?;
+        file.seek(SeekFrom::Start(self.offset)).map_err(io)?;
         let mut data = Vec::with_capacity(want as usize);
-        file.take(want).read_to_end(&mut data)?;
+        file.take(want).read_to_end(&mut data).map_err(io)?;
         // A whole read: there may be more after it (a file cut meanwhile gives less).
         let full = data.len() as u64 == self.max_read;
         let got = data.len() as u64;
@@ -238,10 +239,10 @@ impl Tails {
     /// Reads what was appended to the journal and the inspection log since the last call. A
     /// file that shrank (a torn tail cut on restart) is read again from the start. Only complete
     /// lines are taken. What one log gave is kept when the other cannot be read (the error).
-    pub fn read(&mut self) -> (Appended, Option<std::io::Error>) {
+    pub fn read(&mut self) -> (Appended, Option<JournalError>) {
         fn take<T>(
-            read: std::io::Result<(Option<Lines<T>>, bool)>,
-            error: &mut Option<std::io::Error>,
+            read: Result<(Option<Lines<T>>, bool), JournalError>,
+            error: &mut Option<JournalError>,
         ) -> (Option<Lines<T>>, bool) {
             read.unwrap_or_else(|e| {
                 error.get_or_insert(e);
@@ -279,7 +280,7 @@ pub struct Timeline {
 impl Timeline {
     /// Reads with `tails` to the logs' ends, [`MAX_READ`] at a time, and applies what they
     /// found: true when anything changed.
-    pub fn refresh(&mut self, tails: &mut Tails) -> std::io::Result<bool> {
+    pub fn refresh(&mut self, tails: &mut Tails) -> Result<bool, JournalError> {
         let mut changed = false;
         loop {
             let (appended, error) = tails.read();
@@ -573,8 +574,12 @@ mod tests {
         file.set_len(crate::build_dir::lines::MAX_JOURNAL_BYTES + 1)
             .unwrap();
         let (mut timeline, mut tails) = (Timeline::default(), Tails::new(dir.path()));
-        let err = timeline.refresh(&mut tails).unwrap_err();
-        assert!(err.to_string().contains("larger than"), "{err}");
+        let err = crate::logging::Chain(&timeline.refresh(&mut tails).unwrap_err()).to_string();
+        assert!(err.contains("larger than"), "{err}");
+        assert!(
+            err.contains(&path.display().to_string()),
+            "names the file: {err}"
+        );
         assert_eq!(tails.journal.offset, 0, "nothing read");
     }
 
