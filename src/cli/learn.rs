@@ -433,23 +433,33 @@ pub struct CvArgs {
     #[arg(long, default_value_t = 4)]
     folds: usize,
     /// One JSON object: rule, seed, folds (each: fold, given, held_out, left_out, epochs_run,
-    /// best_epoch, stopped, seconds, metrics) and pooled (accuracy, macro_recall, classes,
-    /// per_class, confusion), never_held_out.
+    /// best_epoch, stopped, refit_on, seconds, metrics) and pooled (accuracy, macro_recall, classes,
+    /// per_class, confusion), never_held_out, seed, refit.
     #[arg(long)]
     json: bool,
     #[command(flatten)]
     training: TrainingArgs,
+    /// Each fold's model as `learn train --refit` makes it: its epoch chosen on the tail of
+    /// what it is given, then trained afresh on all it is given (measures the refit on
+    /// pictures it never saw).
+    #[arg(long)]
+    refit: bool,
 }
 
 impl CvArgs {
     fn run(self) -> Result<()> {
-        let opts = self.training.options(false)?;
+        let opts = self.training.options(self.refit)?;
         let data = learn::source::open(&self.data, opts.normal.as_deref())?;
         eprintln!(
-            "{}, {} folds by {}",
+            "{}, {} folds by {}{}",
             data_line(&self.data, &data),
             self.folds,
-            learn::crossval::RULE
+            learn::crossval::RULE,
+            if self.refit {
+                ", each fold's model refit"
+            } else {
+                ""
+            }
         );
         let json = self.json;
         let cv = learn::cross_validate(
@@ -458,8 +468,11 @@ impl CvArgs {
             self.folds,
             |fold, e| eprintln!("fold {fold}: {}", epoch_line(e)),
             |f| {
+                let refit = f
+                    .refit_on
+                    .map_or(String::new(), |n| format!(", refit on {n}"));
                 let line = format!(
-                    "fold {}/{}: given {}, held out {}, left out {}; epoch {} of {} ({}), {:.0} s: accuracy {:.3}, macro recall {:.3}",
+                    "fold {}/{}: given {}, held out {}, left out {}; epoch {} of {} ({}){refit}, {:.0} s: accuracy {:.3}, macro recall {:.3}",
                     f.fold, self.folds, f.given, f.held_out, f.left_out, f.best_epoch, f.epochs_run,
                     f.stopped, f.seconds, f.metrics.accuracy, f.metrics.macro_recall
                 );

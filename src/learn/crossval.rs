@@ -8,8 +8,9 @@
 //! 2 frames for sequences of 20 or more, else 1; patches: the layer on either side, and every
 //! patch of a flaw that reaches the held-out layers), and a model is trained on the rest exactly
 //! as `learn train` trains one (its epoch chosen on the tail of what it was given, never on the
-//! held-out block). Each fold's model classifies its held-out block; the pooled confusion matrix
-//! covers every picture once.
+//! held-out block; with `refit`, then trained afresh on all it was given for that many epochs, as
+//! `learn train --refit` does). Each fold's model classifies its held-out block; the pooled
+//! confusion matrix covers every picture once.
 
 use super::data::{guard_frames, DataKind, Dataset, Item, Part};
 use super::error::LearnError;
@@ -36,6 +37,8 @@ pub struct FoldReport {
     pub epochs_run: usize,
     pub best_epoch: usize,
     pub stopped: String,
+    /// With `refit`: the pictures the refit trained on (all the fold was given).
+    pub refit_on: Option<usize>,
     pub seconds: f64,
     /// On the held-out block.
     pub metrics: Metrics,
@@ -52,6 +55,8 @@ pub struct CrossValidation {
     /// Pictures never held out (sequences too short to be cut into blocks).
     pub never_held_out: usize,
     pub seed: u64,
+    /// Each fold's model was refit on all it was given once its epoch was chosen.
+    pub refit: bool,
 }
 
 /// The parts of fold `k` (0-based) of `folds`: block k held out, its neighbours left out.
@@ -161,6 +166,7 @@ pub fn cross_validate(
             epochs_run,
             best_epoch,
             stopped,
+            refit,
             ..
         } = model.header.training;
         let report = FoldReport {
@@ -171,6 +177,7 @@ pub fn cross_validate(
             epochs_run,
             best_epoch,
             stopped,
+            refit_on: refit.map(|r| r.counts.values().sum()),
             seconds: started.elapsed().as_secs_f64(),
             metrics: Metrics::new(&data.classes, &fold_pairs),
         };
@@ -184,6 +191,7 @@ pub fn cross_validate(
         pooled: Metrics::new(&data.classes, &pairs),
         never_held_out: held_once.iter().filter(|h| !**h).count(),
         seed: opts.seed,
+        refit: opts.refit,
     })
 }
 

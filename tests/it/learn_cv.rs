@@ -1,7 +1,7 @@
 //! `layerwise learn cv` through the binary on generated class folders: every picture is held out
 //! once, by blocks of its sequence with the neighbouring frames left out; each fold's figures and
-//! the pooled confusion matrix come out as text and as JSON; a fold count the data cannot give
-//! is refused with the range.
+//! the pooled confusion matrix come out as text and as JSON; `--refit` refits each fold's model on
+//! all it was given; a fold count the data cannot give is refused with the range.
 
 use crate::common::*;
 
@@ -26,6 +26,7 @@ fn cross_validation_holds_out_every_picture_once_by_sequence_blocks() {
 
     let report = cv(&data, &["--folds", "3", "--json"]).json_ok();
     assert_eq!(report["rule"], "sequence-blocks", "{report}");
+    assert_eq!(report["refit"], false, "{report}");
     assert_eq!(report["never_held_out"], 0, "{report}");
     let folds = report["folds"].as_array().unwrap();
     assert_eq!(folds.len(), 3, "{report}");
@@ -34,6 +35,7 @@ fn cross_validation_holds_out_every_picture_once_by_sequence_blocks() {
         assert_eq!(fold["held_out"], held, "{fold}");
         assert_eq!(fold["left_out"], left, "{fold}");
         assert_eq!(fold["given"], 90 - held - left, "{fold}");
+        assert!(fold["refit_on"].is_null(), "{fold}");
         let m = &fold["metrics"];
         let total: u64 = m["confusion"]
             .as_array()
@@ -81,6 +83,23 @@ fn cross_validation_holds_out_every_picture_once_by_sequence_blocks() {
     );
     assert!(text.contains("pooled over 3 folds"), "{text}");
     assert!(text.contains(&pooled_line), "{pooled_line} in {text}");
+
+    // --refit: each fold's model, its epoch chosen, is trained again on all it was given, and
+    // still classifies only the block it never saw.
+    let refit = cv(&data, &["--folds", "3", "--json", "--refit"]).json_ok();
+    assert_eq!(refit["refit"], true, "{refit}");
+    for (fold, plain) in refit["folds"].as_array().unwrap().iter().zip(folds) {
+        assert_eq!(fold["refit_on"], plain["given"], "{fold}");
+        assert_eq!(fold["held_out"], plain["held_out"], "{fold}");
+        assert_eq!(
+            fold["best_epoch"], plain["best_epoch"],
+            "the same selection run: {fold}"
+        );
+    }
+    assert!(
+        refit["pooled"]["accuracy"].as_f64().unwrap() >= 0.5,
+        "{refit}"
+    );
 
     let refused = cv(&data, &["--folds", "31"]).fails();
     assert!(refused.contains("31 folds need 2 to 30"), "{refused}");
