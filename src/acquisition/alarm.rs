@@ -6,6 +6,7 @@
 
 use crate::build_dir::alarm::{AlarmEvent, AlarmLog, AlarmState};
 use crate::build_dir::inspection::{InspectionRecord, Severity};
+use crate::build_dir::lines::AppendIfError;
 use crate::build_dir::JournalError;
 use crate::clock::SharedClock;
 use crate::config::inspection::{AlarmConfig, AlarmSerialConfig, AlarmSeverity};
@@ -200,7 +201,9 @@ impl Alarm {
     /// A new flag while the alarm is raised raises nothing, unless an acknowledgement landed
     /// since the history was read: that is checked, and the raise appended, under
     /// `alarm.jsonl`'s lock, so an acknowledgement can never land between the two and take
-    /// this flag with the raise it acknowledged.
+    /// this flag with the raise it acknowledged. A lock another process keeps past its wait is
+    /// not waited for (the check and the raise are made without it: a raise is never held
+    /// back); a raise that cannot be written still switches the alarm on.
     fn raise_unless_raised(
         &mut self,
         record: &InspectionRecord,
@@ -210,25 +213,49 @@ impl Alarm {
         let Some(log) = self.history.as_mut() else {
             return self.drive_light();
         };
+        let path = log.path().to_path_buf();
         let event = raise_event(record, flag, now);
+        let mut passed = None;
         let appended = log.append_if(&event, |events| {
             if AlarmState::replay(events).is_raised() {
-                Err(())
-            } else {
-                Ok(())
+                return Err(());
             }
+            passed = Some(events.to_vec());
+            Ok(())
         });
-        match appended {
-            Ok(Ok(before)) => {
+        match (appended, passed) {
+            (Ok(Ok(before)), _) => {
                 self.take_acknowledgements(&before, false);
                 self.seen += 1;
                 self.plant
                     .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
                 self.announce(record, flag);
             }
-            // Still raised (or the history cannot tell: the next poll reads it again).
-            Ok(Err(())) => self.drive_light(),
-            Err(e) => {
+            (Err(AppendIfError::Log(e)), Some(before)) => {
+                error!(error = %Chain(&e), "inspection alarm: cannot write its history");
+                self.take_acknowledgements(&before, false);
+                self.plant
+                    .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
+                self.announce(record, flag);
+            }
+            (Err(AppendIfError::Busy { .. }), _) => {
+                warn!(file = %path.display(), "inspection alarm: another process keeps the history's lock; checking for an acknowledgement without it");
+                match AlarmLog::read(&path) {
+                    Ok(events) if !AlarmState::replay(&events).is_raised() => {
+                        self.take_acknowledgements(&events, false);
+                        self.announce(record, flag);
+                        self.journal(event);
+                    }
+                    Ok(_) => self.drive_light(),
+                    Err(e) => {
+                        error!(error = %Chain(&e), "inspection alarm: cannot read its history");
+                        self.drive_light();
+                    }
+                }
+            }
+            // Still raised.
+            (Ok(Err(())), _) => self.drive_light(),
+            (Err(e), _) => {
                 error!(error = %Chain(&e), "inspection alarm: cannot check its history for an acknowledgement");
                 self.drive_light();
             }

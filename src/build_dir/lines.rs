@@ -255,6 +255,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
     /// is not waited for, nor a file system that has no locks: the record is appended all the
     /// same (a raise is never held back).
     pub fn append(&mut self, record: &T) -> Result<(), JournalError> {
+        self.follow_path();
         let locked = match self.try_lock() {
             Ok(locked) => locked,
             Err(e) => {
@@ -294,6 +295,26 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
         }
     }
 
+    /// A log replaced at its path (repaired with `sed -i`, renamed over) or removed is written
+    /// at its path again, where its readers and other writers look, not into the file that was
+    /// there. A path that cannot be opened leaves the log as it was.
+    fn follow_path(&mut self) {
+        use std::os::unix::fs::MetadataExt;
+        let ours = self.file.metadata().ok().map(|m| (m.dev(), m.ino()));
+        let here = match std::fs::metadata(&self.path) {
+            Ok(m) => Some((m.dev(), m.ino())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(_) => return,
+        };
+        if here.is_some() && here == ours {
+            return;
+        }
+        if let Ok(file) = open_append(&self.path) {
+            warn!(file = %self.path.display(), "the log was replaced or removed: appending to the file now at its path");
+            self.file = file;
+        }
+    }
+
     fn unlock(&mut self) {
         use std::os::fd::AsRawFd;
         // SAFETY: flock on a descriptor this log owns.
@@ -309,6 +330,7 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
         record: &T,
         check: impl FnOnce(&[T]) -> Result<(), E>,
     ) -> Result<Result<Vec<T>, E>, AppendIfError> {
+        self.follow_path();
         let locked = match self.try_lock() {
             Ok(true) => true,
             Ok(false) => {
@@ -319,7 +341,10 @@ impl<T: Serialize + serde::de::DeserializeOwned> LinesLog<T> {
             // A file system without locks (NFS without lockd): checked and appended as before
             // there were locks, with a warning.
             Err(e) if matches!(e.raw_os_error(), Some(libc::ENOLCK | libc::EOPNOTSUPP)) => {
-                warn!(file = %self.path.display(), error = %e, "cannot lock the log; the check and the append are not one step");
+                if !self.lock_failed {
+                    self.lock_failed = true;
+                    warn!(file = %self.path.display(), error = %e, "cannot lock the log; the check and the append are not one step");
+                }
                 false
             }
             Err(source) => {
@@ -421,5 +446,33 @@ mod tests {
         let mut daemon = LinesLog::<Value>::append_only(&path).unwrap();
         daemon.append(&json!({"raise": 3})).unwrap();
         assert_eq!(LinesLog::<Value>::read(&path).unwrap().len(), 1);
+    }
+
+    /// Before, a writer kept appending to the file it had opened after the log was replaced at
+    /// its path (a damaged line repaired with `sed -i`): its records went into an unlinked
+    /// file that nobody reads, and its checks read one file while it wrote another.
+    #[test]
+    fn a_log_replaced_or_removed_at_its_path_is_written_at_its_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("alarm.jsonl");
+        let (mut daemon, _) = LinesLog::<Value>::open(&path, false).unwrap();
+        daemon.append(&json!({"raise": 1})).unwrap();
+        let repaired = dir.path().join("alarm.jsonl.new");
+        std::fs::write(&repaired, "{\"raise\":1}\n").unwrap();
+        std::fs::rename(&repaired, &path).unwrap();
+        daemon.append(&json!({"clear": 2})).unwrap();
+        let seen = daemon
+            .append_if(&json!({"raise": 3}), |seen| match seen.len() {
+                2 => Ok(()),
+                n => Err(n),
+            })
+            .unwrap();
+        assert_eq!(seen, Ok(vec![json!({"raise": 1}), json!({"clear": 2})]));
+        std::fs::remove_file(&path).unwrap();
+        daemon.append(&json!({"raise": 4})).unwrap();
+        assert_eq!(
+            LinesLog::<Value>::read(&path).unwrap(),
+            vec![json!({"raise": 4})]
+        );
     }
 }

@@ -434,7 +434,7 @@ pub struct CvArgs {
     folds: usize,
     /// One JSON object: rule, seed, folds (each: fold, given, held_out, left_out, epochs_run,
     /// best_epoch, stopped, refit_on, seconds, metrics) and pooled (accuracy, macro_recall, classes,
-    /// per_class, confusion), never_held_out, seed, refit.
+    /// per_class, confusion), never_held_out, refit.
     #[arg(long)]
     json: bool,
     #[command(flatten)]

@@ -228,6 +228,48 @@ fn an_acknowledgement_that_lands_while_a_layer_is_decided_does_not_take_its_flag
     assert_eq!(AlarmLog::read(&path).unwrap().len(), events.len());
 }
 
+/// The same, while another process keeps `alarm.jsonl`'s lock past the wait: the check and the
+/// raise are made without it, not given up (the flag was lost).
+#[test]
+fn a_lock_kept_by_another_process_does_not_hold_back_the_raise_after_an_acknowledgement() {
+    use std::io::Write;
+    use std::os::fd::AsRawFd;
+    let dir = tempfile::tempdir().unwrap();
+    let lights = Arc::new(Mutex::new(Vec::new()));
+    let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
+    alarm.resume(dir.path(), false).unwrap();
+    alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+    let path = dir.path().join(crate::build_dir::ALARM);
+    alarm.read_acknowledgements(&path, false);
+    let mut other = std::fs::OpenOptions::new()
+        .append(true)
+        .open(&path)
+        .unwrap();
+    // SAFETY: flock on a descriptor this test owns.
+    assert_eq!(
+        unsafe { libc::flock(other.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) },
+        0
+    );
+    let ack = AlarmEvent::Acknowledged {
+        at: at(),
+        by: "ana".into(),
+        note: None,
+    };
+    writeln!(other, "{}", serde_json::to_string(&ack).unwrap()).unwrap();
+    alarm.decide(&record(6, Some(Severity::Critical)), at());
+    let events = AlarmLog::read(&path).unwrap();
+    assert!(
+        matches!(
+            AlarmState::replay(&events),
+            AlarmState::Raised { layer: 6, .. }
+        ),
+        "{events:?}"
+    );
+    alarm.poll_acknowledgements(dir.path());
+    assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
+    drop(other);
+}
+
 /// Refuses the switches it is told to refuse, in order (`false`: refuse), then obeys.
 struct Flaky {
     log: Arc<Mutex<Vec<(Light, bool)>>>,
