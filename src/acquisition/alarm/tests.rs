@@ -164,27 +164,35 @@ fn one_message_per_raise_an_acknowledgement_switches_off_and_a_restart_relights(
     ));
 }
 
+/// `alarm` on `dir`'s history, raised by layer 5's critical flag; the history's path.
+fn raised_by_layer_5(dir: &Path, mut alarm: Alarm) -> (Alarm, PathBuf) {
+    alarm.resume(dir, false).unwrap();
+    alarm.after_layer(&record(5, Some(Severity::Critical)), at());
+    (alarm, dir.join(crate::build_dir::ALARM))
+}
+
+/// The history at `path`, which must say the alarm is raised since `layer`.
+fn assert_raised_since(path: &Path, layer: u32) -> Vec<AlarmEvent> {
+    let events = AlarmLog::read(path).unwrap();
+    assert!(
+        matches!(AlarmState::replay(&events), AlarmState::Raised { layer: l, .. } if l == layer),
+        "{events:?}"
+    );
+    events
+}
+
 /// Before, the flag of the layer after an acknowledgement that the half-second poll had not
 /// read yet found the alarm raised, raised nothing, and the poll then switched it off.
 #[test]
 fn an_acknowledgement_not_polled_yet_does_not_swallow_the_next_layers_flag() {
     let dir = tempfile::tempdir().unwrap();
     let lights = Arc::new(Mutex::new(Vec::new()));
-    let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
-    alarm.resume(dir.path(), false).unwrap();
-    alarm.after_layer(&record(5, Some(Severity::Critical)), at());
-    let path = dir.path().join(crate::build_dir::ALARM);
+    let alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
+    let (mut alarm, path) = raised_by_layer_5(dir.path(), alarm);
     acknowledge(&path);
     alarm.after_layer(&record(6, Some(Severity::Critical)), at());
     alarm.poll_acknowledgements(dir.path());
-    let events = AlarmLog::read(&path).unwrap();
-    assert!(
-        matches!(
-            AlarmState::replay(&events),
-            AlarmState::Raised { layer: 6, .. }
-        ),
-        "{events:?}"
-    );
+    assert_raised_since(&path, 6);
     // On for layer 5, and on still for layer 6: not switched off and on again between.
     assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
 }
@@ -199,23 +207,14 @@ fn an_acknowledgement_that_lands_while_a_layer_is_decided_does_not_take_its_flag
     let sent = Arc::new(Mutex::new(Vec::new()));
     let config: AlarmConfig =
         toml::from_str(r#"serial = { port = "/dev/null", message = "ALARM {layer}\n" }"#).unwrap();
-    let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config)
+    let alarm = Alarm::new(Box::new(Recorder(lights.clone())), &config)
         .with_message(Some(Box::new(Printer(sent.clone()))), &config);
-    alarm.resume(dir.path(), false).unwrap();
-    alarm.after_layer(&record(5, Some(Severity::Critical)), at());
-    let path = dir.path().join(crate::build_dir::ALARM);
+    let (mut alarm, path) = raised_by_layer_5(dir.path(), alarm);
     // Layer 6's history read found layer 5's raise open; the acknowledgement lands now.
     alarm.read_acknowledgements(&path, false);
     acknowledge(&path);
     alarm.decide(&record(6, Some(Severity::Critical)), at());
-    let events = AlarmLog::read(&path).unwrap();
-    assert!(
-        matches!(
-            AlarmState::replay(&events),
-            AlarmState::Raised { layer: 6, .. }
-        ),
-        "{events:?}"
-    );
+    let events = assert_raised_since(&path, 6);
     assert_eq!(
         String::from_utf8_lossy(&sent.lock().unwrap()),
         "ALARM 5\nALARM 6\n"
@@ -236,10 +235,8 @@ fn a_lock_kept_by_another_process_does_not_hold_back_the_raise_after_an_acknowle
     use std::os::fd::AsRawFd;
     let dir = tempfile::tempdir().unwrap();
     let lights = Arc::new(Mutex::new(Vec::new()));
-    let mut alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
-    alarm.resume(dir.path(), false).unwrap();
-    alarm.after_layer(&record(5, Some(Severity::Critical)), at());
-    let path = dir.path().join(crate::build_dir::ALARM);
+    let alarm = Alarm::new(Box::new(Recorder(lights.clone())), &AlarmConfig::default());
+    let (mut alarm, path) = raised_by_layer_5(dir.path(), alarm);
     alarm.read_acknowledgements(&path, false);
     let mut other = std::fs::OpenOptions::new()
         .append(true)
@@ -257,14 +254,7 @@ fn a_lock_kept_by_another_process_does_not_hold_back_the_raise_after_an_acknowle
     };
     writeln!(other, "{}", serde_json::to_string(&ack).unwrap()).unwrap();
     alarm.decide(&record(6, Some(Severity::Critical)), at());
-    let events = AlarmLog::read(&path).unwrap();
-    assert!(
-        matches!(
-            AlarmState::replay(&events),
-            AlarmState::Raised { layer: 6, .. }
-        ),
-        "{events:?}"
-    );
+    assert_raised_since(&path, 6);
     alarm.poll_acknowledgements(dir.path());
     assert_eq!(*lights.lock().unwrap(), vec![(Light::Top, true)]);
     drop(other);
