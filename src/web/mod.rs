@@ -53,6 +53,14 @@ const STATUS_PERIOD: Duration = Duration::from_secs(1);
 /// shows count on and a daemon that died is shown stopped.
 const STATUS_STALE: Duration = Duration::from_secs(5);
 
+/// How long after a status report the next one waits unless it is urgent: [`STATUS_PERIOD`], or
+/// ten times what the last one took (it replays the journal: 0.3-0.5 s at 12 000 layers), so
+/// that remaking it takes at most a tenth of a core on a long build; never more than
+/// [`STATUS_STALE`].
+fn status_gap(took: Duration) -> Duration {
+    (took * 10).clamp(STATUS_PERIOD, STATUS_STALE)
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum WebError {
     #[error("cannot listen on {addr} (set web.listen to a free address, or \"\" for no page)")]
@@ -227,7 +235,7 @@ pub fn read_token(path: &Path) -> Result<String, WebError> {
 
 /// Looks at the journal, the inspection and alarm logs and status.json when they change (as the
 /// system tells: [`wake`]) and every `period` ([`WATCH_PERIOD`]) besides; when they changed, reads
-/// what is new, remakes the status (at most every [`STATUS_PERIOD`],
+/// what is new, remakes the status (at most every [`STATUS_PERIOD`] or [`status_gap`],
 /// at least every [`STATUS_STALE`]; at once when the inspection or alarm log grew: a layer's
 /// flags or an alarm wait for no period), tells the open pages, and makes the newest layer's
 /// previews ahead of their request.
@@ -255,6 +263,7 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
     // The journal's length, the inspection and alarm logs' lengths, status.json's time.
     let mut seen: Option<(u64, u64, Option<SystemTime>)> = None;
     let mut status_at: Option<Instant> = None;
+    let mut gap = STATUS_PERIOD;
     let mut pending = true;
     let mut warned = false;
     let preparing = Arc::new(std::sync::atomic::AtomicBool::new(false));
@@ -312,13 +321,15 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
             seen = Some(looks);
             pending = true;
         }
-        if !pending || (!urgent && status_at.is_some_and(|t| t.elapsed() < STATUS_PERIOD)) {
+        if !pending || (!urgent && status_at.is_some_and(|t| t.elapsed() < gap)) {
             continue;
         }
         pending = false;
-        status_at = Some(Instant::now());
+        let started = Instant::now();
+        status_at = Some(started);
         let s = shared.clone();
         let _ = tokio::task::spawn_blocking(move || s.refresh_status()).await;
+        gap = status_gap(started.elapsed());
         shared.updates.send_modify(|v| *v += 1);
         // The newest previews are made beside the watch, one batch at a time.
         if !preparing.swap(true, std::sync::atomic::Ordering::SeqCst) {
@@ -335,6 +346,14 @@ async fn watch_build(shared: Arc<PageState>, period: Duration) {
 mod tests {
     use super::*;
     use std::io::Write;
+
+    #[test]
+    fn a_slow_status_report_is_remade_less_often_but_never_staler_than_its_bound() {
+        let ms = Duration::from_millis;
+        assert_eq!(status_gap(ms(20)), STATUS_PERIOD, "a short build");
+        assert_eq!(status_gap(ms(350)), ms(3500), "a tenth of a core");
+        assert_eq!(status_gap(ms(2000)), STATUS_STALE);
+    }
 
     #[test]
     fn a_layers_flags_reach_the_pages_without_waiting_for_the_look_period() {
