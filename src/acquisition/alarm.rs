@@ -226,17 +226,14 @@ impl Alarm {
         match (appended, passed) {
             (Ok(Ok(before)), _) => {
                 self.take_acknowledgements(&before, false);
+                // The raise just appended.
                 self.seen += 1;
-                self.plant
-                    .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
-                self.announce(record, flag);
+                self.raise_again(record, flag, event);
             }
             (Err(AppendIfError::Log(e)), Some(before)) => {
                 error!(error = %Chain(&e), "inspection alarm: cannot write its history");
                 self.take_acknowledgements(&before, false);
-                self.plant
-                    .emit(|| crate::plant::PlantEvent::Alarm(event.clone()));
-                self.announce(record, flag);
+                self.raise_again(record, flag, event);
             }
             (Err(AppendIfError::Busy { .. }), _) => {
                 warn!(file = %path.display(), "inspection alarm: another process keeps the history's lock; checking for an acknowledgement without it");
@@ -260,6 +257,17 @@ impl Alarm {
                 self.drive_light();
             }
         }
+    }
+
+    /// Tells the plant of `event`, the raise of `flag` after an acknowledgement, and switches on.
+    fn raise_again(
+        &mut self,
+        record: &InspectionRecord,
+        flag: &crate::build_dir::inspection::Flag,
+        event: AlarmEvent,
+    ) {
+        self.plant.emit(|| crate::plant::PlantEvent::Alarm(event));
+        self.announce(record, flag);
     }
 
     /// Switches on for `flag` and sends the printer its message.
